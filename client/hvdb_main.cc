@@ -1,0 +1,909 @@
+// hvdb: the command line of the 3D-video database, embedded on a data directory like sqlite3.
+//
+//   hvdb --data DIR create walk --fps 29.97
+//   hvdb --data DIR import walk --frame 0 --units-scale 0.01 f380.ply f381.ply
+//   hvdb --data DIR window walk --box -2 2 -2 2 -2 2 0 1 --out all.ply
+//   hvdb --data DIR slice walk --normal 0 0 0 1 --offset 0.0334 --thickness 0.01 --json
+//
+// Positions are metres, times seconds (frame / fps). Exit status: 0 success, 1 an error from
+// the database or a file (printed as "hvdb: <status>"), 2 a usage error.
+#include <unistd.h>
+
+#include <CLI/CLI.hpp>
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <cstdarg>
+#include <cstdint>
+#include <cstdio>
+#include <exception>
+#include <filesystem>
+#include <iostream>
+#include <map>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "client/ply.h"
+#include "storage/database.h"
+#include "storage/status.h"
+
+namespace hvdb {
+namespace {
+
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+using Clock = std::chrono::steady_clock;
+
+constexpr int kExitOk = 0;
+constexpr int kExitError = 1;
+constexpr int kExitUsage = 2;
+
+double MsSince(Clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+std::string Printf(const char* fmt, ...) __attribute__((format(printf, 1, 2)));
+std::string Printf(const char* fmt, ...) {
+  char buf[512];
+  va_list ap;
+  va_start(ap, fmt);
+  int n = std::vsnprintf(buf, sizeof(buf), fmt, ap);
+  va_end(ap);
+  return std::string(buf, static_cast<size_t>(std::clamp(n, 0, static_cast<int>(sizeof(buf) - 1))));
+}
+
+// "12.3k", "4.56M": for rates on the progress bar.
+std::string Human(double v) {
+  if (v >= 1e9) return Printf("%.2fG", v / 1e9);
+  if (v >= 1e6) return Printf("%.2fM", v / 1e6);
+  if (v >= 1e3) return Printf("%.1fk", v / 1e3);
+  return Printf("%.0f", v);
+}
+
+std::string Duration(double seconds) {
+  auto s = static_cast<long long>(std::llround(std::max(0.0, seconds)));
+  if (s >= 3600) return Printf("%lldh%02lldm", s / 3600, s / 60 % 60);
+  if (s >= 60) return Printf("%lldm%02llds", s / 60, s % 60);
+  return Printf("%llds", s);
+}
+
+void PrintJson(const json& j) {
+  // Messages from the engine may quote file bytes: replace what is not UTF-8, never throw.
+  std::cout << j.dump(-1, ' ', false, json::error_handler_t::replace) << "\n";
+}
+
+int Fail(const Status& s) {
+  std::cerr << "hvdb: " << s.ToString() << "\n";
+  return kExitError;
+}
+
+int Usage(const std::string& command, const std::string& msg) {
+  std::cerr << "hvdb: " << command << ": " << msg << "\nRun 'hvdb " << command
+            << " --help' for usage.\n";
+  return kExitUsage;
+}
+
+// Frames done / total, points per second and time left, redrawn in place on stderr. Only when
+// stderr is a terminal: redirected output gets no carriage-return noise.
+class ProgressBar {
+ public:
+  explicit ProgressBar(uint64_t total)
+      : enabled_(isatty(STDERR_FILENO) != 0), total_(total), start_(Clock::now()) {}
+  ~ProgressBar() { Clear(); }
+  ProgressBar(const ProgressBar&) = delete;
+  ProgressBar& operator=(const ProgressBar&) = delete;
+
+  void Update(uint64_t done, uint64_t points) {
+    if (!enabled_) return;
+    double s = MsSince(start_) / 1e3;
+    constexpr uint64_t kWidth = 24;
+    uint64_t filled = total_ ? kWidth * std::min(done, total_) / total_ : kWidth;
+    std::string bar(filled, '#');
+    bar.append(kWidth - filled, '.');
+    std::string eta = done > 0 ? Duration(s / static_cast<double>(done) *
+                                          static_cast<double>(total_ - std::min(done, total_)))
+                               : "?";
+    std::string rate = s > 0 ? Human(static_cast<double>(points) / s) : "-";
+    std::fprintf(stderr, "\r[%s] %llu/%llu frames  %s pts/s  ETA %s\033[K", bar.c_str(),
+                 static_cast<unsigned long long>(done), static_cast<unsigned long long>(total_),
+                 rate.c_str(), eta.c_str());
+    std::fflush(stderr);
+    drawn_ = true;
+  }
+  void Clear() {
+    if (drawn_) std::fputs("\r\033[K", stderr);
+    drawn_ = false;
+  }
+
+ private:
+  bool enabled_;
+  bool drawn_ = false;
+  uint64_t total_;
+  Clock::time_point start_;
+};
+
+// ---------------------------------------------------------------------------------------------
+// Arguments, filled in by CLI11.
+
+struct GlobalArgs {
+  std::string data = "./data";
+  size_t cache_mb = 256;
+  std::string server;
+};
+
+struct CreateArgs {
+  std::string name;
+  double fps = 0;
+  double scale = 1.0;
+  uint32_t frames = 0;
+};
+
+struct ImportArgs {
+  std::string name;
+  uint32_t frame = 0;
+  std::vector<std::string> files;
+  double units_scale = 1.0;
+  double sigma = 0.005;
+  bool keep_ids = false;
+  bool json = false;
+};
+
+struct QueryArgs {
+  std::string name;
+  int lod = 0;
+  bool progressive = false;
+  uint32_t label_mask = 0;
+  std::string out;
+  bool ascii = false;
+  bool json = false;
+};
+
+struct WindowArgs {
+  QueryArgs q;
+  std::vector<double> box;
+};
+
+struct SliceArgs {
+  QueryArgs q;
+  std::vector<double> normal;
+  double offset = 0;
+  double thickness = 0;
+  bool clip_frames = false;
+  uint32_t max_frames = 0;
+  std::vector<double> clip_box;
+};
+
+struct EditArgs {
+  std::string name;
+  std::vector<double> delete_box, label_box, box, translate;
+  std::optional<uint32_t> set_label, clear_label;
+  uint32_t where_label = 0;
+  std::string paste;
+  std::optional<uint32_t> paste_frame;
+  double units_scale = 1.0;
+  bool json = false;
+  // To apply the operations in command-line order.
+  CLI::Option *delete_opt = nullptr, *label_opt = nullptr, *box_opt = nullptr,
+              *translate_opt = nullptr, *paste_opt = nullptr;
+};
+
+struct UndoArgs {
+  std::string name;
+  uint64_t lsn = 0;
+  bool json = false;
+};
+
+struct NameArgs {  // datasets, describe, stats, check
+  std::string name;
+  bool json = false;
+};
+
+// A --box X0 X1 Y0 Y1 Z0 Z1 T0 T1 as a Window; nullopt (after a usage message) if malformed.
+std::optional<Window> BoxToWindow(const std::vector<double>& v, const std::string& command,
+                                  const std::string& option, int* rc) {
+  if (v.size() != 8) {
+    *rc = Usage(command, option + " takes 8 numbers X0 X1 Y0 Y1 Z0 Z1 T0 T1 (given once)");
+    return std::nullopt;
+  }
+  Window w;
+  static constexpr const char* kAxes[] = {"X", "Y", "Z", "T"};
+  for (int i = 0; i < 4; ++i) {
+    w.lo[i] = v[2 * i];
+    w.hi[i] = v[2 * i + 1];
+    if (!(w.lo[i] <= w.hi[i])) {
+      *rc = Usage(command, option + ": " + kAxes[i] + "0 must be <= " + kAxes[i] + "1 (got " +
+                               Printf("%g > %g", w.lo[i], w.hi[i]) + ")");
+      return std::nullopt;
+    }
+  }
+  return w;
+}
+
+// ---------------------------------------------------------------------------------------------
+// The commands. Each returns the exit status and prints its own errors.
+
+class Cli {
+ public:
+  explicit Cli(CLI::App& app);
+  int Run();
+
+ private:
+  // The database, opened on first use: usage errors are reported before touching any file.
+  Result<Database*> Db();
+  Result<std::shared_ptr<Dataset>> OpenDataset(const std::string& name);
+
+  int CmdDatasets();
+  int CmdCreate();
+  int CmdDescribe();
+  int CmdImport();
+  int CmdWindow();
+  int CmdSlice();
+  int RunQuery(Dataset& ds, const Region& region, const QueryArgs& q, const std::string& command);
+  int CmdEdit();
+  int CmdUndo();
+  int CmdStats();
+  int CmdCheck();
+
+  CLI::App& app_;
+  std::unique_ptr<Database> db_;
+  GlobalArgs g_;
+  CreateArgs create_;
+  ImportArgs import_;
+  WindowArgs window_;
+  SliceArgs slice_;
+  EditArgs edit_;
+  UndoArgs undo_;
+  NameArgs datasets_, describe_, stats_, check_, drop_;
+  CLI::App *datasets_cmd_, *create_cmd_, *describe_cmd_, *import_cmd_, *window_cmd_,
+      *slice_cmd_, *edit_cmd_, *undo_cmd_, *stats_cmd_, *check_cmd_, *drop_cmd_;
+};
+
+void AddQueryOptions(CLI::App* cmd, QueryArgs* q) {
+  cmd->add_option("name", q->name, "Dataset")->required();
+  cmd->add_option("--lod", q->lod, "Coarsest detail wanted: 0 = full resolution")
+      ->check(CLI::Range(0, 8));
+  cmd->add_flag("--progressive", q->progressive, "Coarse levels first across all frames");
+  cmd->add_option("--label-mask", q->label_mask,
+                  "Only points with (label & MASK) != 0 (decimal or 0x hex)");
+  cmd->add_option("--out", q->out,
+                  "Write the points to FILE.ply or FILE.csv, batch by batch");
+  cmd->add_flag("--ascii", q->ascii, "With --out FILE.ply: ascii instead of binary");
+  cmd->add_flag("--json", q->json,
+                "Print a JSON summary: points, frames read, per-level counts, elapsed ms");
+}
+
+Cli::Cli(CLI::App& app) : app_(app) {
+  app.require_subcommand(1);
+  app.fallthrough();  // global options may also follow the subcommand
+  app.add_option("--data", g_.data, "Data directory")->capture_default_str();
+  app.add_option("--cache-mb", g_.cache_mb, "Block cache size in MiB (>= 8)")
+      ->capture_default_str()
+      ->check(CLI::Range(size_t{8}, size_t{1} << 30));
+  app.add_option("--server", g_.server, "HOST:PORT of an hvdb-server (not available yet)");
+  app.failure_message([](const CLI::App* a, const CLI::Error& e) {
+    auto subs = a->get_subcommands();
+    std::string cmd = subs.empty() ? "hvdb" : "hvdb " + subs.front()->get_name();
+    return "hvdb: " + std::string(e.what()) + "\nRun '" + cmd + " --help' for usage.\n";
+  });
+
+  datasets_cmd_ = app.add_subcommand("datasets", "List the datasets of the data directory");
+  datasets_cmd_->add_flag("--json", datasets_.json, "Print JSON");
+
+  create_cmd_ = app.add_subcommand("create", "Create an empty dataset");
+  create_cmd_->add_option("name", create_.name, "Dataset name: [A-Za-z0-9_.-], up to 64")
+      ->required();
+  create_cmd_->add_option("--fps", create_.fps, "Frames per second")
+      ->required()
+      ->check(CLI::PositiveNumber);
+  create_cmd_->add_option("--scale", create_.scale,
+                          "Space/time scale s in m/s: slices are taken over (x, y, z, s t)")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  create_cmd_->add_option("--frames", create_.frames, "Declared number of frames");
+
+  describe_cmd_ = app.add_subcommand("describe", "Show a dataset's frame rate, extent and size");
+  describe_cmd_->add_option("name", describe_.name, "Dataset")->required();
+  describe_cmd_->add_flag("--json", describe_.json, "Print JSON");
+
+  import_cmd_ = app.add_subcommand(
+      "import", "Bulk-load PLY files into consecutive frames N, N+1, ... (replaces nothing)");
+  import_cmd_->add_option("name", import_.name, "Dataset")->required();
+  import_cmd_->add_option("files", import_.files, "PLY files, one frame each")->required();
+  import_cmd_->add_option("--frame", import_.frame, "Frame of the first file")->required();
+  import_cmd_->add_option("--units-scale", import_.units_scale,
+                          "Multiply positions by this (0.01: the files are in centimetres)")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  import_cmd_->add_option("--sigma", import_.sigma,
+                          "Standard deviation in metres for points without a covariance")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
+  import_cmd_->add_flag("--keep-ids", import_.keep_ids,
+                        "Keep the files' point ids (default: the engine assigns new ones)");
+  import_cmd_->add_flag("--json", import_.json, "Print a JSON summary");
+
+  window_cmd_ = app.add_subcommand("window", "Query a 4D box");
+  AddQueryOptions(window_cmd_, &window_.q);
+  window_cmd_->add_option("--box", window_.box, "X0 X1 Y0 Y1 Z0 Z1 T0 T1 (metres, seconds)")
+      ->expected(8)
+      ->required();
+
+  slice_cmd_ = app.add_subcommand(
+      "slice", "Query a hyperslice |N . (x, y, z, s t) - B| <= DB, projected to 3D");
+  AddQueryOptions(slice_cmd_, &slice_.q);
+  slice_cmd_->add_option("--normal", slice_.normal, "NX NY NZ NT (normalised; not all zero)")
+      ->expected(4)
+      ->required();
+  slice_cmd_->add_option("--offset", slice_.offset, "B")->required();
+  slice_cmd_->add_option("--thickness", slice_.thickness, "DB >= 0")
+      ->required()
+      ->check(CLI::NonNegativeNumber);
+  slice_cmd_->add_flag("--clip-frames", slice_.clip_frames,
+                       "Read only the first frames when the slice spans too many (else error)");
+  slice_cmd_->add_option("--max-frames", slice_.max_frames,
+                         "Bound on frames read (default: the database's, 64)");
+  slice_cmd_->add_option("--clip-box", slice_.clip_box, "X0 X1 Y0 Y1 Z0 Z1 T0 T1: clip the slice")
+      ->expected(8);
+
+  edit_cmd_ = app.add_subcommand(
+      "edit", "Apply edits as one atomic transaction, in command-line order; prints its lsn");
+  edit_cmd_->add_option("name", edit_.name, "Dataset")->required();
+  edit_.delete_opt =
+      edit_cmd_->add_option("--delete-box", edit_.delete_box, "Delete the points in this box")
+          ->expected(8);
+  edit_.label_opt = edit_cmd_
+                        ->add_option("--label-box", edit_.label_box,
+                                     "Change the labels of the points in this box")
+                        ->expected(8);
+  edit_cmd_->add_option("--set-label", edit_.set_label, "With --label-box: set these bits")
+      ->needs(edit_.label_opt);
+  edit_cmd_->add_option("--clear-label", edit_.clear_label, "With --label-box: clear these bits")
+      ->needs(edit_.label_opt);
+  edit_.box_opt =
+      edit_cmd_->add_option("--box", edit_.box, "Selection moved by --translate")->expected(8);
+  edit_.translate_opt = edit_cmd_
+                            ->add_option("--translate", edit_.translate,
+                                         "DX DY DZ DT (metres, seconds): move the --box points")
+                            ->expected(4)
+                            ->needs(edit_.box_opt);
+  edit_.box_opt->needs(edit_.translate_opt);
+  edit_cmd_->add_option("--where-label", edit_.where_label,
+                        "Boxes select only points with (label & MASK) != 0");
+  edit_.paste_opt = edit_cmd_->add_option("--paste", edit_.paste, "Insert the points of FILE.ply");
+  edit_cmd_->add_option("--frame", edit_.paste_frame, "With --paste: the frame to insert into")
+      ->needs(edit_.paste_opt);
+  edit_.paste_opt->needs("--frame");
+  edit_cmd_->add_option("--units-scale", edit_.units_scale, "With --paste: position multiplier")
+      ->check(CLI::PositiveNumber);
+  edit_cmd_->add_flag("--json", edit_.json, "Print JSON");
+
+  undo_cmd_ = app.add_subcommand("undo", "Revert a committed edit (commits its inverse)");
+  undo_cmd_->add_option("name", undo_.name, "Dataset")->required();
+  undo_cmd_->add_option("lsn", undo_.lsn, "Sequence number printed by edit")->required();
+  undo_cmd_->add_flag("--json", undo_.json, "Print JSON");
+
+  stats_cmd_ = app.add_subcommand("stats", "Storage and cache statistics");
+  stats_cmd_->add_option("name", stats_.name, "Dataset (default: all)");
+  stats_cmd_->add_flag("--json", stats_.json, "Print JSON");
+
+  check_cmd_ = app.add_subcommand(
+      "check", "Verify checksums and tree invariants; exit status 1 if a problem is found");
+  check_cmd_->add_option("name", check_.name, "Dataset (default: all)");
+  check_cmd_->add_flag("--json", check_.json, "Print JSON");
+
+  drop_cmd_ = app.add_subcommand("drop", "Delete a dataset and all its data");
+  drop_cmd_->add_option("name", drop_.name, "Dataset")->required();
+}
+
+Result<Database*> Cli::Db() {
+  if (db_) return db_.get();
+  std::error_code ec;
+  if (!fs::exists(g_.data, ec)) {
+    // Only `create` makes a directory, so a mistyped --data does not leave one behind.
+    if (!create_cmd_->parsed()) {
+      return Status::NotFound("data directory '" + g_.data + "' does not exist ('hvdb --data " +
+                              g_.data + " create NAME --fps F' starts one)");
+    }
+    fs::create_directories(g_.data, ec);
+    if (ec) {
+      return Status::IOError("cannot create data directory '" + g_.data + "': " + ec.message());
+    }
+  }
+  Options opts;
+  opts.cache_bytes = g_.cache_mb << 20;
+  HVDB_ASSIGN_OR_RETURN(db_, Database::Open(g_.data, opts));
+  return db_.get();
+}
+
+Result<std::shared_ptr<Dataset>> Cli::OpenDataset(const std::string& name) {
+  HVDB_ASSIGN_OR_RETURN(Database * db, Db());
+  Result<std::shared_ptr<Dataset>> ds = db->GetDataset(name);
+  if (ds.ok() || !ds.status().IsNotFound()) return ds;
+  std::vector<std::string> names = db->ListDatasets();
+  if (std::find(names.begin(), names.end(), name) != names.end()) return ds;
+  return Status::NotFound("no dataset '" + name + "' in " + db->dir() + " ('hvdb --data " +
+                          db->dir() + " datasets' lists them)");
+}
+
+int Cli::Run() {
+  if (!g_.server.empty()) {
+    std::cerr << "hvdb: --server needs hvdb-server (not built yet); use --data DIR\n";
+    return kExitUsage;
+  }
+  if (datasets_cmd_->parsed()) return CmdDatasets();
+  if (create_cmd_->parsed()) return CmdCreate();
+  if (describe_cmd_->parsed()) return CmdDescribe();
+  if (import_cmd_->parsed()) return CmdImport();
+  if (window_cmd_->parsed()) return CmdWindow();
+  if (slice_cmd_->parsed()) return CmdSlice();
+  if (edit_cmd_->parsed()) return CmdEdit();
+  if (undo_cmd_->parsed()) return CmdUndo();
+  if (stats_cmd_->parsed()) return CmdStats();
+  if (check_cmd_->parsed()) return CmdCheck();
+  if (drop_cmd_->parsed()) {
+    Result<Database*> db = Db();
+    if (!db.ok()) return Fail(db.status());
+    Status s = (*db)->DropDataset(drop_.name);
+    if (!s.ok()) return Fail(s);
+    std::cout << "dropped dataset '" << drop_.name << "'\n";
+    return kExitOk;
+  }
+  return Usage("hvdb", "no command given");
+}
+
+int Cli::CmdDatasets() {
+  Result<Database*> db = Db();
+  if (!db.ok()) return Fail(db.status());
+  json list = json::array();
+  std::vector<std::string> names = (*db)->ListDatasets();
+  std::sort(names.begin(), names.end());
+  if (!datasets_.json && !names.empty()) {
+    std::printf("%-24s %10s %14s %10s\n", "name", "frames", "points", "fps");
+  }
+  for (const std::string& name : names) {
+    Result<std::shared_ptr<Dataset>> ds = OpenDataset(name);
+    if (!ds.ok()) return Fail(ds.status());
+    DatasetInfo info = (*ds)->Info();
+    if (datasets_.json) {
+      list.push_back({{"name", name},
+                      {"frames", info.frame_count},
+                      {"points", info.point_count},
+                      {"fps", info.fps}});
+    } else {
+      std::printf("%-24s %10u %14llu %10g\n", name.c_str(), info.frame_count,
+                  static_cast<unsigned long long>(info.point_count), info.fps);
+    }
+  }
+  if (datasets_.json) PrintJson(list);
+  return kExitOk;
+}
+
+int Cli::CmdCreate() {
+  Result<Database*> db = Db();
+  if (!db.ok()) return Fail(db.status());
+  DatasetInfo info;
+  info.name = create_.name;
+  info.fps = create_.fps;
+  info.space_time_scale = create_.scale;
+  info.frame_count = create_.frames;
+  Result<std::shared_ptr<Dataset>> ds = (*db)->CreateDataset(info);
+  if (!ds.ok()) return Fail(ds.status());
+  std::printf("created dataset '%s' (%g fps, space-time scale %g m/s)\n", info.name.c_str(),
+              info.fps, info.space_time_scale);
+  return kExitOk;
+}
+
+int Cli::CmdDescribe() {
+  Result<std::shared_ptr<Dataset>> ds = OpenDataset(describe_.name);
+  if (!ds.ok()) return Fail(ds.status());
+  DatasetInfo info = (*ds)->Info();
+  double duration = info.fps > 0 ? info.frame_count / info.fps : 0;
+  if (describe_.json) {
+    json cams = json::array();
+    for (const CameraInfo& c : info.cameras) {
+      cams.push_back({{"id", c.id}, {"name", c.name}, {"width", c.width}, {"height", c.height}});
+    }
+    PrintJson({{"name", info.name},
+               {"fps", info.fps},
+               {"space_time_scale", info.space_time_scale},
+               {"frames", info.frame_count},
+               {"duration_s", duration},
+               {"points", info.point_count},
+               {"bounds_min", info.bounds_min},
+               {"bounds_max", info.bounds_max},
+               {"last_lsn", info.last_lsn},
+               {"cameras", cams}});
+    return kExitOk;
+  }
+  std::printf("dataset   %s\n", info.name.c_str());
+  std::printf("fps       %g\n", info.fps);
+  std::printf("scale     %g m/s (space-time)\n", info.space_time_scale);
+  std::printf("frames    %u (%.3f s)\n", info.frame_count, duration);
+  std::printf("points    %llu\n", static_cast<unsigned long long>(info.point_count));
+  std::printf("bounds    x %.3f .. %.3f  y %.3f .. %.3f  z %.3f .. %.3f m\n",
+              info.bounds_min[0], info.bounds_max[0], info.bounds_min[1], info.bounds_max[1],
+              info.bounds_min[2], info.bounds_max[2]);
+  std::printf("cameras   %zu\n", info.cameras.size());
+  std::printf("last lsn  %llu\n", static_cast<unsigned long long>(info.last_lsn));
+  return kExitOk;
+}
+
+int Cli::CmdImport() {
+  const ImportArgs& a = import_;
+  if (a.files.size() - 1 > UINT32_MAX - uint64_t{a.frame}) {
+    return Usage("import", "--frame " + std::to_string(a.frame) + " plus " +
+                               std::to_string(a.files.size()) + " files passes frame 2^32-1");
+  }
+  Result<std::shared_ptr<Dataset>> ds = OpenDataset(a.name);
+  if (!ds.ok()) return Fail(ds.status());
+  Clock::time_point start = Clock::now();
+  ProgressBar bar(a.files.size());
+  uint64_t total = 0;
+  json frames = json::array();
+  bar.Update(0, 0);
+  for (size_t i = 0; i < a.files.size(); ++i) {
+    ply::ReadOptions ro;
+    ro.scale = a.units_scale;
+    ro.frame = a.frame + static_cast<uint32_t>(i);
+    ro.force_frame = true;
+    ro.default_sigma = a.sigma;
+    Result<std::vector<Point>> pts = ply::ReadPly(a.files[i], ro);
+    if (!pts.ok()) {
+      bar.Clear();
+      return Fail(pts.status());
+    }
+    if (!a.keep_ids) {
+      for (Point& p : *pts) p.id = 0;
+    }
+    size_t n = pts->size();
+    Result<uint64_t> loaded = (*ds)->BulkLoad(ro.frame, std::move(pts).value());
+    if (!loaded.ok()) {
+      bar.Clear();
+      return Fail(Status(loaded.status().code(), a.files[i] + " -> frame " +
+                                                     std::to_string(ro.frame) + ": " +
+                                                     loaded.status().message()));
+    }
+    total += n;
+    frames.push_back({{"frame", ro.frame}, {"file", a.files[i]}, {"points", n}});
+    bar.Update(i + 1, total);
+  }
+  bar.Clear();
+  double ms = MsSince(start);
+  if (a.json) {
+    PrintJson({{"dataset", a.name}, {"points", total}, {"frames", frames}, {"elapsed_ms", ms}});
+  } else {
+    std::printf("imported %llu points into frames %u..%u of '%s' in %.2f s\n",
+                static_cast<unsigned long long>(total), a.frame,
+                a.frame + static_cast<uint32_t>(a.files.size() - 1), a.name.c_str(), ms / 1e3);
+  }
+  return kExitOk;
+}
+
+int Cli::CmdWindow() {
+  int rc = kExitOk;
+  std::optional<hvdb::Window> w = BoxToWindow(window_.box, "window", "--box", &rc);
+  if (!w) return rc;
+  Result<std::shared_ptr<Dataset>> ds = OpenDataset(window_.q.name);
+  if (!ds.ok()) return Fail(ds.status());
+  return RunQuery(**ds, Region(*w), window_.q, "window");
+}
+
+int Cli::CmdSlice() {
+  const SliceArgs& a = slice_;
+  hvdb::Slice s;
+  if (a.normal.size() != 4) return Usage("slice", "--normal takes 4 numbers NX NY NZ NT");
+  bool nonzero = false;
+  for (int i = 0; i < 4; ++i) {
+    s.normal[i] = a.normal[i];
+    if (!std::isfinite(a.normal[i])) return Usage("slice", "--normal must be finite");
+    nonzero |= a.normal[i] != 0;
+  }
+  if (!nonzero) return Usage("slice", "--normal must not be all zero");
+  s.offset = a.offset;
+  s.thickness = a.thickness;
+  s.on_too_many_frames = a.clip_frames ? hvdb::Slice::FrameBound::kClip
+                                       : hvdb::Slice::FrameBound::kError;
+  s.max_frames = a.max_frames;
+  if (!a.clip_box.empty()) {
+    int rc = kExitOk;
+    s.clip = BoxToWindow(a.clip_box, "slice", "--clip-box", &rc);
+    if (!s.clip) return rc;
+  }
+  Result<std::shared_ptr<Dataset>> ds = OpenDataset(a.q.name);
+  if (!ds.ok()) return Fail(ds.status());
+  return RunQuery(**ds, Region(s), a.q, "slice");
+}
+
+int Cli::RunQuery(Dataset& ds, const Region& region, const QueryArgs& q,
+                  const std::string& command) {
+  Clock::time_point start = Clock::now();
+  std::unique_ptr<ply::PointWriter> writer;
+  if (!q.out.empty()) {
+    Result<std::unique_ptr<ply::PointWriter>> w = ply::OpenPointWriter(q.out, q.ascii);
+    if (!w.ok()) return Fail(w.status());
+    writer = std::move(w).value();
+  }
+  QueryOptions opts;
+  opts.lod = q.lod;
+  opts.progressive = q.progressive;
+  opts.label_mask = q.label_mask;
+  Result<std::unique_ptr<Cursor>> cursor = ds.Query(region, opts);
+  if (!cursor.ok()) {
+    Status s = cursor.status();
+    if (s.code() == StatusCode::kLimitExceeded && command == "slice") {
+      s = Status(s.code(), s.message() + " (use --clip-frames or raise --max-frames)");
+    }
+    return Fail(s);
+  }
+  std::map<int, uint64_t> per_level;
+  uint64_t total = 0;
+  Batch batch;
+  while (true) {
+    batch.points.clear();
+    Result<bool> more = (*cursor)->Next(&batch);
+    if (!more.ok()) return Fail(more.status());
+    if (!batch.points.empty()) {
+      per_level[batch.level] += batch.points.size();
+      total += batch.points.size();
+      if (writer) {
+        Status s = writer->Append(batch.points);
+        if (!s.ok()) return Fail(s);
+      }
+    }
+    if (!*more) break;
+  }
+  if (writer) {
+    Status s = writer->Finish();
+    if (!s.ok()) return Fail(s);
+  }
+  double ms = MsSince(start);
+  const std::vector<uint32_t>& frames = (*cursor)->frames();
+  if (q.json) {
+    json levels = json::object();
+    for (const auto& [level, n] : per_level) levels[std::to_string(level)] = n;
+    json j = {{"points", total},
+              {"frames_read", frames.size()},
+              {"frames", frames},
+              {"levels", levels},
+              {"elapsed_ms", ms}};
+    if (command == "slice") j["clipped"] = (*cursor)->clipped();
+    if (writer) j["out"] = q.out;
+    PrintJson(j);
+    return kExitOk;
+  }
+  std::printf("%llu points from %zu frame%s in %.1f ms%s\n",
+              static_cast<unsigned long long>(total), frames.size(),
+              frames.size() == 1 ? "" : "s", ms,
+              (*cursor)->clipped() ? " (slice clipped to the frame bound)" : "");
+  for (const auto& [level, n] : per_level) {
+    std::printf("  level %d: %llu\n", level, static_cast<unsigned long long>(n));
+  }
+  if (writer) std::printf("written to %s\n", q.out.c_str());
+  return kExitOk;
+}
+
+int Cli::CmdEdit() {
+  const EditArgs& a = edit_;
+  // Each operation, keyed by where its first option appears on the command line.
+  std::vector<std::pair<size_t, Transaction::Op>> ops;
+  const std::vector<CLI::Option*>& order = edit_cmd_->parse_order();
+  auto position = [&order](std::initializer_list<const CLI::Option*> opts) {
+    for (size_t i = 0; i < order.size(); ++i) {
+      if (std::find(opts.begin(), opts.end(), order[i]) != opts.end()) return i;
+    }
+    return order.size();
+  };
+  auto select = [&a](const hvdb::Window& w) {
+    Selection sel;
+    sel.region = w;
+    sel.label_mask = a.where_label;
+    return sel;
+  };
+  int rc = kExitOk;
+  if (a.delete_opt->count() > 0) {
+    std::optional<hvdb::Window> w = BoxToWindow(a.delete_box, "edit", "--delete-box", &rc);
+    if (!w) return rc;
+    ops.emplace_back(position({a.delete_opt}), Transaction::DeleteSelOp{select(*w)});
+  }
+  if (a.label_opt->count() > 0) {
+    std::optional<hvdb::Window> w = BoxToWindow(a.label_box, "edit", "--label-box", &rc);
+    if (!w) return rc;
+    if (!a.set_label && !a.clear_label) {
+      return Usage("edit", "--label-box needs --set-label BITS or --clear-label BITS");
+    }
+    size_t pos = position({a.label_opt});
+    if (a.set_label) ops.emplace_back(pos, Transaction::LabelOp{select(*w), *a.set_label, true});
+    if (a.clear_label) {
+      ops.emplace_back(pos, Transaction::LabelOp{select(*w), *a.clear_label, false});
+    }
+  }
+  if (a.translate_opt->count() > 0) {
+    std::optional<hvdb::Window> w = BoxToWindow(a.box, "edit", "--box", &rc);
+    if (!w) return rc;
+    if (a.translate.size() != 4) return Usage("edit", "--translate takes 4 numbers DX DY DZ DT");
+    Affine4 map;
+    for (int i = 0; i < 4; ++i) map.c[i] = a.translate[i];
+    ops.emplace_back(position({a.box_opt, a.translate_opt}),
+                     Transaction::TransformOp{select(*w), map});
+  }
+  if (a.paste_opt->count() > 0) {
+    ply::ReadOptions ro;
+    ro.scale = a.units_scale;
+    ro.frame = *a.paste_frame;
+    ro.force_frame = true;
+    Result<std::vector<Point>> pts = ply::ReadPly(a.paste, ro);
+    if (!pts.ok()) return Fail(pts.status());
+    for (Point& p : *pts) p.id = 0;  // pasted copies are new points
+    ops.emplace_back(position({a.paste_opt}), Transaction::InsertOp{std::move(pts).value()});
+  }
+  if (ops.empty()) {
+    return Usage("edit",
+                 "nothing to do: give --delete-box, --label-box, --box/--translate or --paste");
+  }
+  std::stable_sort(ops.begin(), ops.end(),
+                   [](const auto& x, const auto& y) { return x.first < y.first; });
+  Transaction txn;
+  for (auto& [pos, op] : ops) {
+    std::visit(
+        [&txn](auto&& o) {
+          using T = std::decay_t<decltype(o)>;
+          if constexpr (std::is_same_v<T, Transaction::InsertOp>) {
+            txn.Insert(std::move(o.points));
+          } else if constexpr (std::is_same_v<T, Transaction::DeleteSelOp>) {
+            txn.DeleteSelection(std::move(o.sel));
+          } else if constexpr (std::is_same_v<T, Transaction::TransformOp>) {
+            txn.Transform(std::move(o.sel), o.map);
+          } else if constexpr (std::is_same_v<T, Transaction::LabelOp>) {
+            txn.SetLabel(std::move(o.sel), o.bits, o.set);
+          }
+        },
+        op);
+  }
+  Result<std::shared_ptr<Dataset>> ds = OpenDataset(a.name);
+  if (!ds.ok()) return Fail(ds.status());
+  Result<CommitInfo> ci = (*ds)->Commit(txn);
+  if (!ci.ok()) return Fail(ci.status());
+  if (a.json) {
+    PrintJson({{"lsn", ci->lsn}, {"inserted", ci->inserted}, {"removed", ci->removed}});
+  } else {
+    std::printf("committed lsn %llu (inserted %llu, removed %llu)\n",
+                static_cast<unsigned long long>(ci->lsn),
+                static_cast<unsigned long long>(ci->inserted),
+                static_cast<unsigned long long>(ci->removed));
+  }
+  return kExitOk;
+}
+
+int Cli::CmdUndo() {
+  Result<std::shared_ptr<Dataset>> ds = OpenDataset(undo_.name);
+  if (!ds.ok()) return Fail(ds.status());
+  Result<CommitInfo> ci = (*ds)->Revert(undo_.lsn);
+  if (!ci.ok()) return Fail(ci.status());
+  if (undo_.json) {
+    PrintJson({{"reverted", undo_.lsn},
+               {"lsn", ci->lsn},
+               {"inserted", ci->inserted},
+               {"removed", ci->removed}});
+  } else {
+    std::printf("reverted lsn %llu: committed lsn %llu (inserted %llu, removed %llu)\n",
+                static_cast<unsigned long long>(undo_.lsn),
+                static_cast<unsigned long long>(ci->lsn),
+                static_cast<unsigned long long>(ci->inserted),
+                static_cast<unsigned long long>(ci->removed));
+  }
+  return kExitOk;
+}
+
+int Cli::CmdStats() {
+  Result<Database*> db = Db();
+  if (!db.ok()) return Fail(db.status());
+  std::vector<std::string> names;
+  if (!stats_.name.empty()) {
+    names.push_back(stats_.name);
+  } else {
+    names = (*db)->ListDatasets();
+    std::sort(names.begin(), names.end());
+  }
+  json list = json::array();
+  for (const std::string& name : names) {
+    Result<std::shared_ptr<Dataset>> ds = OpenDataset(name);
+    if (!ds.ok()) return Fail(ds.status());
+    DatasetStats s = (*ds)->Stats();
+    if (stats_.json) {
+      list.push_back({{"name", name},
+                      {"frames_with_data", s.frames_with_data},
+                      {"points", s.points},
+                      {"tombstones", s.tombstones},
+                      {"buffered_points", s.buffered_points},
+                      {"trees", s.trees},
+                      {"tree_bytes", s.tree_bytes},
+                      {"wal_bytes", s.wal_bytes},
+                      {"leaf_utilisation", s.leaf_utilisation}});
+    } else {
+      std::printf(
+          "%s: %u frames with data, %llu points (%llu buffered, %llu tombstones), %llu trees "
+          "(%.1f MiB, leaves %.0f%% full), log %.1f MiB\n",
+          name.c_str(), s.frames_with_data, static_cast<unsigned long long>(s.points),
+          static_cast<unsigned long long>(s.buffered_points),
+          static_cast<unsigned long long>(s.tombstones), static_cast<unsigned long long>(s.trees),
+          static_cast<double>(s.tree_bytes) / (1 << 20), 100 * s.leaf_utilisation,
+          static_cast<double>(s.wal_bytes) / (1 << 20));
+    }
+  }
+  CacheStats c = (*db)->Cache();
+  if (stats_.json) {
+    PrintJson({{"datasets", list},
+               {"cache",
+                {{"capacity_bytes", c.capacity_bytes},
+                 {"block_size", c.block_size},
+                 {"hits", c.hits},
+                 {"misses", c.misses},
+                 {"evictions", c.evictions},
+                 {"resident_blocks", c.resident_blocks},
+                 {"pinned_blocks", c.pinned_blocks}}}});
+  } else {
+    std::printf(
+        "cache: %.0f MiB in %llu KiB blocks, %llu resident, %llu pinned; %llu hits, %llu misses, "
+        "%llu evictions\n",
+        static_cast<double>(c.capacity_bytes) / (1 << 20),
+        static_cast<unsigned long long>(c.block_size >> 10),
+        static_cast<unsigned long long>(c.resident_blocks),
+        static_cast<unsigned long long>(c.pinned_blocks), static_cast<unsigned long long>(c.hits),
+        static_cast<unsigned long long>(c.misses), static_cast<unsigned long long>(c.evictions));
+  }
+  return kExitOk;
+}
+
+int Cli::CmdCheck() {
+  Result<Database*> db = Db();
+  if (!db.ok()) return Fail(db.status());
+  std::vector<std::string> names;
+  if (!check_.name.empty()) {
+    names.push_back(check_.name);
+  } else {
+    names = (*db)->ListDatasets();
+    std::sort(names.begin(), names.end());
+  }
+  json problems = json::array();
+  for (const std::string& name : names) {
+    Result<std::shared_ptr<Dataset>> ds = OpenDataset(name);
+    if (!ds.ok()) return Fail(ds.status());
+    for (const std::string& p : (*ds)->Check()) {
+      problems.push_back({{"dataset", name}, {"problem", p}});
+      if (!check_.json) std::printf("%s: %s\n", name.c_str(), p.c_str());
+    }
+  }
+  if (check_.json) {
+    PrintJson({{"ok", problems.empty()}, {"datasets", names.size()}, {"problems", problems}});
+  } else if (problems.empty()) {
+    std::printf("ok\n");
+  }
+  return problems.empty() ? kExitOk : kExitError;
+}
+
+}  // namespace
+}  // namespace hvdb
+
+int main(int argc, char** argv) {
+  CLI::App app{"hvdb: a database for 3D video (point clouds over time), on a data directory"};
+  app.name("hvdb");
+  std::optional<hvdb::Cli> cli;  // outlives the catch blocks, which still read `app`
+  // The only try/catch: CLI11 reports usage errors by exception; nothing below throws on
+  // purpose (the storage API returns Status), so anything else is a bug or out of memory.
+  try {
+    cli.emplace(app);
+    app.parse(argc, argv);
+    return cli->Run();
+  } catch (const CLI::ParseError& e) {
+    int rc = app.exit(e);  // prints the help, or the message and a pointer to --help
+    return rc == 0 ? hvdb::kExitOk : hvdb::kExitUsage;
+  } catch (const std::exception& e) {
+    std::cerr << "hvdb: internal error: " << e.what() << "\n";
+    return hvdb::kExitError;
+  }
+}

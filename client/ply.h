@@ -1,0 +1,126 @@
+// PLY (and CSV) input/output of hvdb points.
+//
+// Reads the three PLY encodings (ascii, binary_little_endian, binary_big_endian) with the usual
+// vertex properties (x y z, nx ny nz, red green blue [alpha]) plus hvdb's own (id_lo id_hi
+// frame cov_xx..cov_zz label camera flags); other elements such as an empty `face` element are
+// parsed and skipped. Writes binary little-endian (or ascii) PLY with every hvdb property, so a
+// write followed by a read gives back each Point bit for bit.
+//
+// Like the storage API, nothing here throws: errors come back as Status / Result<T>, with a
+// message that names the file and the problem.
+#ifndef HVDB_CLIENT_PLY_H_
+#define HVDB_CLIENT_PLY_H_
+
+#include <array>
+#include <cstdint>
+#include <cstdio>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "storage/point.h"
+#include "storage/status.h"
+
+namespace hvdb::ply {
+
+struct ReadOptions {
+  // Multiplies positions (0.01: the file is in centimetres); covariances scale by scale^2.
+  double scale = 1.0;
+  // Frame given to points when the file has no `frame` property (or always, if force_frame).
+  uint32_t frame = 0;
+  bool force_frame = false;
+  // Points without cov_* properties get the isotropic covariance sigma^2 I (sigma in metres,
+  // after scaling). Estimating it from the nearest-neighbour spacing would cost a k-d tree
+  // per file, so a fixed value is used; 0.005 m is about the spacing of a Kinect fusion cloud.
+  double default_sigma = 0.005;
+  // Vertices with a NaN or infinite coordinate (holes in organised clouds) are left out.
+  bool drop_non_finite = true;
+};
+
+// Reads the `vertex` element of a PLY file. Properties recognised (any PLY scalar type):
+//   x y z                      position (required), times ReadOptions::scale
+//   nx ny nz                   normal: sets Point::normal_oct and kFlagHasNormal (if non-zero)
+//   red green blue (r g b)     colour: 8-bit integers as they are, floats as 0..1
+//   id_lo id_hi (or id)        the point id (0: the engine assigns one on insert)
+//   frame label camera flags   hvdb fields; `flags`, when present, is taken as written
+//   cov_xx cov_xy cov_xz cov_yy cov_yz cov_zz   covariance in m^2 (sets kFlagHasCovariance)
+// Anything else (alpha, quality, list properties, other elements) is read and ignored.
+Result<std::vector<Point>> ReadPly(const std::string& path, const ReadOptions& opts = {});
+
+// A sink for points, written batch by batch so a query result never has to fit in memory.
+class PointWriter {
+ public:
+  virtual ~PointWriter() = default;
+  virtual Status Append(std::span<const Point> pts) = 0;
+  // Completes the file; the writer accepts nothing afterwards.
+  virtual Status Finish() = 0;
+  uint64_t count() const { return count_; }
+
+ protected:
+  uint64_t count_ = 0;
+};
+
+// Streaming PLY writer. Properties, in order: x y z nx ny nz (float), red green blue (uchar),
+// id_lo id_hi frame (uint), cov_xx cov_xy cov_xz cov_yy cov_yz cov_zz (float), label (uint),
+// camera (ushort), flags (uchar). The header is written with a placeholder vertex count that
+// Finish() patches in place. A writer destroyed without Finish() leaves a file that claims
+// zero vertices, so a partial export is never mistaken for a complete one.
+class PlyWriter : public PointWriter {
+ public:
+  PlyWriter();
+  ~PlyWriter() override;
+  PlyWriter(const PlyWriter&) = delete;
+  PlyWriter& operator=(const PlyWriter&) = delete;
+
+  // ascii = false: binary_little_endian.
+  Status Open(const std::string& path, bool ascii = false);
+  Status Append(std::span<const Point> pts) override;
+  Status Finish() override;
+
+ private:
+  Status Fail(const char* what);
+
+  std::string path_;
+  std::FILE* file_ = nullptr;
+  bool ascii_ = false;
+  int64_t count_offset_ = 0;  // where the patchable "element vertex" line starts
+  std::vector<char> buf_;
+};
+
+// Streaming CSV writer: one header line, then one line per point with the columns
+// id,frame,x,y,z,nx,ny,nz,red,green,blue,label,camera,flags,cov_xx,cov_xy,cov_xz,cov_yy,cov_yz,
+// cov_zz (nx ny nz empty for points without a normal). Floats round-trip exactly.
+class CsvWriter : public PointWriter {
+ public:
+  CsvWriter();
+  ~CsvWriter() override;
+  CsvWriter(const CsvWriter&) = delete;
+  CsvWriter& operator=(const CsvWriter&) = delete;
+
+  Status Open(const std::string& path);
+  Status Append(std::span<const Point> pts) override;
+  Status Finish() override;
+
+ private:
+  std::string path_;
+  std::FILE* file_ = nullptr;
+  std::string buf_;
+};
+
+// Picks the writer by extension: ".csv" (any case) gives CSV, ".ply" binary PLY (ascii PLY if
+// ascii_ply); any other extension is InvalidArgument.
+Result<std::unique_ptr<PointWriter>> OpenPointWriter(const std::string& path,
+                                                     bool ascii_ply = false);
+
+// Whole-array conveniences over the writers above.
+Status WritePly(const std::string& path, std::span<const Point> pts, bool ascii = false);
+Status WriteCsv(const std::string& path, std::span<const Point> pts);
+
+// Float values for a normal such that EncodeNormal() of them gives back `oct` exactly (on the
+// octahedron's fold a zero component gets a tiny sign-carrying value). Used by the writers.
+std::array<float, 3> NormalForOct(std::array<int16_t, 2> oct);
+
+}  // namespace hvdb::ply
+
+#endif  // HVDB_CLIENT_PLY_H_

@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# Installs hvdb's build and test dependencies from Debian 12 packages and builds everything
+# (Release, Ninja, warnings as errors) into build/. Idempotent; run as root.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+PACKAGES=(
+  build-essential cmake ninja-build pkg-config git
+  libboost-dev libboost-system-dev libboost-program-options-dev libboost-graph-dev
+  libflann-dev libopencv-dev libceres-dev libdraco-dev libopenexr-dev libglm-dev
+  libegl-dev libgl-dev libegl-mesa0 libgl1-mesa-dri
+  libgtest-dev libgmock-dev libbenchmark-dev
+  libprotobuf-dev protobuf-compiler
+  nlohmann-json3-dev libcli11-dev
+)
+
+missing=()
+for p in "${PACKAGES[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]})); then
+  echo "setup: installing ${#missing[@]} Debian packages: ${missing[*]}"
+  if [ "$(id -u)" -ne 0 ]; then
+    echo "setup: needs root to install packages (run: sudo $0)" >&2
+    exit 1
+  fi
+  export DEBIAN_FRONTEND=noninteractive
+  apt-get update -qq
+  apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+BUILD_DIR=${HVDB_BUILD_DIR:-build}
+cmake -S . -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=Release -DHVDB_WERROR=ON >/dev/null
+cmake --build "$BUILD_DIR"
+echo "setup: built into $BUILD_DIR/"

@@ -1,0 +1,138 @@
+#include "storage/buffer_pool.h"
+
+#include <cassert>
+
+namespace hvdb {
+
+PageRef& PageRef::operator=(PageRef&& o) noexcept {
+  if (this != &o) {
+    Release();
+    pool_ = o.pool_;
+    slot_ = o.slot_;
+    data_ = o.data_;
+    o.pool_ = nullptr;
+    o.data_ = nullptr;
+  }
+  return *this;
+}
+
+void PageRef::Release() {
+  if (pool_ != nullptr) pool_->Unpin(slot_);
+  pool_ = nullptr;
+  data_ = nullptr;
+}
+
+BufferPool::BufferPool(size_t capacity_bytes, uint32_t block_size)
+    : block_size_(block_size),
+      nslots_(static_cast<uint32_t>(capacity_bytes / block_size)),
+      // Untouched pages of this allocation cost no RSS until a block is loaded into them.
+      memory_(new uint8_t[static_cast<size_t>(nslots_) * block_size]),
+      slots_(nslots_) {
+  assert(nslots_ >= 2);
+  index_.reserve(nslots_);
+}
+
+BufferPool::~BufferPool() = default;
+
+uint64_t BufferPool::NewFileId() {
+  std::lock_guard<std::mutex> l(mu_);
+  return next_file_id_++;
+}
+
+int64_t BufferPool::FindVictimLocked() {
+  // Two full sweeps give every referenced block its second chance.
+  for (uint64_t step = 0; step < 2ull * nslots_ + 1; ++step) {
+    uint32_t i = hand_;
+    hand_ = (hand_ + 1) % nslots_;
+    Slot& s = slots_[i];
+    if (s.state == SlotState::kFree) return i;
+    if (s.state != SlotState::kReady || s.pins > 0) continue;
+    if (s.referenced) {
+      s.referenced = false;
+      continue;
+    }
+    index_.erase(s.key);
+    s.state = SlotState::kFree;
+    ++evictions_;
+    return i;
+  }
+  return -1;
+}
+
+Result<PageRef> BufferPool::Fetch(uint64_t file_id, uint32_t block, const Loader& load) {
+  Key key{file_id, block};
+  std::unique_lock<std::mutex> l(mu_);
+  for (;;) {
+    auto it = index_.find(key);
+    if (it == index_.end()) break;
+    Slot& s = slots_[it->second];
+    if (s.state == SlotState::kReady) {
+      ++s.pins;
+      s.referenced = true;
+      ++hits_;
+      return PageRef(this, it->second, memory_.get() + size_t{it->second} * block_size_);
+    }
+    loaded_.wait(l);  // another thread is loading it; look again when it is done
+  }
+  int64_t victim = FindVictimLocked();
+  if (victim < 0) {
+    return Status::LimitExceeded("buffer pool exhausted: all " + std::to_string(nslots_) +
+                                 " blocks are pinned; raise the cache size (--cache-mb)");
+  }
+  auto slot = static_cast<uint32_t>(victim);
+  Slot& s = slots_[slot];
+  s.key = key;
+  s.state = SlotState::kLoading;
+  s.pins = 1;
+  s.referenced = true;
+  index_[key] = slot;
+  ++misses_;
+  l.unlock();
+  uint8_t* dst = memory_.get() + size_t{slot} * block_size_;
+  Status st = load(dst);
+  l.lock();
+  if (!st.ok()) {
+    index_.erase(key);
+    s.state = SlotState::kFree;
+    s.pins = 0;
+    loaded_.notify_all();
+    return st;
+  }
+  s.state = SlotState::kReady;
+  loaded_.notify_all();
+  return PageRef(this, slot, dst);
+}
+
+void BufferPool::Unpin(uint32_t slot) {
+  std::lock_guard<std::mutex> l(mu_);
+  assert(slots_[slot].pins > 0);
+  --slots_[slot].pins;
+}
+
+void BufferPool::Forget(uint64_t file_id) {
+  std::lock_guard<std::mutex> l(mu_);
+  for (uint32_t i = 0; i < nslots_; ++i) {
+    Slot& s = slots_[i];
+    if (s.state == SlotState::kReady && s.key.file == file_id && s.pins == 0) {
+      index_.erase(s.key);
+      s.state = SlotState::kFree;
+    }
+  }
+}
+
+CacheStats BufferPool::Stats() const {
+  std::lock_guard<std::mutex> l(mu_);
+  CacheStats c;
+  c.capacity_bytes = uint64_t{nslots_} * block_size_;
+  c.block_size = block_size_;
+  c.hits = hits_;
+  c.misses = misses_;
+  c.evictions = evictions_;
+  for (const Slot& s : slots_) {
+    if (s.state == SlotState::kReady) ++c.resident_blocks;
+    if (s.pins > 0) ++c.pinned_blocks;
+  }
+  return c;
+}
+
+}  // namespace hvdb

@@ -1,0 +1,156 @@
+// CursorImpl: a query's state machine over (level, frame, tree, bucket), holding its snapshot.
+#include <cmath>
+
+#include "storage/dataset_impl.h"
+#include "storage/lod.h"
+
+namespace hvdb {
+
+class CursorImpl {
+ public:
+  CursorImpl(RegionPlan plan, const QueryOptions& opts, int max_level)
+      : plan_(std::move(plan)), versions_(std::move(plan_.versions)), opts_(opts),
+        max_level_(max_level) {
+    // Temporal LOD (8.4) applies when the plan skipped frames for it.
+    temporal_stride_ = 1;
+    if (opts.temporal_lod && opts.lod > 0 && plan_.frames.size() > 1) temporal_stride_ = 1 << opts.lod;
+    auto add_frame_tasks = [&](uint32_t fi, int level) {
+      const FrameVersion& v = *versions_[fi];
+      for (size_t s = 0; s < v.slots.size(); ++s) {
+        if (v.slots[s].tree) tasks_.push_back({fi, static_cast<int>(s), level});
+      }
+      tasks_.push_back({fi, -1, level});
+    };
+    const auto nf = static_cast<uint32_t>(versions_.size());
+    if (opts.progressive) {
+      for (int k = max_level; k >= opts.lod; --k) {
+        for (uint32_t fi = 0; fi < nf; ++fi) add_frame_tasks(fi, k);
+      }
+    } else {
+      for (uint32_t fi = 0; fi < nf; ++fi) {
+        const FrameVersion& v = *versions_[fi];
+        for (size_t s = 0; s < v.slots.size(); ++s) {
+          if (!v.slots[s].tree) continue;
+          for (int k = max_level; k >= opts.lod; --k) tasks_.push_back({fi, static_cast<int>(s), k});
+        }
+        for (int k = max_level; k >= opts.lod; --k) tasks_.push_back({fi, -1, k});
+      }
+    }
+  }
+
+  Result<bool> Next(Batch* batch) {
+    batch->points.clear();
+    batch->level_done = false;
+    if (cancelled_.load(std::memory_order_relaxed)) return Status::Cancelled("query cancelled");
+    if (task_ >= tasks_.size()) return false;
+    const int batch_level = opts_.progressive ? tasks_[task_].level : opts_.lod;
+    batch->level = batch_level;
+    batch->splat_scale = static_cast<float>(std::pow(2.0, batch_level / 2.0));
+    while (task_ < tasks_.size()) {
+      const Task& t = tasks_[task_];
+      if (opts_.progressive && t.level != batch_level) {
+        batch->level_done = true;
+        return true;
+      }
+      if (cancelled_.load(std::memory_order_relaxed)) return Status::Cancelled("query cancelled");
+      HVDB_ASSIGN_OR_RETURN(bool finished, RunTask(t, batch));
+      if (!finished) return true;  // batch full; resume this task next time
+      ++task_;
+      bucket_pos_ = 0;
+    }
+    if (opts_.progressive) batch->level_done = true;
+    return true;
+  }
+
+  void Cancel() { cancelled_ = true; }
+  const std::vector<uint32_t>& frames() const { return plan_.frames; }
+  bool clipped() const { return plan_.clipped; }
+
+ private:
+  struct Task {
+    uint32_t frame_idx;
+    int slot;  // -1: the buffer T0
+    int level;
+  };
+
+  void Emit(Point p, const FrameVersion& v, Batch* batch) {
+    if (plan_.slice) {
+      double t = plan_.FrameTime(v.frame);
+      plan_.slice->Project(&p, t, temporal_stride_ / plan_.fps);
+    }
+    batch->points.push_back(p);
+  }
+
+  bool Accept(const Point& p, bool inside) const {
+    if (opts_.label_mask != 0 && (p.label & opts_.label_mask) == 0) return false;
+    return inside || plan_.Contains(p);
+  }
+
+  // Returns true when the task is done, false when the batch filled up first.
+  Result<bool> RunTask(const Task& t, Batch* batch) {
+    const FrameVersion& v = *versions_[t.frame_idx];
+    if (t.slot < 0) {
+      for (const Point& p : *v.t0) {
+        if (LevelOfId(p.id, max_level()) == t.level && Accept(p, false)) Emit(p, v, batch);
+      }
+      return true;
+    }
+    const TreeSlot& slot = v.slots[static_cast<size_t>(t.slot)];
+    auto key = std::make_pair(t.frame_idx, t.slot);
+    auto it = buckets_.find(key);
+    if (it == buckets_.end()) {
+      std::vector<KdTree::BucketHit> hits;
+      const uint32_t frame = v.frame;
+      HVDB_RETURN_IF_ERROR(slot.tree->FindBuckets(
+          [&](const Box3& b) { return plan_.Classify(b, frame); }, &hits));
+      it = buckets_.emplace(key, std::move(hits)).first;
+    }
+    const auto& hits = it->second;
+    const size_t limit = opts_.batch_points;
+    for (; bucket_pos_ < hits.size(); ++bucket_pos_) {
+      if (batch->points.size() >= limit) return false;
+      const auto& hit = hits[bucket_pos_];
+      const auto k = static_cast<size_t>(t.level);
+      HVDB_RETURN_IF_ERROR(slot.tree->ReadRange(
+          t.level, hit.entry.start[k], hit.entry.count[k], [&](const uint8_t* rec, size_t n) {
+            for (size_t j = 0; j < n; ++j) {
+              Point p = DecodePoint(rec + j * kPointRecordSize);
+              if (slot.IsDead(p.id) || !Accept(p, hit.inside)) continue;
+              Emit(p, v, batch);
+            }
+          }));
+    }
+    // Bucket lists are kept for the finer levels of a progressive query.
+    if (!opts_.progressive || t.level == opts_.lod) buckets_.erase(key);
+    return true;
+  }
+
+  int max_level() const { return max_level_; }
+
+  RegionPlan plan_;
+  std::vector<std::shared_ptr<const FrameVersion>> versions_;
+  QueryOptions opts_;
+  int max_level_;
+  int temporal_stride_ = 1;
+  std::vector<Task> tasks_;
+  size_t task_ = 0, bucket_pos_ = 0;
+  std::map<std::pair<uint32_t, int>, std::vector<KdTree::BucketHit>> buckets_;
+  std::atomic<bool> cancelled_{false};
+};
+
+Result<std::unique_ptr<Cursor>> DatasetImpl::Query(const Region& region,
+                                                   const QueryOptions& opts) {
+  if (opts.batch_points == 0) return Status::InvalidArgument("batch_points must be > 0");
+  HVDB_ASSIGN_OR_RETURN(RegionPlan plan, Plan(region, opts.lod, opts.temporal_lod));
+  auto impl = std::make_unique<CursorImpl>(std::move(plan), opts, opts_.lod_levels);
+  return std::make_unique<Cursor>(std::move(impl));
+}
+
+Cursor::Cursor(std::unique_ptr<CursorImpl> impl) : impl_(std::move(impl)) {}
+Cursor::~Cursor() = default;
+Result<bool> Cursor::Next(Batch* batch) { return impl_->Next(batch); }
+void Cursor::Cancel() { impl_->Cancel(); }
+const std::vector<uint32_t>& Cursor::frames() const { return impl_->frames(); }
+bool Cursor::clipped() const { return impl_->clipped(); }
+
+}  // namespace hvdb

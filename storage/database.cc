@@ -1,0 +1,143 @@
+#include <fcntl.h>
+#include <sys/file.h>
+#include <unistd.h>
+
+#include <algorithm>
+
+#include "storage/buffer_pool.h"
+#include "storage/dataset_impl.h"
+#include "storage/file.h"
+
+namespace hvdb {
+
+Status ValidateDatasetName(const std::string& name) {
+  if (name.empty() || name.size() > 64 || name[0] == '.') {
+    return Status::InvalidArgument("dataset name '" + name +
+                                   "' must be 1-64 characters and not start with '.'");
+  }
+  for (char c : name) {
+    bool ok = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
+              c == '_' || c == '-' || c == '.';
+    if (!ok) {
+      return Status::InvalidArgument("dataset name '" + name +
+                                     "' may only use letters, digits, '_', '-' and '.'");
+    }
+  }
+  return Status::OK();
+}
+
+static Status ValidateOptions(const Options& o) {
+  if (o.block_size < 4096 || o.block_size > (1u << 20) || (o.block_size & (o.block_size - 1))) {
+    return Status::InvalidArgument("block size must be a power of two in [4 KiB, 1 MiB], got " +
+                                   std::to_string(o.block_size));
+  }
+  if (o.cache_bytes < (8u << 20)) {
+    return Status::InvalidArgument("cache must be at least 8 MiB, got " +
+                                   std::to_string(o.cache_bytes >> 20) + " MiB");
+  }
+  if (o.lod_levels < 0 || o.lod_levels > 8) {
+    return Status::InvalidArgument("lod_levels must be in 0..8, got " +
+                                   std::to_string(o.lod_levels));
+  }
+  return Status::OK();
+}
+
+Database::Database(std::string dir, Options opts) : dir_(std::move(dir)), opts_(opts) {}
+
+Database::~Database() {
+  open_.clear();  // datasets checkpoint on close
+  pool_.reset();
+  if (lock_fd_ >= 0) ::close(lock_fd_);
+}
+
+Result<std::unique_ptr<Database>> Database::Open(const std::string& dir, const Options& opts) {
+  HVDB_RETURN_IF_ERROR(ValidateOptions(opts));
+  HVDB_RETURN_IF_ERROR(CreateDirs(dir));
+  std::unique_ptr<Database> db(new Database(dir, opts));
+  std::string lock = dir + "/LOCK";
+  db->lock_fd_ = ::open(lock.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (db->lock_fd_ < 0) return Status::FromErrno("open " + lock, errno);
+  if (::flock(db->lock_fd_, LOCK_EX | LOCK_NB) != 0) {
+    return Status::IOError(dir + " is in use by another hvdb process (" + lock +
+                           " is locked); stop it or use its server");
+  }
+  HVDB_ASSIGN_OR_RETURN(auto names, ListDir(dir));
+  for (const std::string& n : names) {
+    // Leftovers of a create or drop cut short by a crash.
+    if (n.ends_with(".creating") || n.ends_with(".dropping")) {
+      HVDB_RETURN_IF_ERROR(RemoveTree(dir + "/" + n));
+    }
+  }
+  db->pool_ = std::make_unique<BufferPool>(opts.cache_bytes, opts.block_size);
+  return db;
+}
+
+std::vector<std::string> Database::ListDatasets() const {
+  std::vector<std::string> out;
+  auto names = ListDir(dir_);
+  if (!names.ok()) return out;
+  for (const std::string& n : *names) {
+    if (ValidateDatasetName(n).ok() && FileExists(dir_ + "/" + n + "/MANIFEST")) out.push_back(n);
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+Result<std::shared_ptr<Dataset>> Database::CreateDataset(const DatasetInfo& info) {
+  HVDB_RETURN_IF_ERROR(ValidateDatasetName(info.name));
+  std::lock_guard<std::mutex> l(mu_);
+  HVDB_ASSIGN_OR_RETURN(auto impl,
+                        DatasetImpl::Create(dir_ + "/" + info.name, info, opts_, pool_.get()));
+  auto ds = std::make_shared<Dataset>(std::move(impl));
+  open_.emplace_back(info.name, ds);
+  return ds;
+}
+
+Result<std::shared_ptr<Dataset>> Database::GetDataset(const std::string& name) {
+  HVDB_RETURN_IF_ERROR(ValidateDatasetName(name));
+  std::lock_guard<std::mutex> l(mu_);
+  for (auto& [n, ds] : open_) {
+    if (n == name) return ds;
+  }
+  std::string path = dir_ + "/" + name;
+  if (!FileExists(path + "/MANIFEST")) {
+    return Status::NotFound("no dataset '" + name + "' in " + dir_ +
+                            " (list them with `hvdb datasets`)");
+  }
+  HVDB_ASSIGN_OR_RETURN(auto impl, DatasetImpl::Open(path, opts_, pool_.get()));
+  auto ds = std::make_shared<Dataset>(std::move(impl));
+  open_.emplace_back(name, ds);
+  return ds;
+}
+
+Status Database::DropDataset(const std::string& name) {
+  HVDB_RETURN_IF_ERROR(ValidateDatasetName(name));
+  std::lock_guard<std::mutex> l(mu_);
+  std::string path = dir_ + "/" + name;
+  if (!FileExists(path + "/MANIFEST")) return Status::NotFound("no dataset '" + name + "'");
+  std::erase_if(open_, [&](const auto& e) { return e.first == name; });
+  // Rename first: the drop is atomic, and a crash mid-delete leaves only a .dropping folder.
+  std::string gone = path + ".dropping";
+  if (std::rename(path.c_str(), gone.c_str()) != 0) return Status::FromErrno("rename " + path, errno);
+  HVDB_RETURN_IF_ERROR(SyncDir(dir_));
+  return RemoveTree(gone);
+}
+
+CacheStats Database::Cache() const { return pool_->Stats(); }
+
+Dataset::Dataset(std::unique_ptr<DatasetImpl> impl) : impl_(std::move(impl)) {}
+Dataset::~Dataset() = default;
+DatasetInfo Dataset::Info() const { return impl_->Info(); }
+Result<std::unique_ptr<Cursor>> Dataset::Query(const Region& region, const QueryOptions& opts) {
+  return impl_->Query(region, opts);
+}
+Result<uint64_t> Dataset::BulkLoad(uint32_t frame, std::vector<Point> points) {
+  return impl_->BulkLoad(frame, std::move(points));
+}
+Result<CommitInfo> Dataset::Commit(const Transaction& txn) { return impl_->Commit(txn); }
+Result<CommitInfo> Dataset::Revert(uint64_t lsn) { return impl_->Revert(lsn); }
+DatasetStats Dataset::Stats() const { return impl_->Stats(); }
+std::vector<std::string> Dataset::Check() const { return impl_->Check(); }
+Status Dataset::Checkpoint() { return impl_->Checkpoint(); }
+
+}  // namespace hvdb

@@ -1,0 +1,236 @@
+// The storage engine's public API: a data directory of datasets, each a regular grid of
+// frames in time with one multiresolution Bkd-tree per frame (thesis 8.3-8.4).
+//
+// Thread safety: a Database and its Datasets are safe for concurrent use from many threads.
+// Queries read a snapshot of each frame taken when the query starts and never block writers;
+// commits are serialised per dataset and grouped (one fsync for all commits waiting at once).
+//
+// Errors: functions return Status / Result<T> (storage/status.h) and never throw.
+#ifndef HVDB_STORAGE_DATABASE_H_
+#define HVDB_STORAGE_DATABASE_H_
+
+#include <array>
+#include <atomic>
+#include <cstdint>
+#include <functional>
+#include <mutex>
+#include <memory>
+#include <optional>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "storage/point.h"
+#include "storage/status.h"
+
+namespace hvdb {
+
+class BufferPool;
+class DatasetImpl;
+class CursorImpl;
+
+struct Options {
+  size_t cache_bytes = 256u << 20;  // the shared block cache; >= 8 MiB
+  uint32_t block_size = 64u << 10;  // bytes per block: a power of two in [4 KiB, 1 MiB]
+  int lod_levels = 5;               // l: levels 0 (finest) .. l (coarsest), 0..8
+  bool sync = true;                 // fsync the log on every commit (group commit)
+  uint32_t max_slice_frames = 64;   // default bound on frames a slice may read
+  uint64_t wal_checkpoint_bytes = 64u << 20;  // checkpoint once the log grows past this
+};
+
+// One camera of the recording rig, for view-dependent rendering.
+struct CameraInfo {
+  uint16_t id = 0;
+  std::string name;
+  uint32_t width = 0, height = 0;
+  double fx = 0, fy = 0, cx = 0, cy = 0;
+  std::array<double, 5> distortion{};  // k1 k2 p1 p2 k3 (OpenCV order)
+  // Row-major 4x4 world-from-camera transform (metres).
+  std::array<double, 16> world_from_camera{1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+};
+
+struct DatasetInfo {
+  std::string name;
+  double fps = 30.0;
+  double space_time_scale = 1.0;  // s: metres per second in hyperslices over (x, y, z, s t)
+  std::vector<CameraInfo> cameras;
+  // Derived on every read:
+  uint32_t frame_count = 0;  // max(declared, highest frame with data + 1)
+  std::array<float, 3> bounds_min{}, bounds_max{};  // of all points (empty: all zero)
+  uint64_t point_count = 0;
+  uint64_t last_lsn = 0;  // sequence number of the last committed transaction
+};
+
+// A 4D box; t in seconds (frame f is at t = f / fps). Bounds are inclusive.
+struct Window {
+  std::array<double, 4> lo{}, hi{};
+};
+
+// A hyperslice (thesis 8.2): points with |N . (x, y, z, s t) - b| <= db, projected to 3D.
+struct Slice {
+  std::array<double, 4> normal{0, 0, 0, 1};  // normalised on use; must be non-zero
+  double offset = 0;                         // b
+  double thickness = 0;                      // db >= 0
+  std::optional<Window> clip;                // optional 4D window that clips the slice
+  enum class FrameBound { kError, kClip } on_too_many_frames = FrameBound::kError;
+  uint32_t max_frames = 0;  // 0: Options::max_slice_frames
+};
+
+using Region = std::variant<Window, Slice>;
+
+struct QueryOptions {
+  int lod = 0;               // finest level to return (0 = full resolution)
+  bool progressive = false;  // coarse levels first across all frames, each level once
+  bool temporal_lod = true;  // multi-frame queries at level i read every 2^i-th frame
+  size_t batch_points = 16384;
+  uint32_t label_mask = 0;  // non-zero: only points with (label & mask) != 0
+};
+
+// A batch of results. For slices, x/y/z and cov hold the projected position and covariance
+// (eqs. 8.2, 8.3); for windows, the stored ones.
+struct Batch {
+  int level = 0;            // the LOD level these points belong to
+  bool level_done = false;  // progressive: last batch of `level`
+  float splat_scale = 1.f;  // 2^(level/2): how much the renderer should grow splats
+  std::vector<Point> points;
+};
+
+// A streaming query. Not thread-safe; use from one thread. Holds its snapshot until destroyed.
+class Cursor {
+ public:
+  explicit Cursor(std::unique_ptr<CursorImpl> impl);
+  ~Cursor();
+  Cursor(const Cursor&) = delete;
+  Cursor& operator=(const Cursor&) = delete;
+  // Fills `batch` with the next points. Returns false when the query is exhausted.
+  Result<bool> Next(Batch* batch);
+  // Stops the query; Next() then returns Cancelled. Safe to call from another thread.
+  void Cancel();
+  // Frames the query reads (after bounds and temporal LOD), and whether a slice was clipped.
+  const std::vector<uint32_t>& frames() const;
+  bool clipped() const;
+
+ private:
+  std::unique_ptr<CursorImpl> impl_;
+};
+
+// A row-major 4x4 linear map plus translation over (x, y, z, t) with t in seconds:
+// X' = A X + c. Points whose new t falls on another frame move there (rounded to the nearest).
+struct Affine4 {
+  std::array<double, 16> a{1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+  std::array<double, 4> c{};
+};
+
+// Which points an operation acts on: those in `region` (all points if absent) whose label
+// matches `label_mask` (any, if 0), plus the explicitly listed (frame, id) pairs.
+struct Selection {
+  std::optional<Region> region;
+  uint32_t label_mask = 0;
+  std::vector<std::pair<uint32_t, uint64_t>> ids;
+};
+
+// A batch of operations applied atomically by Dataset::Commit, in order.
+class Transaction {
+ public:
+  struct InsertOp { std::vector<Point> points; };       // id 0: the engine assigns one
+  struct DeleteOp { uint64_t id; uint32_t frame; std::array<float, 3> pos; };
+  struct DeleteSelOp { Selection sel; };
+  struct TransformOp { Selection sel; Affine4 map; };
+  struct LabelOp { Selection sel; uint32_t bits; bool set; };
+  using Op = std::variant<InsertOp, DeleteOp, DeleteSelOp, TransformOp, LabelOp>;
+
+  void Insert(std::vector<Point> points) { ops_.push_back(InsertOp{std::move(points)}); }
+  void Delete(uint64_t id, uint32_t frame, std::array<float, 3> pos) {
+    ops_.push_back(DeleteOp{id, frame, pos});
+  }
+  void DeleteSelection(Selection sel) { ops_.push_back(DeleteSelOp{std::move(sel)}); }
+  void Transform(Selection sel, Affine4 map) { ops_.push_back(TransformOp{std::move(sel), map}); }
+  void SetLabel(Selection sel, uint32_t bits, bool set) {
+    ops_.push_back(LabelOp{std::move(sel), bits, set});
+  }
+  const std::vector<Op>& ops() const { return ops_; }
+  bool empty() const { return ops_.empty(); }
+
+ private:
+  std::vector<Op> ops_;
+};
+
+struct CommitInfo {
+  uint64_t lsn = 0;  // commit sequence number; pass to Dataset::Revert to undo
+  uint64_t inserted = 0, removed = 0;
+  std::vector<uint64_t> assigned_ids;  // ids given to inserted points that had id 0, in order
+};
+
+struct DatasetStats {
+  uint32_t frames_with_data = 0;
+  uint64_t points = 0, tombstones = 0, buffered_points = 0;
+  uint64_t trees = 0, tree_bytes = 0, wal_bytes = 0;
+  double leaf_utilisation = 0;  // points / (leaf blocks * b) over all trees
+};
+
+struct CacheStats {
+  uint64_t capacity_bytes = 0, block_size = 0, hits = 0, misses = 0, evictions = 0;
+  uint64_t resident_blocks = 0, pinned_blocks = 0;
+};
+
+// One dataset. Obtain from Database::Open/CreateDataset; shared by all users.
+class Dataset {
+ public:
+  explicit Dataset(std::unique_ptr<DatasetImpl> impl);
+  ~Dataset();
+  Dataset(const Dataset&) = delete;
+  Dataset& operator=(const Dataset&) = delete;
+
+  DatasetInfo Info() const;
+  Result<std::unique_ptr<Cursor>> Query(const Region& region, const QueryOptions& opts = {});
+  // Adds the points to `frame` with the bulk loader (not logged: durable when it returns, and
+  // atomic per frame). Ids of 0 are assigned. Points' frame field is overwritten.
+  Result<uint64_t> BulkLoad(uint32_t frame, std::vector<Point> points);
+  // Applies the transaction atomically and durably (when Options::sync).
+  Result<CommitInfo> Commit(const Transaction& txn);
+  // Commits the inverse of transaction `lsn`, derived from the log.
+  Result<CommitInfo> Revert(uint64_t lsn);
+  DatasetStats Stats() const;
+  // Verifies every checksum, tree invariant and frame state; returns the problems found.
+  std::vector<std::string> Check() const;
+  // Writes all buffered frame state and starts a new log segment.
+  Status Checkpoint();
+
+  DatasetImpl* impl() { return impl_.get(); }
+
+ private:
+  std::unique_ptr<DatasetImpl> impl_;
+};
+
+// A data directory. One process opens a directory at a time (an advisory lock enforces it).
+class Database {
+ public:
+  static Result<std::unique_ptr<Database>> Open(const std::string& dir, const Options& opts = {});
+  ~Database();
+  Database(const Database&) = delete;
+  Database& operator=(const Database&) = delete;
+
+  std::vector<std::string> ListDatasets() const;
+  Result<std::shared_ptr<Dataset>> CreateDataset(const DatasetInfo& info);
+  Result<std::shared_ptr<Dataset>> GetDataset(const std::string& name);
+  Status DropDataset(const std::string& name);
+  CacheStats Cache() const;
+  const Options& options() const { return opts_; }
+  const std::string& dir() const { return dir_; }
+
+ private:
+  Database(std::string dir, Options opts);
+  std::string dir_;
+  Options opts_;
+  int lock_fd_ = -1;
+  std::unique_ptr<BufferPool> pool_;
+  mutable std::mutex mu_;
+  std::vector<std::pair<std::string, std::shared_ptr<Dataset>>> open_;
+};
+
+// Checks a dataset name: 1-64 characters of [A-Za-z0-9_.-], not starting with '.'.
+Status ValidateDatasetName(const std::string& name);
+
+}  // namespace hvdb
+
+#endif  // HVDB_STORAGE_DATABASE_H_

@@ -1,0 +1,36 @@
+// Builds a tree file from the points of one frame, in core (8.3.3: a frame fits in memory).
+//
+// The kd-tree is split so that the left child of q points gets c * 2^floor(log2(q/c - 1))
+// points, c = 2b the bucket size (8.3.1, 8.4): every bucket but the rightmost is full, so
+// level 0 of each bucket fills exactly one block. Split axis: widest extent. Inner nodes are
+// packed depth-first into node blocks (fig. 8.7).
+#ifndef HVDB_STORAGE_KDTREE_BUILDER_H_
+#define HVDB_STORAGE_KDTREE_BUILDER_H_
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "storage/point.h"
+#include "storage/status.h"
+
+namespace hvdb {
+
+struct TreeBuildParams {
+  uint32_t block_size = 64u << 10;
+  int lod_levels = 5;  // l
+  uint32_t frame = 0;
+  uint64_t tree_seq = 0;
+};
+
+// Points in the left child of a node holding q points, with bucket capacity c.
+uint64_t LeftChildSize(uint64_t q, uint64_t c);
+
+// Writes the tree to `path` (via path.tmp, fsync, rename). `points` is reordered.
+// REQUIRES: !points.empty().
+Status BuildTreeFile(const std::string& path, std::vector<Point>& points,
+                     const TreeBuildParams& params);
+
+}  // namespace hvdb
+
+#endif  // HVDB_STORAGE_KDTREE_BUILDER_H_

@@ -1,0 +1,82 @@
+// Constants and records of a tree file (*.kdt). See docs/FORMAT.md, "Tree file", for the
+// layout byte by byte. A tree file is written once by the builder and never modified.
+#ifndef HVDB_STORAGE_KDTREE_FORMAT_H_
+#define HVDB_STORAGE_KDTREE_FORMAT_H_
+
+#include <array>
+#include <cstdint>
+#include <functional>
+#include <string>
+
+#include "storage/status.h"
+
+namespace hvdb {
+
+inline constexpr char kTreeMagic[8] = {'H', 'V', 'D', 'B', 'K', 'D', 'T', '\0'};
+inline constexpr uint32_t kTreeVersion = 1;
+inline constexpr int kMaxLevels = 9;  // l <= 8
+inline constexpr size_t kTreeHeaderSize = 256;
+inline constexpr size_t kNodeRecordSize = 16;
+inline constexpr size_t kNodeBlockHeader = 8;
+
+enum class ChildType : uint8_t { kNode = 0, kNodeBlock = 1, kBucket = 2 };
+
+struct Box3 {
+  std::array<float, 3> lo{}, hi{};
+};
+
+// How a query region relates to a box: prunes subtrees, skips per-point tests when inside.
+enum class Relation { kOutside, kInside, kCrosses };
+using BoxTest = std::function<Relation(const Box3&)>;
+
+struct TreeHeader {
+  uint32_t block_size = 0;
+  uint64_t point_count = 0;
+  uint32_t bucket_count = 0;
+  uint32_t levels = 0;  // l + 1
+  uint32_t points_per_block = 0;
+  uint32_t frame = 0;
+  uint64_t tree_seq = 0;
+  uint64_t min_id = 0, max_id = 0;
+  Box3 bbox;
+  ChildType root_type = ChildType::kBucket;
+  uint32_t root_ref = 0;
+  uint32_t node_block_start = 0, node_block_count = 0;
+  uint32_t dir_block_start = 0, dir_block_count = 0;
+  uint32_t crc_block_start = 0, crc_block_count = 0;
+  uint32_t total_blocks = 0;
+  std::array<uint32_t, kMaxLevels> level_count{};        // points in each level's segment
+  std::array<uint32_t, kMaxLevels> level_start_block{};  // first block of each segment
+  uint32_t crc_table_crc = 0;  // masked CRC-32C of the checksum table's bytes
+
+  uint32_t DirEntrySize() const { return 24 + 8 * levels; }
+  uint32_t DirEntriesPerBlock() const { return block_size / DirEntrySize(); }
+  uint32_t NodesPerBlock() const {
+    return static_cast<uint32_t>((block_size - kNodeBlockHeader) / kNodeRecordSize);
+  }
+};
+
+// Encodes into 256 bytes, the last 4 being the masked CRC-32C of the first 252.
+void EncodeTreeHeader(const TreeHeader& h, uint8_t* dst);
+// Checks magic, version, checksum and internal consistency; `what` names the file in errors.
+Result<TreeHeader> DecodeTreeHeader(const uint8_t* src, const std::string& what);
+
+struct NodeRecord {
+  uint8_t axis = 0;
+  ChildType left_type = ChildType::kBucket, right_type = ChildType::kBucket;
+  float split = 0;
+  uint32_t left = 0, right = 0;
+};
+void EncodeNode(const NodeRecord& n, uint8_t* dst);
+NodeRecord DecodeNode(const uint8_t* src);
+
+struct DirEntry {
+  Box3 box;
+  std::array<uint32_t, kMaxLevels> start{}, count{};
+};
+void EncodeDirEntry(const DirEntry& e, uint32_t levels, uint8_t* dst);
+DirEntry DecodeDirEntry(const uint8_t* src, uint32_t levels);
+
+}  // namespace hvdb
+
+#endif  // HVDB_STORAGE_KDTREE_FORMAT_H_

@@ -1,0 +1,253 @@
+#include "storage/kdtree_reader.h"
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <cstring>
+
+#include "storage/coding.h"
+#include "storage/crc32c.h"
+
+namespace hvdb {
+
+Result<std::shared_ptr<KdTree>> KdTree::Open(const std::string& path, BufferPool* pool) {
+  HVDB_ASSIGN_OR_RETURN(auto file, RandomAccessFile::Open(path));
+  uint8_t head[kTreeHeaderSize];
+  if (file->size() < kTreeHeaderSize) {
+    return Status::Corruption(path + ": truncated: " + std::to_string(file->size()) +
+                              " bytes, smaller than a header");
+  }
+  HVDB_RETURN_IF_ERROR(file->Read(0, kTreeHeaderSize, head));
+  HVDB_ASSIGN_OR_RETURN(TreeHeader h, DecodeTreeHeader(head, path));
+  if (h.block_size != pool->block_size()) {
+    return Status::InvalidArgument(path + ": block size " + std::to_string(h.block_size) +
+                                   " differs from the database's " +
+                                   std::to_string(pool->block_size()));
+  }
+  if (file->size() != uint64_t{h.total_blocks} * h.block_size) {
+    return Status::Corruption(path + ": truncated: " + std::to_string(file->size()) +
+                              " bytes, header says " +
+                              std::to_string(uint64_t{h.total_blocks} * h.block_size));
+  }
+  std::string table(size_t{h.crc_block_count} * h.block_size, '\0');
+  HVDB_RETURN_IF_ERROR(file->Read(uint64_t{h.crc_block_start} * h.block_size, table.size(),
+                                  table.data()));
+  if (crc32c::Unmask(h.crc_table_crc) != crc32c::Value(table.data(), table.size())) {
+    return Status::Corruption(path + ": blocks " + std::to_string(h.crc_block_start) + ".." +
+                              std::to_string(h.total_blocks - 1) +
+                              " (checksum table): checksum mismatch");
+  }
+  std::vector<uint32_t> crcs(h.total_blocks);
+  for (uint32_t i = 0; i < h.total_blocks; ++i) {
+    crcs[i] = DecodeLE<uint32_t>(reinterpret_cast<const uint8_t*>(table.data()) + 4 * size_t{i});
+  }
+  return std::shared_ptr<KdTree>(new KdTree(std::move(file), pool, h, std::move(crcs)));
+}
+
+KdTree::KdTree(std::shared_ptr<RandomAccessFile> file, BufferPool* pool, TreeHeader h,
+               std::vector<uint32_t> crcs)
+    : file_(std::move(file)), pool_(pool), h_(h), crcs_(std::move(crcs)),
+      file_id_(pool->NewFileId()) {}
+
+KdTree::~KdTree() {
+  pool_->Forget(file_id_);
+  if (obsolete_) ::unlink(file_->path().c_str());
+}
+
+Status KdTree::LoadBlock(uint32_t blk, uint8_t* dst) const {
+  if (blk == 0 || blk >= h_.crc_block_start) {
+    return Status::Corruption(path() + ": reference to block " + std::to_string(blk) +
+                              " outside the data blocks");
+  }
+  HVDB_RETURN_IF_ERROR(file_->Read(uint64_t{blk} * h_.block_size, h_.block_size, dst));
+  if (crc32c::Unmask(crcs_[blk]) != crc32c::Value(dst, h_.block_size)) {
+    return Status::Corruption(path() + ": block " + std::to_string(blk) +
+                              ": checksum mismatch");
+  }
+  return Status::OK();
+}
+
+Result<PageRef> KdTree::Block(uint32_t blk) const {
+  return pool_->Fetch(file_id_, blk, [this, blk](uint8_t* dst) { return LoadBlock(blk, dst); });
+}
+
+Result<DirEntry> KdTree::Dir(uint32_t bucket) const {
+  if (bucket >= h_.bucket_count) {
+    return Status::Corruption(path() + ": bucket " + std::to_string(bucket) + " out of range");
+  }
+  uint32_t per = h_.DirEntriesPerBlock();
+  HVDB_ASSIGN_OR_RETURN(PageRef page, Block(h_.dir_block_start + bucket / per));
+  return DecodeDirEntry(page.data() + size_t{bucket % per} * h_.DirEntrySize(), h_.levels);
+}
+
+Status KdTree::FindBuckets(const BoxTest& test, std::vector<BucketHit>* out) const {
+  if (test(h_.bbox) == Relation::kOutside) return Status::OK();
+  auto visit_bucket = [&](uint32_t bucket) -> Status {
+    HVDB_ASSIGN_OR_RETURN(DirEntry e, Dir(bucket));
+    Relation r = test(e.box);
+    if (r != Relation::kOutside) out->push_back({bucket, r == Relation::kInside, e});
+    return Status::OK();
+  };
+  if (h_.root_type == ChildType::kBucket) return visit_bucket(h_.root_ref);
+  // Iterative DFS over (node block, node index) with the node's box, left before right.
+  struct Item {
+    uint32_t block, node;
+    Box3 box;
+  };
+  std::vector<Item> stack{{h_.root_ref, 0, h_.bbox}};
+  const uint32_t max_nodes = h_.NodesPerBlock();
+  while (!stack.empty()) {
+    Item it = stack.back();
+    stack.pop_back();
+    if (it.block == UINT32_MAX) {  // a bucket, in storage order
+      HVDB_RETURN_IF_ERROR(visit_bucket(it.node));
+      continue;
+    }
+    if (it.block >= h_.node_block_count) {
+      return Status::Corruption(path() + ": node block " + std::to_string(it.block) +
+                                " out of range");
+    }
+    HVDB_ASSIGN_OR_RETURN(PageRef page, Block(h_.node_block_start + it.block));
+    uint32_t count = DecodeLE<uint32_t>(page.data());
+    if (count > max_nodes || it.node >= count) {
+      return Status::Corruption(path() + ": block " +
+                                std::to_string(h_.node_block_start + it.block) +
+                                ": bad node index");
+    }
+    NodeRecord n = DecodeNode(page.data() + kNodeBlockHeader + size_t{it.node} * kNodeRecordSize);
+    page.Release();
+    if (n.axis > 2) return Status::Corruption(path() + ": node with axis > 2");
+    Box3 lbox = it.box, rbox = it.box;
+    lbox.hi[n.axis] = std::min(lbox.hi[n.axis], n.split);
+    rbox.lo[n.axis] = std::max(rbox.lo[n.axis], n.split);
+    // Push right first so left is visited first (storage order).
+    std::pair<ChildType, uint32_t> kids[2] = {{n.right_type, n.right}, {n.left_type, n.left}};
+    const Box3* boxes[2] = {&rbox, &lbox};
+    // Buckets are pushed as pseudo-items (block UINT32_MAX) to keep depth-first order.
+    for (int s = 0; s < 2; ++s) {
+      auto [type, ref] = kids[s];
+      if (test(*boxes[s]) == Relation::kOutside) continue;
+      switch (type) {
+        case ChildType::kNode: stack.push_back({it.block, ref, *boxes[s]}); break;
+        case ChildType::kNodeBlock: stack.push_back({ref, 0, *boxes[s]}); break;
+        case ChildType::kBucket:
+          stack.push_back({UINT32_MAX, ref, *boxes[s]});
+          break;
+        default: return Status::Corruption(path() + ": bad child type");
+      }
+    }
+  }
+  return Status::OK();
+}
+
+Status KdTree::ReadRange(int level, uint32_t start, uint32_t count,
+                         const std::function<void(const uint8_t*, size_t)>& fn) const {
+  const uint32_t b = h_.points_per_block;
+  if (level < 0 || static_cast<uint32_t>(level) >= h_.levels ||
+      uint64_t{start} + count > h_.level_count[level]) {
+    return Status::Corruption(path() + ": level range out of bounds");
+  }
+  while (count > 0) {
+    uint32_t blk = h_.level_start_block[level] + start / b;
+    uint32_t off = start % b;
+    uint32_t n = std::min(count, b - off);
+    HVDB_ASSIGN_OR_RETURN(PageRef page, Block(blk));
+    fn(page.data() + size_t{off} * kPointRecordSize, n);
+    start += n;
+    count -= n;
+  }
+  return Status::OK();
+}
+
+Status KdTree::ReadAll(std::vector<Point>* out) const {
+  size_t base = out->size();
+  out->resize(base + h_.point_count);
+  Point* dst = out->data() + base;
+  for (uint32_t k = 0; k < h_.levels; ++k) {
+    HVDB_RETURN_IF_ERROR(ReadRange(static_cast<int>(k), 0, h_.level_count[k],
+                                   [&dst](const uint8_t* rec, size_t n) {
+                                     DecodePoints(rec, n, dst);
+                                     dst += n;
+                                   }));
+  }
+  return Status::OK();
+}
+
+std::vector<std::string> KdTree::Verify() const {
+  std::vector<std::string> problems;
+  const uint32_t bs = h_.block_size;
+  std::vector<uint8_t> buf(bs);
+  bool blocks_ok = true;
+  for (uint32_t blk = 1; blk < h_.crc_block_start; ++blk) {
+    Status s = LoadBlock(blk, buf.data());
+    if (!s.ok()) {
+      problems.push_back(s.ToString());
+      blocks_ok = false;
+    }
+  }
+  if (!blocks_ok) return problems;  // structure checks would only repeat the same failures
+  // Read the directory and all points straight from the file.
+  auto read_entry = [&](uint32_t bucket) {
+    uint32_t per = h_.DirEntriesPerBlock();
+    std::vector<uint8_t> blk(bs);
+    (void)file_->Read(uint64_t{h_.dir_block_start + bucket / per} * bs, bs, blk.data());
+    return DecodeDirEntry(blk.data() + size_t{bucket % per} * h_.DirEntrySize(), h_.levels);
+  };
+  const uint64_t cap = 2ull * h_.points_per_block;
+  uint64_t total = 0;
+  for (uint32_t i = 0; i < h_.bucket_count; ++i) {
+    DirEntry e = read_entry(i);
+    uint64_t n = 0;
+    for (uint32_t k = 0; k < h_.levels; ++k) {
+      n += e.count[k];
+      Status s = ReadRange(static_cast<int>(k), e.start[k], e.count[k],
+                           [&](const uint8_t* rec, size_t cnt) {
+                             for (size_t j = 0; j < cnt; ++j) {
+                               Point p = DecodePoint(rec + j * kPointRecordSize);
+                               float c[3] = {p.x, p.y, p.z};
+                               for (int a = 0; a < 3; ++a) {
+                                 if (c[a] < e.box.lo[a] || c[a] > e.box.hi[a]) {
+                                   problems.push_back(path() + ": bucket " + std::to_string(i) +
+                                                      ": point " + std::to_string(p.id) +
+                                                      " outside the bucket box");
+                                   return;
+                                 }
+                               }
+                               if (p.frame != h_.frame) {
+                                 problems.push_back(path() + ": point " + std::to_string(p.id) +
+                                                    " has frame " + std::to_string(p.frame) +
+                                                    ", tree holds frame " +
+                                                    std::to_string(h_.frame));
+                                 return;
+                               }
+                             }
+                           });
+      if (!s.ok()) problems.push_back(s.ToString());
+    }
+    if (n > cap) problems.push_back(path() + ": bucket " + std::to_string(i) + " overfull");
+    if (n < cap && i + 1 != h_.bucket_count) {
+      problems.push_back(path() + ": bucket " + std::to_string(i) +
+                         " not full but not the last one (utilisation invariant)");
+    }
+    total += n;
+  }
+  if (total != h_.point_count) problems.push_back(path() + ": bucket sizes != point count");
+  // Every node's split must separate its children's bucket boxes.
+  BoxTest everything = [](const Box3&) { return Relation::kCrosses; };
+  std::vector<BucketHit> hits;
+  Status s = FindBuckets(everything, &hits);
+  if (!s.ok()) problems.push_back(s.ToString());
+  if (s.ok() && hits.size() != h_.bucket_count) {
+    problems.push_back(path() + ": the node tree reaches " + std::to_string(hits.size()) +
+                       " of " + std::to_string(h_.bucket_count) + " buckets");
+  }
+  for (size_t i = 0; i < hits.size(); ++i) {
+    if (hits[i].bucket != i) {
+      problems.push_back(path() + ": buckets out of depth-first order");
+      break;
+    }
+  }
+  return problems;
+}
+
+}  // namespace hvdb

@@ -1,0 +1,71 @@
+// KdTree: an open, immutable tree file, read block by block through the buffer pool.
+//
+// Thread safety: all const methods are safe for concurrent use. The object is shared by the
+// frame versions that list it; when the last one lets go of a tree marked obsolete (replaced
+// by a rebuild), its file is deleted.
+#ifndef HVDB_STORAGE_KDTREE_READER_H_
+#define HVDB_STORAGE_KDTREE_READER_H_
+
+#include <atomic>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "storage/buffer_pool.h"
+#include "storage/file.h"
+#include "storage/kdtree_format.h"
+#include "storage/point.h"
+
+namespace hvdb {
+
+class KdTree {
+ public:
+  static Result<std::shared_ptr<KdTree>> Open(const std::string& path, BufferPool* pool);
+  ~KdTree();
+  KdTree(const KdTree&) = delete;
+  KdTree& operator=(const KdTree&) = delete;
+
+  const TreeHeader& header() const { return h_; }
+  const std::string& path() const { return file_->path(); }
+  uint64_t file_bytes() const { return file_->size(); }
+  // The file is deleted when the last reference goes.
+  void MarkObsolete() { obsolete_ = true; }
+  void DropCache() const { file_->DropCache(); }
+
+  struct BucketHit {
+    uint32_t bucket;
+    bool inside;  // the whole bucket box lies in the query region
+    DirEntry entry;
+  };
+  // Walks the inner nodes and returns the buckets whose boxes are not outside `test`,
+  // in depth-first (= storage) order.
+  Status FindBuckets(const BoxTest& test, std::vector<BucketHit>* out) const;
+  // Calls fn(records, n) for consecutive runs of the 64-byte records of level `level`,
+  // positions [start, start + count) of that level's segment.
+  Status ReadRange(int level, uint32_t start, uint32_t count,
+                   const std::function<void(const uint8_t*, size_t)>& fn) const;
+  // Every point of every level.
+  Status ReadAll(std::vector<Point>* out) const;
+  // Integrity check from disk (bypassing the cache): checksums of every block, node split
+  // invariants, bucket boxes, fullness. Returns one line per problem.
+  std::vector<std::string> Verify() const;
+
+ private:
+  KdTree(std::shared_ptr<RandomAccessFile> file, BufferPool* pool, TreeHeader h,
+         std::vector<uint32_t> crcs);
+  Result<PageRef> Block(uint32_t blk) const;
+  Status LoadBlock(uint32_t blk, uint8_t* dst) const;
+  Result<DirEntry> Dir(uint32_t bucket) const;
+
+  std::shared_ptr<RandomAccessFile> file_;
+  BufferPool* pool_;
+  const TreeHeader h_;
+  const std::vector<uint32_t> crcs_;  // masked CRC-32C of every block (0: not covered)
+  const uint64_t file_id_;
+  std::atomic<bool> obsolete_{false};
+};
+
+}  // namespace hvdb
+
+#endif  // HVDB_STORAGE_KDTREE_READER_H_

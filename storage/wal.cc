@@ -1,0 +1,161 @@
+#include "storage/wal.h"
+
+#include <cstring>
+
+#include "storage/coding.h"
+#include "storage/crc32c.h"
+
+namespace hvdb {
+
+static constexpr char kWalMagic[8] = {'H', 'V', 'D', 'B', 'W', 'A', 'L', '\0'};
+static constexpr uint32_t kWalVersion = 1;
+static constexpr uint8_t kTypeTxn = 1;
+static constexpr uint32_t kMaxRecord = 1u << 30;
+
+static void PutPoints(Writer* w, const std::vector<Point>& pts) {
+  w->Put<uint32_t>(static_cast<uint32_t>(pts.size()));
+  std::string recs(pts.size() * kPointRecordSize, '\0');
+  EncodePoints(pts, reinterpret_cast<uint8_t*>(recs.data()));
+  w->PutBytes(recs.data(), recs.size());
+}
+
+static bool GetPoints(Reader* r, std::vector<Point>* pts) {
+  uint32_t n;
+  if (!r->Get(&n) || r->remaining() < uint64_t{n} * kPointRecordSize) return false;
+  pts->resize(n);
+  DecodePoints(r->pos(), n, pts->data());
+  r->Skip(size_t{n} * kPointRecordSize);
+  return true;
+}
+
+std::string EncodeTxnPayload(const TxnRecord& t) {
+  Writer w;
+  w.Put<uint64_t>(t.reverts);
+  w.Put<uint32_t>(static_cast<uint32_t>(t.frames.size()));
+  for (const FrameEffect& f : t.frames) {
+    w.Put<uint32_t>(f.frame);
+    PutPoints(&w, f.removed);
+    PutPoints(&w, f.added);
+  }
+  return std::move(w.data());
+}
+
+Result<TxnRecord> DecodeTxnPayload(const std::string& payload, uint64_t lsn) {
+  Reader r(reinterpret_cast<const uint8_t*>(payload.data()), payload.size());
+  TxnRecord t;
+  t.lsn = lsn;
+  uint32_t nframes;
+  if (!r.Get(&t.reverts) || !r.Get(&nframes)) {
+    return Status::Corruption("log record " + std::to_string(lsn) + ": bad header");
+  }
+  for (uint32_t i = 0; i < nframes; ++i) {
+    FrameEffect f;
+    if (!r.Get(&f.frame) || !GetPoints(&r, &f.removed) || !GetPoints(&r, &f.added)) {
+      return Status::Corruption("log record " + std::to_string(lsn) + ": bad frame effect");
+    }
+    t.frames.push_back(std::move(f));
+  }
+  if (r.remaining() != 0) {
+    return Status::Corruption("log record " + std::to_string(lsn) + ": trailing bytes");
+  }
+  return t;
+}
+
+Result<WalContents> ReadWal(const std::string& path) {
+  HVDB_ASSIGN_OR_RETURN(std::string data, ReadWholeFile(path));
+  WalContents out;
+  const auto* p = reinterpret_cast<const uint8_t*>(data.data());
+  if (data.size() < kWalHeaderSize) {
+    // A crash while creating the file: nothing was ever committed to it.
+    out.torn_tail = !data.empty();
+    return out;
+  }
+  if (std::memcmp(p, kWalMagic, 8) != 0) return Status::Corruption(path + ": bad magic");
+  uint32_t version = DecodeLE<uint32_t>(p + 8);
+  if (version != kWalVersion) {
+    return Status::Corruption(path + ": unsupported log version " + std::to_string(version));
+  }
+  out.start_lsn = DecodeLE<uint64_t>(p + 16);
+  size_t pos = kWalHeaderSize;
+  uint64_t expect_lsn = 0;
+  while (pos < data.size()) {
+    size_t left = data.size() - pos;
+    if (left < kWalRecordHeaderSize) {
+      out.torn_tail = true;
+      break;
+    }
+    uint32_t crc = DecodeLE<uint32_t>(p + pos);
+    uint32_t len = DecodeLE<uint32_t>(p + pos + 4);
+    if (len > kMaxRecord || kWalRecordHeaderSize + size_t{len} > left) {
+      out.torn_tail = true;  // the record runs past the end: a crash mid-append
+      break;
+    }
+    size_t end = pos + kWalRecordHeaderSize + len;
+    if (crc32c::Unmask(crc) != crc32c::Value(p + pos + 8, end - pos - 8)) {
+      if (end == data.size()) {
+        out.torn_tail = true;
+        break;
+      }
+      return Status::Corruption(path + ": record at offset " + std::to_string(pos) +
+                                ": checksum mismatch, with valid-looking data after it");
+    }
+    uint64_t lsn = DecodeLE<uint64_t>(p + pos + 8);
+    uint8_t type = p[pos + 16];
+    if (type != kTypeTxn) {
+      return Status::Corruption(path + ": record at offset " + std::to_string(pos) +
+                                ": unknown type " + std::to_string(type));
+    }
+    if (expect_lsn != 0 && lsn <= expect_lsn) {
+      return Status::Corruption(path + ": record at offset " + std::to_string(pos) +
+                                ": sequence number goes backwards");
+    }
+    expect_lsn = lsn;
+    HVDB_ASSIGN_OR_RETURN(TxnRecord t,
+                          DecodeTxnPayload(data.substr(pos + kWalRecordHeaderSize, len), lsn));
+    out.records.push_back(std::move(t));
+    pos = end;
+  }
+  out.valid_bytes = pos;
+  if (out.torn_tail) out.valid_bytes = pos;
+  return out;
+}
+
+Result<std::unique_ptr<WalWriter>> WalWriter::Open(const std::string& path, uint64_t start_lsn,
+                                                   uint64_t valid_bytes, bool exists) {
+  if (!exists || valid_bytes < kWalHeaderSize) {
+    Writer h;
+    h.PutBytes(kWalMagic, 8);
+    h.Put<uint32_t>(kWalVersion);
+    h.Put<uint32_t>(0);
+    h.Put<uint64_t>(start_lsn);
+    HVDB_RETURN_IF_ERROR(WriteFileAtomic(path, h.data()));
+    HVDB_ASSIGN_OR_RETURN(auto f, AppendFile::Open(path, /*truncate=*/false));
+    return std::unique_ptr<WalWriter>(new WalWriter(std::move(f)));
+  }
+  HVDB_ASSIGN_OR_RETURN(auto f, AppendFile::Open(path, /*truncate=*/false));
+  if (f->size() != valid_bytes) {
+    HVDB_RETURN_IF_ERROR(f->Truncate(valid_bytes));
+    HVDB_RETURN_IF_ERROR(f->Sync());
+  }
+  return std::unique_ptr<WalWriter>(new WalWriter(std::move(f)));
+}
+
+Status WalWriter::Append(const TxnRecord& t) {
+  std::string payload = EncodeTxnPayload(t);
+  if (payload.size() > kMaxRecord) {
+    return Status::LimitExceeded("transaction too large for one log record (" +
+                                 std::to_string(payload.size()) + " bytes, limit 1 GiB)");
+  }
+  Writer w;
+  w.Put<uint32_t>(0);  // crc, patched below
+  w.Put<uint32_t>(static_cast<uint32_t>(payload.size()));
+  w.Put<uint64_t>(t.lsn);
+  w.Put<uint8_t>(kTypeTxn);
+  w.PutBytes(payload.data(), payload.size());
+  std::string& rec = w.data();
+  uint32_t crc = crc32c::Mask(crc32c::Value(rec.data() + 8, rec.size() - 8));
+  EncodeLE(reinterpret_cast<uint8_t*>(rec.data()), crc);
+  return file_->Append(rec);
+}
+
+}  // namespace hvdb

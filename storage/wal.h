@@ -1,0 +1,63 @@
+// The write-ahead log of a dataset: one record per committed transaction, holding its full
+// effect (points removed, with their before-images, and points added, per frame), so that
+// recovery can redo it and Revert can derive its inverse. Format: docs/FORMAT.md, "Log".
+#ifndef HVDB_STORAGE_WAL_H_
+#define HVDB_STORAGE_WAL_H_
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "storage/file.h"
+#include "storage/point.h"
+
+namespace hvdb {
+
+struct FrameEffect {
+  uint32_t frame = 0;
+  std::vector<Point> removed;  // exact records as they were
+  std::vector<Point> added;
+};
+
+struct TxnRecord {
+  uint64_t lsn = 0;
+  uint64_t reverts = 0;  // non-zero: this transaction undid transaction `reverts`
+  std::vector<FrameEffect> frames;
+};
+
+std::string EncodeTxnPayload(const TxnRecord& t);
+Result<TxnRecord> DecodeTxnPayload(const std::string& payload, uint64_t lsn);
+
+struct WalContents {
+  uint64_t start_lsn = 1;  // first sequence number this file may hold
+  std::vector<TxnRecord> records;
+  uint64_t valid_bytes = 0;  // length of the valid prefix
+  bool torn_tail = false;    // bytes after valid_bytes were an incomplete last record
+};
+
+// Reads a log file. A torn last record (a crash mid-append) ends the log; a bad record with
+// valid data after it is Corruption.
+Result<WalContents> ReadWal(const std::string& path);
+
+class WalWriter {
+ public:
+  // Opens `path` for appending after `valid_bytes` (truncating a torn tail), or creates it
+  // with the given start_lsn when it does not exist.
+  static Result<std::unique_ptr<WalWriter>> Open(const std::string& path, uint64_t start_lsn,
+                                                 uint64_t valid_bytes, bool exists);
+  Status Append(const TxnRecord& t);
+  Status Sync() { return file_->Sync(); }
+  uint64_t size() const { return file_->size(); }
+
+ private:
+  explicit WalWriter(std::unique_ptr<AppendFile> f) : file_(std::move(f)) {}
+  std::unique_ptr<AppendFile> file_;
+};
+
+inline constexpr size_t kWalHeaderSize = 24;
+inline constexpr size_t kWalRecordHeaderSize = 17;  // crc, length, lsn, type
+
+}  // namespace hvdb
+
+#endif  // HVDB_STORAGE_WAL_H_

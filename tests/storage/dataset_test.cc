@@ -1,0 +1,560 @@
+// Differential tests of the engine against a brute-force model: random inserts, deletes,
+// label changes and transforms interleaved with window and slice queries at every level.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <map>
+#include <random>
+#include <set>
+#include <thread>
+
+#include "storage/database.h"
+#include "storage/hyperslice.h"
+#include "tests/storage/test_util.h"
+
+namespace hvdb {
+namespace {
+
+using testing::RandomPoints;
+using testing::TempDir;
+
+constexpr double kFps = 10.0;
+
+using Model = std::map<uint32_t, std::map<uint64_t, Point>>;  // frame -> id -> point
+
+std::vector<Point> RunQuery(Dataset& ds, const Region& r, QueryOptions o = {}) {
+  auto c = ds.Query(r, o);
+  EXPECT_TRUE(c.ok()) << c.status().ToString();
+  std::vector<Point> out;
+  if (!c.ok()) return out;
+  Batch b;
+  for (;;) {
+    auto more = (*c)->Next(&b);
+    EXPECT_TRUE(more.ok()) << more.status().ToString();
+    if (!more.ok() || !*more) break;
+    EXPECT_LE(b.points.size(), o.batch_points + 2 * 1024);
+    out.insert(out.end(), b.points.begin(), b.points.end());
+  }
+  return out;
+}
+
+Window Everything() {
+  Window w;
+  w.lo = {-1e9, -1e9, -1e9, -1e9};
+  w.hi = {1e9, 1e9, 1e9, 1e9};
+  return w;
+}
+
+Window FrameWindow(uint32_t f) {
+  Window w = Everything();
+  w.lo[3] = w.hi[3] = f / kFps;
+  return w;
+}
+
+std::set<std::pair<uint32_t, uint64_t>> Keys(const std::vector<Point>& pts) {
+  std::set<std::pair<uint32_t, uint64_t>> s;
+  for (const Point& p : pts) EXPECT_TRUE(s.insert({p.frame, p.id}).second) << "duplicate " << p.id;
+  return s;
+}
+
+class DatasetTest : public ::testing::Test {
+ protected:
+  void Open(Options o = {}) {
+    ds_.reset();
+    db_.reset();
+    o.cache_bytes = 8u << 20;
+    o.block_size = 4096;  // T0 = 64 points: rebuilds are frequent
+    o.max_slice_frames = 1000;
+    auto db = Database::Open(dir_.path(), o);
+    ASSERT_TRUE(db.ok()) << db.status().ToString();
+    db_ = std::move(*db);
+    auto ds = db_->GetDataset("video");
+    if (!ds.ok()) {
+      DatasetInfo info;
+      info.name = "video";
+      info.fps = kFps;
+      info.space_time_scale = 2.0;
+      ds = db_->CreateDataset(info);
+    }
+    ASSERT_TRUE(ds.ok()) << ds.status().ToString();
+    ds_ = *ds;
+  }
+
+  void Commit(const Transaction& t, CommitInfo* info = nullptr) {
+    auto r = ds_->Commit(t);
+    ASSERT_TRUE(r.ok()) << r.status().ToString();
+    if (info) *info = *r;
+  }
+
+  void InsertRandom(std::mt19937_64& rng, size_t n) {
+    std::vector<Point> pts;
+    std::uniform_int_distribution<uint32_t> frame(0, 7);
+    for (size_t i = 0; i < n; ++i) pts.push_back(testing::RandomPoint(rng, frame(rng)));
+    Transaction t;
+    t.Insert(pts);
+    CommitInfo info;
+    Commit(t, &info);
+    ASSERT_EQ(info.assigned_ids.size(), pts.size());
+    for (size_t i = 0; i < pts.size(); ++i) {
+      pts[i].id = info.assigned_ids[i];
+      model_[pts[i].frame][pts[i].id] = pts[i];
+    }
+  }
+
+  std::vector<Point> ModelPoints(const std::function<bool(const Point&)>& pred) const {
+    std::vector<Point> out;
+    for (const auto& [f, m] : model_) {
+      for (const auto& [id, p] : m) {
+        if (pred(p)) out.push_back(p);
+      }
+    }
+    return out;
+  }
+
+  // Checks a window at every level against the model.
+  void CheckWindow(const Window& w) {
+    auto in = [&](const Point& p) {
+      double t = p.frame / kFps;
+      return p.x >= w.lo[0] && p.x <= w.hi[0] && p.y >= w.lo[1] && p.y <= w.hi[1] &&
+             p.z >= w.lo[2] && p.z <= w.hi[2] && t >= w.lo[3] && t <= w.hi[3];
+    };
+    auto want = ModelPoints(in);
+    auto got = RunQuery(*ds_, w);
+    ASSERT_EQ(Keys(got), Keys(want));
+    std::map<std::pair<uint32_t, uint64_t>, Point> byk;
+    for (const Point& p : want) byk[{p.frame, p.id}] = p;
+    for (const Point& p : got) {
+      EXPECT_EQ(p, (byk[{p.frame, p.id}]));
+    }
+    // Coarser levels: the region's share of a full-frame read at that level, on the frames
+    // that temporal LOD keeps.
+    std::set<uint32_t> frames;
+    for (const auto& [f, m] : model_) {
+      if (!m.empty() && f / kFps >= w.lo[3] && f / kFps <= w.hi[3]) frames.insert(f);
+    }
+    for (int lod = 1; lod <= 5; ++lod) {
+      QueryOptions o;
+      o.lod = lod;
+      auto coarse = RunQuery(*ds_, w, o);
+      std::set<std::pair<uint32_t, uint64_t>> expect;
+      for (uint32_t f : frames) {
+        if (frames.size() > 1 && f % (1u << lod) != 0) continue;
+        QueryOptions fo;
+        fo.lod = lod;
+        for (const Point& p : RunQuery(*ds_, FrameWindow(f), fo)) {
+          if (in(p)) expect.insert({p.frame, p.id});
+        }
+      }
+      EXPECT_EQ(Keys(coarse), expect) << "lod " << lod;
+    }
+  }
+
+  void CheckSlice(const Slice& s, int lod = 0) {
+    auto g = SliceGeometry::Make(s, 2.0);
+    ASSERT_TRUE(g.ok());
+    QueryOptions o;
+    o.lod = lod;
+    auto got = RunQuery(*ds_, s, o);
+    std::map<std::pair<uint32_t, uint64_t>, Point> want;
+    for (const Point& p : ModelPoints([&](const Point& p) {
+           return g->Selects(p.x, p.y, p.z, p.frame / kFps);
+         })) {
+      Point q = p;
+      g->Project(&q, p.frame / kFps, 1 / kFps);
+      want[{p.frame, p.id}] = q;
+    }
+    if (lod == 0) {
+      ASSERT_EQ(got.size(), want.size());
+    }
+    for (const Point& p : got) {
+      auto it = want.find({p.frame, p.id});
+      ASSERT_NE(it, want.end()) << "extra point " << p.id;
+      if (lod == 0) {
+        EXPECT_NEAR(p.x, it->second.x, 1e-5);
+        EXPECT_NEAR(p.y, it->second.y, 1e-5);
+        EXPECT_NEAR(p.z, it->second.z, 1e-5);
+        for (int i = 0; i < 6; ++i) EXPECT_NEAR(p.cov[i], it->second.cov[i], 1e-7);
+      }
+    }
+  }
+
+  void CheckAll() {
+    auto all = RunQuery(*ds_, Everything());
+    EXPECT_EQ(Keys(all), Keys(ModelPoints([](const Point&) { return true; })));
+  }
+
+  TempDir dir_;
+  std::unique_ptr<Database> db_;
+  std::shared_ptr<Dataset> ds_;
+  Model model_;
+};
+
+TEST_F(DatasetTest, BulkLoadThenQueryEveryLevel) {
+  Open();
+  std::mt19937_64 rng(1);
+  for (uint32_t f = 0; f < 4; ++f) {
+    auto pts = RandomPoints(rng, 5000 + 1000 * f, f);
+    auto n = ds_->BulkLoad(f, pts);
+    ASSERT_TRUE(n.ok()) << n.status().ToString();
+  }
+  // Learn the ids from a full read.
+  for (const Point& p : RunQuery(*ds_, Everything())) model_[p.frame][p.id] = p;
+  ASSERT_EQ(ModelPoints([](const Point&) { return true; }).size(), 5000u + 6000 + 7000 + 8000);
+  std::uniform_real_distribution<double> u(0, 10);
+  for (int q = 0; q < 10; ++q) {
+    Window w;
+    for (int a = 0; a < 3; ++a) {
+      double x = u(rng), y = u(rng);
+      w.lo[a] = std::min(x, y);
+      w.hi[a] = std::max(x, y);
+    }
+    w.lo[3] = 0;
+    w.hi[3] = u(rng) / 10 * 0.4;
+    CheckWindow(w);
+  }
+  // Level sizes: about n / 2^i for a single frame.
+  for (int lod = 0; lod <= 5; ++lod) {
+    QueryOptions o;
+    o.lod = lod;
+    double n = RunQuery(*ds_, FrameWindow(3), o).size();
+    EXPECT_NEAR(n / 8000.0, 1.0 / (1 << lod), 0.15 / (1 << lod)) << lod;
+  }
+}
+
+TEST_F(DatasetTest, RandomEditsAgainstBruteForce) {
+  Open();
+  std::mt19937_64 rng(1234);
+  std::uniform_real_distribution<double> u(0, 10);
+  for (int round = 0; round < 12; ++round) {
+    InsertRandom(rng, 20 + rng() % 300);
+    // Delete a few points by id + position.
+    Transaction del;
+    int deleted = 0;
+    for (auto& [f, m] : model_) {
+      if (m.empty() || deleted > 10) continue;
+      auto it = std::next(m.begin(), static_cast<long>(rng() % m.size()));
+      del.Delete(it->second.id, f, {it->second.x, it->second.y, it->second.z});
+      m.erase(it);
+      ++deleted;
+    }
+    if (!del.empty()) Commit(del);
+    // Delete a small region with a label mask.
+    Window w;
+    for (int a = 0; a < 3; ++a) {
+      double x = u(rng);
+      w.lo[a] = x;
+      w.hi[a] = x + 2;
+    }
+    w.lo[3] = 0;
+    w.hi[3] = 1;
+    Selection sel;
+    sel.region = w;
+    sel.label_mask = 0x3;
+    Transaction dr;
+    dr.DeleteSelection(sel);
+    Commit(dr);
+    for (auto& [f, m] : model_) {
+      std::erase_if(m, [&](const auto& e) {
+        const Point& p = e.second;
+        return (p.label & 0x3) && p.x >= w.lo[0] && p.x <= w.hi[0] && p.y >= w.lo[1] &&
+               p.y <= w.hi[1] && p.z >= w.lo[2] && p.z <= w.hi[2] && f / kFps <= 1;
+      });
+    }
+    // Label a region of frame 2.
+    Selection ls;
+    Window lw = FrameWindow(2);
+    lw.lo[0] = 0;
+    lw.hi[0] = 5;
+    ls.region = lw;
+    Transaction lt;
+    lt.SetLabel(ls, 0x100, true);
+    Commit(lt);
+    for (auto& [id, p] : model_[2]) {
+      if (p.x >= 0 && p.x <= 5) p.label |= 0x100;
+    }
+    CheckAll();
+  }
+  Window all = Everything();
+  CheckWindow(all);
+  for (int q = 0; q < 8; ++q) {
+    Window w;
+    for (int a = 0; a < 3; ++a) {
+      double x = u(rng), y = u(rng);
+      w.lo[a] = std::min(x, y);
+      w.hi[a] = std::max(x, y);
+    }
+    w.lo[3] = u(rng) / 20;
+    w.hi[3] = w.lo[3] + u(rng) / 20;
+    CheckWindow(w);
+  }
+  // Slices: orthogonal to t, and tilted across frames.
+  Slice s;
+  s.normal = {0, 0, 0, 1};
+  s.offset = 2.0 * (3 / kFps);  // N . (x,y,z,s t) = s t: frame 3
+  s.thickness = 0.05;
+  CheckSlice(s);
+  s.normal = {0.3, 0.1, 0, 0.9};
+  s.offset = 1.5;
+  s.thickness = 0.4;
+  CheckSlice(s);
+  for (int lod = 1; lod <= 5; ++lod) CheckSlice(s, lod);
+  // Everything survives a restart.
+  Open();
+  CheckAll();
+  EXPECT_TRUE(ds_->Check().empty());
+}
+
+TEST_F(DatasetTest, TransformMovesPointsAcrossFrames) {
+  Open();
+  std::mt19937_64 rng(5);
+  InsertRandom(rng, 500);
+  Selection sel;
+  sel.region = FrameWindow(1);
+  Affine4 shift;
+  shift.c = {1.0, 0, 0, 2 / kFps};  // +1 m in x, +2 frames
+  Transaction t;
+  t.Transform(sel, shift);
+  CommitInfo info;
+  Commit(t, &info);
+  auto moved = model_[1];
+  model_[1].clear();
+  for (auto [id, p] : moved) {
+    p.x += 1;
+    p.frame = 3;
+    model_[3][id] = p;
+  }
+  CheckAll();
+  auto three = RunQuery(*ds_, FrameWindow(3));
+  std::map<uint64_t, Point> by_id;
+  for (const Point& p : three) by_id[p.id] = p;
+  for (const auto& [id, p] : model_[3]) {
+    ASSERT_TRUE(by_id.count(id));
+    EXPECT_FLOAT_EQ(by_id[id].x, p.x);
+  }
+  // Undo brings back exactly the previous state.
+  auto r = ds_->Revert(info.lsn);
+  ASSERT_TRUE(r.ok()) << r.status().ToString();
+  for (const auto& [id, p] : moved) model_[3].erase(id);
+  model_[1] = moved;
+  CheckAll();
+  auto one = RunQuery(*ds_, FrameWindow(1));
+  for (const Point& p : one) EXPECT_EQ(p, moved[p.id]);
+}
+
+TEST_F(DatasetTest, RevertOfInsertAndOfRevert) {
+  Open();
+  std::mt19937_64 rng(6);
+  InsertRandom(rng, 100);
+  auto before = RunQuery(*ds_, Everything());
+  Transaction t;
+  t.Insert(RandomPoints(rng, 50, 4));
+  CommitInfo info;
+  Commit(t, &info);
+  EXPECT_EQ(RunQuery(*ds_, Everything()).size(), 150u);
+  auto undo = ds_->Revert(info.lsn);
+  ASSERT_TRUE(undo.ok());
+  EXPECT_EQ(Keys(RunQuery(*ds_, Everything())), Keys(before));
+  auto redo = ds_->Revert(undo->lsn);
+  ASSERT_TRUE(redo.ok());
+  EXPECT_EQ(RunQuery(*ds_, Everything()).size(), 150u);
+  EXPECT_TRUE(ds_->Revert(9999).status().IsNotFound());
+}
+
+TEST_F(DatasetTest, FailedTransactionChangesNothing) {
+  Open();
+  std::mt19937_64 rng(7);
+  InsertRandom(rng, 100);
+  auto lsn = ds_->Info().last_lsn;
+  Transaction t;
+  t.Insert(RandomPoints(rng, 10, 0));
+  t.Delete(424242, 0, {1, 2, 3});  // no such point
+  auto r = ds_->Commit(t);
+  ASSERT_FALSE(r.ok());
+  EXPECT_TRUE(r.status().IsNotFound());
+  EXPECT_EQ(ds_->Info().last_lsn, lsn);
+  CheckAll();
+  Transaction bad;
+  Point nan = RandomPoints(rng, 1, 0)[0];
+  nan.x = NAN;
+  bad.Insert({nan});
+  EXPECT_TRUE(ds_->Commit(bad).status().IsInvalidArgument());
+  CheckAll();
+}
+
+TEST_F(DatasetTest, ProgressiveIsCoarseFirstAndEachPointOnce) {
+  Open();
+  std::mt19937_64 rng(8);
+  ASSERT_TRUE(ds_->BulkLoad(0, RandomPoints(rng, 20000, 0)).ok());
+  ASSERT_TRUE(ds_->BulkLoad(1, RandomPoints(rng, 20000, 1)).ok());
+  QueryOptions o;
+  o.progressive = true;
+  o.batch_points = 1000;
+  o.temporal_lod = false;
+  auto c = ds_->Query(Everything(), o);
+  ASSERT_TRUE(c.ok());
+  Batch b;
+  int last_level = 6;
+  size_t total = 0;
+  std::map<int, size_t> per_level;
+  std::set<std::pair<uint32_t, uint64_t>> seen;
+  while (true) {
+    auto more = (*c)->Next(&b);
+    ASSERT_TRUE(more.ok());
+    if (!*more) break;
+    EXPECT_LE(b.level, last_level);
+    last_level = b.level;
+    EXPECT_FLOAT_EQ(b.splat_scale, std::pow(2.f, b.level / 2.f));
+    for (const Point& p : b.points) EXPECT_TRUE(seen.insert({p.frame, p.id}).second);
+    per_level[b.level] += b.points.size();
+    total += b.points.size();
+  }
+  EXPECT_EQ(total, 40000u);
+  EXPECT_NEAR(double(per_level[0]), 20000, 1000);
+  EXPECT_NEAR(double(per_level[5]), 40000 / 32.0, 200);
+}
+
+TEST_F(DatasetTest, CancelStopsTheStream) {
+  Open();
+  std::mt19937_64 rng(9);
+  ASSERT_TRUE(ds_->BulkLoad(0, RandomPoints(rng, 20000, 0)).ok());
+  QueryOptions o;
+  o.batch_points = 100;
+  auto c = ds_->Query(Everything(), o);
+  ASSERT_TRUE(c.ok());
+  Batch b;
+  ASSERT_TRUE((*c)->Next(&b).ok());
+  (*c)->Cancel();
+  auto r = (*c)->Next(&b);
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.status().code(), StatusCode::kCancelled);
+}
+
+TEST_F(DatasetTest, SnapshotIsolation) {
+  Open();
+  std::mt19937_64 rng(10);
+  ASSERT_TRUE(ds_->BulkLoad(0, RandomPoints(rng, 5000, 0)).ok());
+  QueryOptions o;
+  o.batch_points = 100;
+  auto c = ds_->Query(Everything(), o);
+  ASSERT_TRUE(c.ok());
+  // A commit that deletes half the frame, and rebuilds trees, does not change the open query.
+  Selection sel;
+  Window w = Everything();
+  w.hi[0] = 5;
+  sel.region = w;
+  Transaction t;
+  t.DeleteSelection(sel);
+  Commit(t);
+  Transaction ins;
+  ins.Insert(RandomPoints(rng, 200, 0));
+  Commit(ins);
+  size_t n = 0;
+  Batch b;
+  while (true) {
+    auto more = (*c)->Next(&b);
+    ASSERT_TRUE(more.ok());
+    if (!*more) break;
+    n += b.points.size();
+  }
+  EXPECT_EQ(n, 5000u);
+}
+
+TEST_F(DatasetTest, SliceFrameBound) {
+  Open();
+  std::mt19937_64 rng(11);
+  for (uint32_t f = 0; f < 20; ++f) ASSERT_TRUE(ds_->BulkLoad(f, RandomPoints(rng, 200, f)).ok());
+  Slice s;
+  s.normal = {1, 0, 0, 0};  // parallel to t: every frame
+  s.offset = 5;
+  s.thickness = 1;
+  s.max_frames = 8;
+  auto c = ds_->Query(s);
+  ASSERT_FALSE(c.ok());
+  EXPECT_EQ(c.status().code(), StatusCode::kLimitExceeded);
+  EXPECT_NE(c.status().message().find("20 frames"), std::string::npos);
+  s.on_too_many_frames = Slice::FrameBound::kClip;
+  auto clipped = ds_->Query(s);
+  ASSERT_TRUE(clipped.ok());
+  EXPECT_TRUE((*clipped)->clipped());
+  EXPECT_EQ((*clipped)->frames().size(), 8u);
+  // A clip window narrows the frames instead.
+  s.on_too_many_frames = Slice::FrameBound::kError;
+  Window clip = Everything();
+  clip.lo[3] = 0.5;
+  clip.hi[3] = 1.0;
+  s.clip = clip;
+  auto narrow = ds_->Query(s);
+  ASSERT_TRUE(narrow.ok());
+  EXPECT_EQ((*narrow)->frames().size(), 6u);  // frames 5..10
+}
+
+TEST_F(DatasetTest, InvalidParameters) {
+  Open();
+  QueryOptions o;
+  o.lod = 9;
+  EXPECT_TRUE(ds_->Query(Everything(), o).status().IsInvalidArgument());
+  Window w = Everything();
+  w.lo[1] = NAN;
+  EXPECT_TRUE(ds_->Query(w).status().IsInvalidArgument());
+  Slice s;
+  s.normal = {0, 0, 0, 0};
+  EXPECT_TRUE(ds_->Query(s).status().IsInvalidArgument());
+  DatasetInfo info;
+  info.name = "../evil";
+  EXPECT_TRUE(db_->CreateDataset(info).status().IsInvalidArgument());
+  info.name = "x";
+  info.fps = -1;
+  EXPECT_TRUE(db_->CreateDataset(info).status().IsInvalidArgument());
+  EXPECT_TRUE(db_->GetDataset("nope").status().IsNotFound());
+}
+
+TEST_F(DatasetTest, ConcurrentCommitsAndQueries) {
+  Open();
+  std::mt19937_64 seed_rng(12);
+  ASSERT_TRUE(ds_->BulkLoad(0, RandomPoints(seed_rng, 3000, 0)).ok());
+  std::atomic<int> failures{0};
+  std::vector<std::thread> threads;
+  for (int t = 0; t < 4; ++t) {
+    threads.emplace_back([&, t] {
+      std::mt19937_64 rng(100 + t);
+      for (int i = 0; i < 25; ++i) {
+        Transaction txn;
+        txn.Insert(RandomPoints(rng, 40, static_cast<uint32_t>(t)));
+        if (!ds_->Commit(txn).ok()) ++failures;
+      }
+    });
+  }
+  for (int t = 0; t < 2; ++t) {
+    threads.emplace_back([&] {
+      for (int i = 0; i < 20; ++i) {
+        auto c = ds_->Query(Everything());
+        if (!c.ok()) {
+          ++failures;
+          continue;
+        }
+        Batch b;
+        while (true) {
+          auto more = (*c)->Next(&b);
+          if (!more.ok()) ++failures;
+          if (!more.ok() || !*more) break;
+        }
+      }
+    });
+  }
+  for (auto& th : threads) th.join();
+  EXPECT_EQ(failures.load(), 0);
+  EXPECT_EQ(RunQuery(*ds_, Everything()).size(), 3000u + 4 * 25 * 40);
+  EXPECT_EQ(ds_->Info().last_lsn, 100u);
+  EXPECT_TRUE(ds_->Check().empty());
+}
+
+TEST_F(DatasetTest, DropAndList) {
+  Open();
+  EXPECT_EQ(db_->ListDatasets(), std::vector<std::string>{"video"});
+  ds_.reset();
+  ASSERT_TRUE(db_->DropDataset("video").ok());
+  EXPECT_TRUE(db_->ListDatasets().empty());
+}
+
+}  // namespace
+}  // namespace hvdb

@@ -1,0 +1,193 @@
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+#include <set>
+
+#include "storage/buffer_pool.h"
+#include "storage/kdtree_builder.h"
+#include "storage/kdtree_reader.h"
+#include "tests/storage/test_util.h"
+
+namespace hvdb {
+namespace {
+
+using testing::RandomPoints;
+using testing::TempDir;
+
+std::shared_ptr<KdTree> Build(const std::string& path, std::vector<Point> pts, BufferPool* pool,
+                              uint32_t block_size, int levels = 5) {
+  TreeBuildParams params;
+  params.block_size = block_size;
+  params.lod_levels = levels;
+  params.frame = 0;
+  params.tree_seq = 1;
+  EXPECT_TRUE(BuildTreeFile(path, pts, params).ok());
+  auto t = KdTree::Open(path, pool);
+  EXPECT_TRUE(t.ok()) << t.status().ToString();
+  return t.ok() ? *t : nullptr;
+}
+
+TEST(KdTreeTest, LeftChildGetsAPowerOfTwoOfFullBuckets) {
+  const uint64_t c = 128;
+  EXPECT_EQ(LeftChildSize(100, c), 100u);
+  EXPECT_EQ(LeftChildSize(129, c), 128u);
+  EXPECT_EQ(LeftChildSize(256, c), 128u);
+  EXPECT_EQ(LeftChildSize(4 * c, c), 2 * c);
+  EXPECT_EQ(LeftChildSize(5 * c, c), 4 * c);
+  for (uint64_t q = c + 1; q < 40 * c; q += 7) {
+    uint64_t l = LeftChildSize(q, c);
+    EXPECT_EQ(l % c, 0u);
+    EXPECT_TRUE(std::has_single_bit(l / c)) << q;
+    EXPECT_LT(l, q);
+    // The thesis formula, c * 2^floor(log2(q/c - 1)), for q >= 2c.
+    if (q >= 2 * c) {
+      EXPECT_EQ(l, c << static_cast<int>(std::floor(std::log2(double(q) / c - 1)))) << q;
+    }
+  }
+}
+
+TEST(KdTreeTest, WindowQueriesMatchBruteForce) {
+  TempDir dir;
+  BufferPool pool(8u << 20, 4096);
+  std::mt19937_64 rng(42);
+  auto pts = RandomPoints(rng, 100000, 0);
+  for (size_t i = 0; i < pts.size(); ++i) pts[i].id = i + 1;
+  auto tree = Build(dir.path() + "/t.kdt", pts, &pool, 4096);
+  ASSERT_TRUE(tree);
+  EXPECT_GT(tree->header().node_block_count, 1u);  // small blocks: the node tree spans blocks
+  EXPECT_TRUE(tree->Verify().empty());
+  std::uniform_real_distribution<float> u(0.f, 10.f);
+  for (int q = 0; q < 50; ++q) {
+    Box3 w;
+    for (int a = 0; a < 3; ++a) {
+      float x = u(rng), y = u(rng);
+      w.lo[a] = std::min(x, y);
+      w.hi[a] = std::max(x, y);
+    }
+    auto in = [&](const Point& p) {
+      float c[3] = {p.x, p.y, p.z};
+      for (int a = 0; a < 3; ++a) {
+        if (c[a] < w.lo[a] || c[a] > w.hi[a]) return false;
+      }
+      return true;
+    };
+    BoxTest test = [&](const Box3& b) {
+      bool inside = true;
+      for (int a = 0; a < 3; ++a) {
+        if (b.hi[a] < w.lo[a] || b.lo[a] > w.hi[a]) return Relation::kOutside;
+        if (b.lo[a] < w.lo[a] || b.hi[a] > w.hi[a]) inside = false;
+      }
+      return inside ? Relation::kInside : Relation::kCrosses;
+    };
+    std::vector<KdTree::BucketHit> hits;
+    ASSERT_TRUE(tree->FindBuckets(test, &hits).ok());
+    std::set<uint64_t> got, want;
+    for (const auto& h : hits) {
+      for (uint32_t k = 0; k < tree->header().levels; ++k) {
+        ASSERT_TRUE(tree->ReadRange(static_cast<int>(k), h.entry.start[k], h.entry.count[k],
+                                    [&](const uint8_t* rec, size_t n) {
+                                      for (size_t j = 0; j < n; ++j) {
+                                        Point p = DecodePoint(rec + 64 * j);
+                                        if (h.inside) {
+                                          EXPECT_TRUE(in(p));
+                                        }
+                                        if (in(p)) got.insert(p.id);
+                                      }
+                                    }).ok());
+      }
+    }
+    for (const Point& p : pts) {
+      if (in(p)) want.insert(p.id);
+    }
+    EXPECT_EQ(got, want) << "query " << q;
+  }
+}
+
+TEST(KdTreeTest, LargeTreeUtilisationAtLeast97Percent) {
+  TempDir dir;
+  BufferPool pool(8u << 20, 65536);
+  std::mt19937_64 rng(5);
+  auto pts = RandomPoints(rng, 500000, 0);
+  auto tree = Build(dir.path() + "/t.kdt", pts, &pool, 65536);
+  ASSERT_TRUE(tree);
+  const TreeHeader& h = tree->header();
+  uint64_t leaf_blocks = 0;
+  for (uint32_t k = 0; k < h.levels; ++k) {
+    leaf_blocks += (h.level_count[k] + h.points_per_block - 1) / h.points_per_block;
+  }
+  double util = double(h.point_count) / double(leaf_blocks * h.points_per_block);
+  EXPECT_GE(util, 0.97) << "leaf blocks " << leaf_blocks;
+  // Every bucket but the last holds exactly 2b points.
+  EXPECT_EQ(h.bucket_count, (500000 + 2047) / 2048);
+  EXPECT_TRUE(tree->Verify().empty());
+  // The file is within 1.02x of the raw point bytes.
+  EXPECT_LT(double(tree->file_bytes()), 1.02 * 500000 * 64 + 4 * 65536);
+}
+
+TEST(KdTreeTest, LevelSizesHalve) {
+  TempDir dir;
+  BufferPool pool(16u << 20, 65536);
+  std::mt19937_64 rng(6);
+  const size_t n = 1 << 18;
+  auto tree = Build(dir.path() + "/t.kdt", RandomPoints(rng, n, 0), &pool, 65536);
+  ASSERT_TRUE(tree);
+  const TreeHeader& h = tree->header();
+  // Levels >= i together hold n / 2^i points.
+  for (uint32_t i = 0; i < h.levels; ++i) {
+    uint64_t sum = 0;
+    for (uint32_t k = i; k < h.levels; ++k) sum += h.level_count[k];
+    EXPECT_EQ(sum, n >> i) << "level " << i;
+  }
+}
+
+TEST(KdTreeTest, SingleBucketTreeAndTinyInputs) {
+  TempDir dir;
+  BufferPool pool(8u << 20, 4096);
+  std::mt19937_64 rng(8);
+  for (size_t n : {1u, 2u, 5u, 127u, 128u, 129u}) {
+    auto pts = RandomPoints(rng, n, 0);
+    auto tree = Build(dir.path() + "/t" + std::to_string(n) + ".kdt", pts, &pool, 4096);
+    ASSERT_TRUE(tree);
+    std::vector<Point> all;
+    ASSERT_TRUE(tree->ReadAll(&all).ok());
+    EXPECT_EQ(all.size(), n);
+    EXPECT_TRUE(tree->Verify().empty());
+  }
+}
+
+TEST(KdTreeTest, DuplicatePositionsAreAllFound) {
+  TempDir dir;
+  BufferPool pool(8u << 20, 4096);
+  std::vector<Point> pts(1000);
+  for (size_t i = 0; i < pts.size(); ++i) {
+    pts[i].id = i + 1;
+    pts[i].x = 1.f;
+    pts[i].y = static_cast<float>(i % 3);
+    pts[i].z = 2.f;
+  }
+  auto tree = Build(dir.path() + "/t.kdt", pts, &pool, 4096);
+  ASSERT_TRUE(tree);
+  std::vector<KdTree::BucketHit> hits;
+  ASSERT_TRUE(tree->FindBuckets(
+                      [](const Box3& b) {
+                        return (b.lo[1] <= 1.f && b.hi[1] >= 1.f) ? Relation::kCrosses
+                                                                  : Relation::kOutside;
+                      },
+                      &hits)
+                  .ok());
+  size_t found = 0;
+  for (const auto& h : hits) {
+    for (uint32_t k = 0; k < tree->header().levels; ++k) {
+      (void)tree->ReadRange(static_cast<int>(k), h.entry.start[k], h.entry.count[k],
+                            [&](const uint8_t* rec, size_t n) {
+                              for (size_t j = 0; j < n; ++j) found += DecodePoint(rec + 64 * j).y == 1.f;
+                            });
+    }
+  }
+  EXPECT_EQ(found, 333u);
+}
+
+}  // namespace
+}  // namespace hvdb

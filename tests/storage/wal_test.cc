@@ -1,0 +1,96 @@
+#include "storage/wal.h"
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <random>
+
+#include "tests/storage/test_util.h"
+
+namespace hvdb {
+namespace {
+
+TxnRecord MakeRecord(uint64_t lsn, std::mt19937_64& rng) {
+  TxnRecord t;
+  t.lsn = lsn;
+  FrameEffect f;
+  f.frame = static_cast<uint32_t>(lsn % 5);
+  f.added = testing::RandomPoints(rng, 3 + lsn % 7, f.frame);
+  f.removed = testing::RandomPoints(rng, lsn % 3, f.frame);
+  t.frames.push_back(f);
+  return t;
+}
+
+class WalTest : public ::testing::Test {
+ protected:
+  std::string Write(int n) {
+    std::string path = dir_.path() + "/wal.log";
+    auto w = WalWriter::Open(path, 1, 0, false);
+    EXPECT_TRUE(w.ok());
+    std::mt19937_64 rng(1);
+    for (int i = 1; i <= n; ++i) EXPECT_TRUE((*w)->Append(MakeRecord(i, rng)).ok());
+    EXPECT_TRUE((*w)->Sync().ok());
+    return path;
+  }
+  testing::TempDir dir_;
+};
+
+TEST_F(WalTest, RoundTrip) {
+  std::string path = Write(20);
+  auto c = ReadWal(path);
+  ASSERT_TRUE(c.ok()) << c.status().ToString();
+  ASSERT_EQ(c->records.size(), 20u);
+  EXPECT_FALSE(c->torn_tail);
+  std::mt19937_64 rng(1);
+  for (uint64_t i = 1; i <= 20; ++i) {
+    TxnRecord want = MakeRecord(i, rng);
+    const TxnRecord& got = c->records[i - 1];
+    EXPECT_EQ(got.lsn, i);
+    ASSERT_EQ(got.frames.size(), 1u);
+    EXPECT_EQ(got.frames[0].added, want.frames[0].added);
+    EXPECT_EQ(got.frames[0].removed, want.frames[0].removed);
+  }
+}
+
+TEST_F(WalTest, TornTailIsDroppedAndRepaired) {
+  std::string path = Write(10);
+  auto size = std::filesystem::file_size(path);
+  std::filesystem::resize_file(path, size - 30);  // cut into the last record
+  auto c = ReadWal(path);
+  ASSERT_TRUE(c.ok());
+  EXPECT_TRUE(c->torn_tail);
+  EXPECT_EQ(c->records.size(), 9u);
+  auto w = WalWriter::Open(path, 1, c->valid_bytes, true);
+  ASSERT_TRUE(w.ok());
+  std::mt19937_64 rng(2);
+  ASSERT_TRUE((*w)->Append(MakeRecord(10, rng)).ok());
+  auto again = ReadWal(path);
+  ASSERT_TRUE(again.ok());
+  EXPECT_EQ(again->records.size(), 10u);
+  EXPECT_FALSE(again->torn_tail);
+}
+
+TEST_F(WalTest, GarbageTailIsTorn) {
+  std::string path = Write(3);
+  std::ofstream(path, std::ios::app) << "xxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxx";
+  auto c = ReadWal(path);
+  ASSERT_TRUE(c.ok());
+  EXPECT_TRUE(c->torn_tail);
+  EXPECT_EQ(c->records.size(), 3u);
+}
+
+TEST_F(WalTest, CorruptionInTheMiddleIsAnError) {
+  std::string path = Write(5);
+  std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
+  f.seekp(kWalHeaderSize + 40);
+  f.put('\x5a');
+  f.close();
+  auto c = ReadWal(path);
+  ASSERT_FALSE(c.ok());
+  EXPECT_TRUE(c.status().IsCorruption());
+  EXPECT_NE(c.status().message().find("wal.log"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace hvdb
