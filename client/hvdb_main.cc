@@ -82,8 +82,10 @@ int Fail(const Status& s) {
   return kExitError;
 }
 
+// command: the subcommand at fault, or "" for the top level.
 int Usage(const std::string& command, const std::string& msg) {
-  std::cerr << "hvdb: " << command << ": " << msg << "\nRun 'hvdb " << command
+  std::string cmd = command.empty() ? "hvdb" : "hvdb " + command;
+  std::cerr << (command.empty() ? "hvdb: " : cmd + ": ") << msg << "\nRun '" << cmd
             << " --help' for usage.\n";
   return kExitUsage;
 }
@@ -278,7 +280,8 @@ void AddQueryOptions(CLI::App* cmd, QueryArgs* q) {
 }
 
 Cli::Cli(CLI::App& app) : app_(app) {
-  app.require_subcommand(1);
+  // At most one; none is reported by Run(), so that an unknown word is named as such.
+  app.require_subcommand(0, 1);
   app.fallthrough();  // global options may also follow the subcommand
   app.add_option("--data", g_.data, "Data directory")->capture_default_str();
   app.add_option("--cache-mb", g_.cache_mb, "Block cache size in MiB (>= 8)")
@@ -453,7 +456,9 @@ int Cli::Run() {
     std::cout << "dropped dataset '" << drop_.name << "'\n";
     return kExitOk;
   }
-  return Usage("hvdb", "no command given");
+  return Usage("",
+               "a command is required: datasets, create, describe, import, window, slice, edit, "
+               "undo, stats, check or drop");
 }
 
 int Cli::CmdDatasets() {

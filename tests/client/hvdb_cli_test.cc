@@ -218,7 +218,7 @@ TEST_F(HvdbCliTest, BadArgumentsExitTwoWithAMessage) {
     std::string args, expect;
   };
   const std::vector<Case> cases = {
-      {"", "subcommand"},
+      {"", "a command is required"},
       {"frobnicate", "frobnicate"},
       {"create walk", "--fps"},
       {"create walk --fps -3", "--fps"},
