@@ -9,7 +9,6 @@
 // the database or a file (printed as "hvdb: <status>"), 2 a usage error.
 #include <unistd.h>
 
-#include <CLI/CLI.hpp>
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -22,11 +21,15 @@
 #include <iostream>
 #include <map>
 #include <memory>
-#include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
+#include <type_traits>
 #include <utility>
+#include <variant>
 #include <vector>
+
+#include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
 
 #include "client/ply.h"
 #include "storage/database.h"
@@ -88,6 +91,30 @@ int Usage(const std::string& command, const std::string& msg) {
   std::cerr << (command.empty() ? "hvdb: " : cmd + ": ") << msg << "\nRun '" << cmd
             << " --help' for usage.\n";
   return kExitUsage;
+}
+
+// Number checks with plain messages (CLI11's own print the whole double range).
+CLI::Validator Positive() {
+  return CLI::Validator(
+      [](std::string& in) -> std::string {
+        double v = 0;
+        if (!CLI::detail::lexical_cast(in, v) || !(v > 0) || !std::isfinite(v)) {
+          return "must be a number > 0, not '" + in + "'";
+        }
+        return {};
+      },
+      "> 0");
+}
+CLI::Validator NonNegative() {
+  return CLI::Validator(
+      [](std::string& in) -> std::string {
+        double v = 0;
+        if (!CLI::detail::lexical_cast(in, v) || !(v >= 0) || !std::isfinite(v)) {
+          return "must be a number >= 0, not '" + in + "'";
+        }
+        return {};
+      },
+      ">= 0");
 }
 
 // Frames done / total, points per second and time left, redrawn in place on stderr. Only when
@@ -214,7 +241,7 @@ std::optional<Window> BoxToWindow(const std::vector<double>& v, const std::strin
   }
   Window w;
   static constexpr const char* kAxes[] = {"X", "Y", "Z", "T"};
-  for (int i = 0; i < 4; ++i) {
+  for (size_t i = 0; i < 4; ++i) {
     w.lo[i] = v[2 * i];
     w.hi[i] = v[2 * i + 1];
     if (!(w.lo[i] <= w.hi[i])) {
@@ -261,19 +288,19 @@ class Cli {
   EditArgs edit_;
   UndoArgs undo_;
   NameArgs datasets_, describe_, stats_, check_, drop_;
-  CLI::App *datasets_cmd_, *create_cmd_, *describe_cmd_, *import_cmd_, *window_cmd_,
-      *slice_cmd_, *edit_cmd_, *undo_cmd_, *stats_cmd_, *check_cmd_, *drop_cmd_;
+  CLI::App *datasets_cmd_, *create_cmd_, *describe_cmd_, *import_cmd_, *window_cmd_, *slice_cmd_,
+      *edit_cmd_, *undo_cmd_, *stats_cmd_, *check_cmd_, *drop_cmd_;
 };
 
 void AddQueryOptions(CLI::App* cmd, QueryArgs* q) {
   cmd->add_option("name", q->name, "Dataset")->required();
-  cmd->add_option("--lod", q->lod, "Coarsest detail wanted: 0 = full resolution")
+  cmd->add_option("--lod", q->lod,
+                  "Finest level returned: 0 = full resolution, each level up about half the points")
       ->check(CLI::Range(0, 8));
   cmd->add_flag("--progressive", q->progressive, "Coarse levels first across all frames");
   cmd->add_option("--label-mask", q->label_mask,
                   "Only points with (label & MASK) != 0 (decimal or 0x hex)");
-  cmd->add_option("--out", q->out,
-                  "Write the points to FILE.ply or FILE.csv, batch by batch");
+  cmd->add_option("--out", q->out, "Write the points to FILE.ply or FILE.csv, batch by batch");
   cmd->add_flag("--ascii", q->ascii, "With --out FILE.ply: ascii instead of binary");
   cmd->add_flag("--json", q->json,
                 "Print a JSON summary: points, frames read, per-level counts, elapsed ms");
@@ -282,6 +309,10 @@ void AddQueryOptions(CLI::App* cmd, QueryArgs* q) {
 Cli::Cli(CLI::App& app) : app_(app) {
   // At most one; none is reported by Run(), so that an unknown word is named as such.
   app.require_subcommand(0, 1);
+  app.footer(
+      "Positions are metres, times seconds (t = frame / fps). Each command has --help.\n"
+      "Exit status: 0 success, 1 error (printed as 'hvdb: <status>'), 2 usage error.\n"
+      "Example: hvdb create walk --fps 30 && hvdb import walk --frame 0 --units-scale 0.01 *.ply");
   app.fallthrough();  // global options may also follow the subcommand
   app.add_option("--data", g_.data, "Data directory")->capture_default_str();
   app.add_option("--cache-mb", g_.cache_mb, "Block cache size in MiB (>= 8)")
@@ -300,13 +331,12 @@ Cli::Cli(CLI::App& app) : app_(app) {
   create_cmd_ = app.add_subcommand("create", "Create an empty dataset");
   create_cmd_->add_option("name", create_.name, "Dataset name: [A-Za-z0-9_.-], up to 64")
       ->required();
-  create_cmd_->add_option("--fps", create_.fps, "Frames per second")
-      ->required()
-      ->check(CLI::PositiveNumber);
-  create_cmd_->add_option("--scale", create_.scale,
-                          "Space/time scale s in m/s: slices are taken over (x, y, z, s t)")
+  create_cmd_->add_option("--fps", create_.fps, "Frames per second")->required()->check(Positive());
+  create_cmd_
+      ->add_option("--scale", create_.scale,
+                   "Space/time scale s in m/s: slices are taken over (x, y, z, s t)")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(Positive());
   create_cmd_->add_option("--frames", create_.frames, "Declared number of frames");
 
   describe_cmd_ = app.add_subcommand("describe", "Show a dataset's frame rate, extent and size");
@@ -318,14 +348,16 @@ Cli::Cli(CLI::App& app) : app_(app) {
   import_cmd_->add_option("name", import_.name, "Dataset")->required();
   import_cmd_->add_option("files", import_.files, "PLY files, one frame each")->required();
   import_cmd_->add_option("--frame", import_.frame, "Frame of the first file")->required();
-  import_cmd_->add_option("--units-scale", import_.units_scale,
-                          "Multiply positions by this (0.01: the files are in centimetres)")
+  import_cmd_
+      ->add_option("--units-scale", import_.units_scale,
+                   "Multiply positions by this (0.01: the files are in centimetres)")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
-  import_cmd_->add_option("--sigma", import_.sigma,
-                          "Standard deviation in metres for points without a covariance")
+      ->check(Positive());
+  import_cmd_
+      ->add_option("--sigma", import_.sigma,
+                   "Standard deviation in metres for points without a covariance")
       ->capture_default_str()
-      ->check(CLI::NonNegativeNumber);
+      ->check(NonNegative());
   import_cmd_->add_flag("--keep-ids", import_.keep_ids,
                         "Keep the files' point ids (default: the engine assigns new ones)");
   import_cmd_->add_flag("--json", import_.json, "Print a JSON summary");
@@ -345,7 +377,7 @@ Cli::Cli(CLI::App& app) : app_(app) {
   slice_cmd_->add_option("--offset", slice_.offset, "B")->required();
   slice_cmd_->add_option("--thickness", slice_.thickness, "DB >= 0")
       ->required()
-      ->check(CLI::NonNegativeNumber);
+      ->check(NonNegative());
   slice_cmd_->add_flag("--clip-frames", slice_.clip_frames,
                        "Read only the first frames when the slice spans too many (else error)");
   slice_cmd_->add_option("--max-frames", slice_.max_frames,
@@ -382,7 +414,7 @@ Cli::Cli(CLI::App& app) : app_(app) {
       ->needs(edit_.paste_opt);
   edit_.paste_opt->needs("--frame");
   edit_cmd_->add_option("--units-scale", edit_.units_scale, "With --paste: position multiplier")
-      ->check(CLI::PositiveNumber);
+      ->check(Positive());
   edit_cmd_->add_flag("--json", edit_.json, "Print JSON");
 
   undo_cmd_ = app.add_subcommand("undo", "Revert a committed edit (commits its inverse)");
@@ -530,9 +562,9 @@ int Cli::CmdDescribe() {
   std::printf("scale     %g m/s (space-time)\n", info.space_time_scale);
   std::printf("frames    %u (%.3f s)\n", info.frame_count, duration);
   std::printf("points    %llu\n", static_cast<unsigned long long>(info.point_count));
-  std::printf("bounds    x %.3f .. %.3f  y %.3f .. %.3f  z %.3f .. %.3f m\n",
-              info.bounds_min[0], info.bounds_max[0], info.bounds_min[1], info.bounds_max[1],
-              info.bounds_min[2], info.bounds_max[2]);
+  std::printf("bounds    x %.3f .. %.3f  y %.3f .. %.3f  z %.3f .. %.3f m\n", info.bounds_min[0],
+              info.bounds_max[0], info.bounds_min[1], info.bounds_max[1], info.bounds_min[2],
+              info.bounds_max[2]);
   std::printf("cameras   %zu\n", info.cameras.size());
   std::printf("last lsn  %llu\n", static_cast<unsigned long long>(info.last_lsn));
   return kExitOk;
@@ -569,9 +601,13 @@ int Cli::CmdImport() {
     Result<uint64_t> loaded = (*ds)->BulkLoad(ro.frame, std::move(pts).value());
     if (!loaded.ok()) {
       bar.Clear();
-      return Fail(Status(loaded.status().code(), a.files[i] + " -> frame " +
-                                                     std::to_string(ro.frame) + ": " +
-                                                     loaded.status().message()));
+      // Each frame's load is atomic and durable: say which frames made it in.
+      std::string done = i == 0 ? "no frame was loaded"
+                                : "frames " + std::to_string(a.frame) + ".." +
+                                      std::to_string(ro.frame - 1) + " were loaded";
+      return Fail(
+          Status(loaded.status().code(), a.files[i] + " -> frame " + std::to_string(ro.frame) +
+                                             ": " + loaded.status().message() + " (" + done + ")"));
     }
     total += n;
     frames.push_back({{"frame", ro.frame}, {"file", a.files[i]}, {"points", n}});
@@ -611,8 +647,8 @@ int Cli::CmdSlice() {
   if (!nonzero) return Usage("slice", "--normal must not be all zero");
   s.offset = a.offset;
   s.thickness = a.thickness;
-  s.on_too_many_frames = a.clip_frames ? hvdb::Slice::FrameBound::kClip
-                                       : hvdb::Slice::FrameBound::kError;
+  s.on_too_many_frames =
+      a.clip_frames ? hvdb::Slice::FrameBound::kClip : hvdb::Slice::FrameBound::kError;
   s.max_frames = a.max_frames;
   if (!a.clip_box.empty()) {
     int rc = kExitOk;
@@ -681,9 +717,8 @@ int Cli::RunQuery(Dataset& ds, const Region& region, const QueryArgs& q,
     PrintJson(j);
     return kExitOk;
   }
-  std::printf("%llu points from %zu frame%s in %.1f ms%s\n",
-              static_cast<unsigned long long>(total), frames.size(),
-              frames.size() == 1 ? "" : "s", ms,
+  std::printf("%llu points from %zu frame%s in %.1f ms%s\n", static_cast<unsigned long long>(total),
+              frames.size(), frames.size() == 1 ? "" : "s", ms,
               (*cursor)->clipped() ? " (slice clipped to the frame bound)" : "");
   for (const auto& [level, n] : per_level) {
     std::printf("  level %d: %llu\n", level, static_cast<unsigned long long>(n));
@@ -895,20 +930,22 @@ int Cli::CmdCheck() {
 }  // namespace hvdb
 
 int main(int argc, char** argv) {
-  CLI::App app{"hvdb: a database for 3D video (point clouds over time), on a data directory"};
-  app.name("hvdb");
-  std::optional<hvdb::Cli> cli;  // outlives the catch blocks, which still read `app`
+  // Declared out here because the catch blocks still use them.
+  std::optional<CLI::App> app;
+  std::optional<hvdb::Cli> cli;
   // The only try/catch: CLI11 reports usage errors by exception; nothing below throws on
   // purpose (the storage API returns Status), so anything else is a bug or out of memory.
   try {
-    cli.emplace(app);
-    app.parse(argc, argv);
+    app.emplace("hvdb: a database for 3D video (point clouds over time), on a data directory",
+                "hvdb");
+    cli.emplace(*app);
+    app->parse(argc, argv);
     return cli->Run();
   } catch (const CLI::ParseError& e) {
-    int rc = app.exit(e);  // prints the help, or the message and a pointer to --help
+    int rc = app->exit(e);  // prints the help, or the message and a pointer to --help
     return rc == 0 ? hvdb::kExitOk : hvdb::kExitUsage;
   } catch (const std::exception& e) {
-    std::cerr << "hvdb: internal error: " << e.what() << "\n";
+    std::fprintf(stderr, "hvdb: internal error: %s\n", e.what());
     return hvdb::kExitError;
   }
 }

@@ -26,13 +26,17 @@ enum class Type : uint8_t { kInt8, kUint8, kInt16, kUint16, kInt32, kUint32, kFl
 size_t TypeSize(Type t) {
   switch (t) {
     case Type::kInt8:
-    case Type::kUint8: return 1;
+    case Type::kUint8:
+      return 1;
     case Type::kInt16:
-    case Type::kUint16: return 2;
+    case Type::kUint16:
+      return 2;
     case Type::kInt32:
     case Type::kUint32:
-    case Type::kFloat32: return 4;
-    case Type::kFloat64: return 8;
+    case Type::kFloat32:
+      return 4;
+    case Type::kFloat64:
+      return 8;
   }
   return 0;
 }
@@ -42,11 +46,11 @@ bool IsFloatType(Type t) { return t == Type::kFloat32 || t == Type::kFloat64; }
 bool ParseType(std::string_view s, Type* t) {
   // The PLY 1.0 names and the sized aliases that VTK, PCL and plyfile write.
   static constexpr std::pair<std::string_view, Type> kNames[] = {
-      {"char", Type::kInt8},     {"int8", Type::kInt8},       {"uchar", Type::kUint8},
-      {"uint8", Type::kUint8},   {"short", Type::kInt16},     {"int16", Type::kInt16},
-      {"ushort", Type::kUint16}, {"uint16", Type::kUint16},   {"int", Type::kInt32},
-      {"int32", Type::kInt32},   {"uint", Type::kUint32},     {"uint32", Type::kUint32},
-      {"float", Type::kFloat32}, {"float32", Type::kFloat32}, {"double", Type::kFloat64},
+      {"char", Type::kInt8},      {"int8", Type::kInt8},       {"uchar", Type::kUint8},
+      {"uint8", Type::kUint8},    {"short", Type::kInt16},     {"int16", Type::kInt16},
+      {"ushort", Type::kUint16},  {"uint16", Type::kUint16},   {"int", Type::kInt32},
+      {"int32", Type::kInt32},    {"uint", Type::kUint32},     {"uint32", Type::kUint32},
+      {"float", Type::kFloat32},  {"float32", Type::kFloat32}, {"double", Type::kFloat64},
       {"float64", Type::kFloat64}};
   for (const auto& [name, type] : kNames) {
     if (s == name) {
@@ -206,22 +210,22 @@ using FilePtr = std::unique_ptr<std::FILE, FileCloser>;
 Result<Header> ReadHeader(Input& in, const std::string& path) {
   constexpr size_t kMaxLine = 4096;
   auto bad = [&path](int line_no, const std::string& msg) {
-    return Status::InvalidArgument(path + ": header line " + std::to_string(line_no) + ": " +
-                                   msg);
+    return Status::InvalidArgument(path + ": header line " + std::to_string(line_no) + ": " + msg);
   };
   std::string line;
   if (!in.ReadLine(&line, kMaxLine) || SplitWords(line).size() != 1 ||
       SplitWords(line)[0] != "ply") {
     if (line.empty() && in.failed()) return Status::IOError(path + ": read error");
-    return Status::InvalidArgument(path + ": not a PLY file (first line is '" +
-                                   Printable(line) + "', expected 'ply')");
+    return Status::InvalidArgument(path + ": not a PLY file (first line is '" + Printable(line) +
+                                   "', expected 'ply')");
   }
   Header h;
   bool have_format = false;
   for (int n = 2;; ++n) {
     if (!in.ReadLine(&line, kMaxLine)) {
       if (line.size() > kMaxLine) return bad(n, "line too long (not a PLY header?)");
-      return Status::InvalidArgument(path + ": header has no 'end_header' line (file ends at line " +
+      return Status::InvalidArgument(path +
+                                     ": header has no 'end_header' line (file ends at line " +
                                      std::to_string(n - 1) + ")");
     }
     std::vector<std::string_view> w = SplitWords(line);
@@ -240,7 +244,8 @@ Result<Header> ReadHeader(Input& in, const std::string& path) {
         return bad(n, "unknown format '" + Printable(w[1]) +
                           "' (expected ascii, binary_little_endian or binary_big_endian)");
       }
-      if (w[2] != "1.0" && w[2] != "1") return bad(n, "unsupported version '" + Printable(w[2]) + "'");
+      if (w[2] != "1.0" && w[2] != "1")
+        return bad(n, "unsupported version '" + Printable(w[2]) + "'");
       have_format = true;
     } else if (kw == "element") {
       Element e;
@@ -301,14 +306,22 @@ T LoadScalar(const uint8_t* p, bool swap) {
 // Every PLY scalar type converts to double exactly, so one value path serves all of them.
 double LoadValue(const uint8_t* p, Type t, bool swap) {
   switch (t) {
-    case Type::kInt8: return LoadScalar<int8_t>(p, false);
-    case Type::kUint8: return p[0];
-    case Type::kInt16: return LoadScalar<int16_t>(p, swap);
-    case Type::kUint16: return LoadScalar<uint16_t>(p, swap);
-    case Type::kInt32: return LoadScalar<int32_t>(p, swap);
-    case Type::kUint32: return LoadScalar<uint32_t>(p, swap);
-    case Type::kFloat32: return LoadScalar<float>(p, swap);
-    case Type::kFloat64: return LoadScalar<double>(p, swap);
+    case Type::kInt8:
+      return LoadScalar<int8_t>(p, false);
+    case Type::kUint8:
+      return p[0];
+    case Type::kInt16:
+      return LoadScalar<int16_t>(p, swap);
+    case Type::kUint16:
+      return LoadScalar<uint16_t>(p, swap);
+    case Type::kInt32:
+      return LoadScalar<int32_t>(p, swap);
+    case Type::kUint32:
+      return LoadScalar<uint32_t>(p, swap);
+    case Type::kFloat32:
+      return LoadScalar<float>(p, swap);
+    case Type::kFloat64:
+      return LoadScalar<double>(p, swap);
   }
   return 0;
 }
@@ -331,26 +344,60 @@ uint8_t ToColour(double v, Type t) {
 // The vertex properties hvdb understands.
 enum Field : uint8_t {
   kNone,
-  kX, kY, kZ,
-  kNx, kNy, kNz,
-  kRed, kGreen, kBlue,
-  kIdLo, kIdHi, kId,
+  kX,
+  kY,
+  kZ,
+  kNx,
+  kNy,
+  kNz,
+  kRed,
+  kGreen,
+  kBlue,
+  kIdLo,
+  kIdHi,
+  kId,
   kFrame,
-  kCovXX, kCovXY, kCovXZ, kCovYY, kCovYZ, kCovZZ,
-  kLabel, kCamera, kFlags,
+  kCovXX,
+  kCovXY,
+  kCovXZ,
+  kCovYY,
+  kCovYZ,
+  kCovZZ,
+  kLabel,
+  kCamera,
+  kFlags,
   kFieldCount
 };
 
 Field FieldFor(std::string_view name) {
-  static constexpr std::pair<std::string_view, Field> kNames[] = {
-      {"x", kX},          {"y", kY},           {"z", kZ},           {"nx", kNx},
-      {"ny", kNy},        {"nz", kNz},         {"red", kRed},       {"green", kGreen},
-      {"blue", kBlue},    {"r", kRed},         {"g", kGreen},       {"b", kBlue},
-      {"diffuse_red", kRed}, {"diffuse_green", kGreen}, {"diffuse_blue", kBlue},
-      {"id_lo", kIdLo},   {"id_hi", kIdHi},    {"id", kId},         {"frame", kFrame},
-      {"cov_xx", kCovXX}, {"cov_xy", kCovXY},  {"cov_xz", kCovXZ},  {"cov_yy", kCovYY},
-      {"cov_yz", kCovYZ}, {"cov_zz", kCovZZ},  {"label", kLabel},   {"camera", kCamera},
-      {"flags", kFlags}};
+  static constexpr std::pair<std::string_view, Field> kNames[] = {{"x", kX},
+                                                                  {"y", kY},
+                                                                  {"z", kZ},
+                                                                  {"nx", kNx},
+                                                                  {"ny", kNy},
+                                                                  {"nz", kNz},
+                                                                  {"red", kRed},
+                                                                  {"green", kGreen},
+                                                                  {"blue", kBlue},
+                                                                  {"r", kRed},
+                                                                  {"g", kGreen},
+                                                                  {"b", kBlue},
+                                                                  {"diffuse_red", kRed},
+                                                                  {"diffuse_green", kGreen},
+                                                                  {"diffuse_blue", kBlue},
+                                                                  {"id_lo", kIdLo},
+                                                                  {"id_hi", kIdHi},
+                                                                  {"id", kId},
+                                                                  {"frame", kFrame},
+                                                                  {"cov_xx", kCovXX},
+                                                                  {"cov_xy", kCovXY},
+                                                                  {"cov_xz", kCovXZ},
+                                                                  {"cov_yy", kCovYY},
+                                                                  {"cov_yz", kCovYZ},
+                                                                  {"cov_zz", kCovZZ},
+                                                                  {"label", kLabel},
+                                                                  {"camera", kCamera},
+                                                                  {"flags", kFlags}};
   for (const auto& [n, f] : kNames) {
     if (name == n) return f;
   }
@@ -382,8 +429,8 @@ class VertexBuilder {
     for (Field f : {kX, kY, kZ}) {
       if (!present_[f]) {
         static constexpr const char* kAxis[] = {"x", "y", "z"};
-        return Status::InvalidArgument(path + ": the vertex element has no '" +
-                                       kAxis[f - kX] + "' property");
+        return Status::InvalidArgument(path + ": the vertex element has no '" + kAxis[f - kX] +
+                                       "' property");
       }
     }
     int normals = present_[kNx] + present_[kNy] + present_[kNz];
@@ -454,7 +501,9 @@ class VertexBuilder {
 class ElementReader {
  public:
   ElementReader(Input& in, const std::string& path, Format format)
-      : in_(in), path_(path), ascii_(format == Format::kAscii),
+      : in_(in),
+        path_(path),
+        ascii_(format == Format::kAscii),
         swap_((format == Format::kBinaryBE) != (std::endian::native == std::endian::big)) {}
 
   // Reads `e`; for each instance, stores the scalar values whose builder field is set and
@@ -488,8 +537,9 @@ class ElementReader {
       } else {
         for (size_t k = 0; k < e.props.size(); ++k) {
           const Property& p = e.props[k];
-          double* dst = builder && builder->field(k) != kNone ? &builder->values()[builder->field(k)]
-                                                              : &scratch;
+          double* dst = builder && builder->field(k) != kNone
+                            ? &builder->values()[builder->field(k)]
+                            : &scratch;
           if (p.is_list) {
             HVDB_RETURN_IF_ERROR(SkipList(e, i, p));
           } else {
@@ -668,8 +718,8 @@ Result<std::vector<Point>> ReadPly(const std::string& path, const ReadOptions& o
 
   std::vector<Point> points;
   // The count comes from the file: reserve no more than the file could hold.
-  size_t min_bytes = std::max<size_t>(1, h.format == Format::kAscii ? 2 * vertex->props.size()
-                                                                    : vertex->props.size());
+  size_t min_bytes = std::max<size_t>(
+      1, h.format == Format::kAscii ? 2 * vertex->props.size() : vertex->props.size());
   points.reserve(static_cast<size_t>(std::min<uint64_t>(vertex->count, file_size / min_bytes + 1)));
   ElementReader reader(in, path, h.format);
   for (const Element& e : h.elements) {
@@ -764,8 +814,8 @@ Status PlyWriter::Append(std::span<const Point> pts) {
         *d++ = p.r;
         *d++ = p.g;
         *d++ = p.b;
-        for (uint32_t v : {static_cast<uint32_t>(p.id), static_cast<uint32_t>(p.id >> 32),
-                           p.frame}) {
+        for (uint32_t v :
+             {static_cast<uint32_t>(p.id), static_cast<uint32_t>(p.id >> 32), p.frame}) {
           EncodeLE(d, v);
           d += 4;
         }
@@ -878,8 +928,8 @@ Status CsvWriter::Finish() {
 
 Result<std::unique_ptr<PointWriter>> OpenPointWriter(const std::string& path, bool ascii_ply) {
   std::string ext;
-  if (size_t dot = path.find_last_of('.'); dot != std::string::npos &&
-                                           path.find('/', dot) == std::string::npos) {
+  if (size_t dot = path.find_last_of('.');
+      dot != std::string::npos && path.find('/', dot) == std::string::npos) {
     ext = path.substr(dot);
   }
   std::transform(ext.begin(), ext.end(), ext.begin(),

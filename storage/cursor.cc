@@ -111,6 +111,16 @@ class CursorImpl {
       if (batch->points.size() >= limit) return false;
       const auto& hit = hits[bucket_pos_];
       const auto k = static_cast<size_t>(t.level);
+      if (hit.inside && !slot.dead && opts_.label_mask == 0 && !plan_.slice) {
+        // Every record is a result as stored: copy runs of records, no per-point work.
+        HVDB_RETURN_IF_ERROR(slot.tree->ReadRange(
+            t.level, hit.entry.start[k], hit.entry.count[k], [&](const uint8_t* rec, size_t n) {
+              size_t at = batch->points.size();
+              batch->points.resize(at + n);
+              DecodePoints(rec, n, batch->points.data() + at);
+            }));
+        continue;
+      }
       HVDB_RETURN_IF_ERROR(slot.tree->ReadRange(
           t.level, hit.entry.start[k], hit.entry.count[k], [&](const uint8_t* rec, size_t n) {
             for (size_t j = 0; j < n; ++j) {

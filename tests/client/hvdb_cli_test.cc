@@ -8,11 +8,12 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
-#include <nlohmann/json.hpp>
 #include <set>
 #include <sstream>
 #include <string>
 #include <vector>
+
+#include <nlohmann/json.hpp>
 
 #include "client/ply.h"
 
@@ -60,8 +61,8 @@ class HvdbCliTest : public ::testing::Test {
   // Runs `hvdb ARGS` in the temporary directory (so the default ./data lands there).
   RunResult Run(const std::string& args) {
     std::string err_path = dir_ + "/stderr.txt";
-    std::string cmd = "cd " + Quote(dir_) + " && " + Quote(HVDB_CLI_PATH) + " " + args + " 2>" +
-                      Quote(err_path);
+    std::string cmd =
+        "cd " + Quote(dir_) + " && " + Quote(HVDB_CLI_PATH) + " " + args + " 2>" + Quote(err_path);
     RunResult r;
     FILE* p = popen(cmd.c_str(), "r");
     if (p == nullptr) return r;
@@ -105,7 +106,7 @@ size_t CountYAbove(const std::vector<Point>& pts, double y0) {
 }
 
 TEST_F(HvdbCliTest, ImportQueryEditUndoCheck) {
-  if (!HaveData()) GTEST_SKIP() << "test data not found under " << kPanoptic;
+  ASSERT_TRUE(HaveData()) << "test data not found under " << kPanoptic << " (../shared/data)";
   std::vector<Point> f0 = ReadCm(kFrame380), f1 = ReadCm(kFrame381);
   ASSERT_FALSE(f0.empty());
   ASSERT_FALSE(f1.empty());
@@ -144,8 +145,9 @@ TEST_F(HvdbCliTest, ImportQueryEditUndoCheck) {
 
   // A slice orthogonal to t through frame 1 returns exactly frame 1.
   char slice[256];
-  std::snprintf(slice, sizeof(slice), "slice walk --normal 0 0 0 1 --offset %.17g --thickness %.17g",
-                1 / kFps, 0.4 / kFps);
+  std::snprintf(slice, sizeof(slice),
+                "slice walk --normal 0 0 0 1 --offset %.17g --thickness %.17g", 1 / kFps,
+                0.4 / kFps);
   json s = RunJson(slice);
   EXPECT_EQ(s["points"], f1.size());
   EXPECT_EQ(s["frames"], json::array({1}));

@@ -314,7 +314,7 @@ TEST_F(PlyTest, TruncatedFileNamesCounts) {
   std::ifstream in(Path("points.ply"), std::ios::binary);
   std::string all((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   size_t body = all.find("end_header\n") + 11;
-  WriteFile(Path("points.ply"), all.substr(0, body + 37 * 70 + 12));
+  WriteFile(Path("points.ply"), all.substr(0, body + size_t{37} * 70 + 12));
   Result<std::vector<Point>> r = ReadPly(Path("points.ply"));
   ASSERT_FALSE(r.ok());
   EXPECT_TRUE(r.status().IsCorruption()) << r.status().ToString();
@@ -356,8 +356,7 @@ TEST_F(PlyTest, HeaderErrorsNameFileAndLine) {
   ASSERT_FALSE(r.ok());
   EXPECT_NE(r.status().message().find("not a PLY file"), std::string::npos);
 
-  WriteFile(Path("d.ply"),
-            "ply\nformat binary_middle_endian 1.0\nelement vertex 0\nend_header\n");
+  WriteFile(Path("d.ply"), "ply\nformat binary_middle_endian 1.0\nelement vertex 0\nend_header\n");
   r = ReadPly(Path("d.ply"));
   ASSERT_FALSE(r.ok());
   EXPECT_NE(r.status().message().find("header line 2: unknown format 'binary_middle_endian'"),
@@ -411,7 +410,7 @@ TEST_F(PlyTest, CsvHasHeaderAndOneLinePerPoint) {
 }
 
 TEST_F(PlyTest, ReadsRealPanopticFrame) {
-  if (!fs::exists(kPanopticFrame)) GTEST_SKIP() << "test data not found: " << kPanopticFrame;
+  ASSERT_TRUE(fs::exists(kPanopticFrame)) << "test data not found: " << kPanopticFrame;
   ReadOptions opts;
   opts.scale = 0.01;  // centimetres
   opts.frame = 380;
