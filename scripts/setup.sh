@@ -30,6 +30,6 @@ if ((${#missing[@]})); then
 fi
 
 BUILD_DIR=${HVDB_BUILD_DIR:-build}
-cmake -S . -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=Release -DHVDB_WERROR=ON >/dev/null
+cmake -S . -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=Release -DHVDB_WERROR=ON -DHVDB_BUILD_TESTS=ON >/dev/null
 cmake --build "$BUILD_DIR"
 echo "setup: built into $BUILD_DIR/"
