@@ -435,6 +435,8 @@ Status DatasetImpl::Recover() {
       v->slots.push_back(std::move(slot));
     }
     for (const Point& p : rec.t0) max_id = std::max(max_id, p.id);
+    // Ids of points deleted since are never issued again.
+    if (rec.next_id > 0) max_id = std::max(max_id, rec.next_id - 1);
     v->t0 = std::make_shared<const std::vector<Point>>(std::move(rec.t0));
     persisted_lsn[v->frame] = v->applied_lsn;
     max_applied = std::max(max_applied, v->applied_lsn);
@@ -486,14 +488,20 @@ Status DatasetImpl::Recover() {
       dirty_.insert(step.frame);
       for (const Point& p : step.added) max_id = std::max(max_id, p.id);
     }
+    for (const FrameEffect& step : rec.frames) {
+      for (const Point& p : step.removed) max_id = std::max(max_id, p.id);
+      for (const Point& p : step.added) max_id = std::max(max_id, p.id);
+    }
     last = std::max(last, rec.lsn);
   }
   last_lsn_ = last;
   next_id_ = max_id + 1;
   wal_start_lsn_ = exists ? wal.start_lsn : last + 1;
   HVDB_ASSIGN_OR_RETURN(wal_, WalWriter::Open(wal_path, wal_start_lsn_, wal.valid_bytes, exists));
-  // Frames whose buffer overflowed during redo get their trees now.
-  for (uint32_t f : std::set<uint32_t>(dirty_)) {
+  // Frames whose buffer overflowed (during redo, or a rebuild that failed) get their trees now.
+  std::vector<uint32_t> all_frames;
+  for (const auto& [f, v] : frames_) all_frames.push_back(f);
+  for (uint32_t f : all_frames) {
     if (frames_[f]->t0->size() <= p_) continue;
     FrameVersion v = *frames_[f];
     HVDB_RETURN_IF_ERROR(Rebuild(&v, {}));
@@ -1017,7 +1025,8 @@ Status DatasetImpl::Rebuild(FrameVersion* v, std::vector<Point> extra) {
 
 Status DatasetImpl::PersistFrame(const FrameVersion& v) {
   HVDB_RETURN_IF_ERROR(
-      WriteFileAtomic(dir_ + "/frames/" + FrameStateFileName(v.frame), EncodeFrameState(v)));
+      WriteFileAtomic(dir_ + "/frames/" + FrameStateFileName(v.frame),
+                      EncodeFrameState(v, next_id_.load())));
   {
     std::lock_guard<std::mutex> l(mu_);
     frames_[v.frame] = std::make_shared<const FrameVersion>(v);

@@ -50,7 +50,8 @@ std::string TreeFileName(uint32_t frame, uint64_t seq) {
 }
 
 bool ParseTreeFileName(const std::string& name, uint32_t* frame, uint64_t* seq) {
-  if (name.size() != 30 || name.substr(26) != ".kdt" || name[8] != '-') return false;
+  // "ffffffff-ssssssssssssssss.kdt": 8 + 1 + 16 + 4 characters.
+  if (name.size() != 29 || name.substr(25) != ".kdt" || name[8] != '-') return false;
   char* end = nullptr;
   unsigned long f = std::strtoul(name.substr(0, 8).c_str(), &end, 10);
   if (*end != '\0') return false;
@@ -67,12 +68,13 @@ std::string FrameStateFileName(uint32_t frame) {
   return buf;
 }
 
-std::string EncodeFrameState(const FrameVersion& v) {
+std::string EncodeFrameState(const FrameVersion& v, uint64_t next_id) {
   Writer w;
   w.PutBytes(kFrameMagic, 8);
   w.Put<uint32_t>(kFrameVersion);
   w.Put<uint32_t>(v.frame);
   w.Put<uint64_t>(v.applied_lsn);
+  w.Put<uint64_t>(next_id);
   w.Put<uint32_t>(static_cast<uint32_t>(v.slots.size()));
   for (const TreeSlot& s : v.slots) {
     w.Put<uint64_t>(s.tree ? s.tree->header().tree_seq : 0);
@@ -104,7 +106,8 @@ Result<FrameStateRecord> DecodeFrameState(const std::string& data, const std::st
   if (!r.Get(&version) || version != kFrameVersion) {
     return corrupt("unsupported version " + std::to_string(version));
   }
-  if (!r.Get(&rec.frame) || !r.Get(&rec.applied_lsn) || !r.Get(&nslots) || nslots > 64) {
+  if (!r.Get(&rec.frame) || !r.Get(&rec.applied_lsn) || !r.Get(&rec.next_id) || !r.Get(&nslots) ||
+      nslots > 64) {
     return corrupt("bad header");
   }
   for (uint32_t i = 0; i < nslots; ++i) {

@@ -51,12 +51,13 @@ std::string FrameStateFileName(uint32_t frame);  // "00000012.fst"
 struct FrameStateRecord {
   uint32_t frame = 0;
   uint64_t applied_lsn = 0;
+  uint64_t next_id = 1;  // the dataset's id counter when written: ids below it were issued
   std::vector<uint64_t> tree_seqs;  // 0: empty slot
   std::vector<std::vector<uint64_t>> dead;
   std::vector<Point> t0;
 };
 
-std::string EncodeFrameState(const FrameVersion& v);
+std::string EncodeFrameState(const FrameVersion& v, uint64_t next_id);
 Result<FrameStateRecord> DecodeFrameState(const std::string& data, const std::string& what);
 
 }  // namespace hvdb

@@ -15,6 +15,9 @@ const char* StatusCodeName(StatusCode code) {
     case StatusCode::kAlreadyExists: return "AlreadyExists";
     case StatusCode::kCancelled: return "Cancelled";
     case StatusCode::kInternal: return "Internal";
+    case StatusCode::kPermissionDenied: return "PermissionDenied";
+    case StatusCode::kOverloaded: return "Overloaded";
+    case StatusCode::kUnsupported: return "Unsupported";
   }
   return "Unknown";
 }

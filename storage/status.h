@@ -24,6 +24,9 @@ enum class StatusCode : unsigned char {
   kAlreadyExists = 6,
   kCancelled = 7,
   kInternal = 8,
+  kPermissionDenied = 9,  // the caller's role does not allow it (server)
+  kOverloaded = 10,       // too many requests or connections; retry later (server)
+  kUnsupported = 11,      // a version, capability or request this build does not have
 };
 
 const char* StatusCodeName(StatusCode code);
@@ -42,6 +45,9 @@ class Status {
   static Status AlreadyExists(std::string m) { return {StatusCode::kAlreadyExists, std::move(m)}; }
   static Status Cancelled(std::string m) { return {StatusCode::kCancelled, std::move(m)}; }
   static Status Internal(std::string m) { return {StatusCode::kInternal, std::move(m)}; }
+  static Status PermissionDenied(std::string m) { return {StatusCode::kPermissionDenied, std::move(m)}; }
+  static Status Overloaded(std::string m) { return {StatusCode::kOverloaded, std::move(m)}; }
+  static Status Unsupported(std::string m) { return {StatusCode::kUnsupported, std::move(m)}; }
   // errno mapped in one place: "context: strerror(err)".
   static Status FromErrno(const std::string& context, int err);
 

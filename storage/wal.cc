@@ -71,43 +71,57 @@ Result<WalContents> ReadWal(const std::string& path) {
     return out;
   }
   if (std::memcmp(p, kWalMagic, 8) != 0) return Status::Corruption(path + ": bad magic");
+  if (crc32c::Unmask(DecodeLE<uint32_t>(p + 24)) != crc32c::Value(p, 24)) {
+    return Status::Corruption(path + ": header checksum mismatch");
+  }
   uint32_t version = DecodeLE<uint32_t>(p + 8);
   if (version != kWalVersion) {
     return Status::Corruption(path + ": unsupported log version " + std::to_string(version));
   }
   out.start_lsn = DecodeLE<uint64_t>(p + 16);
+  auto all_zero = [&](size_t from) {
+    for (size_t i = from; i < data.size(); ++i) {
+      if (p[i] != 0) return false;
+    }
+    return true;
+  };
+  auto corrupt = [&](size_t at, const std::string& why) {
+    return Status::Corruption(path + ": record at offset " + std::to_string(at) + ": " + why);
+  };
   size_t pos = kWalHeaderSize;
-  uint64_t expect_lsn = 0;
+  uint64_t expect_lsn = out.start_lsn - 1;
   while (pos < data.size()) {
     size_t left = data.size() - pos;
-    if (left < kWalRecordHeaderSize) {
+    // A crash mid-append leaves a prefix of the last record (or, on some file systems, zeros).
+    if (left < kWalRecordHeaderSize || all_zero(pos)) {
       out.torn_tail = true;
       break;
     }
-    uint32_t crc = DecodeLE<uint32_t>(p + pos);
+    // The header (length, lsn, type, payload checksum) has its own checksum: a damaged length
+    // is caught here instead of being mistaken for a torn tail.
+    if (crc32c::Unmask(DecodeLE<uint32_t>(p + pos)) != crc32c::Value(p + pos + 4, 17)) {
+      return corrupt(pos, "header checksum mismatch");
+    }
     uint32_t len = DecodeLE<uint32_t>(p + pos + 4);
-    if (len > kMaxRecord || kWalRecordHeaderSize + size_t{len} > left) {
-      out.torn_tail = true;  // the record runs past the end: a crash mid-append
+    uint64_t lsn = DecodeLE<uint64_t>(p + pos + 8);
+    uint8_t type = p[pos + 16];
+    uint32_t pcrc = DecodeLE<uint32_t>(p + pos + 17);
+    if (kWalRecordHeaderSize + size_t{len} > left) {
+      out.torn_tail = true;  // an intact header whose payload was cut short
       break;
     }
     size_t end = pos + kWalRecordHeaderSize + len;
-    if (crc32c::Unmask(crc) != crc32c::Value(p + pos + 8, end - pos - 8)) {
+    if (crc32c::Unmask(pcrc) != crc32c::Value(p + pos + kWalRecordHeaderSize, len)) {
       if (end == data.size()) {
         out.torn_tail = true;
         break;
       }
-      return Status::Corruption(path + ": record at offset " + std::to_string(pos) +
-                                ": checksum mismatch, with valid-looking data after it");
+      return corrupt(pos, "checksum mismatch, with valid-looking data after it");
     }
-    uint64_t lsn = DecodeLE<uint64_t>(p + pos + 8);
-    uint8_t type = p[pos + 16];
-    if (type != kTypeTxn) {
-      return Status::Corruption(path + ": record at offset " + std::to_string(pos) +
-                                ": unknown type " + std::to_string(type));
-    }
-    if (expect_lsn != 0 && lsn <= expect_lsn) {
-      return Status::Corruption(path + ": record at offset " + std::to_string(pos) +
-                                ": sequence number goes backwards");
+    if (type != kTypeTxn) return corrupt(pos, "unknown type " + std::to_string(type));
+    if (lsn <= expect_lsn) {
+      return corrupt(pos, "sequence number " + std::to_string(lsn) + " is not above " +
+                              std::to_string(expect_lsn));
     }
     expect_lsn = lsn;
     HVDB_ASSIGN_OR_RETURN(TxnRecord t,
@@ -116,7 +130,6 @@ Result<WalContents> ReadWal(const std::string& path) {
     pos = end;
   }
   out.valid_bytes = pos;
-  if (out.torn_tail) out.valid_bytes = pos;
   return out;
 }
 
@@ -128,6 +141,7 @@ Result<std::unique_ptr<WalWriter>> WalWriter::Open(const std::string& path, uint
     h.Put<uint32_t>(kWalVersion);
     h.Put<uint32_t>(0);
     h.Put<uint64_t>(start_lsn);
+    h.Put<uint32_t>(crc32c::Mask(crc32c::Value(h.data().data(), h.data().size())));
     HVDB_RETURN_IF_ERROR(WriteFileAtomic(path, h.data()));
     HVDB_ASSIGN_OR_RETURN(auto f, AppendFile::Open(path, /*truncate=*/false));
     return std::unique_ptr<WalWriter>(new WalWriter(std::move(f)));
@@ -147,14 +161,14 @@ Status WalWriter::Append(const TxnRecord& t) {
                                  std::to_string(payload.size()) + " bytes, limit 1 GiB)");
   }
   Writer w;
-  w.Put<uint32_t>(0);  // crc, patched below
+  w.Put<uint32_t>(0);  // header checksum, patched below
   w.Put<uint32_t>(static_cast<uint32_t>(payload.size()));
   w.Put<uint64_t>(t.lsn);
   w.Put<uint8_t>(kTypeTxn);
-  w.PutBytes(payload.data(), payload.size());
+  w.Put<uint32_t>(crc32c::Mask(crc32c::Value(payload.data(), payload.size())));
   std::string& rec = w.data();
-  uint32_t crc = crc32c::Mask(crc32c::Value(rec.data() + 8, rec.size() - 8));
-  EncodeLE(reinterpret_cast<uint8_t*>(rec.data()), crc);
+  EncodeLE(reinterpret_cast<uint8_t*>(rec.data()), crc32c::Mask(crc32c::Value(rec.data() + 4, 17)));
+  rec += payload;
   return file_->Append(rec);
 }
 

@@ -55,8 +55,9 @@ class WalWriter {
   std::unique_ptr<AppendFile> file_;
 };
 
-inline constexpr size_t kWalHeaderSize = 24;
-inline constexpr size_t kWalRecordHeaderSize = 17;  // crc, length, lsn, type
+inline constexpr size_t kWalHeaderSize = 28;
+// header crc, length, lsn, type, payload crc
+inline constexpr size_t kWalRecordHeaderSize = 21;
 
 }  // namespace hvdb
 

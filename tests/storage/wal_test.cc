@@ -71,13 +71,23 @@ TEST_F(WalTest, TornTailIsDroppedAndRepaired) {
   EXPECT_FALSE(again->torn_tail);
 }
 
-TEST_F(WalTest, GarbageTailIsTorn) {
+TEST_F(WalTest, ZeroTailIsTorn) {
+  // Some file systems show zeros where a crash cut an append short.
   std::string path = Write(3);
-  std::ofstream(path, std::ios::app) << "xxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxx";
+  std::ofstream(path, std::ios::app) << std::string(100, '\0');
   auto c = ReadWal(path);
   ASSERT_TRUE(c.ok());
   EXPECT_TRUE(c->torn_tail);
   EXPECT_EQ(c->records.size(), 3u);
+}
+
+TEST_F(WalTest, GarbageAfterTheLastRecordIsCorruption) {
+  // Not the signature of a crash (which leaves a prefix of a real record): refuse it.
+  std::string path = Write(3);
+  std::ofstream(path, std::ios::app) << "xxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxx";
+  auto c = ReadWal(path);
+  ASSERT_FALSE(c.ok());
+  EXPECT_TRUE(c.status().IsCorruption());
 }
 
 TEST_F(WalTest, CorruptionInTheMiddleIsAnError) {
