@@ -1,0 +1,147 @@
+// The hvdb client library: talks to hvdb-server over the wire protocol (docs/PROTOCOL.md).
+//
+// Connection is one TCP connection. Its synchronous calls (Ping, Describe, Commit, ...) send a
+// request and wait for its answer; Query returns a QueryStream that yields batches as they
+// arrive, so many requests can be in flight on one connection (pipelining: Send/Receive).
+// Every call has a deadline (Options::request_timeout). A Connection is not thread-safe: use one
+// per thread. Client adds reconnection with exponential backoff for requests that are safe to
+// repeat (everything but Commit, Revert and Ingest, which are reported as failed instead).
+#ifndef HVDB_CLIENT_CLIENT_H_
+#define HVDB_CLIENT_CLIENT_H_
+
+#include <chrono>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <map>
+#include <memory>
+#include <span>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "protocol/wire.h"
+#include "storage/database.h"
+
+namespace hvdb::client {
+
+struct Options {
+  std::string host = "127.0.0.1";
+  uint16_t port = 7878;
+  std::string token;  // for servers that require one
+  std::chrono::milliseconds connect_timeout{5000};
+  std::chrono::milliseconds request_timeout{120000};
+  bool draco = false;  // ask for Draco-coded batches (positions quantised, colours, ids, frames)
+  int max_attempts = 5;                           // Client: tries per idempotent request
+  std::chrono::milliseconds backoff{100};         // Client: first retry delay, doubled each time
+};
+
+// Parses "HOST:PORT" into options.host/port.
+Status ParseAddress(const std::string& address, Options* options);
+
+class Connection;
+
+// The results of one query, batch by batch. Destroying it before the end cancels the query.
+class QueryStream {
+ public:
+  ~QueryStream();
+  QueryStream(const QueryStream&) = delete;
+  QueryStream& operator=(const QueryStream&) = delete;
+  // Next batch; false at the end. Errors from the server come back as their Status.
+  Result<bool> Next(Batch* batch);
+  // Asks the server to stop; Next() then reports Cancelled (or the end, if it came first).
+  Status Cancel();
+  uint64_t id() const { return id_; }
+  // Valid after Next() returned false.
+  const std::vector<uint32_t>& frames() const { return frames_; }
+  bool clipped() const { return clipped_; }
+
+ private:
+  friend class Connection;
+  QueryStream(Connection* c, uint64_t id) : conn_(c), id_(id) {}
+  Connection* conn_;
+  uint64_t id_;
+  bool done_ = false;
+  std::vector<uint32_t> frames_;
+  bool clipped_ = false;
+};
+
+class Connection {
+ public:
+  static Result<std::unique_ptr<Connection>> Connect(const Options& options);
+  ~Connection();
+  Connection(const Connection&) = delete;
+  Connection& operator=(const Connection&) = delete;
+
+  Status Ping();
+  Result<std::vector<std::string>> ListDatasets();
+  Result<DatasetInfo> CreateDataset(const DatasetInfo& info);
+  Status DropDataset(const std::string& name);
+  Result<DatasetInfo> Describe(const std::string& dataset);
+  Result<std::unique_ptr<QueryStream>> Query(const std::string& dataset, const Region& region,
+                                             const QueryOptions& opts = {});
+  Result<CommitInfo> Commit(const std::string& dataset, const Transaction& txn);
+  Result<CommitInfo> Revert(const std::string& dataset, uint64_t lsn);
+  // Bulk-loads the points into `frame`, sent in chunks of at most 1 MiB.
+  Result<uint64_t> Ingest(const std::string& dataset, uint32_t frame, std::span<const Point> pts);
+  Result<wire::StatsReply> Stats(const std::string& dataset = "");
+
+  // Pipelining: send a request (its id is assigned and returned), collect its responses later.
+  Result<uint64_t> Send(wire::Request* req);
+  // The next response to request `id` (responses to other requests are kept for later).
+  Result<wire::Response> Receive(uint64_t id);
+
+  wire::Role role() const { return role_; }
+  bool broken() const { return broken_; }
+
+ private:
+  struct Impl;
+  explicit Connection(std::unique_ptr<Impl> impl);
+  Result<wire::Response> Call(wire::Request* req);
+  std::unique_ptr<Impl> impl_;
+  uint64_t next_id_ = 1;
+  wire::Role role_ = wire::ROLE_NONE;
+  bool broken_ = false;
+  std::map<uint64_t, std::deque<wire::Response>> pending_;
+};
+
+// A Connection that reconnects (with exponential backoff) when the server goes away.
+class Client {
+ public:
+  explicit Client(Options options) : options_(std::move(options)) {}
+  // Runs fn on a live connection, reconnecting and retrying when the connection breaks and
+  // `idempotent` is set.
+  template <typename T>
+  Result<T> Run(bool idempotent, const std::function<Result<T>(Connection&)>& fn);
+  Connection* connection() { return conn_.get(); }
+  Status EnsureConnected();
+
+ private:
+  Options options_;
+  std::unique_ptr<Connection> conn_;
+};
+
+template <typename T>
+Result<T> Client::Run(bool idempotent, const std::function<Result<T>(Connection&)>& fn) {
+  auto delay = options_.backoff;
+  Status last = Status::IOError("not attempted");
+  for (int attempt = 0; attempt < std::max(1, options_.max_attempts); ++attempt) {
+    Status st = EnsureConnected();
+    if (st.ok()) {
+      Result<T> r = fn(*conn_);
+      if (r.ok() || !conn_->broken()) return r;
+      last = r.status();
+      conn_.reset();
+      if (!idempotent) return last;  // it may have been applied: the caller must decide
+    } else {
+      last = st;
+    }
+    std::this_thread::sleep_for(delay);
+    delay *= 2;
+  }
+  return last;
+}
+
+}  // namespace hvdb::client
+
+#endif  // HVDB_CLIENT_CLIENT_H_

@@ -1,0 +1,81 @@
+// The hvdb wire protocol: framing and conversions between engine values and messages.
+// docs/PROTOCOL.md is the specification; hvdb.proto holds the message bodies.
+//
+// Framing: every frame is a 4-byte little-endian payload length followed by that many bytes of
+// a serialized protobuf message (Hello/HelloReply first, then Request / Response).
+#ifndef HVDB_PROTOCOL_WIRE_H_
+#define HVDB_PROTOCOL_WIRE_H_
+
+#include <cstdint>
+#include <span>
+#include <utility>
+#include <string>
+#include <vector>
+
+#include "protocol/hvdb.pb.h"
+#include "storage/database.h"
+#include "storage/point.h"
+#include "storage/status.h"
+
+namespace hvdb::wire {
+
+inline constexpr uint32_t kProtocolVersion = 1;
+inline constexpr uint32_t kFrameHeaderSize = 4;
+inline constexpr uint32_t kDefaultMaxFrame = 16u << 20;
+// Results are streamed in batches of at most this many bytes of point data.
+inline constexpr uint32_t kMaxBatchBytes = 1u << 20;
+inline constexpr uint32_t kMaxBatchPoints = kMaxBatchBytes / 64;
+
+// Appends a frame holding `msg` to `out`.
+void AppendFrame(const google::protobuf::MessageLite& msg, std::string* out);
+std::string Frame(const google::protobuf::MessageLite& msg);
+
+// Incremental frame splitter: feed bytes, take whole payloads out. Needs no socket, so the
+// fuzzer and the tests drive it directly.
+class FrameReader {
+ public:
+  explicit FrameReader(uint32_t max_frame = kDefaultMaxFrame) : max_frame_(max_frame) {}
+  enum class Result { kFrame, kNeedMore, kBad };
+  void Feed(const uint8_t* data, size_t n) { buf_.append(reinterpret_cast<const char*>(data), n); }
+  // kFrame: *payload holds the next frame's payload. kBad: the length is over the limit
+  // (*error says so); the stream cannot be resynchronised and must be closed.
+  Result Next(std::string* payload, std::string* error);
+
+ private:
+  uint32_t max_frame_;
+  std::string buf_;
+  size_t pos_ = 0;
+};
+
+// Length from a frame header; false when it exceeds max_frame.
+bool ParseFrameHeader(const uint8_t header[4], uint32_t max_frame, uint32_t* len);
+
+// ---- Points ----
+void EncodeColumns(std::span<const Point> pts, PointColumns* out);
+Status DecodeColumns(const PointColumns& in, std::vector<Point>* out);
+// Draco: positions quantised to `position_bits` and colours to 8 bits; ids and frames exact.
+Status EncodeDraco(std::span<const Point> pts, int position_bits, std::string* out);
+Status DecodeDraco(const std::string& data, std::vector<Point>* out);
+
+// ---- Values ----
+void ToWire(const hvdb::Region& r, wire::Region* out);
+Result<hvdb::Region> FromWire(const wire::Region& r);
+void ToWire(const hvdb::DatasetInfo& info, wire::DatasetInfo* out);
+hvdb::DatasetInfo FromWire(const wire::DatasetInfo& info);
+void ToWire(const CameraInfo& c, wire::Camera* out);
+Result<CameraInfo> FromWire(const wire::Camera& c);
+void ToWire(const hvdb::Selection& s, wire::Selection* out);
+Result<hvdb::Selection> FromWire(const wire::Selection& s);
+// Builds an engine transaction from an Edit request (validating every field).
+Result<Transaction> FromWire(const wire::Edit& e);
+void ToWire(const Transaction& t, wire::Edit* out);
+
+// ---- Errors ----
+ErrorCode ToWire(StatusCode code);
+StatusCode FromWire(ErrorCode code);
+void ToWire(const Status& s, wire::Error* out);
+Status FromWire(const wire::Error& e);
+
+}  // namespace hvdb::wire
+
+#endif  // HVDB_PROTOCOL_WIRE_H_

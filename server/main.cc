@@ -1,0 +1,61 @@
+// hvdb-server: flags, the optional config file, and the server's lifetime. The only
+// try/catch of the server is here.
+#include <CLI/CLI.hpp>
+#include <cstdio>
+
+#include "server/server.h"
+
+int main(int argc, char** argv) {
+  using hvdb::server::Config;
+  Config c;
+  std::string log_level = "info";
+  bool no_sync = false;
+  CLI::App app{"hvdb-server: serves hvdb datasets over the hvdb wire protocol (docs/PROTOCOL.md)"};
+  app.set_config("--config", "", "read options from an INI/TOML file (keys = long option names)");
+  app.add_option("--data", c.data_dir, "data directory")->capture_default_str();
+  app.add_option("--listen", c.listen,
+                 "HOST:PORT to listen on (port 0: any free port); a non-loopback address needs "
+                 "--token-file")
+      ->capture_default_str();
+  app.add_option("--token-file", c.token_file, "access tokens, one 'TOKEN ro|rw' per line");
+  app.add_option("--port-file", c.port_file, "write the bound port to this file");
+  app.add_option("--io-threads", c.io_threads, "network threads")->capture_default_str()
+      ->check(CLI::Range(1u, 256u));
+  app.add_option("--workers", c.worker_threads, "query/commit worker threads")
+      ->capture_default_str()->check(CLI::Range(1u, 256u));
+  app.add_option("--cache-mb", c.cache_mb, "block cache size in MiB (>= 8)")->capture_default_str()
+      ->check(CLI::Range(size_t{8}, size_t{1} << 20));
+  app.add_option("--max-frame-bytes", c.max_frame_bytes, "largest request frame accepted")
+      ->capture_default_str()->check(CLI::Range(1024u, 1u << 30));
+  app.add_option("--max-connections", c.max_connections)->capture_default_str();
+  app.add_option("--max-inflight", c.max_inflight, "requests in flight per connection")
+      ->capture_default_str()->check(CLI::Range(1u, 4096u));
+  app.add_option("--idle-timeout", c.idle_timeout_s, "seconds before an idle connection closes")
+      ->capture_default_str()->check(CLI::Range(1u, 86400u));
+  app.add_option("--max-slice-frames", c.max_slice_frames,
+                 "default bound on frames a hyperslice may read")->capture_default_str();
+  app.add_flag("--no-sync", no_sync, "do not fsync commits (faster, loses the last commits on a "
+                                     "power failure)");
+  app.add_option("--log-level", log_level, "error, warn, info or debug")->capture_default_str()
+      ->check(CLI::IsMember({"error", "warn", "info", "debug"}));
+  CLI11_PARSE(app, argc, argv);
+  c.sync = !no_sync;
+  hvdb::server::SetLogLevel(log_level == "error"  ? hvdb::server::LogLevel::kError
+                            : log_level == "warn" ? hvdb::server::LogLevel::kWarn
+                            : log_level == "debug" ? hvdb::server::LogLevel::kDebug
+                                                   : hvdb::server::LogLevel::kInfo);
+  try {
+    auto server = hvdb::server::Server::Create(c);
+    if (!server.ok()) {
+      std::fprintf(stderr, "hvdb-server: %s\n", server.status().ToString().c_str());
+      return 1;
+    }
+    std::printf("hvdb-server listening on port %u\n", (*server)->port());
+    std::fflush(stdout);
+    (*server)->Run(/*handle_signals=*/true);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "hvdb-server: fatal: %s\n", e.what());
+    return 1;
+  }
+  return 0;
+}

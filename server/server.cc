@@ -1,0 +1,203 @@
+#include "server/server.h"
+
+#include <unistd.h>
+
+#include <cstdio>
+#include <ctime>
+#include <fstream>
+#include <sstream>
+
+#include "server/session.h"
+
+namespace hvdb::server {
+
+namespace asio = boost::asio;
+using asio::ip::tcp;
+
+static std::atomic<int> g_log_level{static_cast<int>(LogLevel::kInfo)};
+
+void SetLogLevel(LogLevel level) { g_log_level = static_cast<int>(level); }
+
+void Log(LogLevel level, const std::string& msg) {
+  if (static_cast<int>(level) > g_log_level) return;
+  static const char* kNames[] = {"ERROR", "WARN", "INFO", "DEBUG"};
+  char ts[32];
+  std::time_t now = std::time(nullptr);
+  std::strftime(ts, sizeof(ts), "%Y-%m-%dT%H:%M:%S", std::gmtime(&now));
+  std::fprintf(stderr, "%sZ %s %s\n", ts, kNames[static_cast<int>(level)], msg.c_str());
+}
+
+Server::Server(Config config, std::unique_ptr<Database> db)
+    : config_(std::move(config)),
+      db_(std::move(db)),
+      io_(static_cast<int>(config_.io_threads)),
+      workers_(config_.worker_threads),
+      acceptor_(io_),
+      signals_(io_) {}
+
+Server::~Server() {
+  Stop();
+  workers_.join();
+}
+
+static bool ParseHostPort(const std::string& s, std::string* host, uint16_t* port) {
+  auto colon = s.rfind(':');
+  if (colon == std::string::npos) return false;
+  *host = s.substr(0, colon);
+  if (host->size() > 2 && host->front() == '[' && host->back() == ']') {
+    *host = host->substr(1, host->size() - 2);
+  }
+  try {
+    int p = std::stoi(s.substr(colon + 1));
+    if (p < 0 || p > 65535) return false;
+    *port = static_cast<uint16_t>(p);
+  } catch (...) {
+    return false;
+  }
+  return true;
+}
+
+Result<std::unique_ptr<Server>> Server::Create(const Config& config) {
+  std::string host;
+  uint16_t port;
+  if (!ParseHostPort(config.listen, &host, &port)) {
+    return Status::InvalidArgument("--listen: expected HOST:PORT, got '" + config.listen + "'");
+  }
+  boost::system::error_code ec;
+  auto addr = asio::ip::make_address(host, ec);
+  if (ec) return Status::InvalidArgument("--listen: '" + host + "' is not an IP address");
+  std::map<std::string, Role> tokens;
+  if (!config.token_file.empty()) {
+    std::ifstream in(config.token_file);
+    if (!in) return Status::NotFound("--token-file: cannot read " + config.token_file);
+    std::string line;
+    int n = 0;
+    while (std::getline(in, line)) {
+      ++n;
+      if (line.empty() || line[0] == '#') continue;
+      std::istringstream ls(line);
+      std::string tok, role;
+      ls >> tok >> role;
+      if (tok.size() < 16 || (role != "ro" && role != "rw")) {
+        return Status::InvalidArgument(config.token_file + " line " + std::to_string(n) +
+                                       ": expected 'TOKEN ro|rw' with a token of 16+ characters");
+      }
+      tokens[tok] = role == "rw" ? Role::kReadWrite : Role::kReadOnly;
+    }
+  }
+  if (!addr.is_loopback() && tokens.empty()) {
+    return Status::InvalidArgument("--listen " + config.listen +
+                                   " is not a loopback address: give --token-file so that "
+                                   "clients must authenticate");
+  }
+  Options opts;
+  opts.cache_bytes = config.cache_mb << 20;
+  opts.sync = config.sync;
+  opts.max_slice_frames = config.max_slice_frames;
+  HVDB_ASSIGN_OR_RETURN(auto db, Database::Open(config.data_dir, opts));
+  std::unique_ptr<Server> s(new Server(config, std::move(db)));
+  s->tokens_ = std::move(tokens);
+  s->require_token_ = !s->tokens_.empty();
+  HVDB_RETURN_IF_ERROR(s->Listen());
+  return s;
+}
+
+Status Server::Listen() {
+  std::string host;
+  uint16_t port;
+  ParseHostPort(config_.listen, &host, &port);
+  tcp::endpoint ep(asio::ip::make_address(host), port);
+  boost::system::error_code ec;
+  acceptor_.open(ep.protocol(), ec);
+  if (!ec) acceptor_.set_option(tcp::acceptor::reuse_address(true), ec);
+  if (!ec) acceptor_.bind(ep, ec);
+  if (!ec) acceptor_.listen(asio::socket_base::max_listen_connections, ec);
+  if (ec) return Status::IOError("listen on " + config_.listen + ": " + ec.message());
+  port_ = acceptor_.local_endpoint().port();
+  if (!config_.port_file.empty()) {
+    std::ofstream(config_.port_file) << port_ << "\n";
+  }
+  return Status::OK();
+}
+
+Role Server::Authenticate(const std::string& token) const {
+  if (!require_token_) return Role::kReadWrite;
+  auto it = tokens_.find(token);
+  return it == tokens_.end() ? Role::kNone : it->second;
+}
+
+void Server::Accept() {
+  acceptor_.async_accept(asio::make_strand(io_), [this](boost::system::error_code ec,
+                                                        tcp::socket socket) {
+    if (ec) {
+      if (!stopping_) {
+        Log(LogLevel::kWarn, "accept: " + ec.message());
+        Accept();
+      }
+      return;
+    }
+    auto session = std::make_shared<Session>(this, std::move(socket));
+    bool refuse = false;
+    {
+      std::lock_guard<std::mutex> l(mu_);
+      refuse = sessions_.size() >= config_.max_connections;
+      sessions_.insert(session);
+    }
+    session->Start();
+    if (refuse) {
+      session->Refuse(Status::Overloaded("the server has " + std::to_string(config_.max_connections) +
+                                         " connections, its limit; retry later"));
+    }
+    Accept();
+  });
+}
+
+void Server::Forget(Session* s) {
+  std::lock_guard<std::mutex> l(mu_);
+  for (auto it = sessions_.begin(); it != sessions_.end(); ++it) {
+    if (it->get() == s) {
+      sessions_.erase(it);
+      return;
+    }
+  }
+}
+
+void Server::Run(bool handle_signals) {
+  if (handle_signals) {
+    signals_.add(SIGINT);
+    signals_.add(SIGTERM);
+    signals_.async_wait([this](boost::system::error_code ec, int sig) {
+      if (ec) return;
+      Log(LogLevel::kInfo, std::string("received ") + (sig == SIGINT ? "SIGINT" : "SIGTERM") +
+                               ": shutting down");
+      Stop();
+    });
+  }
+  Accept();
+  Log(LogLevel::kInfo, "hvdb-server listening on " + acceptor_.local_endpoint().address().to_string() +
+                           ":" + std::to_string(port_) + ", data " + config_.data_dir);
+  std::vector<std::thread> threads;
+  for (unsigned i = 1; i < config_.io_threads; ++i) threads.emplace_back([this] { io_.run(); });
+  io_.run();
+  for (auto& t : threads) t.join();
+  // Queries and commits still on the workers finish (cancelled queries end at once).
+  workers_.join();
+  Log(LogLevel::kInfo, "stopped");
+}
+
+void Server::Stop() {
+  if (stopping_.exchange(true)) return;
+  asio::post(io_, [this] {
+    boost::system::error_code ignored;
+    acceptor_.close(ignored);
+    signals_.cancel(ignored);
+    std::set<std::shared_ptr<Session>> all;
+    {
+      std::lock_guard<std::mutex> l(mu_);
+      all = sessions_;
+    }
+    for (const auto& s : all) s->Close();
+  });
+}
+
+}  // namespace hvdb::server

@@ -1,0 +1,97 @@
+// hvdb-server: the storage engine served over the wire protocol (docs/PROTOCOL.md).
+//
+// Threads: `io_threads` run the Boost.Asio event loop (accept, read, write; every connection
+// has its own strand); `worker_threads` run queries, commits and bulk loads, so a slow query
+// never stalls the network. Results stream batch by batch: a query produces its next batch
+// only while its connection has less than `outbound_high_water` bytes queued (flow control).
+#ifndef HVDB_SERVER_SERVER_H_
+#define HVDB_SERVER_SERVER_H_
+
+#include <atomic>
+#include <chrono>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <set>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <utility>  // before Asio: Boost 1.74's awaitable.hpp needs std::exchange
+
+#include <boost/asio.hpp>
+
+#include "server/stats.h"
+#include "storage/database.h"
+
+namespace hvdb::server {
+
+enum class LogLevel { kError = 0, kWarn = 1, kInfo = 2, kDebug = 3 };
+void Log(LogLevel level, const std::string& msg);
+void SetLogLevel(LogLevel level);
+
+struct Config {
+  std::string data_dir = "./data";
+  std::string listen = "127.0.0.1:7878";  // port 0: any free port (printed at start)
+  unsigned io_threads = std::max(1u, std::thread::hardware_concurrency());
+  unsigned worker_threads = std::max(1u, std::thread::hardware_concurrency());
+  size_t cache_mb = 256;
+  uint32_t max_frame_bytes = 16u << 20;
+  uint32_t max_connections = 256;
+  uint32_t max_inflight = 32;  // requests in flight per connection
+  uint32_t idle_timeout_s = 300;
+  uint32_t handshake_timeout_s = 10;
+  size_t outbound_high_water = 4u << 20;  // bytes queued per connection before queries pause
+  size_t max_ingest_bytes = 512u << 20;   // per connection, points of frames not yet loaded
+  uint32_t max_slice_frames = 64;
+  bool sync = true;
+  std::string token_file;  // lines "TOKEN ro|rw"; required for a non-loopback address
+  std::string port_file;   // written with the bound port once listening
+};
+
+enum class Role { kNone, kReadOnly, kReadWrite };
+
+class Session;
+
+class Server {
+ public:
+  static Result<std::unique_ptr<Server>> Create(const Config& config);
+  ~Server();
+  // Runs until Stop() (or SIGINT/SIGTERM when handle_signals). Returns when all work is done.
+  void Run(bool handle_signals);
+  // Stops accepting, cancels in-flight work, closes connections. Thread-safe.
+  void Stop();
+  uint16_t port() const { return port_; }
+
+  // For sessions.
+  const Config& config() const { return config_; }
+  Database& db() { return *db_; }
+  boost::asio::thread_pool& workers() { return workers_; }
+  ServerStats& stats() { return stats_; }
+  // Role of a token; kNone if it is unknown (or tokens are required and none was given).
+  Role Authenticate(const std::string& token) const;
+  void Forget(Session* s);
+
+ private:
+  Server(Config config, std::unique_ptr<Database> db);
+  Status Listen();
+  void Accept();
+
+  Config config_;
+  std::unique_ptr<Database> db_;
+  boost::asio::io_context io_;
+  boost::asio::thread_pool workers_;
+  boost::asio::ip::tcp::acceptor acceptor_;
+  boost::asio::signal_set signals_;
+  std::map<std::string, Role> tokens_;
+  bool require_token_ = false;
+  uint16_t port_ = 0;
+  ServerStats stats_;
+  std::mutex mu_;
+  std::set<std::shared_ptr<Session>> sessions_;
+  std::atomic<bool> stopping_{false};
+};
+
+}  // namespace hvdb::server
+
+#endif  // HVDB_SERVER_SERVER_H_

@@ -1,0 +1,590 @@
+#include "server/session.h"
+
+#include <nlohmann/json.hpp>
+
+namespace hvdb::server {
+
+namespace asio = boost::asio;
+using asio::ip::tcp;
+
+struct Session::Op {
+  uint64_t id = 0;
+  std::string kind;
+  std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
+  std::atomic<bool> cancelled{false};
+  // Queries:
+  std::unique_ptr<Cursor> cursor;
+  wire::PointEncoding encoding = wire::COLUMNS;
+  uint64_t points = 0;
+  bool paused = false;
+};
+
+namespace {
+
+const char* KindOf(const wire::Request& r) {
+  switch (r.body_case()) {
+    case wire::Request::kPing: return "ping";
+    case wire::Request::kList: return "list";
+    case wire::Request::kCreate: return "create";
+    case wire::Request::kDrop: return "drop";
+    case wire::Request::kDescribe: return "describe";
+    case wire::Request::kQuery: return "query";
+    case wire::Request::kCancel: return "cancel";
+    case wire::Request::kEdit: return "edit";
+    case wire::Request::kRevert: return "revert";
+    case wire::Request::kIngest: return "ingest";
+    case wire::Request::kStats: return "stats";
+    case wire::Request::kRender: return "render";
+    default: return "unknown";
+  }
+}
+
+bool Writes(const wire::Request& r) {
+  switch (r.body_case()) {
+    case wire::Request::kCreate:
+    case wire::Request::kDrop:
+    case wire::Request::kEdit:
+    case wire::Request::kRevert:
+    case wire::Request::kIngest: return true;
+    default: return false;
+  }
+}
+
+wire::Response ErrorResponse(uint64_t id, const Status& st,
+                             wire::ErrorCode code = wire::ERROR_UNSPECIFIED) {
+  wire::Response r;
+  r.set_id(id);
+  wire::ToWire(st, r.mutable_error());
+  if (code != wire::ERROR_UNSPECIFIED) r.mutable_error()->set_code(code);
+  return r;
+}
+
+// A dataset lookup failure is UNKNOWN_DATASET, not a generic NOT_FOUND.
+Result<std::shared_ptr<Dataset>> FindDataset(Server* s, const std::string& name) {
+  return s->db().GetDataset(name);
+}
+
+wire::Response DatasetError(uint64_t id, const Status& st) {
+  return ErrorResponse(id, st, st.IsNotFound() ? wire::UNKNOWN_DATASET : wire::ERROR_UNSPECIFIED);
+}
+
+}  // namespace
+
+Session::Session(Server* server, tcp::socket socket)
+    : server_(server),
+      socket_(std::move(socket)),
+      strand_(asio::make_strand(static_cast<asio::io_context&>(socket_.get_executor().context()))),
+      timer_(strand_) {}
+
+void Session::Start() {
+  server_->stats().connections_open++;
+  server_->stats().connections_total++;
+  socket_.set_option(tcp::no_delay(true));
+  deadline_ = Clock::now() + std::chrono::seconds(server_->config().handshake_timeout_s);
+  auto self = shared_from_this();
+  asio::dispatch(strand_, [self] {
+    self->ArmTimer();
+    self->ReadHeader();
+  });
+}
+
+void Session::ArmTimer() {
+  auto self = shared_from_this();
+  timer_.expires_at(deadline_);
+  timer_.async_wait([self](boost::system::error_code ec) {
+    if (self->closed_) return;
+    if (!ec && Clock::now() >= self->deadline_) {
+      Log(LogLevel::kInfo, "closing idle or slow connection");
+      self->CloseOnStrand();
+      return;
+    }
+    if (ec != asio::error::operation_aborted || !self->closed_) self->ArmTimer();
+  });
+}
+
+void Session::ReadHeader() {
+  auto self = shared_from_this();
+  asio::async_read(socket_, asio::buffer(header_),
+                   asio::bind_executor(strand_, [self](boost::system::error_code ec, size_t) {
+                     if (ec || self->closed_) return self->CloseOnStrand();
+                     uint32_t len;
+                     if (!wire::ParseFrameHeader(self->header_,
+                                                 self->server_->config().max_frame_bytes, &len)) {
+                       self->close_after_write_ = true;
+                       self->SendError(0, Status::InvalidArgument(
+                                              "frame of " + std::to_string(len) +
+                                              " bytes exceeds the limit of " +
+                                              std::to_string(self->server_->config().max_frame_bytes)),
+                                       wire::MALFORMED);
+                       return;
+                     }
+                     self->ReadBody(len);
+                   }));
+}
+
+void Session::ReadBody(uint32_t len) {
+  body_.resize(len);
+  auto self = shared_from_this();
+  asio::async_read(socket_, asio::buffer(body_),
+                   asio::bind_executor(strand_, [self](boost::system::error_code ec, size_t n) {
+                     if (ec || self->closed_) return self->CloseOnStrand();
+                     self->server_->stats().bytes_in += n + wire::kFrameHeaderSize;
+                     self->deadline_ = Clock::now() + std::chrono::seconds(
+                                                          self->server_->config().idle_timeout_s);
+                     self->OnFrame();
+                     if (!self->closed_ && !self->close_after_write_) self->ReadHeader();
+                   }));
+}
+
+void Session::OnFrame() {
+  if (!hello_done_) return OnHello(body_);
+  wire::Request req;
+  if (!req.ParseFromString(body_)) {
+    close_after_write_ = true;
+    SendError(0, Status::InvalidArgument("request frame is not a valid Request message"),
+              wire::MALFORMED);
+    return;
+  }
+  Dispatch(std::move(req));
+}
+
+void Session::OnHello(const std::string& payload) {
+  wire::Hello hello;
+  wire::Response err;
+  if (!hello.ParseFromString(payload)) {
+    close_after_write_ = true;
+    return SendError(0, Status::InvalidArgument("the first frame must be a Hello message"),
+                     wire::MALFORMED);
+  }
+  if (hello.protocol_version() != wire::kProtocolVersion) {
+    close_after_write_ = true;
+    return SendError(0, Status::Unsupported("protocol version " +
+                                            std::to_string(hello.protocol_version()) +
+                                            " is not supported; this server speaks version " +
+                                            std::to_string(wire::kProtocolVersion)));
+  }
+  role_ = server_->Authenticate(hello.token());
+  if (role_ == Role::kNone) {
+    close_after_write_ = true;
+    return SendError(0, Status::PermissionDenied("invalid or missing access token"));
+  }
+  hello_done_ = true;
+  wire::HelloReply reply;
+  reply.set_protocol_version(wire::kProtocolVersion);
+  reply.add_capabilities("draco");
+  reply.add_capabilities("progressive");
+  reply.add_capabilities("pipelining");
+  reply.set_server_name("hvdb-server 0.1");
+  reply.set_role(role_ == Role::kReadWrite ? wire::ROLE_READ_WRITE : wire::ROLE_READ_ONLY);
+  std::string frame = wire::Frame(reply);
+  bytes_queued_ += frame.size();
+  out_.push_back(std::move(frame));
+  WriteNext();
+}
+
+void Session::Dispatch(wire::Request req) {
+  const uint64_t id = req.id();
+  if (req.body_case() == wire::Request::BODY_NOT_SET) {
+    return SendError(id, Status::InvalidArgument("request: empty or unknown request kind"),
+                     wire::MALFORMED);
+  }
+  if (req.body_case() == wire::Request::kCancel) {
+    auto it = ops_.find(req.cancel().target());
+    if (it != ops_.end()) {
+      it->second->cancelled = true;
+      if (it->second->cursor) it->second->cursor->Cancel();
+    }
+    wire::Response r;
+    r.set_id(id);
+    r.mutable_ack()->set_value(it != ops_.end() ? 1 : 0);
+    return Send(r);
+  }
+  if (req.body_case() == wire::Request::kPing) {
+    wire::Response r;
+    r.set_id(id);
+    r.mutable_pong()->set_payload(req.ping().payload());
+    server_->stats().Record("ping", 0);
+    return Send(r);
+  }
+  if (ops_.count(id)) {
+    return SendError(id, Status::InvalidArgument("request id: " + std::to_string(id) +
+                                                 " is already in flight on this connection"));
+  }
+  if (ops_.size() >= server_->config().max_inflight) {
+    return SendError(id, Status::Overloaded("more than " +
+                                            std::to_string(server_->config().max_inflight) +
+                                            " requests in flight on this connection; wait for "
+                                            "some to finish"));
+  }
+  if (Writes(req) && role_ != Role::kReadWrite) {
+    return SendError(id, Status::PermissionDenied(std::string(KindOf(req)) +
+                                                  " needs a read-write token"));
+  }
+  auto op = std::make_shared<Op>();
+  op->id = id;
+  op->kind = KindOf(req);
+  ops_[id] = op;
+  Server* s = server_;
+  switch (req.body_case()) {
+    case wire::Request::kList:
+      return RunOnWorker(id, [s, id] {
+        wire::Response r;
+        r.set_id(id);
+        for (const auto& n : s->db().ListDatasets()) r.mutable_datasets()->add_names(n);
+        return r;
+      });
+    case wire::Request::kCreate:
+      return RunOnWorker(id, [s, id, c = req.create()] {
+        DatasetInfo info;
+        info.name = c.name();
+        info.fps = c.fps();
+        info.space_time_scale = c.space_time_scale() == 0 ? 1.0 : c.space_time_scale();
+        for (const auto& cam : c.cameras()) {
+          auto ci = wire::FromWire(cam);
+          if (!ci.ok()) return ErrorResponse(id, ci.status());
+          info.cameras.push_back(*ci);
+        }
+        auto ds = s->db().CreateDataset(info);
+        if (!ds.ok()) return ErrorResponse(id, ds.status());
+        wire::Response r;
+        r.set_id(id);
+        wire::ToWire((*ds)->Info(), r.mutable_info());
+        return r;
+      });
+    case wire::Request::kDrop:
+      return RunOnWorker(id, [s, id, name = req.drop().name()] {
+        Status st = s->db().DropDataset(name);
+        if (!st.ok()) return DatasetError(id, st);
+        wire::Response r;
+        r.set_id(id);
+        r.mutable_ack();
+        return r;
+      });
+    case wire::Request::kDescribe:
+      return RunOnWorker(id, [s, id, name = req.describe().dataset()] {
+        auto ds = FindDataset(s, name);
+        if (!ds.ok()) return DatasetError(id, ds.status());
+        wire::Response r;
+        r.set_id(id);
+        wire::ToWire((*ds)->Info(), r.mutable_info());
+        return r;
+      });
+    case wire::Request::kEdit:
+      return RunOnWorker(id, [s, id, e = req.edit()] {
+        auto ds = FindDataset(s, e.dataset());
+        if (!ds.ok()) return DatasetError(id, ds.status());
+        auto txn = wire::FromWire(e);
+        if (!txn.ok()) return ErrorResponse(id, txn.status());
+        auto c = (*ds)->Commit(*txn);
+        if (!c.ok()) return ErrorResponse(id, c.status());
+        wire::Response r;
+        r.set_id(id);
+        auto* cr = r.mutable_commit();
+        cr->set_lsn(c->lsn);
+        cr->set_inserted(c->inserted);
+        cr->set_removed(c->removed);
+        for (uint64_t a : c->assigned_ids) cr->add_assigned_ids(a);
+        return r;
+      });
+    case wire::Request::kRevert:
+      return RunOnWorker(id, [s, id, rv = req.revert()] {
+        auto ds = FindDataset(s, rv.dataset());
+        if (!ds.ok()) return DatasetError(id, ds.status());
+        auto c = (*ds)->Revert(rv.lsn());
+        if (!c.ok()) return ErrorResponse(id, c.status());
+        wire::Response r;
+        r.set_id(id);
+        r.mutable_commit()->set_lsn(c->lsn);
+        r.mutable_commit()->set_inserted(c->inserted);
+        r.mutable_commit()->set_removed(c->removed);
+        return r;
+      });
+    case wire::Request::kStats:
+      return RunOnWorker(id, [s, id, name = req.stats().dataset()] {
+        wire::Response r;
+        r.set_id(id);
+        auto* st = r.mutable_stats();
+        st->set_connections_open(s->stats().connections_open);
+        st->set_connections_total(s->stats().connections_total);
+        st->set_bytes_in(s->stats().bytes_in);
+        st->set_bytes_out(s->stats().bytes_out);
+        CacheStats c = s->db().Cache();
+        st->set_cache_capacity_bytes(c.capacity_bytes);
+        uint64_t lookups = c.hits + c.misses;
+        st->set_cache_hit_rate(lookups ? static_cast<double>(c.hits) / lookups : 0);
+        for (const auto& sum : s->stats().Summaries()) {
+          auto* l = st->add_requests();
+          l->set_kind(sum.kind);
+          l->set_count(sum.count);
+          l->set_p50_ms(sum.p50_ms);
+          l->set_p95_ms(sum.p95_ms);
+          l->set_p99_ms(sum.p99_ms);
+        }
+        if (!name.empty()) {
+          auto ds = FindDataset(s, name);
+          if (!ds.ok()) return DatasetError(id, ds.status());
+          DatasetStats d = (*ds)->Stats();
+          st->set_last_lsn((*ds)->Info().last_lsn);
+          nlohmann::json j = {{"frames_with_data", d.frames_with_data}, {"points", d.points},
+                              {"tombstones", d.tombstones}, {"buffered_points", d.buffered_points},
+                              {"trees", d.trees}, {"tree_bytes", d.tree_bytes},
+                              {"wal_bytes", d.wal_bytes}, {"leaf_utilisation", d.leaf_utilisation}};
+          st->set_dataset_json(j.dump());
+        }
+        return r;
+      });
+    case wire::Request::kRender:
+      return RunOnWorker(id, [id] {
+        return ErrorResponse(id, Status::Unsupported("render: this server was built without the "
+                                                     "render service"));
+      });
+    case wire::Request::kIngest:
+      return HandleIngest(id, req.ingest());
+    case wire::Request::kQuery: {
+      const wire::Query& q = req.query();
+      auto region = wire::FromWire(q.region());
+      if (!region.ok()) {
+        ops_.erase(id);
+        return SendError(id, region.status());
+      }
+      if (!wire::PointEncoding_IsValid(q.encoding())) {
+        ops_.erase(id);
+        return SendError(id, Status::InvalidArgument("query.encoding: unknown value " +
+                                                     std::to_string(q.encoding())));
+      }
+      if (q.lod() > 64) {
+        ops_.erase(id);
+        return SendError(id, Status::InvalidArgument("query.lod: " + std::to_string(q.lod()) +
+                                                     " is out of range"));
+      }
+      QueryOptions o;
+      o.lod = static_cast<int>(q.lod());
+      o.progressive = q.progressive();
+      o.temporal_lod = !q.no_temporal_lod();
+      o.label_mask = q.label_mask();
+      o.batch_points = q.batch_points() == 0 ? 16384u : std::min(q.batch_points(), wire::kMaxBatchPoints);
+      // A batch may overrun batch_points by up to one bucket level; keep it under 1 MiB.
+      o.batch_points = std::min<size_t>(o.batch_points, wire::kMaxBatchPoints - 2048);
+      op->encoding = q.encoding();
+      auto self = shared_from_this();
+      asio::post(server_->workers(), [self, op, s, name = q.dataset(), r = *region, o] {
+        auto ds = FindDataset(s, name);
+        Result<std::unique_ptr<Cursor>> cursor =
+            ds.ok() ? (*ds)->Query(r, o) : Result<std::unique_ptr<Cursor>>(ds.status());
+        if (!cursor.ok()) {
+          wire::Response resp = ds.ok() ? ErrorResponse(op->id, cursor.status())
+                                        : DatasetError(op->id, ds.status());
+          asio::post(self->strand_, [self, op, resp] {
+            self->Send(resp);
+            self->Finish(op->id);
+          });
+          return;
+        }
+        op->cursor = std::move(cursor).value();
+        self->Pump(op);
+      });
+      return;
+    }
+    default:
+      ops_.erase(id);
+      return SendError(id, Status::InvalidArgument("request: unknown kind"), wire::MALFORMED);
+  }
+}
+
+void Session::RunOnWorker(uint64_t id, std::function<wire::Response()> fn) {
+  auto self = shared_from_this();
+  asio::post(server_->workers(), [self, id, fn = std::move(fn)] {
+    wire::Response r;
+    try {
+      r = fn();
+    } catch (const std::exception& e) {  // e.g. std::bad_alloc: this request fails, not the server
+      r = ErrorResponse(id, Status::Internal(e.what()));
+    }
+    asio::post(self->strand_, [self, id, r = std::move(r)] {
+      self->Send(r);
+      self->Finish(id);
+    });
+  });
+}
+
+void Session::Pump(std::shared_ptr<Op> op) {
+  // On a worker: produce one batch.
+  auto self = shared_from_this();
+  wire::Response resp;
+  resp.set_id(op->id);
+  bool last = false;
+  Batch batch;
+  Result<bool> more = op->cancelled ? Result<bool>(Status::Cancelled("query cancelled"))
+                                    : op->cursor->Next(&batch);
+  if (!more.ok()) {
+    resp = ErrorResponse(op->id, more.status());
+    last = true;
+  } else if (!*more) {
+    auto* d = resp.mutable_done();
+    d->set_points(op->points);
+    for (uint32_t f : op->cursor->frames()) d->add_frames(f);
+    d->set_clipped(op->cursor->clipped());
+    last = true;
+  } else {
+    op->points += batch.points.size();
+    auto* b = resp.mutable_batch();
+    b->set_level(static_cast<uint32_t>(batch.level));
+    b->set_level_done(batch.level_done);
+    b->set_splat_scale(batch.splat_scale);
+    b->set_encoding(op->encoding);
+    if (op->encoding == wire::DRACO) {
+      Status st = wire::EncodeDraco(batch.points, 16, b->mutable_draco());
+      if (!st.ok()) {
+        resp = ErrorResponse(op->id, st);
+        last = true;
+      }
+    } else {
+      wire::EncodeColumns(batch.points, b->mutable_columns());
+    }
+  }
+  asio::post(strand_, [self, op, resp = std::move(resp), last] {
+    if (self->closed_) return;
+    self->Send(resp);
+    if (last) {
+      self->Finish(op->id);
+      return;
+    }
+    if (self->bytes_queued_ < self->server_->config().outbound_high_water) {
+      asio::post(self->server_->workers(), [self, op] { self->Pump(op); });
+    } else {
+      op->paused = true;  // resumed by WriteNext when the queue drains
+    }
+  });
+}
+
+void Session::ResumePaused() {
+  auto self = shared_from_this();
+  for (auto& [id, op] : ops_) {
+    if (!op->paused) continue;
+    op->paused = false;
+    asio::post(server_->workers(), [self, op = op] { self->Pump(op); });
+  }
+}
+
+void Session::HandleIngest(uint64_t id, const wire::Ingest& ing) {
+  // Chunks are collected here, in arrival order; the frame is bulk-loaded on `last`.
+  auto key = std::make_pair(ing.dataset(), ing.frame());
+  std::vector<Point>& pts = ingest_[key];
+  size_t before = pts.size();
+  Status st = wire::DecodeColumns(ing.points(), &pts);
+  if (!st.ok()) {
+    pts.resize(before);
+    ops_.erase(id);
+    return SendError(id, st);
+  }
+  ingest_bytes_ += (pts.size() - before) * sizeof(Point);
+  if (ingest_bytes_ > server_->config().max_ingest_bytes) {
+    ingest_bytes_ -= pts.size() * sizeof(Point);
+    ingest_.erase(key);
+    ops_.erase(id);
+    return SendError(id, Status::LimitExceeded("ingest: more than " +
+                                               std::to_string(server_->config().max_ingest_bytes >> 20) +
+                                               " MiB buffered on this connection; send `last` "
+                                               "for each frame sooner"));
+  }
+  if (!ing.last()) {
+    wire::Response r;
+    r.set_id(id);
+    r.mutable_ack()->set_value(pts.size());
+    Send(r);
+    return Finish(id);
+  }
+  auto frame_points = std::make_shared<std::vector<Point>>(std::move(pts));
+  ingest_bytes_ -= frame_points->size() * sizeof(Point);
+  ingest_.erase(key);
+  Server* s = server_;
+  RunOnWorker(id, [s, id, name = ing.dataset(), frame = ing.frame(), frame_points] {
+    auto ds = FindDataset(s, name);
+    if (!ds.ok()) return DatasetError(id, ds.status());
+    auto n = (*ds)->BulkLoad(frame, std::move(*frame_points));
+    if (!n.ok()) return ErrorResponse(id, n.status());
+    wire::Response r;
+    r.set_id(id);
+    r.mutable_ack()->set_value(*n);
+    return r;
+  });
+}
+
+void Session::Finish(uint64_t id) {
+  auto it = ops_.find(id);
+  if (it == ops_.end()) return;
+  double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() -
+                                                        it->second->start)
+                  .count();
+  server_->stats().Record(it->second->kind, ms);
+  ops_.erase(it);
+}
+
+void Session::Send(const wire::Response& r) {
+  if (closed_) return;
+  std::string frame = wire::Frame(r);
+  bytes_queued_ += frame.size();
+  out_.push_back(std::move(frame));
+  WriteNext();
+}
+
+void Session::SendError(uint64_t id, const Status& st, wire::ErrorCode code) {
+  Send(ErrorResponse(id, st, code));
+}
+
+void Session::WriteNext() {
+  if (writing_ || out_.empty() || closed_) return;
+  writing_ = true;
+  auto self = shared_from_this();
+  asio::async_write(socket_, asio::buffer(out_.front()),
+                    asio::bind_executor(strand_, [self](boost::system::error_code ec, size_t n) {
+                      self->writing_ = false;
+                      if (ec) return self->CloseOnStrand();
+                      self->server_->stats().bytes_out += n;
+                      self->bytes_queued_ -= self->out_.front().size();
+                      self->out_.pop_front();
+                      // A write finishing is progress too: a slow reader is not idle.
+                      self->deadline_ = Clock::now() + std::chrono::seconds(
+                                                           self->server_->config().idle_timeout_s);
+                      if (self->bytes_queued_ < self->server_->config().outbound_high_water / 2) {
+                        self->ResumePaused();
+                      }
+                      if (self->out_.empty() && self->close_after_write_) {
+                        return self->CloseOnStrand();
+                      }
+                      self->WriteNext();
+                    }));
+}
+
+void Session::Refuse(const Status& st) {
+  auto self = shared_from_this();
+  asio::dispatch(strand_, [self, st] {
+    self->close_after_write_ = true;
+    self->hello_done_ = true;
+    self->SendError(0, st);
+  });
+}
+
+void Session::Close() {
+  auto self = shared_from_this();
+  asio::dispatch(strand_, [self] { self->CloseOnStrand(); });
+}
+
+void Session::CloseOnStrand() {
+  if (closed_) return;
+  closed_ = true;
+  for (auto& [id, op] : ops_) {
+    op->cancelled = true;
+    if (op->cursor) op->cursor->Cancel();
+  }
+  ops_.clear();
+  ingest_.clear();
+  boost::system::error_code ignored;
+  timer_.cancel(ignored);
+  socket_.shutdown(tcp::socket::shutdown_both, ignored);
+  socket_.close(ignored);
+  server_->stats().connections_open--;
+  server_->Forget(this);
+}
+
+}  // namespace hvdb::server
