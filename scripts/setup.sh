@@ -12,6 +12,7 @@ PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libprotobuf-dev protobuf-compiler
   nlohmann-json3-dev libcli11-dev
+  clang libclang-rt-14-dev
 )
 
 missing=()

@@ -661,7 +661,10 @@ Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
     }
     std::map<uint32_t, std::unordered_set<uint64_t>> wanted;
     for (auto [f, id] : sel.ids) wanted[f].insert(id);
-    for (const auto& [f, ids] : wanted) {
+    for (const auto& entry : wanted) {
+      const uint32_t f = entry.first;
+      const std::unordered_set<uint64_t>& ids = entry.second;  // (clang 14: no lambda capture
+                                                                 // of structured bindings)
       auto v = ws->Get(f);
       if (!v) return Status::NotFound("frame " + std::to_string(f) + " has no points");
       size_t found = 0;
