@@ -1,32 +1,56 @@
 #!/usr/bin/env bash
-# The main job: a demo dataset on disk in ./data, built from the real CMU Panoptic point-cloud
-# video in ../shared/data (16 frames of a moving person), then queried with the hvdb CLI.
+# The main job: hvdb-server on ./data (127.0.0.1:7878) with a demo dataset built from the real
+# CMU Panoptic point-cloud video in ../shared/data (16 frames of a moving person), queried once
+# through the server with the hvdb CLI. The server keeps running in the foreground; Ctrl-C stops
+# it gracefully.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 HVDB=build/client/hvdb
+SERVER=build/server/hvdb-server
 DATA=${HVDB_DATA:-./data}
+LISTEN=${HVDB_LISTEN:-127.0.0.1:7878}
 SRC=../shared/data/cmu-panoptic-kinoptic-171026-pose3/kinoptic_ptclouds
-if [ ! -x "$HVDB" ]; then echo "demo: $HVDB is missing; run scripts/setup.sh first" >&2; exit 1; fi
+for b in "$HVDB" "$SERVER"; do
+  if [ ! -x "$b" ]; then echo "demo: $b is missing; run scripts/setup.sh first" >&2; exit 1; fi
+done
 if [ ! -d "$SRC" ]; then
   echo "demo: $SRC not found: the demo reads the Panoptic frames from ../shared/data" >&2
   exit 1
 fi
 
+# Build the dataset embedded (fast, no server needed) unless it is there already.
 if ! "$HVDB" --data "$DATA" describe panoptic >/dev/null 2>&1; then
   echo "demo: creating dataset 'panoptic' in $DATA (29.97 fps, positions in metres)"
   "$HVDB" --data "$DATA" create panoptic --fps 29.97
   "$HVDB" --data "$DATA" import panoptic --frame 0 --units-scale 0.01 "$SRC"/ptcloud_hd00000*.ply
 fi
-"$HVDB" --data "$DATA" describe panoptic
+"$HVDB" --data "$DATA" check panoptic
+
+"$SERVER" --data "$DATA" --listen "$LISTEN" &
+server_pid=$!
+trap 'kill -TERM $server_pid 2>/dev/null || true' INT TERM
+for _ in $(seq 100); do
+  "$HVDB" --server "$LISTEN" ping >/dev/null 2>&1 && break
+  sleep 0.1
+done
+
+echo
+echo "== describe, through the server:"
+"$HVDB" --server "$LISTEN" describe panoptic
 echo
 echo "== slice orthogonal to t at frame 5 (t = 5/29.97 s), level of detail 2:"
-"$HVDB" --data "$DATA" slice panoptic --normal 0 0 0 1 --offset 0.16683 --thickness 0.01 --lod 2 --json
+"$HVDB" --server "$LISTEN" slice panoptic --normal 0 0 0 1 --offset 0.16683 --thickness 0.01 --lod 2 --json
 echo
 echo "== window over the raised arms (y < -1.3 m), all 16 frames, written to out/arms.ply:"
 mkdir -p out
-"$HVDB" --data "$DATA" window panoptic --box -1 0 -2 -1.3 -1 1 0 1 --out out/arms.ply
-echo
-"$HVDB" --data "$DATA" check panoptic
-echo
-echo "demo: done. Try: $HVDB --data $DATA --help"
+"$HVDB" --server "$LISTEN" window panoptic --box -1 0 -2 -1.3 -1 1 0 1 --out out/arms.ply
+cat <<MSG
+
+hvdb-server is running on $LISTEN with the dataset 'panoptic' ($DATA). Try, in another shell:
+  $HVDB --server $LISTEN datasets
+  $HVDB --server $LISTEN slice panoptic --normal 0 0 0 1 --offset 0.2 --thickness 0.02 --out slice.ply
+  $HVDB --server $LISTEN stats panoptic
+Ctrl-C stops the server.
+MSG
+wait $server_pid
