@@ -80,7 +80,8 @@ void Session::Start() {
   server_->stats().connections_open++;
   server_->stats().connections_total++;
   socket_.set_option(tcp::no_delay(true));
-  deadline_ = Clock::now() + std::chrono::seconds(server_->config().handshake_timeout_s);
+  deadline_ = Clock::now() + std::chrono::seconds(std::min(server_->config().handshake_timeout_s,
+                                                           server_->config().idle_timeout_s));
   auto self = shared_from_this();
   asio::dispatch(strand_, [self] {
     self->ArmTimer();
@@ -90,7 +91,8 @@ void Session::Start() {
 
 void Session::ArmTimer() {
   auto self = shared_from_this();
-  timer_.expires_at(deadline_);
+  // Wake at least once a second: the deadline moves (and may move closer) as frames complete.
+  timer_.expires_at(std::min(deadline_, Clock::now() + std::chrono::seconds(1)));
   timer_.async_wait([self](boost::system::error_code ec) {
     if (self->closed_) return;
     if (!ec && Clock::now() >= self->deadline_) {

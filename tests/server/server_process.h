@@ -18,11 +18,12 @@ namespace hvdb::testing {
 class ServerProcess {
  public:
   // Starts HVDB_SERVER_PATH with --data dir --listen 127.0.0.1:0 and the extra arguments.
-  ServerProcess(const std::string& data_dir, std::vector<std::string> extra = {}) {
+  ServerProcess(const std::string& data_dir, std::vector<std::string> extra = {},
+                const std::string& listen = "127.0.0.1:0") {
     port_file_ = data_dir + ".port";
     ::unlink(port_file_.c_str());
     std::vector<std::string> args = {HVDB_SERVER_PATH, "--data", data_dir, "--listen",
-                                     "127.0.0.1:0", "--port-file", port_file_,
+                                     listen, "--port-file", port_file_,
                                      "--log-level", "warn"};
     args.insert(args.end(), extra.begin(), extra.end());
     pid_ = ::fork();

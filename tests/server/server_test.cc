@@ -508,6 +508,52 @@ TEST_F(ServerTest, AcknowledgedCommitsSurviveSigkill) {
   EXPECT_LE(ids.size(), (acked.size() + 1) * 20);
 }
 
+TEST_F(ServerTest, ClientReconnectsWithBackoff) {
+  auto c = NewDataset("r");
+  c.reset();
+  const uint16_t port = server_->port();
+  client::Options o = Opts(port);
+  o.max_attempts = 20;
+  o.backoff = std::chrono::milliseconds(50);
+  client::Client cl(o);
+  auto describe = [](client::Connection& conn) { return conn.Describe("r"); };
+  ASSERT_TRUE(cl.Run<DatasetInfo>(true, describe).ok());
+  // The server dies and comes back on the same port a little later.
+  server_->Stop(SIGKILL);
+  std::thread restart([&] {
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));
+    server_ = std::make_unique<ServerProcess>(data_, std::vector<std::string>{},
+                                              "127.0.0.1:" + std::to_string(port));
+  });
+  auto r = cl.Run<DatasetInfo>(true, describe);
+  restart.join();
+  ASSERT_TRUE(r.ok()) << r.status().ToString();
+  EXPECT_EQ(r->name, "r");
+}
+
+TEST(ServerLimitsTest, IdleConnectionsAreClosed) {
+  TempDir dir;
+  ServerProcess server(dir.path() + "/data", {"--idle-timeout", "1"});
+  ASSERT_TRUE(server.running());
+  RawSocket s(server.port());
+  s.Write(HelloFrame());
+  auto start = std::chrono::steady_clock::now();
+  s.ReadUntilClosed();  // returns when the server closes the connection
+  double waited = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  EXPECT_GE(waited, 0.9);
+  EXPECT_LT(waited, 4.5);
+  // A sender that never finishes its handshake frame is cut off too (slow-loris).
+  RawSocket loris(server.port());
+  loris.Write(std::string("\x40\x00\x00\x00\x08", 5));
+  start = std::chrono::steady_clock::now();
+  loris.ReadUntilClosed();
+  waited = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  EXPECT_LT(waited, 4.5);
+  auto c = Connect(server.port());
+  ASSERT_TRUE(c);
+  EXPECT_TRUE(c->Ping().ok());
+}
+
 TEST(ServerAuthTest, TokensAndRoles) {
   TempDir dir;
   std::string tokens = dir.path() + "/tokens";
