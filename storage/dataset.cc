@@ -7,6 +7,7 @@
 #include <unordered_set>
 
 #include "storage/coding.h"
+#include "storage/affine.h"
 #include "storage/crc32c.h"
 #include "storage/dataset_impl.h"
 #include "storage/file.h"
@@ -745,75 +746,12 @@ Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
         HVDB_RETURN_IF_ERROR(apply(step));
       }
     } else if (const auto* tr = std::get_if<Transaction::TransformOp>(&op)) {
-      const auto& A = tr->map.a;
-      for (double v : A) {
-        if (!std::isfinite(v)) return Status::InvalidArgument("transform matrix is not finite");
-      }
-      for (double v : tr->map.c) {
-        if (!std::isfinite(v)) return Status::InvalidArgument("transform offset is not finite");
-      }
-      // Spatial block S (3x3) transforms covariances (S V S^T) and normals (S^-T n).
-      double S[3][3];
-      for (int r = 0; r < 3; ++r) {
-        for (int c = 0; c < 3; ++c) S[r][c] = A[static_cast<size_t>(r * 4 + c)];
-      }
-      double det = S[0][0] * (S[1][1] * S[2][2] - S[1][2] * S[2][1]) -
-                   S[0][1] * (S[1][0] * S[2][2] - S[1][2] * S[2][0]) +
-                   S[0][2] * (S[1][0] * S[2][1] - S[1][1] * S[2][0]);
-      if (std::fabs(det) < 1e-12) {
-        return Status::InvalidArgument("transform: the spatial 3x3 part is singular");
-      }
+      HVDB_ASSIGN_OR_RETURN(AffineMap map, AffineMap::Make(tr->map, info_.fps));
       HVDB_ASSIGN_OR_RETURN(Selected sel, select(tr->sel));
       std::map<uint32_t, FrameEffect> removes, adds;
       for (auto& [f, pts] : sel.by_frame) {
         for (const Point& p : pts) {
-          double X[4] = {p.x, p.y, p.z, p.frame / info_.fps};
-          double Y[4];
-          for (int r = 0; r < 4; ++r) {
-            Y[r] = tr->map.c[static_cast<size_t>(r)];
-            for (int c = 0; c < 4; ++c) Y[r] += A[static_cast<size_t>(r * 4 + c)] * X[c];
-          }
-          double nf = std::round(Y[3] * info_.fps);
-          if (!(nf >= 0) || nf >= kMaxFrame) {
-            return Status::InvalidArgument("transform moves point " + std::to_string(p.id) +
-                                           " to t = " + std::to_string(Y[3]) +
-                                           " s, outside the video");
-          }
-          Point q = p;
-          q.x = static_cast<float>(Y[0]);
-          q.y = static_cast<float>(Y[1]);
-          q.z = static_cast<float>(Y[2]);
-          q.frame = static_cast<uint32_t>(nf);
-          const auto& cv = p.cov;
-          double V[3][3] = {{cv[0], cv[1], cv[2]}, {cv[1], cv[3], cv[4]}, {cv[2], cv[4], cv[5]}};
-          double SV[3][3] = {}, W[3][3] = {};
-          for (int r = 0; r < 3; ++r)
-            for (int c = 0; c < 3; ++c)
-              for (int k = 0; k < 3; ++k) SV[r][c] += S[r][k] * V[k][c];
-          for (int r = 0; r < 3; ++r)
-            for (int c = 0; c < 3; ++c)
-              for (int k = 0; k < 3; ++k) W[r][c] += SV[r][k] * S[c][k];
-          q.cov = {static_cast<float>(W[0][0]), static_cast<float>(W[0][1]),
-                   static_cast<float>(W[0][2]), static_cast<float>(W[1][1]),
-                   static_cast<float>(W[1][2]), static_cast<float>(W[2][2])};
-          if (p.flags & kFlagHasNormal) {
-            auto n = DecodeNormal(p.normal_oct);
-            // Cofactor matrix = det * S^-T: the direction is all we need.
-            double C[3][3];
-            for (int r = 0; r < 3; ++r) {
-              for (int c = 0; c < 3; ++c) {
-                int r1 = (r + 1) % 3, r2 = (r + 2) % 3, c1 = (c + 1) % 3, c2 = (c + 2) % 3;
-                C[r][c] = S[r1][c1] * S[r2][c2] - S[r1][c2] * S[r2][c1];
-              }
-            }
-            double m[3];
-            for (int r = 0; r < 3; ++r) m[r] = C[r][0] * n[0] + C[r][1] * n[1] + C[r][2] * n[2];
-            if (det < 0) {
-              for (double& x : m) x = -x;
-            }
-            q.normal_oct = EncodeNormal(static_cast<float>(m[0]), static_cast<float>(m[1]),
-                                        static_cast<float>(m[2]));
-          }
+          HVDB_ASSIGN_OR_RETURN(Point q, map.Apply(p));
           HVDB_RETURN_IF_ERROR(ValidatePoint(q));
           removes[p.frame].frame = p.frame;
           removes[p.frame].removed.push_back(p);
