@@ -16,14 +16,18 @@ Status ParseAddress(const std::string& address, Options* options) {
   if (colon == std::string::npos || colon == 0 || colon + 1 == address.size()) {
     return Status::InvalidArgument("--server: expected HOST:PORT, got '" + address + "'");
   }
-  options->host = address.substr(0, colon);
-  try {
-    int p = std::stoi(address.substr(colon + 1));
-    if (p <= 0 || p > 65535) throw std::out_of_range("port");
-    options->port = static_cast<uint16_t>(p);
-  } catch (...) {
-    return Status::InvalidArgument("--server: bad port in '" + address + "'");
+  std::string host = address.substr(0, colon);
+  if (host.size() > 2 && host.front() == '[' && host.back() == ']') {  // [::1]:7878
+    host = host.substr(1, host.size() - 2);
   }
+  // All digits: std::stoi alone would take "80x" for port 80.
+  std::string port = address.substr(colon + 1);
+  if (port.size() > 5 || port.find_first_not_of("0123456789") != std::string::npos ||
+      std::stoi(port) <= 0 || std::stoi(port) > 65535) {
+    return Status::InvalidArgument("--server: bad port in '" + address + "' (1..65535)");
+  }
+  options->host = std::move(host);
+  options->port = static_cast<uint16_t>(std::stoi(port));
   return Status::OK();
 }
 
@@ -191,6 +195,7 @@ Result<DatasetInfo> Connection::CreateDataset(const DatasetInfo& info) {
   c->set_name(info.name);
   c->set_fps(info.fps);
   c->set_space_time_scale(info.space_time_scale);
+  c->set_frame_count(info.frame_count);
   for (const CameraInfo& cam : info.cameras) wire::ToWire(cam, c->add_cameras());
   HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
   return wire::FromWire(r.info());

@@ -125,19 +125,24 @@ template <typename T>
 Result<T> Client::Run(bool idempotent, const std::function<Result<T>(Connection&)>& fn) {
   auto delay = options_.backoff;
   Status last = Status::IOError("not attempted");
-  for (int attempt = 0; attempt < std::max(1, options_.max_attempts); ++attempt) {
-    Status st = EnsureConnected();
-    if (st.ok()) {
-      Result<T> r = fn(*conn_);
-      if (r.ok() || !conn_->broken()) return r;
-      last = r.status();
-      conn_.reset();
-      if (!idempotent) return last;  // it may have been applied: the caller must decide
-    } else {
-      last = st;
+  const int attempts = std::max(1, options_.max_attempts);
+  for (int attempt = 0; attempt < attempts; ++attempt) {
+    if (attempt > 0) {
+      std::this_thread::sleep_for(delay);
+      delay *= 2;
     }
-    std::this_thread::sleep_for(delay);
-    delay *= 2;
+    Status st = EnsureConnected();
+    if (!st.ok()) {
+      // A refused token or protocol version will not change by retrying.
+      if (st.code() != StatusCode::kIOError) return st;
+      last = st;
+      continue;
+    }
+    Result<T> r = fn(*conn_);
+    if (r.ok() || !conn_->broken()) return r;
+    last = r.status();
+    conn_.reset();
+    if (!idempotent) return last;  // it may have been applied: the caller must decide
   }
   return last;
 }

@@ -1,12 +1,16 @@
-// hvdb: the command line of the 3D-video database, embedded on a data directory like sqlite3.
+// hvdb: the command line of the 3D-video database, embedded on a data directory like sqlite3,
+// or talking to an hvdb-server like psql:
 //
 //   hvdb --data DIR create walk --fps 29.97
 //   hvdb --data DIR import walk --frame 0 --units-scale 0.01 f380.ply f381.ply
 //   hvdb --data DIR window walk --box -2 2 -2 2 -2 2 0 1 --out all.ply
-//   hvdb --data DIR slice walk --normal 0 0 0 1 --offset 0.0334 --thickness 0.01 --json
+//   hvdb --server 127.0.0.1:7878 slice walk --normal 0 0 0 1 --offset 0.0334 --thickness 0.01
+//
+// Every subcommand runs the same code in both modes, through client::Backend (client/backend.h);
+// only `check` (the data directory's files) is embedded-only and `ping` server-only.
 //
 // Positions are metres, times seconds (frame / fps). Exit status: 0 success, 1 an error from
-// the database or a file (printed as "hvdb: <status>"), 2 a usage error.
+// the database, the server or a file (printed as "hvdb: <status>"), 2 a usage error.
 #include <unistd.h>
 
 #include <algorithm>
@@ -16,8 +20,8 @@
 #include <cstdarg>
 #include <cstdint>
 #include <cstdio>
+#include <cstdlib>
 #include <exception>
-#include <filesystem>
 #include <iostream>
 #include <map>
 #include <memory>
@@ -31,6 +35,7 @@
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 
+#include "client/backend.h"
 #include "client/ply.h"
 #include "storage/database.h"
 #include "storage/status.h"
@@ -38,7 +43,6 @@
 namespace hvdb {
 namespace {
 
-namespace fs = std::filesystem;
 using json = nlohmann::json;
 using Clock = std::chrono::steady_clock;
 
@@ -66,6 +70,15 @@ std::string Human(double v) {
   if (v >= 1e6) return Printf("%.2fM", v / 1e6);
   if (v >= 1e3) return Printf("%.1fk", v / 1e3);
   return Printf("%.0f", v);
+}
+
+// "512 B", "12.3 KiB", "4.56 MiB": for byte counts.
+std::string Bytes(uint64_t v) {
+  auto d = static_cast<double>(v);
+  if (v >= (uint64_t{1} << 30)) return Printf("%.2f GiB", d / (1 << 30));
+  if (v >= (uint64_t{1} << 20)) return Printf("%.2f MiB", d / (1 << 20));
+  if (v >= (uint64_t{1} << 10)) return Printf("%.1f KiB", d / (1 << 10));
+  return Printf("%llu B", static_cast<unsigned long long>(v));
 }
 
 std::string Duration(double seconds) {
@@ -163,6 +176,9 @@ struct GlobalArgs {
   std::string data = "./data";
   size_t cache_mb = 256;
   std::string server;
+  std::string token;
+  // To tell options given from defaults.
+  CLI::Option *data_opt = nullptr, *cache_opt = nullptr, *token_opt = nullptr;
 };
 
 struct CreateArgs {
@@ -232,6 +248,11 @@ struct NameArgs {  // datasets, describe, stats, check
   bool json = false;
 };
 
+struct PingArgs {
+  unsigned count = 1;
+  bool json = false;
+};
+
 // A --box X0 X1 Y0 Y1 Z0 Z1 T0 T1 as a Window; nullopt (after a usage message) if malformed.
 std::optional<Window> BoxToWindow(const std::vector<double>& v, const std::string& command,
                                   const std::string& option, int* rc) {
@@ -262,9 +283,11 @@ class Cli {
   int Run();
 
  private:
-  // The database, opened on first use: usage errors are reported before touching any file.
-  Result<Database*> Db();
-  Result<std::shared_ptr<Dataset>> OpenDataset(const std::string& name);
+  // Picks the data directory or the server; nothing is opened or connected before the first
+  // request, so usage errors are reported before touching a file or the network. Returns the
+  // exit status of a usage error, or nullopt.
+  std::optional<int> MakeBackend();
+  client::Backend& db() { return *backend_; }
 
   int CmdDatasets();
   int CmdCreate();
@@ -272,14 +295,16 @@ class Cli {
   int CmdImport();
   int CmdWindow();
   int CmdSlice();
-  int RunQuery(Dataset& ds, const Region& region, const QueryArgs& q, const std::string& command);
+  int RunQuery(const Region& region, const QueryArgs& q, const std::string& command);
   int CmdEdit();
   int CmdUndo();
   int CmdStats();
   int CmdCheck();
+  int CmdDrop();
+  int CmdPing();
 
   CLI::App& app_;
-  std::unique_ptr<Database> db_;
+  std::unique_ptr<client::Backend> backend_;
   GlobalArgs g_;
   CreateArgs create_;
   ImportArgs import_;
@@ -288,8 +313,9 @@ class Cli {
   EditArgs edit_;
   UndoArgs undo_;
   NameArgs datasets_, describe_, stats_, check_, drop_;
+  PingArgs ping_;
   CLI::App *datasets_cmd_, *create_cmd_, *describe_cmd_, *import_cmd_, *window_cmd_, *slice_cmd_,
-      *edit_cmd_, *undo_cmd_, *stats_cmd_, *check_cmd_, *drop_cmd_;
+      *edit_cmd_, *undo_cmd_, *stats_cmd_, *check_cmd_, *drop_cmd_, *ping_cmd_;
 };
 
 void AddQueryOptions(CLI::App* cmd, QueryArgs* q) {
@@ -311,21 +337,27 @@ Cli::Cli(CLI::App& app) : app_(app) {
   app.require_subcommand(0, 1);
   app.footer(
       "Positions are metres, times seconds (t = frame / fps). Each command has --help.\n"
+      "With --server HOST:PORT every command but check runs on an hvdb-server instead of --data;\n"
+      "a server that needs a token gets it from --token or the environment variable HVDB_TOKEN.\n"
       "Exit status: 0 success, 1 error (printed as 'hvdb: <status>'), 2 usage error.\n"
       "Example: hvdb create walk --fps 30 && hvdb import walk --frame 0 --units-scale 0.01 *.ply");
   app.fallthrough();  // global options may also follow the subcommand
-  app.add_option("--data", g_.data, "Data directory")->capture_default_str();
-  app.add_option("--cache-mb", g_.cache_mb, "Block cache size in MiB (>= 8)")
-      ->capture_default_str()
-      ->check(CLI::Range(size_t{8}, size_t{1} << 30));
-  app.add_option("--server", g_.server, "HOST:PORT of an hvdb-server (not available yet)");
+  g_.data_opt = app.add_option("--data", g_.data, "Data directory")->capture_default_str();
+  g_.cache_opt = app.add_option("--cache-mb", g_.cache_mb, "Block cache size in MiB (>= 8)")
+                     ->capture_default_str()
+                     ->check(CLI::Range(size_t{8}, size_t{1} << 30));
+  app.add_option("--server", g_.server,
+                 "HOST:PORT of an hvdb-server to work on, instead of a data directory");
+  g_.token_opt = app.add_option(
+      "--token", g_.token,
+      "Access token for --server (default: $HVDB_TOKEN; the environment keeps it out of ps)");
   app.failure_message([](const CLI::App* a, const CLI::Error& e) {
     auto subs = a->get_subcommands();
     std::string cmd = subs.empty() ? "hvdb" : "hvdb " + subs.front()->get_name();
     return "hvdb: " + std::string(e.what()) + "\nRun '" + cmd + " --help' for usage.\n";
   });
 
-  datasets_cmd_ = app.add_subcommand("datasets", "List the datasets of the data directory");
+  datasets_cmd_ = app.add_subcommand("datasets", "List the datasets");
   datasets_cmd_->add_flag("--json", datasets_.json, "Print JSON");
 
   create_cmd_ = app.add_subcommand("create", "Create an empty dataset");
@@ -426,50 +458,54 @@ Cli::Cli(CLI::App& app) : app_(app) {
   stats_cmd_->add_option("name", stats_.name, "Dataset (default: all)");
   stats_cmd_->add_flag("--json", stats_.json, "Print JSON");
 
-  check_cmd_ = app.add_subcommand(
-      "check", "Verify checksums and tree invariants; exit status 1 if a problem is found");
+  check_cmd_ = app.add_subcommand("check",
+                                  "Verify checksums and tree invariants; exit status 1 if a "
+                                  "problem is found (data directory only, not --server)");
   check_cmd_->add_option("name", check_.name, "Dataset (default: all)");
   check_cmd_->add_flag("--json", check_.json, "Print JSON");
 
   drop_cmd_ = app.add_subcommand("drop", "Delete a dataset and all its data");
   drop_cmd_->add_option("name", drop_.name, "Dataset")->required();
+
+  ping_cmd_ = app.add_subcommand("ping", "Measure the round trip to the --server");
+  ping_cmd_->add_option("--count", ping_.count, "Number of pings")
+      ->capture_default_str()
+      ->check(CLI::Range(1u, 100000u));
+  ping_cmd_->add_flag("--json", ping_.json, "Print JSON");
 }
 
-Result<Database*> Cli::Db() {
-  if (db_) return db_.get();
-  std::error_code ec;
-  if (!fs::exists(g_.data, ec)) {
-    // Only `create` makes a directory, so a mistyped --data does not leave one behind.
-    if (!create_cmd_->parsed()) {
-      return Status::NotFound("data directory '" + g_.data + "' does not exist ('hvdb --data " +
-                              g_.data + " create NAME --fps F' starts one)");
-    }
-    fs::create_directories(g_.data, ec);
-    if (ec) {
-      return Status::IOError("cannot create data directory '" + g_.data + "': " + ec.message());
-    }
+std::optional<int> Cli::MakeBackend() {
+  if (g_.server.empty()) {
+    if (g_.token_opt->count() > 0) return Usage("", "--token is for --server HOST:PORT");
+    backend_ = client::MakeEmbeddedBackend(g_.data, g_.cache_mb << 20);
+    return std::nullopt;
   }
-  Options opts;
-  opts.cache_bytes = g_.cache_mb << 20;
-  HVDB_ASSIGN_OR_RETURN(db_, Database::Open(g_.data, opts));
-  return db_.get();
-}
-
-Result<std::shared_ptr<Dataset>> Cli::OpenDataset(const std::string& name) {
-  HVDB_ASSIGN_OR_RETURN(Database * db, Db());
-  Result<std::shared_ptr<Dataset>> ds = db->GetDataset(name);
-  if (ds.ok() || !ds.status().IsNotFound()) return ds;
-  std::vector<std::string> names = db->ListDatasets();
-  if (std::find(names.begin(), names.end(), name) != names.end()) return ds;
-  return Status::NotFound("no dataset '" + name + "' in " + db->dir() + " ('hvdb --data " +
-                          db->dir() + " datasets' lists them)");
+  if (g_.data_opt->count() > 0) {
+    return Usage("", "give --data DIR or --server HOST:PORT, not both");
+  }
+  if (g_.cache_opt->count() > 0) {
+    return Usage("", "--cache-mb sizes the cache of a data directory; with --server the "
+                     "server's own applies (hvdb-server --cache-mb)");
+  }
+  client::RemoteOptions ro;
+  ro.address = g_.server;
+  ro.token = g_.token;
+  if (ro.token.empty()) {
+    if (const char* env = std::getenv("HVDB_TOKEN")) ro.token = env;
+  }
+  Result<std::unique_ptr<client::Backend>> b = client::MakeRemoteBackend(ro);
+  if (!b.ok()) return Usage("", b.status().message());
+  backend_ = std::move(b).value();
+  return std::nullopt;
 }
 
 int Cli::Run() {
-  if (!g_.server.empty()) {
-    std::cerr << "hvdb: --server needs hvdb-server (not built yet); use --data DIR\n";
-    return kExitUsage;
+  if (app_.get_subcommands().empty()) {
+    return Usage("",
+                 "a command is required: datasets, create, describe, import, window, slice, "
+                 "edit, undo, stats, check, drop or ping");
   }
+  if (std::optional<int> rc = MakeBackend()) return *rc;
   if (datasets_cmd_->parsed()) return CmdDatasets();
   if (create_cmd_->parsed()) return CmdCreate();
   if (describe_cmd_->parsed()) return CmdDescribe();
@@ -480,32 +516,22 @@ int Cli::Run() {
   if (undo_cmd_->parsed()) return CmdUndo();
   if (stats_cmd_->parsed()) return CmdStats();
   if (check_cmd_->parsed()) return CmdCheck();
-  if (drop_cmd_->parsed()) {
-    Result<Database*> db = Db();
-    if (!db.ok()) return Fail(db.status());
-    Status s = (*db)->DropDataset(drop_.name);
-    if (!s.ok()) return Fail(s);
-    std::cout << "dropped dataset '" << drop_.name << "'\n";
-    return kExitOk;
-  }
-  return Usage("",
-               "a command is required: datasets, create, describe, import, window, slice, edit, "
-               "undo, stats, check or drop");
+  if (drop_cmd_->parsed()) return CmdDrop();
+  if (ping_cmd_->parsed()) return CmdPing();
+  return Usage("", "unknown command");
 }
 
 int Cli::CmdDatasets() {
-  Result<Database*> db = Db();
-  if (!db.ok()) return Fail(db.status());
+  Result<std::vector<std::string>> names = db().ListDatasets();
+  if (!names.ok()) return Fail(names.status());
   json list = json::array();
-  std::vector<std::string> names = (*db)->ListDatasets();
-  std::sort(names.begin(), names.end());
-  if (!datasets_.json && !names.empty()) {
+  if (!datasets_.json && !names->empty()) {
     std::printf("%-24s %10s %14s %10s\n", "name", "frames", "points", "fps");
   }
-  for (const std::string& name : names) {
-    Result<std::shared_ptr<Dataset>> ds = OpenDataset(name);
-    if (!ds.ok()) return Fail(ds.status());
-    DatasetInfo info = (*ds)->Info();
+  for (const std::string& name : *names) {
+    Result<DatasetInfo> got = db().Describe(name);
+    if (!got.ok()) return Fail(got.status());
+    const DatasetInfo& info = *got;
     if (datasets_.json) {
       list.push_back({{"name", name},
                       {"frames", info.frame_count},
@@ -521,24 +547,22 @@ int Cli::CmdDatasets() {
 }
 
 int Cli::CmdCreate() {
-  Result<Database*> db = Db();
-  if (!db.ok()) return Fail(db.status());
-  DatasetInfo info;
-  info.name = create_.name;
-  info.fps = create_.fps;
-  info.space_time_scale = create_.scale;
-  info.frame_count = create_.frames;
-  Result<std::shared_ptr<Dataset>> ds = (*db)->CreateDataset(info);
-  if (!ds.ok()) return Fail(ds.status());
-  std::printf("created dataset '%s' (%g fps, space-time scale %g m/s)\n", info.name.c_str(),
-              info.fps, info.space_time_scale);
+  DatasetInfo want;
+  want.name = create_.name;
+  want.fps = create_.fps;
+  want.space_time_scale = create_.scale;
+  want.frame_count = create_.frames;
+  Result<DatasetInfo> info = db().CreateDataset(want);
+  if (!info.ok()) return Fail(info.status());
+  std::printf("created dataset '%s' (%g fps, space-time scale %g m/s)\n", info->name.c_str(),
+              info->fps, info->space_time_scale);
   return kExitOk;
 }
 
 int Cli::CmdDescribe() {
-  Result<std::shared_ptr<Dataset>> ds = OpenDataset(describe_.name);
-  if (!ds.ok()) return Fail(ds.status());
-  DatasetInfo info = (*ds)->Info();
+  Result<DatasetInfo> got = db().Describe(describe_.name);
+  if (!got.ok()) return Fail(got.status());
+  const DatasetInfo& info = *got;
   double duration = info.fps > 0 ? info.frame_count / info.fps : 0;
   if (describe_.json) {
     json cams = json::array();
@@ -576,8 +600,9 @@ int Cli::CmdImport() {
     return Usage("import", "--frame " + std::to_string(a.frame) + " plus " +
                                std::to_string(a.files.size()) + " files passes frame 2^32-1");
   }
-  Result<std::shared_ptr<Dataset>> ds = OpenDataset(a.name);
-  if (!ds.ok()) return Fail(ds.status());
+  // An unknown dataset is reported before any file is read.
+  Result<DatasetInfo> info = db().Describe(a.name);
+  if (!info.ok()) return Fail(info.status());
   Clock::time_point start = Clock::now();
   ProgressBar bar(a.files.size());
   uint64_t total = 0;
@@ -598,7 +623,7 @@ int Cli::CmdImport() {
       for (Point& p : *pts) p.id = 0;
     }
     size_t n = pts->size();
-    Result<uint64_t> loaded = (*ds)->BulkLoad(ro.frame, std::move(pts).value());
+    Result<uint64_t> loaded = db().BulkLoad(a.name, ro.frame, std::move(pts).value());
     if (!loaded.ok()) {
       bar.Clear();
       // Each frame's load is atomic and durable: say which frames made it in.
@@ -629,9 +654,7 @@ int Cli::CmdWindow() {
   int rc = kExitOk;
   std::optional<hvdb::Window> w = BoxToWindow(window_.box, "window", "--box", &rc);
   if (!w) return rc;
-  Result<std::shared_ptr<Dataset>> ds = OpenDataset(window_.q.name);
-  if (!ds.ok()) return Fail(ds.status());
-  return RunQuery(**ds, Region(*w), window_.q, "window");
+  return RunQuery(Region(*w), window_.q, "window");
 }
 
 int Cli::CmdSlice() {
@@ -655,13 +678,10 @@ int Cli::CmdSlice() {
     s.clip = BoxToWindow(a.clip_box, "slice", "--clip-box", &rc);
     if (!s.clip) return rc;
   }
-  Result<std::shared_ptr<Dataset>> ds = OpenDataset(a.q.name);
-  if (!ds.ok()) return Fail(ds.status());
-  return RunQuery(**ds, Region(s), a.q, "slice");
+  return RunQuery(Region(s), a.q, "slice");
 }
 
-int Cli::RunQuery(Dataset& ds, const Region& region, const QueryArgs& q,
-                  const std::string& command) {
+int Cli::RunQuery(const Region& region, const QueryArgs& q, const std::string& command) {
   Clock::time_point start = Clock::now();
   std::unique_ptr<ply::PointWriter> writer;
   if (!q.out.empty()) {
@@ -673,7 +693,7 @@ int Cli::RunQuery(Dataset& ds, const Region& region, const QueryArgs& q,
   opts.lod = q.lod;
   opts.progressive = q.progressive;
   opts.label_mask = q.label_mask;
-  Result<std::unique_ptr<Cursor>> cursor = ds.Query(region, opts);
+  Result<std::unique_ptr<client::QueryResults>> cursor = db().Query(q.name, region, opts);
   if (!cursor.ok()) {
     Status s = cursor.status();
     if (s.code() == StatusCode::kLimitExceeded && command == "slice") {
@@ -804,9 +824,7 @@ int Cli::CmdEdit() {
         },
         op);
   }
-  Result<std::shared_ptr<Dataset>> ds = OpenDataset(a.name);
-  if (!ds.ok()) return Fail(ds.status());
-  Result<CommitInfo> ci = (*ds)->Commit(txn);
+  Result<CommitInfo> ci = db().Commit(a.name, txn);
   if (!ci.ok()) return Fail(ci.status());
   if (a.json) {
     PrintJson({{"lsn", ci->lsn}, {"inserted", ci->inserted}, {"removed", ci->removed}});
@@ -820,9 +838,7 @@ int Cli::CmdEdit() {
 }
 
 int Cli::CmdUndo() {
-  Result<std::shared_ptr<Dataset>> ds = OpenDataset(undo_.name);
-  if (!ds.ok()) return Fail(ds.status());
-  Result<CommitInfo> ci = (*ds)->Revert(undo_.lsn);
+  Result<CommitInfo> ci = db().Revert(undo_.name, undo_.lsn);
   if (!ci.ok()) return Fail(ci.status());
   if (undo_.json) {
     PrintJson({{"reverted", undo_.lsn},
@@ -840,22 +856,13 @@ int Cli::CmdUndo() {
 }
 
 int Cli::CmdStats() {
-  Result<Database*> db = Db();
-  if (!db.ok()) return Fail(db.status());
-  std::vector<std::string> names;
-  if (!stats_.name.empty()) {
-    names.push_back(stats_.name);
-  } else {
-    names = (*db)->ListDatasets();
-    std::sort(names.begin(), names.end());
-  }
+  Result<client::StatsReport> report = db().Stats(stats_.name);
+  if (!report.ok()) return Fail(report.status());
   json list = json::array();
-  for (const std::string& name : names) {
-    Result<std::shared_ptr<Dataset>> ds = OpenDataset(name);
-    if (!ds.ok()) return Fail(ds.status());
-    DatasetStats s = (*ds)->Stats();
+  for (const client::StatsReport::Entry& e : report->datasets) {
+    const DatasetStats& s = e.stats;
     if (stats_.json) {
-      list.push_back({{"name", name},
+      list.push_back({{"name", e.name},
                       {"frames_with_data", s.frames_with_data},
                       {"points", s.points},
                       {"tombstones", s.tombstones},
@@ -863,57 +870,105 @@ int Cli::CmdStats() {
                       {"trees", s.trees},
                       {"tree_bytes", s.tree_bytes},
                       {"wal_bytes", s.wal_bytes},
-                      {"leaf_utilisation", s.leaf_utilisation}});
+                      {"leaf_utilisation", s.leaf_utilisation},
+                      {"last_lsn", e.last_lsn}});
     } else {
       std::printf(
           "%s: %u frames with data, %llu points (%llu buffered, %llu tombstones), %llu trees "
-          "(%.1f MiB, leaves %.0f%% full), log %.1f MiB\n",
-          name.c_str(), s.frames_with_data, static_cast<unsigned long long>(s.points),
+          "(%.1f MiB, leaves %.0f%% full), log %.1f MiB, last lsn %llu\n",
+          e.name.c_str(), s.frames_with_data, static_cast<unsigned long long>(s.points),
           static_cast<unsigned long long>(s.buffered_points),
           static_cast<unsigned long long>(s.tombstones), static_cast<unsigned long long>(s.trees),
           static_cast<double>(s.tree_bytes) / (1 << 20), 100 * s.leaf_utilisation,
-          static_cast<double>(s.wal_bytes) / (1 << 20));
+          static_cast<double>(s.wal_bytes) / (1 << 20),
+          static_cast<unsigned long long>(e.last_lsn));
     }
   }
-  CacheStats c = (*db)->Cache();
-  if (stats_.json) {
-    PrintJson({{"datasets", list},
-               {"cache",
-                {{"capacity_bytes", c.capacity_bytes},
-                 {"block_size", c.block_size},
-                 {"hits", c.hits},
-                 {"misses", c.misses},
-                 {"evictions", c.evictions},
-                 {"resident_blocks", c.resident_blocks},
-                 {"pinned_blocks", c.pinned_blocks}}}});
-  } else {
-    std::printf(
-        "cache: %.0f MiB in %llu KiB blocks, %llu resident, %llu pinned; %llu hits, %llu misses, "
-        "%llu evictions\n",
-        static_cast<double>(c.capacity_bytes) / (1 << 20),
-        static_cast<unsigned long long>(c.block_size >> 10),
-        static_cast<unsigned long long>(c.resident_blocks),
-        static_cast<unsigned long long>(c.pinned_blocks), static_cast<unsigned long long>(c.hits),
-        static_cast<unsigned long long>(c.misses), static_cast<unsigned long long>(c.evictions));
+  json out = {{"datasets", list}};
+  if (report->cache) {
+    const CacheStats& c = *report->cache;
+    uint64_t lookups = c.hits + c.misses;
+    double hit_rate = lookups ? static_cast<double>(c.hits) / static_cast<double>(lookups) : 0;
+    if (stats_.json) {
+      out["cache"] = {{"capacity_bytes", c.capacity_bytes},
+                      {"block_size", c.block_size},
+                      {"hits", c.hits},
+                      {"misses", c.misses},
+                      {"hit_rate", hit_rate},
+                      {"evictions", c.evictions},
+                      {"resident_blocks", c.resident_blocks},
+                      {"pinned_blocks", c.pinned_blocks}};
+    } else {
+      std::printf(
+          "cache: %.0f MiB in %llu KiB blocks, %llu resident, %llu pinned; %llu hits, %llu "
+          "misses, %llu evictions\n",
+          static_cast<double>(c.capacity_bytes) / (1 << 20),
+          static_cast<unsigned long long>(c.block_size >> 10),
+          static_cast<unsigned long long>(c.resident_blocks),
+          static_cast<unsigned long long>(c.pinned_blocks), static_cast<unsigned long long>(c.hits),
+          static_cast<unsigned long long>(c.misses), static_cast<unsigned long long>(c.evictions));
+    }
   }
+  if (report->server) {
+    const client::ServerCounters& v = *report->server;
+    if (stats_.json) {
+      out["cache"] = {{"capacity_bytes", v.cache_capacity_bytes}, {"hit_rate", v.cache_hit_rate}};
+      json requests = json::array();
+      for (const client::RequestLatency& l : v.requests) {
+        requests.push_back({{"kind", l.kind},
+                            {"count", l.count},
+                            {"p50_ms", l.p50_ms},
+                            {"p95_ms", l.p95_ms},
+                            {"p99_ms", l.p99_ms}});
+      }
+      out["server"] = {{"address", db().where()},
+                       {"connections_open", v.connections_open},
+                       {"connections_total", v.connections_total},
+                       {"bytes_in", v.bytes_in},
+                       {"bytes_out", v.bytes_out},
+                       {"requests", requests}};
+    } else {
+      std::printf("server %s: %llu connection%s open, %llu in all; %s in, %s out\n",
+                  db().where().c_str(), static_cast<unsigned long long>(v.connections_open),
+                  v.connections_open == 1 ? "" : "s",
+                  static_cast<unsigned long long>(v.connections_total), Bytes(v.bytes_in).c_str(),
+                  Bytes(v.bytes_out).c_str());
+      std::printf("cache: %.0f MiB, hit rate %.1f%%\n",
+                  static_cast<double>(v.cache_capacity_bytes) / (1 << 20),
+                  100 * v.cache_hit_rate);
+      if (!v.requests.empty()) {
+        std::printf("  %-10s %10s %10s %10s %10s\n", "request", "count", "p50 ms", "p95 ms",
+                    "p99 ms");
+      }
+      for (const client::RequestLatency& l : v.requests) {
+        std::printf("  %-10s %10llu %10.3f %10.3f %10.3f\n", l.kind.c_str(),
+                    static_cast<unsigned long long>(l.count), l.p50_ms, l.p95_ms, l.p99_ms);
+      }
+    }
+  }
+  if (stats_.json) PrintJson(out);
   return kExitOk;
 }
 
 int Cli::CmdCheck() {
-  Result<Database*> db = Db();
-  if (!db.ok()) return Fail(db.status());
+  if (db().remote()) {
+    return Usage("check",
+                 "check reads the data directory's files and cannot run through --server; run "
+                 "'hvdb --data DIR check' on the server's machine, with hvdb-server stopped");
+  }
   std::vector<std::string> names;
   if (!check_.name.empty()) {
     names.push_back(check_.name);
   } else {
-    names = (*db)->ListDatasets();
-    std::sort(names.begin(), names.end());
+    Result<std::vector<std::string>> all = db().ListDatasets();
+    if (!all.ok()) return Fail(all.status());
+    names = std::move(all).value();
   }
   json problems = json::array();
   for (const std::string& name : names) {
-    Result<std::shared_ptr<Dataset>> ds = OpenDataset(name);
-    if (!ds.ok()) return Fail(ds.status());
-    for (const std::string& p : (*ds)->Check()) {
+    Result<std::vector<std::string>> found = db().Check(name);
+    if (!found.ok()) return Fail(found.status());
+    for (const std::string& p : *found) {
       problems.push_back({{"dataset", name}, {"problem", p}});
       if (!check_.json) std::printf("%s: %s\n", name.c_str(), p.c_str());
     }
@@ -926,6 +981,42 @@ int Cli::CmdCheck() {
   return problems.empty() ? kExitOk : kExitError;
 }
 
+int Cli::CmdDrop() {
+  Status s = db().DropDataset(drop_.name);
+  if (!s.ok()) return Fail(s);
+  std::cout << "dropped dataset '" << drop_.name << "'\n";
+  return kExitOk;
+}
+
+int Cli::CmdPing() {
+  if (!db().remote()) {
+    return Usage("ping", "ping needs --server HOST:PORT (there is no server on a data directory)");
+  }
+  std::vector<double> rtts;
+  for (unsigned i = 0; i < ping_.count; ++i) {
+    Result<double> ms = db().Ping();
+    if (!ms.ok()) return Fail(ms.status());
+    rtts.push_back(*ms);
+    if (!ping_.json) std::printf("pong from %s in %.3f ms\n", db().where().c_str(), *ms);
+  }
+  double lo = *std::min_element(rtts.begin(), rtts.end());
+  double hi = *std::max_element(rtts.begin(), rtts.end());
+  double sum = 0;
+  for (double v : rtts) sum += v;
+  double avg = sum / static_cast<double>(rtts.size());
+  if (ping_.json) {
+    PrintJson({{"server", db().where()},
+               {"count", rtts.size()},
+               {"rtt_ms", rtts},
+               {"min_ms", lo},
+               {"avg_ms", avg},
+               {"max_ms", hi}});
+  } else if (rtts.size() > 1) {
+    std::printf("%zu pings: min %.3f, avg %.3f, max %.3f ms\n", rtts.size(), lo, avg, hi);
+  }
+  return kExitOk;
+}
+
 }  // namespace
 }  // namespace hvdb
 
@@ -934,10 +1025,13 @@ int main(int argc, char** argv) {
   std::optional<CLI::App> app;
   std::optional<hvdb::Cli> cli;
   // The only try/catch: CLI11 reports usage errors by exception; nothing below throws on
-  // purpose (the storage API returns Status), so anything else is a bug or out of memory.
+  // purpose (the storage and client APIs return Status), so anything else is a bug or out of
+  // memory.
   try {
-    app.emplace("hvdb: a database for 3D video (point clouds over time), on a data directory",
-                "hvdb");
+    app.emplace(
+        "hvdb: a database for 3D video (point clouds over time), on a data directory or an "
+        "hvdb-server",
+        "hvdb");
     cli.emplace(*app);
     app->parse(argc, argv);
     return cli->Run();

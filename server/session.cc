@@ -12,8 +12,14 @@ struct Session::Op {
   std::string kind;
   std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
   std::atomic<bool> cancelled{false};
-  // Queries:
+  // Queries: the cursor is set on a worker and cancelled from the strand.
+  std::mutex mu;
   std::unique_ptr<Cursor> cursor;
+  void Cancel() {
+    cancelled = true;
+    std::lock_guard<std::mutex> l(mu);
+    if (cursor) cursor->Cancel();
+  }
   wire::PointEncoding encoding = wire::COLUMNS;
   uint64_t points = 0;
   bool paused = false;
@@ -61,7 +67,13 @@ wire::Response ErrorResponse(uint64_t id, const Status& st,
 
 // A dataset lookup failure is UNKNOWN_DATASET, not a generic NOT_FOUND.
 Result<std::shared_ptr<Dataset>> FindDataset(Server* s, const std::string& name) {
-  return s->db().GetDataset(name);
+  auto ds = s->db().GetDataset(name);
+  // The engine's message names the data directory: not the client's business.
+  if (!ds.ok() && ds.status().IsNotFound()) {
+    return Status::NotFound("no dataset '" + name + "' on this server (list them with the "
+                            "ListDatasets request, `hvdb --server ... datasets`)");
+  }
+  return ds;
 }
 
 wire::Response DatasetError(uint64_t id, const Status& st) {
@@ -192,10 +204,7 @@ void Session::Dispatch(wire::Request req) {
   }
   if (req.body_case() == wire::Request::kCancel) {
     auto it = ops_.find(req.cancel().target());
-    if (it != ops_.end()) {
-      it->second->cancelled = true;
-      if (it->second->cursor) it->second->cursor->Cancel();
-    }
+    if (it != ops_.end()) it->second->Cancel();
     wire::Response r;
     r.set_id(id);
     r.mutable_ack()->set_value(it != ops_.end() ? 1 : 0);
@@ -204,9 +213,12 @@ void Session::Dispatch(wire::Request req) {
   if (req.body_case() == wire::Request::kPing) {
     wire::Response r;
     r.set_id(id);
+    auto start = std::chrono::steady_clock::now();
     r.mutable_pong()->set_payload(req.ping().payload());
-    server_->stats().Record("ping", 0);
-    return Send(r);
+    Send(r);
+    server_->stats().Record("ping", std::chrono::duration<double, std::milli>(
+                                        std::chrono::steady_clock::now() - start).count());
+    return;
   }
   if (ops_.count(id)) {
     return SendError(id, Status::InvalidArgument("request id: " + std::to_string(id) +
@@ -241,6 +253,7 @@ void Session::Dispatch(wire::Request req) {
         info.name = c.name();
         info.fps = c.fps();
         info.space_time_scale = c.space_time_scale() == 0 ? 1.0 : c.space_time_scale();
+        info.frame_count = c.frame_count();
         for (const auto& cam : c.cameras()) {
           auto ci = wire::FromWire(cam);
           if (!ci.ok()) return ErrorResponse(id, ci.status());
@@ -382,7 +395,11 @@ void Session::Dispatch(wire::Request req) {
           });
           return;
         }
-        op->cursor = std::move(cursor).value();
+        {
+          std::lock_guard<std::mutex> l(op->mu);
+          op->cursor = std::move(cursor).value();
+          if (op->cancelled) op->cursor->Cancel();
+        }
         self->Pump(op);
       });
       return;
@@ -469,31 +486,46 @@ void Session::ResumePaused() {
 }
 
 void Session::HandleIngest(uint64_t id, const wire::Ingest& ing) {
-  // Chunks are collected here, in arrival order; the frame is bulk-loaded on `last`.
+  // Chunks are collected here, in arrival order; the frame is bulk-loaded on `last`. Once a
+  // chunk of a frame fails, the frame's other chunks are refused too, so that no part of a
+  // frame is ever loaded.
   auto key = std::make_pair(ing.dataset(), ing.frame());
+  auto fail = [&](const Status& st) {
+    auto it = ingest_.find(key);
+    if (it != ingest_.end()) {
+      ingest_bytes_ -= it->second.size() * sizeof(Point);
+      ingest_.erase(it);
+    }
+    if (!ing.last()) ingest_failed_.insert(key);
+    ops_.erase(id);
+    SendError(id, st);
+  };
+  if (ingest_failed_.count(key)) {
+    if (ing.last()) ingest_failed_.erase(key);
+    return fail(Status::InvalidArgument("ingest: an earlier chunk of frame " +
+                                        std::to_string(ing.frame()) +
+                                        " failed; nothing of the frame was loaded"));
+  }
   std::vector<Point>& pts = ingest_[key];
   size_t before = pts.size();
   Status st = wire::DecodeColumns(ing.points(), &pts);
   if (!st.ok()) {
     pts.resize(before);
-    ops_.erase(id);
-    return SendError(id, st);
+    return fail(st);
   }
   ingest_bytes_ += (pts.size() - before) * sizeof(Point);
   if (ingest_bytes_ > server_->config().max_ingest_bytes) {
-    ingest_bytes_ -= pts.size() * sizeof(Point);
-    ingest_.erase(key);
-    ops_.erase(id);
-    return SendError(id, Status::LimitExceeded("ingest: more than " +
-                                               std::to_string(server_->config().max_ingest_bytes >> 20) +
-                                               " MiB buffered on this connection; send `last` "
-                                               "for each frame sooner"));
+    return fail(Status::LimitExceeded("ingest: more than " +
+                                      std::to_string(server_->config().max_ingest_bytes >> 20) +
+                                      " MiB buffered on this connection; send `last` for each "
+                                      "frame sooner"));
   }
   if (!ing.last()) {
     wire::Response r;
     r.set_id(id);
     r.mutable_ack()->set_value(pts.size());
     Send(r);
+    ops_[id]->kind = "ingest_chunk";
     return Finish(id);
   }
   auto frame_points = std::make_shared<std::vector<Point>>(std::move(pts));
@@ -575,10 +607,7 @@ void Session::Close() {
 void Session::CloseOnStrand() {
   if (closed_) return;
   closed_ = true;
-  for (auto& [id, op] : ops_) {
-    op->cancelled = true;
-    if (op->cursor) op->cursor->Cancel();
-  }
+  for (auto& [id, op] : ops_) op->Cancel();
   ops_.clear();
   ingest_.clear();
   boost::system::error_code ignored;

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <deque>
 #include <map>
+#include <set>
 #include <memory>
 #include <string>
 
@@ -69,6 +70,7 @@ class Session : public std::enable_shared_from_this<Session> {
   // Bulk ingest: points of frames whose last chunk has not come yet.
   std::map<std::pair<std::string, uint32_t>, std::vector<Point>> ingest_;
   size_t ingest_bytes_ = 0;
+  std::set<std::pair<std::string, uint32_t>> ingest_failed_;  // until their `last` chunk
 };
 
 }  // namespace hvdb::server

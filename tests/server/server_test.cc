@@ -193,6 +193,29 @@ TEST_F(ServerTest, EveryRequestKind) {
   EXPECT_EQ(server_->Stop(SIGTERM), 0);  // graceful: exit 0
 }
 
+TEST_F(ServerTest, AFailedIngestChunkLoadsNothingOfTheFrame) {
+  auto c = NewDataset("i");
+  std::mt19937_64 rng(11);
+  std::vector<uint64_t> ids;
+  for (int chunk = 0; chunk < 3; ++chunk) {
+    wire::Request r;
+    auto* ing = r.mutable_ingest();
+    ing->set_dataset("i");
+    ing->set_frame(4);
+    auto pts = RandomPoints(rng, 10, 4);
+    wire::EncodeColumns(pts, ing->mutable_points());
+    if (chunk == 1) ing->mutable_points()->set_count(11);  // columns too short: refused
+    ing->set_last(chunk == 2);
+    ids.push_back(*c->Send(&r));
+  }
+  EXPECT_TRUE(c->Receive(ids[0])->has_ack());
+  EXPECT_EQ(c->Receive(ids[1])->error().code(), wire::INVALID_PARAMETER);
+  EXPECT_TRUE(c->Receive(ids[2])->has_error());
+  EXPECT_EQ(c->Describe("i")->point_count, 0u);
+  // The next frame starts clean.
+  EXPECT_EQ(*c->Ingest("i", 4, RandomPoints(rng, 10, 4)), 10u);
+}
+
 TEST_F(ServerTest, DracoBatches) {
   auto c = NewDataset("d");
   std::mt19937_64 rng(2);

@@ -1,0 +1,386 @@
+#include "client/backend.h"
+
+#include <algorithm>
+#include <chrono>
+#include <filesystem>
+#include <functional>
+#include <system_error>
+#include <utility>
+
+#include <nlohmann/json.hpp>
+
+#include "client/client.h"
+
+namespace hvdb::client {
+
+namespace {
+
+namespace fs = std::filesystem;
+
+bool Contains(const std::vector<std::string>& names, const std::string& name) {
+  return std::find(names.begin(), names.end(), name) != names.end();
+}
+
+// ---------------------------------------------------------------------------------------------
+// Embedded: hvdb::Database on a data directory.
+
+class EmbeddedResults final : public QueryResults {
+ public:
+  EmbeddedResults(std::shared_ptr<Dataset> ds, std::unique_ptr<Cursor> cursor)
+      : ds_(std::move(ds)), cursor_(std::move(cursor)) {}
+  Result<bool> Next(Batch* batch) override { return cursor_->Next(batch); }
+  const std::vector<uint32_t>& frames() const override { return cursor_->frames(); }
+  bool clipped() const override { return cursor_->clipped(); }
+
+ private:
+  std::shared_ptr<Dataset> ds_;  // outlives the cursor
+  std::unique_ptr<Cursor> cursor_;
+};
+
+class EmbeddedBackend final : public Backend {
+ public:
+  EmbeddedBackend(std::string dir, size_t cache_bytes)
+      : dir_(std::move(dir)), cache_bytes_(cache_bytes) {}
+
+  bool remote() const override { return false; }
+  std::string where() const override { return dir_; }
+
+  Result<std::vector<std::string>> ListDatasets() override {
+    HVDB_ASSIGN_OR_RETURN(Database * db, Db(/*create=*/false));
+    std::vector<std::string> names = db->ListDatasets();
+    std::sort(names.begin(), names.end());
+    return names;
+  }
+
+  Result<DatasetInfo> CreateDataset(const DatasetInfo& info) override {
+    HVDB_ASSIGN_OR_RETURN(Database * db, Db(/*create=*/true));
+    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, db->CreateDataset(info));
+    return ds->Info();
+  }
+
+  Status DropDataset(const std::string& name) override {
+    HVDB_ASSIGN_OR_RETURN(Database * db, Db(/*create=*/false));
+    return Explain(name, db->DropDataset(name));
+  }
+
+  Result<DatasetInfo> Describe(const std::string& name) override {
+    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
+    return ds->Info();
+  }
+
+  Result<std::unique_ptr<QueryResults>> Query(const std::string& name, const Region& region,
+                                              const QueryOptions& opts) override {
+    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
+    HVDB_ASSIGN_OR_RETURN(std::unique_ptr<Cursor> cursor, ds->Query(region, opts));
+    return std::unique_ptr<QueryResults>(new EmbeddedResults(std::move(ds), std::move(cursor)));
+  }
+
+  Result<uint64_t> BulkLoad(const std::string& name, uint32_t frame,
+                            std::vector<Point> points) override {
+    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
+    return ds->BulkLoad(frame, std::move(points));
+  }
+
+  Result<CommitInfo> Commit(const std::string& name, const Transaction& txn) override {
+    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
+    return ds->Commit(txn);
+  }
+
+  Result<CommitInfo> Revert(const std::string& name, uint64_t lsn) override {
+    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
+    return ds->Revert(lsn);
+  }
+
+  Result<StatsReport> Stats(const std::string& name) override {
+    HVDB_ASSIGN_OR_RETURN(Database * db, Db(/*create=*/false));
+    std::vector<std::string> names;
+    if (!name.empty()) {
+      names.push_back(name);
+    } else {
+      HVDB_ASSIGN_OR_RETURN(names, ListDatasets());
+    }
+    StatsReport report;
+    for (const std::string& n : names) {
+      HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(n));
+      report.datasets.push_back({n, ds->Stats(), ds->Info().last_lsn});
+    }
+    report.cache = db->Cache();
+    return report;
+  }
+
+  Result<double> Ping() override {
+    return Status::Unsupported("ping needs --server HOST:PORT: there is no server to ping on " +
+                               dir_);
+  }
+
+  Result<std::vector<std::string>> Check(const std::string& name) override {
+    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
+    return ds->Check();
+  }
+
+ private:
+  // The database, opened on first use. Only `create` makes the directory, so that a mistyped
+  // --data does not leave one behind.
+  Result<Database*> Db(bool create) {
+    if (db_) return db_.get();
+    std::error_code ec;
+    if (!fs::exists(dir_, ec)) {
+      if (!create) {
+        return Status::NotFound("data directory '" + dir_ + "' does not exist ('hvdb --data " +
+                                dir_ + " create NAME --fps F' starts one)");
+      }
+      fs::create_directories(dir_, ec);
+      if (ec) {
+        return Status::IOError("cannot create data directory '" + dir_ + "': " + ec.message());
+      }
+    }
+    hvdb::Options opts;
+    opts.cache_bytes = cache_bytes_;
+    HVDB_ASSIGN_OR_RETURN(db_, Database::Open(dir_, opts));
+    return db_.get();
+  }
+
+  Result<std::shared_ptr<Dataset>> Open(const std::string& name) {
+    HVDB_ASSIGN_OR_RETURN(Database * db, Db(/*create=*/false));
+    Result<std::shared_ptr<Dataset>> ds = db->GetDataset(name);
+    if (ds.ok()) return ds;
+    return Explain(name, ds.status());
+  }
+
+  // A NotFound about a dataset that does not exist, said the same way by every command.
+  Status Explain(const std::string& name, Status s) {
+    if (!s.IsNotFound() || !db_ || Contains(db_->ListDatasets(), name)) return s;
+    return Status::NotFound("no dataset '" + name + "' in " + dir_ + " ('hvdb --data " + dir_ +
+                            " datasets' lists them)");
+  }
+
+  std::string dir_;
+  size_t cache_bytes_;
+  std::unique_ptr<Database> db_;
+};
+
+// ---------------------------------------------------------------------------------------------
+// Remote: an hvdb-server, through Client (which reconnects for requests safe to repeat).
+
+class RemoteResults final : public QueryResults {
+ public:
+  RemoteResults(std::unique_ptr<QueryStream> stream, Batch first, bool first_more)
+      : stream_(std::move(stream)), first_(std::move(first)), first_more_(first_more) {}
+  Result<bool> Next(Batch* batch) override {
+    if (have_first_) {
+      have_first_ = false;
+      if (!first_more_) return false;
+      *batch = std::move(first_);
+      return true;
+    }
+    return stream_->Next(batch);
+  }
+  const std::vector<uint32_t>& frames() const override { return stream_->frames(); }
+  bool clipped() const override { return stream_->clipped(); }
+
+ private:
+  std::unique_ptr<QueryStream> stream_;
+  Batch first_;  // read ahead by RemoteBackend::Query, so that setup errors surface there
+  bool first_more_;
+  bool have_first_ = true;
+};
+
+uint64_t U64(const nlohmann::json& j, const char* key) {
+  auto it = j.find(key);
+  return it != j.end() && it->is_number_unsigned() ? it->get<uint64_t>() : 0;
+}
+
+double F64(const nlohmann::json& j, const char* key) {
+  auto it = j.find(key);
+  return it != j.end() && it->is_number() ? it->get<double>() : 0;
+}
+
+class RemoteBackend final : public Backend {
+ public:
+  RemoteBackend(std::string address, client::Options opts)
+      : address_(std::move(address)), token_given_(!opts.token.empty()), client_(std::move(opts)) {}
+
+  bool remote() const override { return true; }
+  std::string where() const override { return address_; }
+
+  Result<std::vector<std::string>> ListDatasets() override {
+    HVDB_ASSIGN_OR_RETURN(std::vector<std::string> names,
+                          Run<std::vector<std::string>>(
+                              true, [](Connection& c) { return c.ListDatasets(); }));
+    std::sort(names.begin(), names.end());
+    return names;
+  }
+
+  Result<DatasetInfo> CreateDataset(const DatasetInfo& info) override {
+    return Run<DatasetInfo>(false, [&info](Connection& c) { return c.CreateDataset(info); });
+  }
+
+  Status DropDataset(const std::string& name) override {
+    Result<bool> r = Run<bool>(false, [&name](Connection& c) -> Result<bool> {
+      HVDB_RETURN_IF_ERROR(c.DropDataset(name));
+      return true;
+    });
+    return r.ok() ? Status::OK() : Explain(name, r.status());
+  }
+
+  Result<DatasetInfo> Describe(const std::string& name) override {
+    Result<DatasetInfo> r =
+        Run<DatasetInfo>(true, [&name](Connection& c) { return c.Describe(name); });
+    if (!r.ok()) return Explain(name, r.status());
+    return r;
+  }
+
+  Result<std::unique_ptr<QueryResults>> Query(const std::string& name, const Region& region,
+                                              const QueryOptions& opts) override {
+    Result<std::unique_ptr<QueryStream>> stream = Run<std::unique_ptr<QueryStream>>(
+        true, [&](Connection& c) { return c.Query(name, region, opts); });
+    if (!stream.ok()) return Explain(name, stream.status());
+    // The server reports the query's setup errors as its first response: read it here.
+    Batch first;
+    Result<bool> more = (*stream)->Next(&first);
+    if (!more.ok()) return Explain(name, more.status());
+    return std::unique_ptr<QueryResults>(
+        new RemoteResults(std::move(stream).value(), std::move(first), *more));
+  }
+
+  Result<uint64_t> BulkLoad(const std::string& name, uint32_t frame,
+                            std::vector<Point> points) override {
+    Result<uint64_t> r = Run<uint64_t>(false, [&](Connection& c) {
+      return c.Ingest(name, frame, std::span<const Point>(points));
+    });
+    if (!r.ok()) return Explain(name, r.status());
+    return r;
+  }
+
+  Result<CommitInfo> Commit(const std::string& name, const Transaction& txn) override {
+    Result<CommitInfo> r =
+        Run<CommitInfo>(false, [&](Connection& c) { return c.Commit(name, txn); });
+    if (!r.ok()) return Explain(name, r.status());
+    return r;
+  }
+
+  Result<CommitInfo> Revert(const std::string& name, uint64_t lsn) override {
+    Result<CommitInfo> r =
+        Run<CommitInfo>(false, [&](Connection& c) { return c.Revert(name, lsn); });
+    if (!r.ok()) return Explain(name, r.status());
+    return r;
+  }
+
+  Result<StatsReport> Stats(const std::string& name) override {
+    std::vector<std::string> names;
+    if (!name.empty()) {
+      names.push_back(name);
+    } else {
+      HVDB_ASSIGN_OR_RETURN(names, ListDatasets());
+    }
+    StatsReport report;
+    std::optional<wire::StatsReply> last;
+    for (const std::string& n : names) {
+      Result<wire::StatsReply> r =
+          Run<wire::StatsReply>(true, [&n](Connection& c) { return c.Stats(n); });
+      if (!r.ok()) return Explain(n, r.status());
+      nlohmann::json j = nlohmann::json::parse(r->dataset_json(), nullptr,
+                                               /*allow_exceptions=*/false);
+      if (!j.is_object()) {
+        return Status::IOError("hvdb-server sent unreadable statistics for dataset '" + n +
+                               "': " + r->dataset_json());
+      }
+      StatsReport::Entry e;
+      e.name = n;
+      e.last_lsn = r->last_lsn();
+      e.stats.frames_with_data = static_cast<uint32_t>(U64(j, "frames_with_data"));
+      e.stats.points = U64(j, "points");
+      e.stats.tombstones = U64(j, "tombstones");
+      e.stats.buffered_points = U64(j, "buffered_points");
+      e.stats.trees = U64(j, "trees");
+      e.stats.tree_bytes = U64(j, "tree_bytes");
+      e.stats.wal_bytes = U64(j, "wal_bytes");
+      e.stats.leaf_utilisation = F64(j, "leaf_utilisation");
+      report.datasets.push_back(std::move(e));
+      last = std::move(r).value();
+    }
+    if (!last) {
+      HVDB_ASSIGN_OR_RETURN(
+          last, Run<wire::StatsReply>(true, [](Connection& c) { return c.Stats(""); }));
+    }
+    ServerCounters s;
+    s.connections_open = last->connections_open();
+    s.connections_total = last->connections_total();
+    s.bytes_in = last->bytes_in();
+    s.bytes_out = last->bytes_out();
+    s.cache_hit_rate = last->cache_hit_rate();
+    s.cache_capacity_bytes = last->cache_capacity_bytes();
+    for (const wire::LatencySummary& l : last->requests()) {
+      s.requests.push_back({l.kind(), l.count(), l.p50_ms(), l.p95_ms(), l.p99_ms()});
+    }
+    std::sort(s.requests.begin(), s.requests.end(),
+              [](const RequestLatency& a, const RequestLatency& b) { return a.kind < b.kind; });
+    report.server = std::move(s);
+    return report;
+  }
+
+  Result<double> Ping() override {
+    return Run<double>(true, [](Connection& c) -> Result<double> {
+      auto start = std::chrono::steady_clock::now();
+      HVDB_RETURN_IF_ERROR(c.Ping());
+      return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+          .count();
+    });
+  }
+
+  Result<std::vector<std::string>> Check(const std::string& /*name*/) override {
+    return Status::Unsupported("check reads the data directory's files: run 'hvdb --data DIR "
+                               "check' on the server's machine, with hvdb-server stopped");
+  }
+
+ private:
+  // The first connection is tried once, so that a wrong address, a stopped server or a bad
+  // token is reported at once; afterwards Client reconnects (with backoff) for requests that
+  // are safe to repeat.
+  template <typename T>
+  Result<T> Run(bool idempotent, const std::function<Result<T>(Connection&)>& fn) {
+    if (!connected_) {
+      Status st = client_.EnsureConnected();
+      if (st.code() == StatusCode::kPermissionDenied) {
+        return Status(st.code(), st.message() + (token_given_
+                                                     ? " (" + address_ + " refused the token)"
+                                                     : " (" + address_ +
+                                                           " needs one: --token TOKEN or the "
+                                                           "environment variable HVDB_TOKEN)"));
+      }
+      HVDB_RETURN_IF_ERROR(st);
+      connected_ = true;
+    }
+    return client_.Run<T>(idempotent, fn);
+  }
+
+  // A NotFound about a dataset that does not exist, said the same way by every command (the
+  // wire maps the server's UNKNOWN_DATASET and NOT_FOUND both to NotFound: ask).
+  Status Explain(const std::string& name, Status s) {
+    if (!s.IsNotFound()) return s;
+    Result<std::vector<std::string>> names = ListDatasets();
+    if (!names.ok() || Contains(*names, name)) return s;
+    return Status::NotFound("no dataset '" + name + "' on " + address_ + " ('hvdb --server " +
+                            address_ + " datasets' lists them)");
+  }
+
+  std::string address_;
+  bool token_given_;
+  Client client_;
+  bool connected_ = false;
+};
+
+}  // namespace
+
+std::unique_ptr<Backend> MakeEmbeddedBackend(std::string data_dir, size_t cache_bytes) {
+  return std::make_unique<EmbeddedBackend>(std::move(data_dir), cache_bytes);
+}
+
+Result<std::unique_ptr<Backend>> MakeRemoteBackend(const RemoteOptions& options) {
+  client::Options opts;
+  HVDB_RETURN_IF_ERROR(ParseAddress(options.address, &opts));
+  opts.token = options.token;
+  return std::unique_ptr<Backend>(new RemoteBackend(options.address, std::move(opts)));
+}
+
+}  // namespace hvdb::client

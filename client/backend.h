@@ -1,0 +1,106 @@
+// Backend: what the `hvdb` command line does to a database, whether it runs embedded on a data
+// directory (EmbeddedBackend, over hvdb::Database) or talks to an hvdb-server (RemoteBackend,
+// over hvdb::client::Client). The subcommands call this one API; the two implementations give
+// the same results and the same errors for the same data, so the output does not depend on the
+// mode (apart from what only one mode has: `check` is embedded-only, `ping` remote-only, and
+// `stats` reports the block cache of this process or the server's counters).
+//
+// Nothing is opened or connected until the first call, so usage errors can be reported before
+// touching a file or the network. Errors are Status values; nothing here throws on purpose.
+#ifndef HVDB_CLIENT_BACKEND_H_
+#define HVDB_CLIENT_BACKEND_H_
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "storage/database.h"
+#include "storage/status.h"
+
+namespace hvdb::client {
+
+// The results of one query, batch by batch.
+class QueryResults {
+ public:
+  virtual ~QueryResults() = default;
+  // Next batch into *batch (its points replaced); false at the end.
+  virtual Result<bool> Next(Batch* batch) = 0;
+  // Valid after Next() returned false: the frames read, and whether a slice was clipped.
+  virtual const std::vector<uint32_t>& frames() const = 0;
+  virtual bool clipped() const = 0;
+};
+
+// Latency of one kind of request, over the server's recent requests of that kind.
+struct RequestLatency {
+  std::string kind;  // "query", "edit", "ingest", ...
+  uint64_t count = 0;
+  double p50_ms = 0, p95_ms = 0, p99_ms = 0;
+};
+
+// What an hvdb-server reports about itself (the StatsReply of docs/PROTOCOL.md).
+struct ServerCounters {
+  uint64_t connections_open = 0, connections_total = 0;
+  std::vector<RequestLatency> requests;  // sorted by kind
+  uint64_t bytes_in = 0, bytes_out = 0;
+  double cache_hit_rate = 0;  // 0..1
+  uint64_t cache_capacity_bytes = 0;
+};
+
+struct StatsReport {
+  struct Entry {
+    std::string name;
+    DatasetStats stats;
+    uint64_t last_lsn = 0;
+  };
+  std::vector<Entry> datasets;
+  std::optional<CacheStats> cache;       // embedded: this process's block cache
+  std::optional<ServerCounters> server;  // remote: the server's counters
+};
+
+class Backend {
+ public:
+  virtual ~Backend() = default;
+
+  virtual bool remote() const = 0;
+  // Where the data is, for messages: the data directory, or HOST:PORT of the server.
+  virtual std::string where() const = 0;
+
+  // Names of the datasets, sorted.
+  virtual Result<std::vector<std::string>> ListDatasets() = 0;
+  // Creates a dataset (embedded: and the data directory, if it does not exist yet).
+  virtual Result<DatasetInfo> CreateDataset(const DatasetInfo& info) = 0;
+  virtual Status DropDataset(const std::string& name) = 0;
+  virtual Result<DatasetInfo> Describe(const std::string& name) = 0;
+  // Errors of the query's setup (unknown dataset, bad region, too many frames) are returned
+  // here in both modes, not by the first Next().
+  virtual Result<std::unique_ptr<QueryResults>> Query(const std::string& name,
+                                                      const Region& region,
+                                                      const QueryOptions& opts) = 0;
+  // Bulk-loads one frame (atomic per frame); returns the number of points loaded.
+  virtual Result<uint64_t> BulkLoad(const std::string& name, uint32_t frame,
+                                    std::vector<Point> points) = 0;
+  virtual Result<CommitInfo> Commit(const std::string& name, const Transaction& txn) = 0;
+  virtual Result<CommitInfo> Revert(const std::string& name, uint64_t lsn) = 0;
+  // Storage statistics of one dataset, or of all ("" ), plus the cache or server counters.
+  virtual Result<StatsReport> Stats(const std::string& name) = 0;
+  // Remote only: one round trip to the server, in milliseconds.
+  virtual Result<double> Ping() = 0;
+  // Embedded only: the problems Dataset::Check finds in one dataset.
+  virtual Result<std::vector<std::string>> Check(const std::string& name) = 0;
+};
+
+// On a data directory, opened (with an advisory lock) on first use.
+std::unique_ptr<Backend> MakeEmbeddedBackend(std::string data_dir, size_t cache_bytes);
+
+struct RemoteOptions {
+  std::string address;  // HOST:PORT
+  std::string token;    // "" for servers that need none
+};
+// Validates the address (InvalidArgument if it is not HOST:PORT); connects on first use.
+Result<std::unique_ptr<Backend>> MakeRemoteBackend(const RemoteOptions& options);
+
+}  // namespace hvdb::client
+
+#endif  // HVDB_CLIENT_BACKEND_H_
