@@ -1,0 +1,377 @@
+#include "edit/operators.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <set>
+
+#include "storage/affine.h"
+#include "storage/coding.h"
+#include "storage/crc32c.h"
+#include "storage/file.h"
+
+namespace hvdb::edit {
+
+namespace {
+
+using Key = std::pair<uint32_t, uint64_t>;  // (frame, id)
+
+Status CheckBit(int bit, const char* what) {
+  if (bit < 0 || bit > 31) {
+    return Status::InvalidArgument(std::string(what) + ": label bit must be 0..31, got " +
+                                   std::to_string(bit));
+  }
+  return Status::OK();
+}
+
+Window Everything() {
+  Window w;
+  w.lo = {-1e30, -1e30, -1e30, -1e30};
+  w.hi = {1e30, 1e30, 1e30, 1e30};
+  return w;
+}
+
+// Streams every point of the region (lod 0, no temporal subsampling) into fn.
+Status ForEach(Dataset& ds, const Region& region, uint32_t label_mask,
+               const std::function<void(const Point&)>& fn) {
+  QueryOptions o;
+  o.temporal_lod = false;
+  o.label_mask = label_mask;
+  HVDB_ASSIGN_OR_RETURN(auto cursor, ds.Query(region, o));
+  Batch b;
+  for (;;) {
+    HVDB_ASSIGN_OR_RETURN(bool more, cursor->Next(&b));
+    if (!more) return Status::OK();
+    for (const Point& p : b.points) fn(p);
+  }
+}
+
+Selection Explicit(const std::set<Key>& keys) {
+  Selection s;
+  s.ids.assign(keys.begin(), keys.end());
+  return s;
+}
+
+bool InPolygon(const std::vector<std::array<double, 2>>& poly, double x, double y) {
+  bool in = false;
+  for (size_t i = 0, j = poly.size() - 1; i < poly.size(); j = i++) {
+    const auto& a = poly[i];
+    const auto& b = poly[j];
+    if ((a[1] > y) != (b[1] > y) && x < (b[0] - a[0]) * (y - a[1]) / (b[1] - a[1]) + a[0]) {
+      in = !in;
+    }
+  }
+  return in;
+}
+
+Status CheckCamera(const CameraInfo& c) {
+  if (!(c.fx > 0) || !(c.fy > 0) || !std::isfinite(c.cx) || !std::isfinite(c.cy)) {
+    return Status::InvalidArgument("camera: focal lengths must be > 0 and the centre finite");
+  }
+  for (double v : c.world_from_camera) {
+    if (!std::isfinite(v)) return Status::InvalidArgument("camera: pose is not finite");
+  }
+  return Status::OK();
+}
+
+}  // namespace
+
+bool ProjectToPixel(const CameraInfo& cam, double x, double y, double z, double* u, double* v,
+                    double* depth) {
+  // camera_from_world of a rigid world_from_camera [R t]: [R^T, -R^T t].
+  const auto& M = cam.world_from_camera;
+  const double d[3] = {x - M[3], y - M[7], z - M[11]};
+  double c[3];
+  for (int i = 0; i < 3; ++i) c[i] = M[static_cast<size_t>(i)] * d[0] + M[static_cast<size_t>(4 + i)] * d[1] + M[static_cast<size_t>(8 + i)] * d[2];
+  if (c[2] <= 1e-9) return false;
+  *u = cam.fx * c[0] / c[2] + cam.cx;
+  *v = cam.fy * c[1] / c[2] + cam.cy;
+  *depth = c[2];
+  return true;
+}
+
+Result<SelectResult> Select(Dataset& ds, const SelectRequest& req) {
+  HVDB_RETURN_IF_ERROR(CheckBit(req.bit, "select"));
+  const uint32_t mask = 1u << req.bit;
+  SelectResult res;
+  std::set<Key> target;
+  if (std::holds_alternative<std::monostate>(req.shape)) {
+    HVDB_RETURN_IF_ERROR(ForEach(ds, req.region, 0, [&](const Point& p) {
+      target.insert({p.frame, p.id});
+    }));
+  } else if (const auto* lasso = std::get_if<Lasso>(&req.shape)) {
+    HVDB_RETURN_IF_ERROR(CheckCamera(lasso->camera));
+    if (lasso->polygon.size() < 3) {
+      return Status::InvalidArgument("lasso: the polygon needs at least 3 vertices");
+    }
+    for (const auto& q : lasso->polygon) {
+      if (!std::isfinite(q[0]) || !std::isfinite(q[1])) {
+        return Status::InvalidArgument("lasso: polygon vertices must be finite");
+      }
+    }
+    HVDB_RETURN_IF_ERROR(ForEach(ds, req.region, 0, [&](const Point& p) {
+      double u, v, depth;
+      if (ProjectToPixel(lasso->camera, p.x, p.y, p.z, &u, &v, &depth) &&
+          InPolygon(lasso->polygon, u, v)) {
+        target.insert({p.frame, p.id});
+      }
+    }));
+  } else {
+    const Brush& brush = std::get<Brush>(req.shape);
+    HVDB_RETURN_IF_ERROR(CheckCamera(brush.camera));
+    if (!(brush.pixel_radius > 0) || !(brush.radius > 0) || !std::isfinite(brush.u) ||
+        !std::isfinite(brush.v)) {
+      return Status::InvalidArgument("brush: radii must be > 0 and (u, v) finite");
+    }
+    // The front surface under the brush: depths of the points projecting into its footprint
+    // (a z-buffer read, 9.3.1), then the nearest or the median of them.
+    std::vector<Point> seen;
+    std::vector<double> depths;
+    HVDB_RETURN_IF_ERROR(ForEach(ds, req.region, 0, [&](const Point& p) {
+      seen.push_back(p);
+      double u, v, depth;
+      if (ProjectToPixel(brush.camera, p.x, p.y, p.z, &u, &v, &depth) &&
+          std::hypot(u - brush.u, v - brush.v) <= brush.pixel_radius) {
+        depths.push_back(depth);
+      }
+    }));
+    if (depths.empty()) {
+      return Status::NotFound("brush: no surface under pixel (" + std::to_string(brush.u) + ", " +
+                              std::to_string(brush.v) + ")");
+    }
+    double z;
+    if (brush.depth == Brush::Depth::kNearest) {
+      z = *std::min_element(depths.begin(), depths.end());
+    } else {
+      auto mid = depths.begin() + static_cast<std::ptrdiff_t>(depths.size() / 2);
+      std::nth_element(depths.begin(), mid, depths.end());
+      z = *mid;
+    }
+    // Back-project (u, v, z) to world coordinates.
+    const auto& M = brush.camera.world_from_camera;
+    const double c[3] = {(brush.u - brush.camera.cx) / brush.camera.fx * z,
+                         (brush.v - brush.camera.cy) / brush.camera.fy * z, z};
+    std::array<double, 3> centre{};
+    for (int i = 0; i < 3; ++i) {
+      centre[static_cast<size_t>(i)] = M[static_cast<size_t>(4 * i)] * c[0] +
+                                       M[static_cast<size_t>(4 * i + 1)] * c[1] +
+                                       M[static_cast<size_t>(4 * i + 2)] * c[2] + M[static_cast<size_t>(4 * i + 3)];
+    }
+    res.brush_center = centre;
+    for (const Point& p : seen) {
+      double dx = p.x - centre[0], dy = p.y - centre[1], dz = p.z - centre[2];
+      if (dx * dx + dy * dy + dz * dz <= brush.radius * brush.radius) target.insert({p.frame, p.id});
+    }
+  }
+  res.matched = target.size();
+
+  // Points carrying the bit now, for replace / intersect and the final count.
+  std::set<Key> current;
+  HVDB_RETURN_IF_ERROR(ForEach(ds, Everything(), mask, [&](const Point& p) {
+    current.insert({p.frame, p.id});
+  }));
+  std::set<Key> to_set, to_clear;
+  switch (req.mode) {
+    case SelectMode::kReplace:
+      for (const Key& k : target) {
+        if (!current.count(k)) to_set.insert(k);
+      }
+      for (const Key& k : current) {
+        if (!target.count(k)) to_clear.insert(k);
+      }
+      break;
+    case SelectMode::kAdd:
+      for (const Key& k : target) {
+        if (!current.count(k)) to_set.insert(k);
+      }
+      break;
+    case SelectMode::kSubtract:
+      for (const Key& k : target) {
+        if (current.count(k)) to_clear.insert(k);
+      }
+      break;
+    case SelectMode::kIntersect:
+      for (const Key& k : current) {
+        if (!target.count(k)) to_clear.insert(k);
+      }
+      break;
+  }
+  res.selected = current.size() + to_set.size() - to_clear.size();
+  if (to_set.empty() && to_clear.empty()) return res;
+  Transaction t;
+  if (!to_clear.empty()) t.SetLabel(Explicit(to_clear), mask, false);
+  if (!to_set.empty()) t.SetLabel(Explicit(to_set), mask, true);
+  HVDB_ASSIGN_OR_RETURN(CommitInfo info, ds.Commit(t));
+  res.lsn = info.lsn;
+  return res;
+}
+
+Result<GraphCutReply> GraphCutSelect(Dataset& ds, const GraphCutRequest& req) {
+  HVDB_RETURN_IF_ERROR(CheckBit(req.foreground_bit, "graph cut foreground"));
+  HVDB_RETURN_IF_ERROR(CheckBit(req.background_bit, "graph cut background"));
+  HVDB_RETURN_IF_ERROR(CheckBit(req.out_bit, "graph cut output"));
+  if (req.foreground_bit == req.background_bit) {
+    return Status::InvalidArgument("graph cut: foreground and background strokes need different bits");
+  }
+  using Clock = std::chrono::steady_clock;
+  auto t0 = Clock::now();
+  GraphCutReply reply;
+  std::vector<Point> pts;
+  std::vector<Seed> seeds;
+  const uint32_t fmask = 1u << req.foreground_bit, bmask = 1u << req.background_bit;
+  HVDB_RETURN_IF_ERROR(ForEach(ds, req.roi, 0, [&](const Point& p) {
+    pts.push_back(p);
+    seeds.push_back((p.label & fmask) ? Seed::kForeground
+                    : (p.label & bmask) ? Seed::kBackground
+                                        : Seed::kUnknown);
+  }));
+  reply.roi_points = pts.size();
+  reply.load_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+  HVDB_ASSIGN_OR_RETURN(GraphCutResult cut, RunGraphCut(pts, seeds, req.params));
+  t0 = Clock::now();
+  const uint32_t omask = 1u << req.out_bit;
+  std::set<Key> to_set, to_clear;
+  for (size_t i = 0; i < pts.size(); ++i) {
+    bool has = pts[i].label & omask;
+    if (cut.selected[i] && !has) to_set.insert({pts[i].frame, pts[i].id});
+    if (!cut.selected[i] && has) to_clear.insert({pts[i].frame, pts[i].id});
+    reply.selected += cut.selected[i];
+  }
+  if (!to_set.empty() || !to_clear.empty()) {
+    Transaction t;
+    if (!to_clear.empty()) t.SetLabel(Explicit(to_clear), omask, false);
+    if (!to_set.empty()) t.SetLabel(Explicit(to_set), omask, true);
+    HVDB_ASSIGN_OR_RETURN(CommitInfo info, ds.Commit(t));
+    reply.lsn = info.lsn;
+  }
+  reply.commit_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+  cut.selected.clear();
+  reply.cut = std::move(cut);
+  return reply;
+}
+
+// ---- Clipboards ----
+
+namespace {
+constexpr char kClipMagic[8] = {'H', 'V', 'D', 'B', 'C', 'L', 'P', '\0'};
+constexpr uint32_t kClipVersion = 1;
+}  // namespace
+
+Status ClipboardStore::Put(const std::string& name, const std::vector<Point>& points) {
+  HVDB_RETURN_IF_ERROR(ValidateDatasetName(name));  // same rules: a safe file name
+  HVDB_RETURN_IF_ERROR(CreateDirs(dir_));
+  Writer w;
+  w.PutBytes(kClipMagic, 8);
+  w.Put<uint32_t>(kClipVersion);
+  w.Put<uint64_t>(points.size());
+  std::string recs(points.size() * kPointRecordSize, '\0');
+  EncodePoints(points, reinterpret_cast<uint8_t*>(recs.data()));
+  w.PutBytes(recs.data(), recs.size());
+  w.Put<uint32_t>(crc32c::Mask(crc32c::Value(w.data().data(), w.data().size())));
+  return WriteFileAtomic(dir_ + "/" + name + ".hvc", w.data());
+}
+
+Result<std::vector<Point>> ClipboardStore::Get(const std::string& name) const {
+  HVDB_RETURN_IF_ERROR(ValidateDatasetName(name));
+  const std::string path = dir_ + "/" + name + ".hvc";
+  if (!FileExists(path)) return Status::NotFound("no clipboard '" + name + "'");
+  HVDB_ASSIGN_OR_RETURN(std::string data, ReadWholeFile(path));
+  const auto* p = reinterpret_cast<const uint8_t*>(data.data());
+  if (data.size() < 24 || std::memcmp(p, kClipMagic, 8) != 0 ||
+      crc32c::Unmask(DecodeLE<uint32_t>(p + data.size() - 4)) != crc32c::Value(p, data.size() - 4)) {
+    return Status::Corruption(path + ": not a clipboard file, or its checksum does not match");
+  }
+  uint64_t n = DecodeLE<uint64_t>(p + 12);
+  if (DecodeLE<uint32_t>(p + 8) != kClipVersion || data.size() != 24 + n * kPointRecordSize) {
+    return Status::Corruption(path + ": bad version or size");
+  }
+  std::vector<Point> pts(n);
+  DecodePoints(p + 20, n, pts.data());
+  return pts;
+}
+
+std::vector<std::string> ClipboardStore::List() const {
+  std::vector<std::string> out;
+  auto names = ListDir(dir_);
+  if (!names.ok()) return out;
+  for (const std::string& n : *names) {
+    if (n.ends_with(".hvc")) out.push_back(n.substr(0, n.size() - 4));
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+Result<CopyResult> Copy(Dataset& ds, int bit, const std::optional<Region>& region,
+                        ClipboardStore& store, const std::string& clipboard, bool cut) {
+  HVDB_RETURN_IF_ERROR(CheckBit(bit, "copy"));
+  const uint32_t mask = 1u << bit;
+  const Region r = region ? *region : Region(Everything());
+  std::vector<Point> pts;
+  HVDB_RETURN_IF_ERROR(ForEach(ds, r, mask, [&](const Point& p) { pts.push_back(p); }));
+  // A slice returns projected positions; the clipboard keeps points as stored.
+  if (std::holds_alternative<Slice>(r)) {
+    std::set<Key> keys;
+    for (const Point& p : pts) keys.insert({p.frame, p.id});
+    pts.clear();
+    HVDB_RETURN_IF_ERROR(ForEach(ds, Everything(), mask, [&](const Point& p) {
+      if (keys.count({p.frame, p.id})) pts.push_back(p);
+    }));
+  }
+  CopyResult res;
+  res.points = pts.size();
+  HVDB_RETURN_IF_ERROR(store.Put(clipboard, pts));
+  if (cut && !pts.empty()) {
+    std::set<Key> keys;
+    for (const Point& p : pts) keys.insert({p.frame, p.id});
+    Transaction t;
+    t.DeleteSelection(Explicit(keys));
+    HVDB_ASSIGN_OR_RETURN(CommitInfo info, ds.Commit(t));
+    res.lsn = info.lsn;
+  }
+  return res;
+}
+
+Result<CommitInfo> Paste(Dataset& ds, const std::vector<Point>& clip, const Affine4& map) {
+  if (clip.empty()) return Status::InvalidArgument("paste: the clipboard is empty");
+  HVDB_ASSIGN_OR_RETURN(AffineMap m, AffineMap::Make(map, ds.Info().fps));
+  std::vector<Point> pts;
+  pts.reserve(clip.size());
+  for (const Point& p : clip) {
+    HVDB_ASSIGN_OR_RETURN(Point q, m.Apply(p));
+    q.id = 0;  // a pasted point is a new point
+    pts.push_back(q);
+  }
+  Transaction t;
+  t.Insert(std::move(pts));
+  return ds.Commit(t);
+}
+
+Result<CommitInfo> Composite(Dataset& ds, const std::vector<Point>& object, uint32_t first,
+                             uint32_t count, const std::vector<std::array<double, 3>>& trajectory) {
+  if (object.empty()) return Status::InvalidArgument("composite: the object has no points");
+  if (count == 0) return Status::InvalidArgument("composite: the frame count must be > 0");
+  if (!trajectory.empty() && trajectory.size() != count) {
+    return Status::InvalidArgument("composite: the trajectory needs one offset per frame (" +
+                                   std::to_string(count) + "), got " +
+                                   std::to_string(trajectory.size()));
+  }
+  std::vector<Point> pts;
+  pts.reserve(object.size() * count);
+  for (uint32_t i = 0; i < count; ++i) {
+    const std::array<double, 3> d = trajectory.empty() ? std::array<double, 3>{} : trajectory[i];
+    for (Point p : object) {
+      p.id = 0;
+      p.frame = first + i;
+      p.x = static_cast<float>(p.x + d[0]);
+      p.y = static_cast<float>(p.y + d[1]);
+      p.z = static_cast<float>(p.z + d[2]);
+      pts.push_back(p);
+    }
+  }
+  Transaction t;
+  t.Insert(std::move(pts));
+  return ds.Commit(t);
+}
+
+}  // namespace hvdb::edit

@@ -1,0 +1,109 @@
+// Editing operators (thesis chapter 9): selections stored as label bits, 4D graph-cut object
+// selection, cut / copy / paste through named clipboards, compositing. Each change is one edit
+// transaction of the dataset, so it is atomic, durable and undoable (Dataset::Revert; redo is
+// the revert of the revert).
+//
+// The operators run next to the data: in hvdb-server (requests of docs/PROTOCOL.md) or embedded.
+#ifndef HVDB_EDIT_OPERATORS_H_
+#define HVDB_EDIT_OPERATORS_H_
+
+#include <array>
+#include <optional>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "edit/graph_cut.h"
+#include "storage/database.h"
+
+namespace hvdb::edit {
+
+// How a new selection combines with the points already carrying the label bit.
+enum class SelectMode { kReplace, kAdd, kSubtract, kIntersect };
+
+// A screen-space marquee or lasso (polygon in pixels), extruded through the camera into the
+// viewed region (9.3.1). Positions are those the viewer sees: projected ones for a slice.
+struct Lasso {
+  CameraInfo camera;
+  std::vector<std::array<double, 2>> polygon;  // >= 3 vertices
+};
+
+// The 3D paintbrush: a sphere of `radius` metres around the front surface under the pixel
+// (u, v); the surface depth is the nearest or the median depth of the points whose projection
+// lies within `pixel_radius` of (u, v).
+struct Brush {
+  CameraInfo camera;
+  double u = 0, v = 0, pixel_radius = 5;
+  double radius = 0.02;
+  enum class Depth { kNearest, kMedian } depth = Depth::kMedian;
+};
+
+struct SelectRequest {
+  Region region;  // what is viewed; the selection never reaches outside it
+  std::variant<std::monostate, Lasso, Brush> shape;  // monostate: the whole region
+  int bit = 0;                                       // label bit 0..31 that holds the selection
+  SelectMode mode = SelectMode::kReplace;
+};
+
+struct SelectResult {
+  uint64_t matched = 0;   // points the shape covered
+  uint64_t selected = 0;  // points carrying the bit afterwards
+  uint64_t lsn = 0;       // 0 when nothing changed
+  std::optional<std::array<double, 3>> brush_center;
+};
+
+Result<SelectResult> Select(Dataset& ds, const SelectRequest& req);
+
+struct GraphCutRequest {
+  Region roi;  // the region of interest (green paint)
+  int foreground_bit = 1, background_bit = 2;  // the strokes (red and blue paint)
+  int out_bit = 0;                             // receives the selection inside the ROI
+  GraphCutParams params;
+};
+
+struct GraphCutReply {
+  uint64_t roi_points = 0, selected = 0, lsn = 0;
+  GraphCutResult cut;  // energy, edge counts and timings (selected[] cleared)
+  double load_ms = 0, commit_ms = 0;
+};
+
+Result<GraphCutReply> GraphCutSelect(Dataset& ds, const GraphCutRequest& req);
+
+// Named clipboards, kept as files DIR/clipboards/<name>.hvc (docs/FORMAT.md), so that they
+// survive sessions and are shared by the server and the embedded CLI.
+class ClipboardStore {
+ public:
+  explicit ClipboardStore(std::string data_dir) : dir_(std::move(data_dir) + "/clipboards") {}
+  Status Put(const std::string& name, const std::vector<Point>& points);
+  Result<std::vector<Point>> Get(const std::string& name) const;
+  std::vector<std::string> List() const;
+
+ private:
+  std::string dir_;
+};
+
+// Copies the points carrying `bit` (within `region`, if given) to the clipboard; with `cut`,
+// deletes them in the same step. Returns the number of points and the commit (cut only).
+struct CopyResult {
+  uint64_t points = 0;
+  uint64_t lsn = 0;
+};
+Result<CopyResult> Copy(Dataset& ds, int bit, const std::optional<Region>& region,
+                        ClipboardStore& store, const std::string& clipboard, bool cut);
+
+// Inserts the clipboard's points into `ds` moved by `map` (new ids; frames follow the new t).
+Result<CommitInfo> Paste(Dataset& ds, const std::vector<Point>& clip, const Affine4& map);
+
+// Inserts an object (e.g. a PLY point cloud) into frames first .. first + count - 1: static, or
+// offset by trajectory[i] (metres) in frame first + i.
+Result<CommitInfo> Composite(Dataset& ds, const std::vector<Point>& object, uint32_t first,
+                             uint32_t count,
+                             const std::vector<std::array<double, 3>>& trajectory = {});
+
+// Projects a 3D point through a pinhole camera (no distortion): false if behind it.
+bool ProjectToPixel(const CameraInfo& cam, double x, double y, double z, double* u, double* v,
+                    double* depth);
+
+}  // namespace hvdb::edit
+
+#endif  // HVDB_EDIT_OPERATORS_H_
