@@ -342,6 +342,52 @@ Result<wire::StatsReply> Connection::Stats(const std::string& dataset) {
   return r.stats();
 }
 
+namespace {
+CommitInfo CommitFromWire(const wire::CommitReply& c) {
+  CommitInfo info;
+  info.lsn = c.lsn();
+  info.inserted = c.inserted();
+  info.removed = c.removed();
+  info.assigned_ids.assign(c.assigned_ids().begin(), c.assigned_ids().end());
+  return info;
+}
+}  // namespace
+
+Result<wire::SelectReply> Connection::Select(const wire::SelectRequest& q) {
+  wire::Request req;
+  *req.mutable_select() = q;
+  HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
+  return r.selected();
+}
+
+Result<wire::GraphCutReply> Connection::GraphCut(const wire::GraphCutRequest& q) {
+  wire::Request req;
+  *req.mutable_graph_cut() = q;
+  HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
+  return r.graph_cut();
+}
+
+Result<wire::CopyReply> Connection::Copy(const wire::CopyRequest& q) {
+  wire::Request req;
+  *req.mutable_copy() = q;
+  HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
+  return r.copied();
+}
+
+Result<CommitInfo> Connection::Paste(const wire::PasteRequest& q) {
+  wire::Request req;
+  *req.mutable_paste() = q;
+  HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
+  return CommitFromWire(r.commit());
+}
+
+Result<CommitInfo> Connection::Composite(const wire::CompositeRequest& q) {
+  wire::Request req;
+  *req.mutable_composite() = q;
+  HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
+  return CommitFromWire(r.commit());
+}
+
 Status Client::EnsureConnected() {
   if (conn_ && !conn_->broken()) return Status::OK();
   HVDB_ASSIGN_OR_RETURN(conn_, Connection::Connect(options_));

@@ -86,6 +86,14 @@ class Connection {
   Result<uint64_t> Ingest(const std::string& dataset, uint32_t frame, std::span<const Point> pts);
   Result<wire::StatsReply> Stats(const std::string& dataset = "");
 
+  // Editing operators (edit/operators.h), run by the server next to the data. Each takes the
+  // request message with its dataset set, and returns the server's reply.
+  Result<wire::SelectReply> Select(const wire::SelectRequest& req);
+  Result<wire::GraphCutReply> GraphCut(const wire::GraphCutRequest& req);
+  Result<wire::CopyReply> Copy(const wire::CopyRequest& req);
+  Result<CommitInfo> Paste(const wire::PasteRequest& req);
+  Result<CommitInfo> Composite(const wire::CompositeRequest& req);
+
   // Pipelining: send a request (its id is assigned and returned), collect its responses later.
   Result<uint64_t> Send(wire::Request* req);
   // The next response to request `id` (responses to other requests are kept for later).

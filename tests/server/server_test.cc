@@ -15,6 +15,7 @@
 
 #include "client/client.h"
 #include "storage/coding.h"
+#include "tests/edit/scene.h"
 #include "tests/server/server_process.h"
 #include "tests/storage/test_util.h"
 
@@ -575,6 +576,99 @@ TEST(ServerLimitsTest, IdleConnectionsAreClosed) {
   auto c = Connect(server.port());
   ASSERT_TRUE(c);
   EXPECT_TRUE(c->Ping().ok());
+}
+
+TEST_F(ServerTest, EditingOperatorsThroughTheServer) {
+  auto c = NewDataset("e");
+  auto scene = testing::MovingSphereScene(2, 0.02);
+  std::set<uint64_t> sphere;
+  for (uint32_t f = 0; f < 2; ++f) {
+    std::vector<Point> pts;
+    for (const auto& sp : scene) {
+      if (sp.p.frame == f) pts.push_back(sp.p);
+    }
+    ASSERT_TRUE(c->Ingest("e", f, pts).ok());
+  }
+  for (const Point& p : All(*c, "e", Everything())) {
+    if (p.z > 0.001) sphere.insert(p.id);
+  }
+  auto select = [&](const Window& w, uint32_t bit) {
+    wire::SelectRequest q;
+    q.set_dataset("e");
+    wire::ToWire(Region(w), q.mutable_region());
+    q.set_bit(bit);
+    return c->Select(q);
+  };
+  Window top = Everything();
+  top.lo = {0.25, 0.45, 0.28, 0};
+  top.hi = {0.35, 0.55, 1, 0};
+  Window floor = Everything();
+  floor.lo = {0.7, 0.0, -1, 0};
+  floor.hi = {1.0, 0.3, 0.001, 0};
+  ASSERT_TRUE(select(top, 1).ok());
+  auto fl = select(floor, 2);
+  ASSERT_TRUE(fl.ok());
+  EXPECT_GT(fl->selected(), 10u);
+  wire::GraphCutRequest gc;
+  gc.set_dataset("e");
+  wire::ToWire(Region(Everything()), gc.mutable_roi());
+  gc.set_foreground_bit(1);
+  gc.set_background_bit(2);
+  gc.set_out_bit(0);
+  gc.set_intra_radius(0.05);
+  gc.set_inter_radius(0.08);
+  auto cut = c->GraphCut(gc);
+  ASSERT_TRUE(cut.ok()) << cut.status().ToString();
+  EXPECT_GT(cut->energy(), 0);
+  EXPECT_GT(cut->intra_edges(), 0u);
+  QueryOptions sel;
+  sel.label_mask = 1;
+  auto chosen = Ids(All(*c, "e", Everything(), sel));
+  size_t tp = 0;
+  for (uint64_t id : chosen) tp += sphere.count(id);
+  EXPECT_GE(double(tp) / chosen.size(), 0.95);
+  EXPECT_GE(double(tp) / sphere.size(), 0.95);
+  // Cut to a clipboard, paste one frame later and 1 m away, undo the cut.
+  wire::CopyRequest cp;
+  cp.set_dataset("e");
+  cp.set_bit(0);
+  cp.set_clipboard("ball");
+  cp.set_cut(true);
+  auto copied = c->Copy(cp);
+  ASSERT_TRUE(copied.ok()) << copied.status().ToString();
+  EXPECT_EQ(copied->points(), chosen.size());
+  EXPECT_TRUE(All(*c, "e", Everything(), sel).empty());
+  wire::PasteRequest ps;
+  ps.set_dataset("e");
+  ps.set_clipboard("ball");
+  for (double v : {1.0, 0.0, 0.0, 1 / kFps}) ps.add_offset(v);
+  auto pasted = c->Paste(ps);
+  ASSERT_TRUE(pasted.ok()) << pasted.status().ToString();
+  EXPECT_EQ(pasted->inserted, chosen.size());
+  ASSERT_TRUE(c->Revert("e", copied->lsn()).ok());
+  // The cut points are back; the pasted copies (still selected, like a fresh paste) stay.
+  std::set<uint64_t> both = chosen;
+  both.insert(pasted->assigned_ids.begin(), pasted->assigned_ids.end());
+  EXPECT_EQ(Ids(All(*c, "e", Everything(), sel)), both);
+  // Composite a small object into frames 0..1.
+  wire::CompositeRequest comp;
+  comp.set_dataset("e");
+  std::mt19937_64 rng(12);
+  auto object = RandomPoints(rng, 10, 0, 0.1f);
+  wire::EncodeColumns(object, comp.mutable_object());
+  comp.set_first_frame(0);
+  comp.set_frame_count(2);
+  auto composed = c->Composite(comp);
+  ASSERT_TRUE(composed.ok());
+  EXPECT_EQ(composed->inserted, 20u);
+  // Typed errors for bad parameters.
+  wire::SelectRequest bad;
+  bad.set_dataset("e");
+  wire::ToWire(Region(Everything()), bad.mutable_region());
+  bad.set_bit(40);
+  EXPECT_EQ(c->Select(bad).status().code(), StatusCode::kInvalidArgument);
+  ps.set_clipboard("missing");
+  EXPECT_EQ(c->Paste(ps).status().code(), StatusCode::kNotFound);
 }
 
 TEST(ServerAuthTest, TokensAndRoles) {
