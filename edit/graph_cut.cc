@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <numbers>
 #include <map>
 
 #include <boost/graph/adjacency_list.hpp>
@@ -47,31 +48,68 @@ struct FrameIndex {
   std::unique_ptr<flann::Index<flann::L2_Simple<float>>> index;
 };
 
-// A colour model: -log of a GMM density (eq. 9.3) through OpenCV's EM.
+// A colour model: a GMM (eq. 9.3) trained by OpenCV's EM. The log-density is evaluated here
+// from the trained means, covariances and weights: EM::predict2 costs ~10 us per call, which
+// dominated a million-point cut.
 class ColorModel {
  public:
   Status Train(const std::vector<cv::Vec3d>& samples, int components) {
     if (samples.empty()) return Status::InvalidArgument("graph cut: a colour model has no samples");
-    int k = std::max(1, std::min<int>(components, static_cast<int>(samples.size()) / 4));
+    int k = std::clamp(std::min<int>(components, static_cast<int>(samples.size()) / 4), 1, 16);
     cv::Mat data(static_cast<int>(samples.size()), 3, CV_64F);
     for (int i = 0; i < data.rows; ++i) {
       for (int j = 0; j < 3; ++j) data.at<double>(i, j) = samples[static_cast<size_t>(i)][j];
     }
-    em_ = cv::ml::EM::create();
-    em_->setClustersNumber(k);
-    em_->setCovarianceMatrixType(cv::ml::EM::COV_MAT_GENERIC);
-    em_->setTermCriteria(cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 100, 1e-4));
-    if (!em_->trainEM(data)) return Status::Internal("graph cut: GMM training failed");
+    auto em = cv::ml::EM::create();
+    em->setClustersNumber(k);
+    em->setCovarianceMatrixType(cv::ml::EM::COV_MAT_GENERIC);
+    em->setTermCriteria(cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 100, 1e-4));
+    if (!em->trainEM(data)) return Status::Internal("graph cut: GMM training failed");
+    cv::Mat means = em->getMeans(), weights = em->getWeights();
+    std::vector<cv::Mat> covs;
+    em->getCovs(covs);
+    comps_.clear();
+    for (int j = 0; j < means.rows; ++j) {
+      Component c;
+      cv::Mat cov;
+      covs[static_cast<size_t>(j)].convertTo(cov, CV_64F);
+      cov += cv::Mat::eye(3, 3, CV_64F) * 1e-6;  // keep single-colour strokes invertible
+      cv::Mat inv = cov.inv(cv::DECOMP_CHOLESKY);
+      double det = cv::determinant(cov);
+      for (int a = 0; a < 3; ++a) {
+        c.mean[a] = means.at<double>(j, a);
+        for (int b = 0; b < 3; ++b) c.inv[a][b] = inv.at<double>(a, b);
+      }
+      c.log_norm = std::log(std::max(weights.at<double>(0, j), 1e-300)) -
+                   0.5 * (3 * std::log(2 * M_PI) + std::log(std::max(det, 1e-300)));
+      comps_.push_back(c);
+    }
     return Status::OK();
   }
-  double LogLikelihood(const cv::Vec3d& c) const {
-    cv::Mat sample(1, 3, CV_64F);
-    for (int j = 0; j < 3; ++j) sample.at<double>(0, j) = c[j];
-    return em_->predict2(sample, cv::noArray())[0];
+  double LogLikelihood(const cv::Vec3d& x) const {
+    double best = -1e300, terms[16];
+    size_t n = 0;
+    for (const Component& c : comps_) {
+      double d[3] = {x[0] - c.mean[0], x[1] - c.mean[1], x[2] - c.mean[2]};
+      double q = 0;
+      for (int a = 0; a < 3; ++a) {
+        for (int b = 0; b < 3; ++b) q += d[a] * c.inv[a][b] * d[b];
+      }
+      terms[n] = c.log_norm - 0.5 * q;
+      best = std::max(best, terms[n++]);
+    }
+    double sum = 0;
+    for (size_t i = 0; i < n; ++i) sum += std::exp(terms[i] - best);
+    return best + std::log(sum);
   }
 
  private:
-  cv::Ptr<cv::ml::EM> em_;
+  struct Component {
+    double mean[3];
+    double inv[3][3];
+    double log_norm;
+  };
+  std::vector<Component> comps_;
 };
 
 }  // namespace
@@ -134,6 +172,7 @@ Result<GraphCutResult> RunGraphCut(const std::vector<Point>& points, const std::
   auto search = [&](const FrameIndex& target, const FrameIndex& source, int k, double radius,
                     bool inter) {
     flann::SearchParams sp(flann::FLANN_CHECKS_UNLIMITED);
+    sp.cores = 0;  // all cores
     sp.max_neighbors = inter ? k : k + 1;  // intra: the point finds itself
     sp.sorted = true;
     flann::Matrix<float> queries(const_cast<float*>(source.coords.data()), source.members.size(), 3);
