@@ -4,8 +4,10 @@
 #include <chrono>
 #include <filesystem>
 #include <functional>
+#include <span>
 #include <system_error>
 #include <utility>
+#include <variant>
 
 #include <nlohmann/json.hpp>
 
@@ -118,6 +120,41 @@ class EmbeddedBackend final : public Backend {
     return ds->Check();
   }
 
+  Result<edit::SelectResult> Select(const std::string& name,
+                                    const edit::SelectRequest& req) override {
+    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
+    return edit::Select(*ds, req);
+  }
+
+  Result<edit::GraphCutReply> GraphCut(const std::string& name,
+                                       const edit::GraphCutRequest& req) override {
+    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
+    return edit::GraphCutSelect(*ds, req);
+  }
+
+  Result<edit::CopyResult> Copy(const std::string& name, int bit,
+                                const std::optional<Region>& region, const std::string& clipboard,
+                                bool cut) override {
+    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
+    edit::ClipboardStore store(dir_);  // DIR/clipboards, as hvdb-server --data DIR keeps them
+    return edit::Copy(*ds, bit, region, store, clipboard, cut);
+  }
+
+  Result<CommitInfo> Paste(const std::string& name, const std::string& clipboard,
+                           const Affine4& map) override {
+    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
+    edit::ClipboardStore store(dir_);
+    HVDB_ASSIGN_OR_RETURN(std::vector<Point> clip, store.Get(clipboard));
+    return edit::Paste(*ds, clip, map);
+  }
+
+  Result<CommitInfo> Composite(const std::string& name, const std::vector<Point>& object,
+                               uint32_t first_frame, uint32_t frame_count,
+                               const std::vector<std::array<double, 3>>& trajectory) override {
+    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
+    return edit::Composite(*ds, object, first_frame, frame_count, trajectory);
+  }
+
  private:
   // The database, opened on first use. Only `create` makes the directory, so that a mistyped
   // --data does not leave one behind.
@@ -193,6 +230,29 @@ uint64_t U64(const nlohmann::json& j, const char* key) {
 double F64(const nlohmann::json& j, const char* key) {
   auto it = j.find(key);
   return it != j.end() && it->is_number() ? it->get<double>() : 0;
+}
+
+// A label bit outside 0..31, refused here with the engine's words (the wire carries bits
+// unsigned, so a negative one would otherwise reach the server as another number).
+Status CheckBit(int bit, const char* what) {
+  if (bit < 0 || bit > 31) {
+    return Status::InvalidArgument(std::string(what) + ": label bit must be 0..31, got " +
+                                   std::to_string(bit));
+  }
+  return Status::OK();
+}
+
+// The graph-cut parameters that have no field in GraphCutRequest must keep their defaults.
+Status CheckWireParams(const edit::GraphCutParams& p) {
+  const edit::GraphCutParams d;
+  if (p.max_color_diff != d.max_color_diff || p.max_normal_diff != d.max_normal_diff ||
+      p.gmm_components != d.gmm_components || p.beta_c != d.beta_c || p.beta_n != d.beta_n ||
+      p.lambda_d != d.lambda_d || p.lambda_i != d.lambda_i || p.lambda_t != d.lambda_t) {
+    return Status::Unsupported(
+        "graph cut: only k, the intra/inter-frame radii and colour-only can be sent to "
+        "hvdb-server; the other parameters keep their defaults there");
+  }
+  return Status::OK();
 }
 
 class RemoteBackend final : public Backend {
@@ -331,6 +391,145 @@ class RemoteBackend final : public Backend {
   Result<std::vector<std::string>> Check(const std::string& /*name*/) override {
     return Status::Unsupported("check reads the data directory's files: run 'hvdb --data DIR "
                                "check' on the server's machine, with hvdb-server stopped");
+  }
+
+  Result<edit::SelectResult> Select(const std::string& name,
+                                    const edit::SelectRequest& req) override {
+    HVDB_RETURN_IF_ERROR(CheckBit(req.bit, "select"));
+    wire::SelectRequest q;
+    q.set_dataset(name);
+    wire::ToWire(req.region, q.mutable_region());
+    q.set_bit(static_cast<uint32_t>(req.bit));
+    q.set_mode(static_cast<wire::SelectMode>(req.mode));
+    if (const auto* lasso = std::get_if<edit::Lasso>(&req.shape)) {
+      wire::LassoShape* l = q.mutable_lasso();
+      wire::ToWire(lasso->camera, l->mutable_camera());
+      for (const auto& v : lasso->polygon) {
+        l->add_polygon(v[0]);
+        l->add_polygon(v[1]);
+      }
+    } else if (const auto* brush = std::get_if<edit::Brush>(&req.shape)) {
+      wire::BrushShape* b = q.mutable_brush();
+      wire::ToWire(brush->camera, b->mutable_camera());
+      b->set_u(brush->u);
+      b->set_v(brush->v);
+      b->set_pixel_radius(brush->pixel_radius);
+      b->set_radius(brush->radius);
+      b->set_nearest(brush->depth == edit::Brush::Depth::kNearest);
+    }
+    // Not repeated after a lost connection: it may have been committed.
+    Result<wire::SelectReply> r =
+        Run<wire::SelectReply>(false, [&q](Connection& c) { return c.Select(q); });
+    if (!r.ok()) return Explain(name, r.status());
+    edit::SelectResult out;
+    out.matched = r->matched();
+    out.selected = r->selected();
+    out.lsn = r->lsn();
+    if (r->brush_center_size() == 3) {
+      out.brush_center =
+          std::array<double, 3>{r->brush_center(0), r->brush_center(1), r->brush_center(2)};
+    }
+    return out;
+  }
+
+  Result<edit::GraphCutReply> GraphCut(const std::string& name,
+                                       const edit::GraphCutRequest& req) override {
+    HVDB_RETURN_IF_ERROR(CheckBit(req.foreground_bit, "graph cut foreground"));
+    HVDB_RETURN_IF_ERROR(CheckBit(req.background_bit, "graph cut background"));
+    HVDB_RETURN_IF_ERROR(CheckBit(req.out_bit, "graph cut output"));
+    HVDB_RETURN_IF_ERROR(CheckWireParams(req.params));
+    if (req.params.k < 1 || !(req.params.intra_radius > 0) || !(req.params.inter_radius > 0)) {
+      // 0 means "the default" on the wire: refuse what the engine would refuse.
+      return Status::InvalidArgument("graph cut: k, radii, betas and components must be positive");
+    }
+    if (req.params.k > 64) {  // hvdb-server caps k at 64
+      return Status::InvalidArgument("graph cut: k must be at most 64 through hvdb-server, got " +
+                                     std::to_string(req.params.k));
+    }
+    wire::GraphCutRequest q;
+    q.set_dataset(name);
+    wire::ToWire(req.roi, q.mutable_roi());
+    q.set_foreground_bit(static_cast<uint32_t>(req.foreground_bit));
+    q.set_background_bit(static_cast<uint32_t>(req.background_bit));
+    q.set_out_bit(static_cast<uint32_t>(req.out_bit));
+    q.set_k(static_cast<uint32_t>(req.params.k));
+    q.set_intra_radius(req.params.intra_radius);
+    q.set_inter_radius(req.params.inter_radius);
+    q.set_colour_only(!req.params.use_normals);
+    Result<wire::GraphCutReply> r =
+        Run<wire::GraphCutReply>(false, [&q](Connection& c) { return c.GraphCut(q); });
+    if (!r.ok()) return Explain(name, r.status());
+    edit::GraphCutReply out;
+    out.roi_points = r->roi_points();
+    out.selected = r->selected();
+    out.lsn = r->lsn();
+    out.cut.energy = r->energy();
+    out.cut.intra_edges = r->intra_edges();
+    out.cut.inter_edges = r->inter_edges();
+    out.cut.neighbours_ms = r->neighbours_ms();
+    out.cut.gmm_ms = r->gmm_ms();
+    out.cut.graph_ms = r->graph_ms();
+    out.cut.maxflow_ms = r->maxflow_ms();
+    out.load_ms = r->load_ms();
+    out.commit_ms = r->commit_ms();
+    return out;
+  }
+
+  Result<edit::CopyResult> Copy(const std::string& name, int bit,
+                                const std::optional<Region>& region, const std::string& clipboard,
+                                bool cut) override {
+    HVDB_RETURN_IF_ERROR(CheckBit(bit, "copy"));
+    wire::CopyRequest q;
+    q.set_dataset(name);
+    q.set_bit(static_cast<uint32_t>(bit));
+    if (region) wire::ToWire(*region, q.mutable_region());
+    q.set_clipboard(clipboard);
+    q.set_cut(cut);
+    // A copy only rewrites the clipboard: safe to repeat. A cut deletes: not.
+    Result<wire::CopyReply> r =
+        Run<wire::CopyReply>(!cut, [&q](Connection& c) { return c.Copy(q); });
+    if (!r.ok()) return Explain(name, r.status());
+    return edit::CopyResult{r->points(), r->lsn()};
+  }
+
+  Result<CommitInfo> Paste(const std::string& name, const std::string& clipboard,
+                           const Affine4& map) override {
+    wire::PasteRequest q;
+    q.set_dataset(name);
+    q.set_clipboard(clipboard);
+    for (double v : map.a) q.add_matrix(v);
+    for (double v : map.c) q.add_offset(v);
+    Result<CommitInfo> r = Run<CommitInfo>(false, [&q](Connection& c) { return c.Paste(q); });
+    if (!r.ok()) return Explain(name, r.status());
+    return r;
+  }
+
+  Result<CommitInfo> Composite(const std::string& name, const std::vector<Point>& object,
+                               uint32_t first_frame, uint32_t frame_count,
+                               const std::vector<std::array<double, 3>>& trajectory) override {
+    wire::CompositeRequest q;
+    q.set_dataset(name);
+    wire::EncodeColumns(std::span<const Point>(object), q.mutable_object());
+    q.set_first_frame(first_frame);
+    q.set_frame_count(frame_count);
+    for (const auto& d : trajectory) {
+      for (double v : d) q.add_trajectory(v);
+    }
+    Result<CommitInfo> r = Run<CommitInfo>(false, [&q](Connection& c) { return c.Composite(q); });
+    if (!r.ok()) {
+      Status s = Explain(name, r.status());
+      const size_t bytes = q.ByteSizeLong();
+      if (bytes >= wire::kDefaultMaxFrame / 2) {
+        // The object travels in one request, which the server bounds (--max-frame-bytes).
+        s = Status(s.code(), s.message() + " (the object's " + std::to_string(object.size()) +
+                                 " points make one request of " + std::to_string(bytes >> 20) +
+                                 " MiB, and hvdb-server takes at most 16 MiB unless started "
+                                 "with a larger --max-frame-bytes; thin the object out, or "
+                                 "composite it in parts)");
+      }
+      return s;
+    }
+    return r;
   }
 
  private:

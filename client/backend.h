@@ -7,15 +7,21 @@
 //
 // Nothing is opened or connected until the first call, so usage errors can be reported before
 // touching a file or the network. Errors are Status values; nothing here throws on purpose.
+//
+// The editing operators (Select ... Composite) run next to the data: in this process on a data
+// directory, whose clipboards (DIR/clipboards) are the ones hvdb-server uses when it serves that
+// directory, or in the server (the editing requests of docs/PROTOCOL.md).
 #ifndef HVDB_CLIENT_BACKEND_H_
 #define HVDB_CLIENT_BACKEND_H_
 
+#include <array>
 #include <cstdint>
 #include <memory>
 #include <optional>
 #include <string>
 #include <vector>
 
+#include "edit/operators.h"
 #include "storage/database.h"
 #include "storage/status.h"
 
@@ -89,6 +95,31 @@ class Backend {
   virtual Result<double> Ping() = 0;
   // Embedded only: the problems Dataset::Check finds in one dataset.
   virtual Result<std::vector<std::string>> Check(const std::string& name) = 0;
+
+  // ---- Editing operators (edit/operators.h). Each change is one transaction of the dataset:
+  // Revert(lsn) undoes it, and reverting that undo's lsn redoes it.
+
+  // Sets, adds to, subtracts from or intersects the selection held in label bit req.bit.
+  virtual Result<edit::SelectResult> Select(const std::string& name,
+                                            const edit::SelectRequest& req) = 0;
+  // 4D graph cut inside req.roi, seeded by the stroke bits; the result goes to req.out_bit.
+  // Only k, intra_radius, inter_radius and use_normals of req.params reach a server (the
+  // protocol's fields): a request that changes the others is Unsupported there.
+  virtual Result<edit::GraphCutReply> GraphCut(const std::string& name,
+                                               const edit::GraphCutRequest& req) = 0;
+  // Copies the points carrying `bit` (within `region`, if given) to the named clipboard; with
+  // `cut`, deletes them in the same step (CopyResult::lsn, else 0).
+  virtual Result<edit::CopyResult> Copy(const std::string& name, int bit,
+                                        const std::optional<Region>& region,
+                                        const std::string& clipboard, bool cut) = 0;
+  // Inserts the clipboard's points moved by `map`, as new points.
+  virtual Result<CommitInfo> Paste(const std::string& name, const std::string& clipboard,
+                                   const Affine4& map) = 0;
+  // Inserts `object` into frames first_frame .. first_frame + frame_count - 1, offset by
+  // trajectory[i] (metres) in frame first_frame + i (static if the trajectory is empty).
+  virtual Result<CommitInfo> Composite(const std::string& name, const std::vector<Point>& object,
+                                       uint32_t first_frame, uint32_t frame_count,
+                                       const std::vector<std::array<double, 3>>& trajectory) = 0;
 };
 
 // On a data directory, opened (with an advisory lock) on first use.

@@ -5,6 +5,10 @@
 //   hvdb --data DIR import walk --frame 0 --units-scale 0.01 f380.ply f381.ply
 //   hvdb --data DIR window walk --box -2 2 -2 2 -2 2 0 1 --out all.ply
 //   hvdb --server 127.0.0.1:7878 slice walk --normal 0 0 0 1 --offset 0.0334 --thickness 0.01
+//   hvdb --data DIR select walk --bit 1 --box -2 2 -2 2 -2 2 0 0.1 --rect 290 100 350 200
+//       --look-at -0.3 -0.9 -3 -0.3 -0.9 0 --fov 50 --size 640 480     (one line)
+//   hvdb --data DIR cut walk --bit 0 --clipboard man
+//   hvdb --data DIR paste walk --clipboard man --translate 1 0 0 0
 //
 // Every subcommand runs the same code in both modes, through client::Backend (client/backend.h);
 // only `check` (the data directory's files) is embedded-only and `ping` server-only.
@@ -15,14 +19,18 @@
 
 #include <algorithm>
 #include <array>
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <cstdarg>
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <exception>
+#include <fstream>
 #include <iostream>
+#include <iterator>
 #include <map>
 #include <memory>
 #include <optional>
@@ -253,6 +261,73 @@ struct PingArgs {
   bool json = false;
 };
 
+// The region an editing command works in: a 4D box, or a hyperslice as `slice` takes it.
+struct RegionArgs {
+  std::vector<double> box, normal, clip_box;
+  double offset = 0, thickness = 0;
+  bool clip_frames = false;
+  uint32_t max_frames = 0;
+  CLI::Option *box_opt = nullptr, *normal_opt = nullptr;
+};
+
+// The camera a lasso, marquee or brush is drawn through.
+struct CameraArgs {
+  std::string file;
+  std::vector<double> look_at;
+  std::vector<double> up{0, -1, 0};
+  double fov = 0;
+  std::vector<uint32_t> size;
+  CLI::Option *file_opt = nullptr, *look_at_opt = nullptr;
+};
+
+struct SelectArgs {
+  std::string name;
+  int bit = 0;
+  std::string mode = "replace";
+  RegionArgs region;
+  CameraArgs camera;
+  std::vector<double> lasso, rect, brush;
+  double pixel_radius = 5, radius = 0.02;
+  bool nearest = false;
+  bool json = false;
+  CLI::Option *lasso_opt = nullptr, *rect_opt = nullptr, *brush_opt = nullptr;
+};
+
+struct GraphCutArgs {
+  std::string name;
+  int fg_bit = 1, bg_bit = 2, out_bit = 0;
+  RegionArgs roi;
+  int k = 8;
+  double intra_radius = 0.02, inter_radius = 0.04;
+  bool colour_only = false;
+  bool json = false;
+};
+
+struct CopyArgs {  // copy and cut
+  std::string name;
+  int bit = 0;
+  std::string clipboard;
+  RegionArgs region;
+  bool json = false;
+};
+
+struct PasteArgs {
+  std::string name;
+  std::string clipboard;
+  std::vector<double> translate, matrix;
+  bool json = false;
+};
+
+struct CompositeArgs {
+  std::string name;
+  std::string ply;
+  double units_scale = 1.0;
+  uint32_t first_frame = 0;
+  uint32_t frames = 0;
+  std::string trajectory;
+  bool json = false;
+};
+
 // A --box X0 X1 Y0 Y1 Z0 Z1 T0 T1 as a Window; nullopt (after a usage message) if malformed.
 std::optional<Window> BoxToWindow(const std::vector<double>& v, const std::string& command,
                                   const std::string& option, int* rc) {
@@ -272,6 +347,286 @@ std::optional<Window> BoxToWindow(const std::vector<double>& v, const std::strin
     }
   }
   return w;
+}
+
+// A hyperslice from --normal/--offset/--thickness (and the frame bound and --clip-box); nullopt
+// (after a usage message) if malformed.
+std::optional<hvdb::Slice> MakeSlice(const std::vector<double>& normal, double offset,
+                                     double thickness, bool clip_frames, uint32_t max_frames,
+                                     const std::vector<double>& clip_box,
+                                     const std::string& command, int* rc) {
+  hvdb::Slice s;
+  if (normal.size() != 4) {
+    *rc = Usage(command, "--normal takes 4 numbers NX NY NZ NT");
+    return std::nullopt;
+  }
+  bool nonzero = false;
+  for (size_t i = 0; i < 4; ++i) {
+    s.normal[i] = normal[i];
+    if (!std::isfinite(normal[i])) {
+      *rc = Usage(command, "--normal must be finite");
+      return std::nullopt;
+    }
+    nonzero |= normal[i] != 0;
+  }
+  if (!nonzero) {
+    *rc = Usage(command, "--normal must not be all zero");
+    return std::nullopt;
+  }
+  s.offset = offset;
+  s.thickness = thickness;
+  s.on_too_many_frames =
+      clip_frames ? hvdb::Slice::FrameBound::kClip : hvdb::Slice::FrameBound::kError;
+  s.max_frames = max_frames;
+  if (!clip_box.empty()) {
+    s.clip = BoxToWindow(clip_box, command, "--clip-box", rc);
+    if (!s.clip) return std::nullopt;
+  }
+  return s;
+}
+
+// --box or --normal/--offset/--thickness as the region of an editing command, shown in the
+// help under `group`.
+void AddRegionOptions(CLI::App* cmd, RegionArgs* r, const std::string& group) {
+  r->box_opt =
+      cmd->add_option("--box", r->box, "X0 X1 Y0 Y1 Z0 Z1 T0 T1: a 4D box (metres, seconds)")
+          ->expected(8)
+          ->group(group);
+  r->normal_opt =
+      cmd->add_option("--normal", r->normal,
+                      "NX NY NZ NT: instead, the hyperslice |N . (x, y, z, s t) - B| <= DB, as "
+                      "'hvdb slice' shows it (with --offset B --thickness DB)")
+          ->expected(4)
+          ->group(group);
+  CLI::Option* offset =
+      cmd->add_option("--offset", r->offset, "B of the slice")->needs(r->normal_opt)->group(group);
+  CLI::Option* thickness = cmd->add_option("--thickness", r->thickness, "DB >= 0 of the slice")
+                               ->check(NonNegative())
+                               ->needs(r->normal_opt)
+                               ->group(group);
+  r->normal_opt->needs(offset);
+  r->normal_opt->needs(thickness);
+  r->normal_opt->excludes(r->box_opt);
+  cmd->add_flag("--clip-frames", r->clip_frames,
+                "With --normal: use only the first frames when the slice spans too many (else "
+                "error)")
+      ->needs(r->normal_opt)
+      ->group(group);
+  cmd->add_option("--max-frames", r->max_frames,
+                  "With --normal: bound on the frames the slice spans (default: the "
+                  "database's, 64)")
+      ->needs(r->normal_opt)
+      ->group(group);
+  cmd->add_option("--clip-box", r->clip_box, "With --normal: X0 X1 Y0 Y1 Z0 Z1 T0 T1 clipping it")
+      ->expected(8)
+      ->needs(r->normal_opt)
+      ->group(group);
+}
+
+// The region given by AddRegionOptions' options into *out (nullopt: none given). False (after
+// a usage message, exit status in *rc) if malformed.
+bool ParseRegion(const RegionArgs& r, const std::string& command, std::optional<Region>* out,
+                 int* rc) {
+  out->reset();
+  if (r.box_opt->count() > 0) {
+    std::optional<hvdb::Window> w = BoxToWindow(r.box, command, "--box", rc);
+    if (!w) return false;
+    *out = Region(*w);
+  } else if (r.normal_opt->count() > 0) {
+    std::optional<hvdb::Slice> s = MakeSlice(r.normal, r.offset, r.thickness, r.clip_frames,
+                                             r.max_frames, r.clip_box, command, rc);
+    if (!s) return false;
+    *out = Region(*s);
+  }
+  return true;
+}
+
+// A label bit option: 0..31.
+CLI::Option* AddBit(CLI::App* cmd, const std::string& name, int* bit, const std::string& help) {
+  return cmd->add_option(name, *bit, help)->check(CLI::Range(0, 31));
+}
+
+// A --clipboard name: the rules of dataset names (it is a file DIR/clipboards/NAME.hvc).
+std::optional<int> CheckClipboardName(const std::string& name, const std::string& command) {
+  if (ValidateDatasetName(name).ok()) return std::nullopt;
+  return Usage(command, "--clipboard '" + name +
+                            "': a clipboard name is 1-64 letters, digits, '_', '-' or '.', not "
+                            "starting with '.'");
+}
+
+using Vec3 = std::array<double, 3>;
+
+Vec3 Cross(const Vec3& a, const Vec3& b) {
+  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+}
+
+double Norm(const Vec3& a) { return std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]); }
+
+// The pinhole camera of --look-at EX EY EZ TX TY TZ --fov DEG --size W H [--up UX UY UZ]:
+// OpenCV axes (x right, y down, z forward), square pixels, the principal point at the image
+// centre (pixel centres at integers), `fov` the vertical field of view. world_from_camera's
+// columns are the camera's axes and centre in the world.
+std::optional<CameraInfo> LookAtCamera(const CameraArgs& a, const std::string& command, int* rc) {
+  if (a.look_at.size() != 6) {
+    *rc = Usage(command, "--look-at takes 6 numbers EX EY EZ TX TY TZ (eye and target)");
+    return std::nullopt;
+  }
+  if (a.size.size() != 2) {
+    *rc = Usage(command, "--size takes 2 numbers W H (pixels)");
+    return std::nullopt;
+  }
+  if (a.up.size() != 3) {
+    *rc = Usage(command, "--up takes 3 numbers UX UY UZ");
+    return std::nullopt;
+  }
+  for (double v : a.look_at) {
+    if (!std::isfinite(v)) {
+      *rc = Usage(command, "--look-at must be finite");
+      return std::nullopt;
+    }
+  }
+  const Vec3 eye{a.look_at[0], a.look_at[1], a.look_at[2]};
+  Vec3 forward{a.look_at[3] - eye[0], a.look_at[4] - eye[1], a.look_at[5] - eye[2]};
+  const Vec3 up{a.up[0], a.up[1], a.up[2]};
+  double fn = Norm(forward);
+  if (!(fn > 0)) {
+    *rc = Usage(command, "--look-at: the eye and the target must differ");
+    return std::nullopt;
+  }
+  for (double& v : forward) v /= fn;
+  Vec3 right = Cross(forward, up);  // the image's x: up x forward is to the right
+  double rn = Norm(right);
+  if (!(rn > 1e-9 * Norm(up)) || !std::isfinite(rn)) {
+    *rc = Usage(command, Printf("--up %g %g %g is parallel to the view direction (or zero): give "
+                                "another --up",
+                                up[0], up[1], up[2]));
+    return std::nullopt;
+  }
+  for (double& v : right) v /= rn;
+  const Vec3 down = Cross(forward, right);  // y: x (right) x y (down) = z (forward)
+  CameraInfo c;
+  c.width = a.size[0];
+  c.height = a.size[1];
+  const double kPi = 3.14159265358979323846;
+  c.fx = c.fy = 0.5 * c.height / std::tan(a.fov * kPi / 360.0);
+  c.cx = 0.5 * c.width - 0.5;
+  c.cy = 0.5 * c.height - 0.5;
+  c.world_from_camera = {right[0], down[0], forward[0], eye[0],  //
+                         right[1], down[1], forward[1], eye[1],  //
+                         right[2], down[2], forward[2], eye[2],  //
+                         0,        0,       0,          1};
+  return c;
+}
+
+// A camera file: {"fx", "fy", "cx", "cy", "width", "height", "world_from_camera": [16 values,
+// row-major]}. Its problems are errors of the file (exit status 1), named with the file.
+Result<CameraInfo> ReadCameraFile(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    return Status::IOError("cannot read camera file '" + path + "': " + std::strerror(errno));
+  }
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  json j = json::parse(text, nullptr, /*allow_exceptions=*/false);
+  auto bad = [&path](const std::string& why) {
+    return Status::InvalidArgument(
+        "camera file '" + path + "': " + why +
+        " (expected {\"fx\", \"fy\", \"cx\", \"cy\", \"width\", \"height\", "
+        "\"world_from_camera\": [16 numbers, row-major]})");
+  };
+  if (!j.is_object()) return bad("not a JSON object");
+  CameraInfo c;
+  for (auto [key, field] : {std::pair<const char*, double*>{"fx", &c.fx},
+                            {"fy", &c.fy},
+                            {"cx", &c.cx},
+                            {"cy", &c.cy}}) {
+    auto it = j.find(key);
+    if (it == j.end() || !it->is_number()) {
+      return bad(std::string("\"") + key + "\" is not a number");
+    }
+    *field = it->get<double>();
+    if (!std::isfinite(*field)) return bad(std::string("\"") + key + "\" is not finite");
+  }
+  if (!(c.fx > 0) || !(c.fy > 0)) return bad("fx and fy must be > 0");
+  for (auto [key, field] :
+       {std::pair<const char*, uint32_t*>{"width", &c.width}, {"height", &c.height}}) {
+    auto it = j.find(key);
+    if (it == j.end() || !it->is_number_unsigned() || it->get<uint64_t>() == 0 ||
+        it->get<uint64_t>() > UINT32_MAX) {
+      return bad(std::string("\"") + key + "\" is not a positive integer");
+    }
+    *field = it->get<uint32_t>();
+  }
+  auto m = j.find("world_from_camera");
+  if (m == j.end() || !m->is_array() || m->size() != 16) {
+    return bad("\"world_from_camera\" is not an array of 16 numbers");
+  }
+  for (size_t i = 0; i < 16; ++i) {
+    if (!(*m)[i].is_number() || !std::isfinite((*m)[i].get<double>())) {
+      return bad("\"world_from_camera\" is not an array of 16 finite numbers");
+    }
+    c.world_from_camera[i] = (*m)[i].get<double>();
+  }
+  const auto& w = c.world_from_camera;
+  if (w[12] != 0 || w[13] != 0 || w[14] != 0 || w[15] != 1) {
+    return bad("the last row of \"world_from_camera\" must be 0 0 0 1");
+  }
+  // The operators project with the transpose of the rotation: it must be one.
+  for (size_t i = 0; i < 3; ++i) {
+    for (size_t k = 0; k < 3; ++k) {
+      double d = w[i] * w[k] + w[4 + i] * w[4 + k] + w[8 + i] * w[8 + k];
+      if (std::abs(d - (i == k ? 1.0 : 0.0)) > 1e-4) {
+        return bad("the rotation of \"world_from_camera\" is not orthonormal");
+      }
+    }
+  }
+  Vec3 c0{w[0], w[4], w[8]}, c1{w[1], w[5], w[9]}, c2{w[2], w[6], w[10]};
+  Vec3 x = Cross(c0, c1);
+  if (x[0] * c2[0] + x[1] * c2[1] + x[2] * c2[2] < 0) {
+    return bad("\"world_from_camera\" is a reflection (x right, y down, z forward is a "
+               "right-handed frame)");
+  }
+  return c;
+}
+
+// A trajectory file: one line 'dx,dy,dz' (metres) per frame; blank lines and lines starting
+// with '#' are skipped.
+Result<std::vector<std::array<double, 3>>> ReadTrajectory(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    return Status::IOError("cannot read trajectory file '" + path + "': " + std::strerror(errno));
+  }
+  std::vector<std::array<double, 3>> out;
+  std::string line;
+  for (size_t n = 1; std::getline(in, line); ++n) {
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    size_t first = line.find_first_not_of(" \t");
+    if (first == std::string::npos || line[first] == '#') continue;
+    std::array<double, 3> d{};
+    const char* p = line.c_str();
+    bool ok = true;
+    for (size_t i = 0; i < 3 && ok; ++i) {
+      char* end = nullptr;
+      d[i] = std::strtod(p, &end);
+      ok = end != p && std::isfinite(d[i]);
+      p = end;
+      while (ok && (*p == ' ' || *p == '\t')) ++p;
+      if (ok && i < 2) ok = *p++ == ',';
+    }
+    if (!ok || *p != '\0') {
+      return Status::InvalidArgument(path + ":" + std::to_string(n) +
+                                     ": expected 'dx,dy,dz' (metres), got '" + line + "'");
+    }
+    out.push_back(d);
+  }
+  if (in.bad()) return Status::IOError("cannot read trajectory file '" + path + "'");
+  return out;
+}
+
+// "no clipboard 'c'" said with where clipboards live.
+Status ExplainClipboard(Status s, const client::Backend& b) {
+  if (!s.IsNotFound() || s.message().rfind("no clipboard", 0) != 0) return s;
+  return Status(s.code(), s.message() + (b.remote() ? " on " : " in ") + b.where() +
+                              " ('hvdb copy' and 'hvdb cut' fill clipboards)");
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -298,6 +653,12 @@ class Cli {
   int RunQuery(const Region& region, const QueryArgs& q, const std::string& command);
   int CmdEdit();
   int CmdUndo();
+  int CmdRedo();
+  int CmdSelect();
+  int CmdGraphCut();
+  int CmdCopy(const CopyArgs& a, bool cut);
+  int CmdPaste();
+  int CmdComposite();
   int CmdStats();
   int CmdCheck();
   int CmdDrop();
@@ -311,11 +672,17 @@ class Cli {
   WindowArgs window_;
   SliceArgs slice_;
   EditArgs edit_;
-  UndoArgs undo_;
+  UndoArgs undo_, redo_;
   NameArgs datasets_, describe_, stats_, check_, drop_;
   PingArgs ping_;
+  SelectArgs select_;
+  GraphCutArgs graphcut_;
+  CopyArgs copy_, cut_;
+  PasteArgs paste_;
+  CompositeArgs composite_;
   CLI::App *datasets_cmd_, *create_cmd_, *describe_cmd_, *import_cmd_, *window_cmd_, *slice_cmd_,
-      *edit_cmd_, *undo_cmd_, *stats_cmd_, *check_cmd_, *drop_cmd_, *ping_cmd_;
+      *edit_cmd_, *undo_cmd_, *redo_cmd_, *select_cmd_, *graphcut_cmd_, *copy_cmd_, *cut_cmd_,
+      *paste_cmd_, *composite_cmd_, *stats_cmd_, *check_cmd_, *drop_cmd_, *ping_cmd_;
 };
 
 void AddQueryOptions(CLI::App* cmd, QueryArgs* q) {
@@ -337,6 +704,9 @@ Cli::Cli(CLI::App& app) : app_(app) {
   app.require_subcommand(0, 1);
   app.footer(
       "Positions are metres, times seconds (t = frame / fps). Each command has --help.\n"
+      "Editing: select and graphcut mark points in label bits; copy, cut and paste move them\n"
+      "through named clipboards; composite inserts an object; every change prints an lsn for\n"
+      "undo (and redo).\n"
       "With --server HOST:PORT every command but check runs on an hvdb-server instead of --data;\n"
       "a server that needs a token gets it from --token or the environment variable HVDB_TOKEN.\n"
       "Exit status: 0 success, 1 error (printed as 'hvdb: <status>'), 2 usage error.\n"
@@ -449,10 +819,236 @@ Cli::Cli(CLI::App& app) : app_(app) {
       ->check(Positive());
   edit_cmd_->add_flag("--json", edit_.json, "Print JSON");
 
-  undo_cmd_ = app.add_subcommand("undo", "Revert a committed edit (commits its inverse)");
+  undo_cmd_ = app.add_subcommand(
+      "undo", "Revert a committed edit (commits its inverse); 'hvdb redo' undoes the undo");
   undo_cmd_->add_option("name", undo_.name, "Dataset")->required();
-  undo_cmd_->add_option("lsn", undo_.lsn, "Sequence number printed by edit")->required();
+  undo_cmd_
+      ->add_option("lsn", undo_.lsn,
+                   "Sequence number printed by edit, select, graphcut, cut, paste or composite")
+      ->required();
   undo_cmd_->add_flag("--json", undo_.json, "Print JSON");
+  undo_cmd_->footer(
+      "Undo goes through the transaction log: it reads transaction LSN's changes from the log and\n"
+      "commits their inverse as a new transaction with its own lsn (printed), so the undo is\n"
+      "itself atomic, durable and undoable: 'hvdb redo NAME UNDO_LSN' re-applies the edit.\n"
+      "An edit is refused if a later transaction changed the same points: undo that one first.");
+
+  redo_cmd_ = app.add_subcommand(
+      "redo", "Re-apply an undone edit: reverts the undo whose lsn 'hvdb undo' printed");
+  redo_cmd_->add_option("name", redo_.name, "Dataset")->required();
+  redo_cmd_->add_option("lsn", redo_.lsn, "Sequence number of the undo (as printed by undo)")
+      ->required();
+  redo_cmd_->add_flag("--json", redo_.json, "Print JSON");
+  redo_cmd_->footer(
+      "Undo and redo go through the transaction log: 'hvdb undo NAME LSN' commits the inverse of\n"
+      "transaction LSN as a new transaction U; 'hvdb redo NAME U' commits the inverse of U, which\n"
+      "is the original edit again, as a further transaction R (printed). Nothing is rewritten or\n"
+      "forgotten: the log keeps every step, each one atomic and durable, and 'hvdb undo NAME R'\n"
+      "undoes the redo. Example:\n"
+      "  hvdb cut walk --bit 0 --clipboard man   # committed lsn 7\n"
+      "  hvdb undo walk 7                        # committed lsn 8: the points are back\n"
+      "  hvdb redo walk 8                        # committed lsn 9: cut again");
+
+  select_cmd_ = app.add_subcommand(
+      "select",
+      "Select points into label bit B: those of a region (--box or --normal/--offset/--thickness),"
+      " or only those under a lasso, marquee or 3D brush seen through a camera");
+  select_cmd_->add_option("name", select_.name, "Dataset")->required();
+  AddBit(select_cmd_, "--bit", &select_.bit, "Label bit 0..31 that holds the selection")
+      ->required();
+  select_cmd_
+      ->add_option("--mode", select_.mode,
+                   "How the new set combines with the points already carrying the bit: "
+                   "replace, add, subtract or intersect")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"replace", "add", "subtract", "intersect"}));
+  AddRegionOptions(select_cmd_, &select_.region,
+                   "Region (required): what is viewed; nothing outside it is selected");
+  const std::string shape = "Shape (optional; without one the whole region is selected)";
+  select_.lasso_opt =
+      select_cmd_
+          ->add_option("--lasso", select_.lasso,
+                       "U0 V0 U1 V1 U2 V2 ...: the region's points projecting inside this polygon "
+                       "(pixels, >= 3 vertices)")
+          ->group(shape);
+  select_.rect_opt = select_cmd_
+                         ->add_option("--rect", select_.rect,
+                                      "U0 V0 U1 V1: a marquee, the rectangle between these corners "
+                                      "(pixels)")
+                         ->expected(4)
+                         ->group(shape);
+  select_.brush_opt =
+      select_cmd_
+          ->add_option("--brush", select_.brush,
+                       "U V: the 3D paintbrush, a sphere of --radius metres around the surface "
+                       "under pixel (U, V)")
+          ->expected(2)
+          ->group(shape);
+  select_.lasso_opt->excludes(select_.rect_opt)->excludes(select_.brush_opt);
+  select_.rect_opt->excludes(select_.brush_opt);
+  select_cmd_
+      ->add_option("--pixel-radius", select_.pixel_radius,
+                   "With --brush: the surface depth is taken from the points within R pixels")
+      ->capture_default_str()
+      ->check(Positive())
+      ->needs(select_.brush_opt)
+      ->group(shape);
+  select_cmd_->add_option("--radius", select_.radius, "With --brush: the brush's radius in metres")
+      ->capture_default_str()
+      ->check(Positive())
+      ->needs(select_.brush_opt)
+      ->group(shape);
+  select_cmd_
+      ->add_flag("--nearest", select_.nearest,
+                 "With --brush: the nearest depth under the brush (default: the median)")
+      ->needs(select_.brush_opt)
+      ->group(shape);
+  const std::string camera = "Camera (for --lasso, --rect and --brush)";
+  CameraArgs& ca = select_.camera;
+  ca.file_opt = select_cmd_
+                    ->add_option("--camera", ca.file,
+                                 "FILE.json: {\"fx\", \"fy\", \"cx\", \"cy\", \"width\", "
+                                 "\"height\", \"world_from_camera\": [16 numbers, row-major]} "
+                                 "(pinhole; x right, y down, z forward)")
+                    ->group(camera);
+  ca.look_at_opt = select_cmd_
+                       ->add_option("--look-at", ca.look_at,
+                                    "EX EY EZ TX TY TZ: a pinhole camera at the eye looking at "
+                                    "the target (needs --fov and --size)")
+                       ->expected(6)
+                       ->excludes(ca.file_opt)
+                       ->group(camera);
+  CLI::Option* fov = select_cmd_
+                         ->add_option("--fov", ca.fov,
+                                      "With --look-at: vertical field of view in degrees")
+                         ->check(CLI::Range(0.001, 179.0))
+                         ->needs(ca.look_at_opt)
+                         ->group(camera);
+  CLI::Option* size = select_cmd_
+                          ->add_option("--size", ca.size,
+                                       "With --look-at: image width and height W H in pixels")
+                          ->expected(2)
+                          ->check(CLI::Range(1u, 100000u))
+                          ->needs(ca.look_at_opt)
+                          ->group(camera);
+  select_cmd_
+      ->add_option("--up", ca.up, "With --look-at: the world direction shown upwards in the image")
+      ->expected(3)
+      ->capture_default_str()
+      ->needs(ca.look_at_opt)
+      ->group(camera);
+  ca.look_at_opt->needs(fov)->needs(size);
+  select_cmd_->add_flag("--json", select_.json, "Print JSON");
+  select_cmd_->footer(
+      "Prints the points the shape matched, those carrying the bit afterwards and the lsn of the\n"
+      "change (0: nothing changed), plus the brush's centre. Positions are those the viewer sees:\n"
+      "projected ones for a slice. Undo with 'hvdb undo NAME LSN'. Example (a marquee):\n"
+      "  hvdb select walk --bit 1 --box -2 2 -2 2 -2 2 0 0.1 --rect 290 100 350 200 \\\n"
+      "      --look-at -0.3 -0.9 -3 -0.3 -0.9 0 --fov 50 --size 640 480");
+
+  graphcut_cmd_ = app.add_subcommand(
+      "graphcut",
+      "4D graph-cut object selection: from foreground and background strokes (label bits, e.g. "
+      "made with select) to the whole object inside a region of interest");
+  graphcut_cmd_->add_option("name", graphcut_.name, "Dataset")->required();
+  AddBit(graphcut_cmd_, "--fg-bit", &graphcut_.fg_bit, "Label bit of the foreground strokes")
+      ->required();
+  AddBit(graphcut_cmd_, "--bg-bit", &graphcut_.bg_bit, "Label bit of the background strokes")
+      ->required();
+  AddBit(graphcut_cmd_, "--out-bit", &graphcut_.out_bit,
+         "Label bit that receives the selection (set inside it, cleared elsewhere in the ROI)")
+      ->required();
+  AddRegionOptions(graphcut_cmd_, &graphcut_.roi,
+                   "Region of interest (required): the points the cut decides on");
+  graphcut_cmd_
+      ->add_option("--k", graphcut_.k, "Intra-frame neighbours per point (inter-frame: k / 2)")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 64));
+  graphcut_cmd_
+      ->add_option("--intra-radius", graphcut_.intra_radius,
+                   "Neighbours within a frame are at most this far (metres)")
+      ->capture_default_str()
+      ->check(Positive());
+  graphcut_cmd_
+      ->add_option("--inter-radius", graphcut_.inter_radius,
+                   "Neighbours in the next frame are at most this far (metres)")
+      ->capture_default_str()
+      ->check(Positive());
+  graphcut_cmd_->add_flag("--colour-only", graphcut_.colour_only,
+                          "Link costs from colours only (default: colours and normals)");
+  graphcut_cmd_->add_flag("--json", graphcut_.json, "Print JSON");
+  graphcut_cmd_->footer(
+      "Prints the ROI's points, those selected, the energy, the intra- and inter-frame edge\n"
+      "counts, the time of each step (load, neighbours, GMM, graph, max-flow, commit) and the\n"
+      "lsn. The radii should exceed the sampling distance of the points.");
+
+  for (auto [cmd, args, cut] : {std::tuple<CLI::App**, CopyArgs*, bool>{&copy_cmd_, &copy_, false},
+                                {&cut_cmd_, &cut_, true}}) {
+    *cmd = app.add_subcommand(
+        cut ? "cut" : "copy",
+        cut ? "Move the points carrying label bit B (in a region, if given) to a named "
+              "clipboard: copies them, then deletes them in one transaction"
+            : "Copy the points carrying label bit B (in a region, if given) to a named clipboard");
+    (*cmd)->add_option("name", args->name, "Dataset")->required();
+    AddBit(*cmd, "--bit", &args->bit, "Label bit of the points (e.g. set by select or graphcut)")
+        ->required();
+    (*cmd)
+        ->add_option("--clipboard", args->clipboard,
+                     "Clipboard name (letters, digits, '_', '-', '.'); replaced if it exists")
+        ->required();
+    AddRegionOptions(*cmd, &args->region,
+                     "Region (optional): only the points in it (default: all frames)");
+    (*cmd)->add_flag("--json", args->json, "Print JSON");
+    (*cmd)->footer(
+        "Clipboards are files DIR/clipboards/NAME.hvc of the data directory: the embedded CLI on\n"
+        "--data DIR and hvdb-server --data DIR share them, and they outlive the session. 'hvdb\n"
+        "paste' inserts a clipboard's points." +
+        std::string(cut ? "\nPrints the lsn of the deletion: 'hvdb undo NAME LSN' puts the points "
+                          "back."
+                        : ""));
+  }
+
+  paste_cmd_ = app.add_subcommand(
+      "paste", "Insert a clipboard's points as new points, moved by --matrix and --translate");
+  paste_cmd_->add_option("name", paste_.name, "Dataset")->required();
+  paste_cmd_->add_option("--clipboard", paste_.clipboard, "Clipboard name (see copy, cut)")
+      ->required();
+  paste_cmd_
+      ->add_option("--translate", paste_.translate,
+                   "DX DY DZ DT: add this (metres, seconds; DT moves them to later frames)")
+      ->expected(4);
+  paste_cmd_
+      ->add_option("--matrix", paste_.matrix,
+                   "16 numbers: a row-major 4x4 matrix over (x, y, z, t) applied before "
+                   "--translate (default: identity)")
+      ->expected(16);
+  paste_cmd_->add_flag("--json", paste_.json, "Print JSON");
+  paste_cmd_->footer(
+      "Each point (x, y, z, t) becomes MATRIX (x, y, z, t) + (DX, DY, DZ, DT); its frame follows\n"
+      "the new t. Prints the lsn: 'hvdb undo NAME LSN' removes the pasted points again.");
+
+  composite_cmd_ = app.add_subcommand(
+      "composite",
+      "Insert an object (a PLY point cloud) into consecutive frames, still or along a trajectory");
+  composite_cmd_->add_option("name", composite_.name, "Dataset")->required();
+  composite_cmd_->add_option("--ply", composite_.ply, "FILE.ply: the object")->required();
+  composite_cmd_
+      ->add_option("--units-scale", composite_.units_scale,
+                   "Multiply the object's positions by this (0.01: the file is in centimetres)")
+      ->capture_default_str()
+      ->check(Positive());
+  composite_cmd_->add_option("--first-frame", composite_.first_frame, "First frame F")->required();
+  composite_cmd_->add_option("--frames", composite_.frames, "Number of frames N (> 0)")
+      ->required()
+      ->check(CLI::Range(1u, UINT32_MAX));
+  composite_cmd_->add_option(
+      "--trajectory", composite_.trajectory,
+      "FILE.csv: one line 'dx,dy,dz' (metres) per frame, offsetting the object in frame F + i "
+      "(default: it stays put)");
+  composite_cmd_->add_flag("--json", composite_.json, "Print JSON");
+  composite_cmd_->footer(
+      "All frames are inserted in one transaction; prints its lsn ('hvdb undo NAME LSN' removes\n"
+      "the object again). Blank lines and lines starting with '#' in the trajectory are skipped.");
 
   stats_cmd_ = app.add_subcommand("stats", "Storage and cache statistics");
   stats_cmd_->add_option("name", stats_.name, "Dataset (default: all)");
@@ -503,7 +1099,8 @@ int Cli::Run() {
   if (app_.get_subcommands().empty()) {
     return Usage("",
                  "a command is required: datasets, create, describe, import, window, slice, "
-                 "edit, undo, stats, check, drop or ping");
+                 "edit, undo, redo, select, graphcut, copy, cut, paste, composite, stats, "
+                 "check, drop or ping");
   }
   if (std::optional<int> rc = MakeBackend()) return *rc;
   if (datasets_cmd_->parsed()) return CmdDatasets();
@@ -514,6 +1111,13 @@ int Cli::Run() {
   if (slice_cmd_->parsed()) return CmdSlice();
   if (edit_cmd_->parsed()) return CmdEdit();
   if (undo_cmd_->parsed()) return CmdUndo();
+  if (redo_cmd_->parsed()) return CmdRedo();
+  if (select_cmd_->parsed()) return CmdSelect();
+  if (graphcut_cmd_->parsed()) return CmdGraphCut();
+  if (copy_cmd_->parsed()) return CmdCopy(copy_, /*cut=*/false);
+  if (cut_cmd_->parsed()) return CmdCopy(cut_, /*cut=*/true);
+  if (paste_cmd_->parsed()) return CmdPaste();
+  if (composite_cmd_->parsed()) return CmdComposite();
   if (stats_cmd_->parsed()) return CmdStats();
   if (check_cmd_->parsed()) return CmdCheck();
   if (drop_cmd_->parsed()) return CmdDrop();
@@ -659,26 +1263,11 @@ int Cli::CmdWindow() {
 
 int Cli::CmdSlice() {
   const SliceArgs& a = slice_;
-  hvdb::Slice s;
-  if (a.normal.size() != 4) return Usage("slice", "--normal takes 4 numbers NX NY NZ NT");
-  bool nonzero = false;
-  for (int i = 0; i < 4; ++i) {
-    s.normal[i] = a.normal[i];
-    if (!std::isfinite(a.normal[i])) return Usage("slice", "--normal must be finite");
-    nonzero |= a.normal[i] != 0;
-  }
-  if (!nonzero) return Usage("slice", "--normal must not be all zero");
-  s.offset = a.offset;
-  s.thickness = a.thickness;
-  s.on_too_many_frames =
-      a.clip_frames ? hvdb::Slice::FrameBound::kClip : hvdb::Slice::FrameBound::kError;
-  s.max_frames = a.max_frames;
-  if (!a.clip_box.empty()) {
-    int rc = kExitOk;
-    s.clip = BoxToWindow(a.clip_box, "slice", "--clip-box", &rc);
-    if (!s.clip) return rc;
-  }
-  return RunQuery(Region(s), a.q, "slice");
+  int rc = kExitOk;
+  std::optional<hvdb::Slice> s = MakeSlice(a.normal, a.offset, a.thickness, a.clip_frames,
+                                           a.max_frames, a.clip_box, "slice", &rc);
+  if (!s) return rc;
+  return RunQuery(Region(*s), a.q, "slice");
 }
 
 int Cli::RunQuery(const Region& region, const QueryArgs& q, const std::string& command) {
@@ -852,6 +1441,312 @@ int Cli::CmdUndo() {
                 static_cast<unsigned long long>(ci->inserted),
                 static_cast<unsigned long long>(ci->removed));
   }
+  return kExitOk;
+}
+
+int Cli::CmdRedo() {
+  Result<CommitInfo> ci = db().Revert(redo_.name, redo_.lsn);
+  if (!ci.ok()) return Fail(ci.status());
+  if (redo_.json) {
+    PrintJson({{"redone", redo_.lsn},
+               {"lsn", ci->lsn},
+               {"inserted", ci->inserted},
+               {"removed", ci->removed}});
+  } else {
+    std::printf("redo: reverted lsn %llu: committed lsn %llu (inserted %llu, removed %llu)\n",
+                static_cast<unsigned long long>(redo_.lsn),
+                static_cast<unsigned long long>(ci->lsn),
+                static_cast<unsigned long long>(ci->inserted),
+                static_cast<unsigned long long>(ci->removed));
+  }
+  return kExitOk;
+}
+
+int Cli::CmdSelect() {
+  const SelectArgs& a = select_;
+  const std::string cmd = "select";
+  int rc = kExitOk;
+  edit::SelectRequest req;
+  std::optional<Region> region;
+  if (!ParseRegion(a.region, cmd, &region, &rc)) return rc;
+  if (!region) {
+    return Usage(cmd,
+                 "a region is required: --box X0 X1 Y0 Y1 Z0 Z1 T0 T1, or --normal NX NY NZ "
+                 "NT --offset B --thickness DB");
+  }
+  req.region = *region;
+  req.bit = a.bit;
+  static const std::map<std::string, edit::SelectMode> kModes = {
+      {"replace", edit::SelectMode::kReplace},
+      {"add", edit::SelectMode::kAdd},
+      {"subtract", edit::SelectMode::kSubtract},
+      {"intersect", edit::SelectMode::kIntersect}};
+  req.mode = kModes.at(a.mode);  // CLI11 checked it
+
+  const bool lasso = a.lasso_opt->count() > 0, rect = a.rect_opt->count() > 0,
+             brush = a.brush_opt->count() > 0;
+  const bool have_camera = a.camera.file_opt->count() > 0 || a.camera.look_at_opt->count() > 0;
+  if (!lasso && !rect && !brush) {
+    if (have_camera) {
+      return Usage(cmd, "a camera (--camera, --look-at) is for --lasso, --rect or --brush");
+    }
+  } else {
+    if (!have_camera) {
+      return Usage(cmd, std::string(lasso  ? "--lasso"
+                                    : rect ? "--rect"
+                                           : "--brush") +
+                            " is drawn through a camera: give --camera FILE.json or --look-at "
+                            "EX EY EZ TX TY TZ --fov DEG --size W H");
+    }
+    std::vector<std::array<double, 2>> polygon;
+    if (lasso) {
+      if (a.lasso.size() % 2 != 0) {
+        return Usage(cmd, "--lasso takes pixel pairs U V (got " + std::to_string(a.lasso.size()) +
+                              " numbers)");
+      }
+      if (a.lasso.size() < 6) return Usage(cmd, "--lasso needs at least 3 vertices");
+      for (size_t i = 0; i < a.lasso.size(); i += 2)
+        polygon.push_back({a.lasso[i], a.lasso[i + 1]});
+    } else if (rect) {
+      const double u0 = std::min(a.rect[0], a.rect[2]), u1 = std::max(a.rect[0], a.rect[2]);
+      const double v0 = std::min(a.rect[1], a.rect[3]), v1 = std::max(a.rect[1], a.rect[3]);
+      if (!(u0 < u1) || !(v0 < v1)) {
+        return Usage(cmd, "--rect U0 V0 U1 V1: the corners must differ in both U and V");
+      }
+      polygon = {{u0, v0}, {u1, v0}, {u1, v1}, {u0, v1}};
+    }
+    for (const auto& q : polygon) {
+      if (!std::isfinite(q[0]) || !std::isfinite(q[1])) {
+        return Usage(cmd, std::string(lasso ? "--lasso" : "--rect") + " must be finite");
+      }
+    }
+    if (brush && (!std::isfinite(a.brush[0]) || !std::isfinite(a.brush[1]))) {
+      return Usage(cmd, "--brush U V must be finite");
+    }
+    CameraInfo camera;
+    if (a.camera.file_opt->count() > 0) {
+      Result<CameraInfo> c = ReadCameraFile(a.camera.file);
+      if (!c.ok()) return Fail(c.status());
+      camera = *c;
+    } else {
+      std::optional<CameraInfo> c = LookAtCamera(a.camera, cmd, &rc);
+      if (!c) return rc;
+      camera = *c;
+    }
+    if (brush) {
+      edit::Brush b;
+      b.camera = camera;
+      b.u = a.brush[0];
+      b.v = a.brush[1];
+      b.pixel_radius = a.pixel_radius;
+      b.radius = a.radius;
+      b.depth = a.nearest ? edit::Brush::Depth::kNearest : edit::Brush::Depth::kMedian;
+      req.shape = b;
+    } else {
+      req.shape = edit::Lasso{camera, std::move(polygon)};
+    }
+  }
+
+  Result<edit::SelectResult> r = db().Select(a.name, req);
+  if (!r.ok()) return Fail(r.status());
+  const std::string shape = lasso ? "lasso" : rect ? "rect" : brush ? "brush" : "region";
+  if (a.json) {
+    json j = {{"dataset", a.name}, {"bit", a.bit},          {"mode", a.mode},
+              {"shape", shape},    {"matched", r->matched}, {"selected", r->selected},
+              {"lsn", r->lsn}};
+    if (r->brush_center) j["brush_center"] = *r->brush_center;
+    PrintJson(j);
+    return kExitOk;
+  }
+  std::printf("%s: %llu points matched; %llu carry bit %d after %s\n", shape.c_str(),
+              static_cast<unsigned long long>(r->matched),
+              static_cast<unsigned long long>(r->selected), a.bit, a.mode.c_str());
+  if (r->brush_center) {
+    std::printf("brush centre (%.4f, %.4f, %.4f) m\n", (*r->brush_center)[0], (*r->brush_center)[1],
+                (*r->brush_center)[2]);
+  }
+  if (r->lsn != 0) {
+    std::printf("committed lsn %llu\n", static_cast<unsigned long long>(r->lsn));
+  } else {
+    std::printf("nothing changed (no commit, lsn 0)\n");
+  }
+  return kExitOk;
+}
+
+int Cli::CmdGraphCut() {
+  const GraphCutArgs& a = graphcut_;
+  const std::string cmd = "graphcut";
+  if (a.fg_bit == a.bg_bit) {
+    return Usage(cmd,
+                 "--fg-bit and --bg-bit must differ (both are " + std::to_string(a.fg_bit) + ")");
+  }
+  int rc = kExitOk;
+  std::optional<Region> roi;
+  if (!ParseRegion(a.roi, cmd, &roi, &rc)) return rc;
+  if (!roi) {
+    return Usage(cmd,
+                 "a region of interest is required: --box X0 X1 Y0 Y1 Z0 Z1 T0 T1, or "
+                 "--normal NX NY NZ NT --offset B --thickness DB");
+  }
+  edit::GraphCutRequest req;
+  req.roi = *roi;
+  req.foreground_bit = a.fg_bit;
+  req.background_bit = a.bg_bit;
+  req.out_bit = a.out_bit;
+  req.params.k = a.k;
+  req.params.intra_radius = a.intra_radius;
+  req.params.inter_radius = a.inter_radius;
+  req.params.use_normals = !a.colour_only;
+  Result<edit::GraphCutReply> r = db().GraphCut(a.name, req);
+  if (!r.ok()) return Fail(r.status());
+  const edit::GraphCutResult& c = r->cut;
+  if (a.json) {
+    PrintJson({{"dataset", a.name},
+               {"out_bit", a.out_bit},
+               {"roi_points", r->roi_points},
+               {"selected", r->selected},
+               {"energy", c.energy},
+               {"intra_edges", c.intra_edges},
+               {"inter_edges", c.inter_edges},
+               {"lsn", r->lsn},
+               {"timings_ms",
+                {{"load", r->load_ms},
+                 {"neighbours", c.neighbours_ms},
+                 {"gmm", c.gmm_ms},
+                 {"graph", c.graph_ms},
+                 {"maxflow", c.maxflow_ms},
+                 {"commit", r->commit_ms}}}});
+    return kExitOk;
+  }
+  std::printf("%llu of %llu points in the ROI selected into bit %d\n",
+              static_cast<unsigned long long>(r->selected),
+              static_cast<unsigned long long>(r->roi_points), a.out_bit);
+  std::printf("energy %.6g; %llu intra-frame and %llu inter-frame edges\n", c.energy,
+              static_cast<unsigned long long>(c.intra_edges),
+              static_cast<unsigned long long>(c.inter_edges));
+  std::printf(
+      "time: load %.1f ms, neighbours %.1f ms, GMM %.1f ms, graph %.1f ms, max-flow %.1f ms, "
+      "commit %.1f ms\n",
+      r->load_ms, c.neighbours_ms, c.gmm_ms, c.graph_ms, c.maxflow_ms, r->commit_ms);
+  if (r->lsn != 0) {
+    std::printf("committed lsn %llu\n", static_cast<unsigned long long>(r->lsn));
+  } else {
+    std::printf("nothing changed (no commit, lsn 0)\n");
+  }
+  return kExitOk;
+}
+
+int Cli::CmdCopy(const CopyArgs& a, bool cut) {
+  const std::string cmd = cut ? "cut" : "copy";
+  if (std::optional<int> rc = CheckClipboardName(a.clipboard, cmd)) return *rc;
+  int rc = kExitOk;
+  std::optional<Region> region;
+  if (!ParseRegion(a.region, cmd, &region, &rc)) return rc;
+  Result<edit::CopyResult> r = db().Copy(a.name, a.bit, region, a.clipboard, cut);
+  if (!r.ok()) return Fail(r.status());
+  if (a.json) {
+    PrintJson({{"dataset", a.name},
+               {"bit", a.bit},
+               {"clipboard", a.clipboard},
+               {"points", r->points},
+               {"cut", cut},
+               {"lsn", r->lsn}});
+    return kExitOk;
+  }
+  std::printf("%s %llu points with bit %d to clipboard '%s'\n", cut ? "cut" : "copied",
+              static_cast<unsigned long long>(r->points), a.bit, a.clipboard.c_str());
+  if (cut && r->lsn != 0) {
+    std::printf("committed lsn %llu ('hvdb undo %s %llu' puts them back)\n",
+                static_cast<unsigned long long>(r->lsn), a.name.c_str(),
+                static_cast<unsigned long long>(r->lsn));
+  }
+  return kExitOk;
+}
+
+int Cli::CmdPaste() {
+  const PasteArgs& a = paste_;
+  const std::string cmd = "paste";
+  if (std::optional<int> rc = CheckClipboardName(a.clipboard, cmd)) return *rc;
+  Affine4 map;
+  if (!a.matrix.empty()) {
+    if (a.matrix.size() != 16) return Usage(cmd, "--matrix takes 16 numbers (row-major 4x4)");
+    for (size_t i = 0; i < 16; ++i) map.a[i] = a.matrix[i];
+  }
+  if (!a.translate.empty()) {
+    if (a.translate.size() != 4) return Usage(cmd, "--translate takes 4 numbers DX DY DZ DT");
+    for (size_t i = 0; i < 4; ++i) map.c[i] = a.translate[i];
+  }
+  for (double v : map.a) {
+    if (!std::isfinite(v)) return Usage(cmd, "--matrix must be finite");
+  }
+  for (double v : map.c) {
+    if (!std::isfinite(v)) return Usage(cmd, "--translate must be finite");
+  }
+  Result<CommitInfo> ci = db().Paste(a.name, a.clipboard, map);
+  if (!ci.ok()) return Fail(ExplainClipboard(ci.status(), db()));
+  if (a.json) {
+    PrintJson({{"dataset", a.name},
+               {"clipboard", a.clipboard},
+               {"lsn", ci->lsn},
+               {"inserted", ci->inserted},
+               {"removed", ci->removed}});
+    return kExitOk;
+  }
+  std::printf("pasted %llu points from clipboard '%s': committed lsn %llu\n",
+              static_cast<unsigned long long>(ci->inserted), a.clipboard.c_str(),
+              static_cast<unsigned long long>(ci->lsn));
+  return kExitOk;
+}
+
+int Cli::CmdComposite() {
+  const CompositeArgs& a = composite_;
+  const std::string cmd = "composite";
+  if (uint64_t{a.first_frame} + a.frames - 1 > UINT32_MAX) {
+    return Usage(cmd, "--first-frame " + std::to_string(a.first_frame) + " plus --frames " +
+                          std::to_string(a.frames) + " passes frame 2^32-1");
+  }
+  // An unknown dataset is reported before any file is read.
+  Result<DatasetInfo> info = db().Describe(a.name);
+  if (!info.ok()) return Fail(info.status());
+  std::vector<std::array<double, 3>> trajectory;
+  if (!a.trajectory.empty()) {
+    Result<std::vector<std::array<double, 3>>> t = ReadTrajectory(a.trajectory);
+    if (!t.ok()) return Fail(t.status());
+    if (t->size() != a.frames) {
+      return Fail(Status::InvalidArgument("trajectory file '" + a.trajectory + "' has " +
+                                          std::to_string(t->size()) + " offsets for --frames " +
+                                          std::to_string(a.frames) +
+                                          " (one 'dx,dy,dz' line per frame)"));
+    }
+    trajectory = std::move(t).value();
+  }
+  ply::ReadOptions ro;
+  ro.scale = a.units_scale;
+  Result<std::vector<Point>> object = ply::ReadPly(a.ply, ro);
+  if (!object.ok()) return Fail(object.status());
+  if (object->empty()) {
+    return Fail(Status::InvalidArgument("'" + a.ply + "' has no points to composite"));
+  }
+  Result<CommitInfo> ci = db().Composite(a.name, *object, a.first_frame, a.frames, trajectory);
+  if (!ci.ok()) return Fail(ci.status());
+  const uint32_t last = a.first_frame + (a.frames - 1);
+  if (a.json) {
+    PrintJson({{"dataset", a.name},
+               {"object_points", object->size()},
+               {"first_frame", a.first_frame},
+               {"last_frame", last},
+               {"moving", !trajectory.empty()},
+               {"lsn", ci->lsn},
+               {"inserted", ci->inserted},
+               {"removed", ci->removed}});
+    return kExitOk;
+  }
+  std::printf(
+      "composited %zu points of %s into frames %u..%u (%llu points%s): committed lsn "
+      "%llu\n",
+      object->size(), a.ply.c_str(), a.first_frame, last,
+      static_cast<unsigned long long>(ci->inserted),
+      trajectory.empty() ? "" : ", along the trajectory", static_cast<unsigned long long>(ci->lsn));
   return kExitOk;
 }
 

@@ -11,12 +11,15 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <set>
 #include <sstream>
 #include <string>
@@ -27,6 +30,7 @@
 #include <nlohmann/json.hpp>
 
 #include "client/ply.h"
+#include "tests/edit/scene.h"
 
 namespace hvdb {
 namespace {
@@ -406,6 +410,7 @@ class ServerProcess {
 json Comparable(json j) {
   if (j.is_object()) {
     j.erase("elapsed_ms");
+    j.erase("timings_ms");
     j.erase("out");
   }
   return j;
@@ -609,6 +614,399 @@ TEST_F(HvdbCliTest, ServerModeMatchesEmbedded) {
   EXPECT_EQ(gone.code, 1) << gone.out;
   EXPECT_EQ(gone.err.rfind("hvdb: IOError: connect to " + address, 0), 0u) << gone.err;
   EXPECT_NE(gone.err.find("hvdb-server"), std::string::npos) << gone.err;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Editing operators: select, graphcut, copy/cut, paste, composite, undo/redo.
+
+// The look-at camera the editing test draws through: 3 m above the scene's middle, looking down,
+// world +y up in the image; 200 x 200 pixels, 60 degrees vertically. Pixel of a point:
+struct TopCamera {
+  static constexpr double kHalf = 99.5;  // cx = cy
+  double f = 100 / std::tan(30 * M_PI / 180);
+  std::array<double, 2> Project(const Point& p) const {
+    double depth = 3 - static_cast<double>(p.z);
+    return {f * (static_cast<double>(p.x) - 0.5) / depth + kHalf,
+            f * -(static_cast<double>(p.y) - 0.5) / depth + kHalf};
+  }
+  const char* look_at = "--look-at 0.5 0.5 3 0.5 0.5 0 --fov 60 --size 200 200 --up 0 1 0";
+  // The same camera as a --camera file.
+  json File() const {
+    return {{"fx", f},
+            {"fy", f},
+            {"cx", kHalf},
+            {"cy", kHalf},
+            {"width", 200},
+            {"height", 200},
+            {"world_from_camera", {1, 0, 0, 0.5, 0, -1, 0, 0.5, 0, 0, -1, 3, 0, 0, 0, 1}}};
+  }
+};
+
+bool InBox(const Point& p, const std::array<double, 6>& b) {
+  double x = p.x, y = p.y, z = p.z;
+  return x >= b[0] && x <= b[1] && y >= b[2] && y <= b[3] && z >= b[4] && z <= b[5];
+}
+
+std::string BoxArg(const std::array<double, 6>& b, double t0, double t1) {
+  char buf[256];
+  std::snprintf(buf, sizeof(buf), "--box %.17g %.17g %.17g %.17g %.17g %.17g %.17g %.17g", b[0],
+                b[1], b[2], b[3], b[4], b[5], t0, t1);
+  return buf;
+}
+
+// The same editing session on a data directory and through hvdb-server, on a generated scene (a
+// sphere rolling over a plane, three frames) whose sphere points are known: strokes with select,
+// the object by graph cut, then cut, paste, undo, redo and composite; every command prints the
+// same in both modes (but timings).
+TEST_F(HvdbCliTest, EditingOperatorsEmbeddedAndThroughServer) {
+  constexpr uint32_t kFrames = 3;
+  std::vector<testing::ScenePoint> scene = testing::MovingSphereScene(kFrames, 0.02);
+  std::vector<std::vector<Point>> frames(kFrames);
+  std::set<uint64_t> sphere;
+  uint64_t next_id = 1;
+  for (const testing::ScenePoint& s : scene) {
+    Point p = s.p;
+    p.id = next_id++;  // kept on import, so that the test knows which points are the sphere
+    if (s.sphere) sphere.insert(p.id);
+    frames[p.frame].push_back(p);
+  }
+  const size_t total = scene.size();
+  std::string files;
+  for (uint32_t f = 0; f < kFrames; ++f) {
+    std::string path = Path("scene" + std::to_string(f) + ".ply");
+    ASSERT_TRUE(ply::WritePly(path, frames[f]).ok());
+    files += " " + Quote(path);
+  }
+
+  ServerProcess server;
+  fs::create_directories(Path("srvdata"));
+  ASSERT_EQ(server.Start(Path("srvdata"), dir_), "");
+  const std::string address = "127.0.0.1:" + std::to_string(server.port());
+  const std::string remote = "--server " + address + " ";
+  auto both = [&](const std::string& args) {
+    RunResult e = Run(args), s = Run(remote + args);
+    EXPECT_EQ(e.code, 0) << "hvdb " << args << "\nstderr: " << e.err;
+    EXPECT_EQ(s.code, 0) << "hvdb " << remote << args << "\nstderr: " << s.err << "\nserver log:\n"
+                         << server.log();
+    EXPECT_EQ(e.out, s.out) << "hvdb [" << remote << "] " << args;
+    return s;
+  };
+  auto same = [&](const std::string& args) {
+    json e = RunJson(args), s = RunJson(remote + args);
+    EXPECT_EQ(Comparable(e), Comparable(s)) << "hvdb [" << remote << "] " << args;
+    return s;
+  };
+  // Both modes must fail with exit status `code` and a message containing `expect` (with
+  // WHERE replaced by the data directory or the server's address).
+  auto fail_both = [&](const std::string& args, int code, const std::string& expect) {
+    for (bool srv : {false, true}) {
+      RunResult r = Run((srv ? remote : std::string()) + args);
+      EXPECT_EQ(r.code, code) << (srv ? remote : "") << args << "\nstderr: " << r.err;
+      std::string want = expect;
+      size_t at = want.find("WHERE");
+      if (at != std::string::npos) want.replace(at, 5, srv ? "on " + address : "in ./data");
+      EXPECT_NE(r.err.find(want), std::string::npos)
+          << (srv ? remote : "") << args << "\nstderr: " << r.err;
+      EXPECT_EQ(r.err.rfind("hvdb", 0), 0u) << r.err;
+      EXPECT_EQ(r.out, "") << args;
+    }
+  };
+  auto all_count = [&](const std::string& box) {
+    return same("window scene " + box)["points"].get<size_t>();
+  };
+  const std::string everything = "--box -10 10 -10 10 -10 10 -1 10";
+
+  both("create scene --fps 30");
+  EXPECT_EQ(same("import scene --frame 0 --keep-ids" + files)["points"], total);
+
+  // Strokes: a box on the top of the sphere in frame 0 (bit 1), one on the floor (bit 2).
+  const std::array<double, 6> top{0.25, 0.35, 0.45, 0.55, 0.28, 1};
+  const std::array<double, 6> floor{0.69, 1.01, -0.01, 0.29, -1, 0.001};
+  auto count_in = [&](uint32_t f, const std::array<double, 6>& b) {
+    return static_cast<size_t>(std::count_if(frames[f].begin(), frames[f].end(),
+                                             [&](const Point& p) { return InBox(p, b); }));
+  };
+  json st = same("select scene --bit 1 " + BoxArg(top, 0, 0));
+  EXPECT_EQ(st["matched"], count_in(0, top));
+  EXPECT_GT(st["matched"].get<size_t>(), 10u);
+  EXPECT_EQ(st["selected"], st["matched"]);
+  EXPECT_EQ(st["shape"], "region");
+  EXPECT_GT(st["lsn"].get<uint64_t>(), 0u);
+  EXPECT_FALSE(st.contains("brush_center"));
+  json sf = same("select scene --bit 2 --mode add " + BoxArg(floor, 0, 0));
+  EXPECT_EQ(sf["matched"], count_in(0, floor));
+  EXPECT_GT(sf["matched"].get<size_t>(), 100u);
+  EXPECT_EQ(sf["lsn"].get<uint64_t>(), st["lsn"].get<uint64_t>() + 1);
+  // Adding what is there already changes nothing: no commit.
+  json again = same("select scene --bit 2 --mode add " + BoxArg(floor, 0, 0));
+  EXPECT_EQ(again["lsn"], 0);
+  EXPECT_EQ(again["selected"], sf["selected"]);
+  RunResult text = both("select scene --bit 2 --mode add " + BoxArg(floor, 0, 0));
+  EXPECT_NE(text.out.find("nothing changed"), std::string::npos) << text.out;
+  EXPECT_EQ(same("window scene --label-mask 2 " + everything)["points"], st["matched"]);
+
+  // The graph cut finds the sphere in all three frames from the strokes in frame 0.
+  json gc = same("graphcut scene --fg-bit 1 --bg-bit 2 --out-bit 0 " + everything +
+                 " --intra-radius 0.05 --inter-radius 0.08");
+  EXPECT_EQ(gc["roi_points"], total);
+  EXPECT_GT(gc["lsn"].get<uint64_t>(), 0u);
+  EXPECT_GT(gc["intra_edges"].get<uint64_t>(), 0u);
+  EXPECT_GT(gc["inter_edges"].get<uint64_t>(), 0u);
+  EXPECT_TRUE(gc["energy"].is_number());
+  for (const char* step : {"load", "neighbours", "gmm", "graph", "maxflow", "commit"}) {
+    EXPECT_TRUE(gc["timings_ms"][step].is_number()) << step << ": " << gc;
+  }
+  const size_t selected = gc["selected"].get<size_t>();
+  EXPECT_EQ(same("window scene --label-mask 1 " + everything)["points"], selected);
+  std::set<uint64_t> ids[2];
+  for (int srv = 0; srv < 2; ++srv) {
+    RunResult r = Run((srv ? remote : std::string()) + "window scene --label-mask 1 " + everything +
+                      " --out sel.ply");
+    ASSERT_EQ(r.code, 0) << r.err;
+    Result<std::vector<Point>> sel = ply::ReadPly(Path("sel.ply"));
+    ASSERT_TRUE(sel.ok()) << sel.status().ToString();
+    for (const Point& p : *sel) ids[srv].insert(p.id);
+  }
+  EXPECT_EQ(ids[0], ids[1]);
+  size_t tp = 0;
+  for (uint64_t id : ids[0]) tp += sphere.count(id);
+  ASSERT_EQ(ids[0].size(), selected);
+  EXPECT_GE(static_cast<double>(tp) / static_cast<double>(selected), 0.95)
+      << tp << " of " << selected << " selected are sphere points";
+  EXPECT_GE(static_cast<double>(tp) / static_cast<double>(sphere.size()), 0.95)
+      << tp << " of the " << sphere.size() << " sphere points selected";
+  RunResult gct = Run(remote + "graphcut scene --fg-bit 1 --bg-bit 2 --out-bit 0 " + everything +
+                      " --intra-radius 0.05 --inter-radius 0.08");
+  EXPECT_EQ(gct.code, 0) << gct.err;
+  EXPECT_NE(gct.out.find(std::to_string(selected) + " of " + std::to_string(total) +
+                         " points in the ROI selected into bit 0"),
+            std::string::npos)
+      << gct.out;
+  EXPECT_NE(gct.out.find("max-flow"), std::string::npos) << gct.out;
+  EXPECT_NE(gct.out.find("nothing changed"), std::string::npos) << gct.out;  // already so
+
+  // Shapes through a camera in frame 0: a marquee around the sphere (points above the plane),
+  // then a lasso on its left part intersected with it, through the same camera from a file.
+  const TopCamera cam;
+  std::ofstream(Path("camera.json")) << cam.File().dump();
+  const std::array<double, 6> above{-10, 10, -10, 10, 0.001, 10};
+  size_t sphere0 = 0, left0 = 0;
+  for (const Point& p : frames[0]) {
+    if (!sphere.count(p.id)) continue;
+    ++sphere0;
+    auto [u, v] = cam.Project(p);
+    left0 += u > 70 && u < 87 && v > 85 && v < 115;
+  }
+  ASSERT_GT(left0, 10u);
+  ASSERT_LT(left0, sphere0);
+  json rect =
+      same("select scene --bit 3 " + BoxArg(above, 0, 0) + " --rect 105 115 70 85 " + cam.look_at);
+  EXPECT_EQ(rect["shape"], "rect");
+  EXPECT_EQ(rect["matched"], sphere0);
+  EXPECT_EQ(rect["selected"], sphere0);
+  json lasso = same("select scene --bit 3 --mode intersect " + BoxArg(above, 0, 0) +
+                    " --lasso 70 85 87 85 87 115 70 115 --camera " + Quote(Path("camera.json")));
+  EXPECT_EQ(lasso["matched"], left0);
+  EXPECT_EQ(lasso["selected"], left0);
+  EXPECT_GT(lasso["lsn"].get<uint64_t>(), rect["lsn"].get<uint64_t>());
+  EXPECT_EQ(same("window scene --label-mask 8 " + everything)["points"], left0);
+  json sub = same("select scene --bit 3 --mode subtract " + BoxArg(above, 0, 0) +
+                  " --rect 60 60 140 140 " + cam.look_at);
+  EXPECT_EQ(sub["selected"], 0);
+  // The brush on the top of the sphere: its centre is the surface under the pixel.
+  auto [bu, bv] = cam.Project([] {
+    Point p;
+    p.x = 0.3f;
+    p.y = 0.5f;
+    p.z = 0.31f;
+    return p;
+  }());
+  char brush[160];
+  std::snprintf(brush, sizeof(brush),
+                " --brush %.6f %.6f --pixel-radius 3 --radius 0.05 --nearest ", bu, bv);
+  json br = same("select scene --bit 4 " + BoxArg({-10, 10, -10, 10, -10, 10}, 0, 0) + brush +
+                 cam.look_at);
+  ASSERT_TRUE(br["brush_center"].is_array()) << br;
+  EXPECT_NEAR(br["brush_center"][0].get<double>(), 0.3, 0.02);
+  EXPECT_NEAR(br["brush_center"][1].get<double>(), 0.5, 0.02);
+  EXPECT_NEAR(br["brush_center"][2].get<double>(), 0.31, 0.02);
+  EXPECT_GT(br["matched"].get<size_t>(), 5u);
+  EXPECT_LT(br["matched"].get<size_t>(), sphere0);
+  RunResult brt = both("select scene --bit 4 " + BoxArg({-10, 10, -10, 10, -10, 10}, 0, 0) + brush +
+                       cam.look_at);
+  EXPECT_NE(brt.out.find("brush centre ("), std::string::npos) << brt.out;
+  // A slice as the region: frame 1, all of it.
+  json sl = same(
+      "select scene --bit 5 --normal 0 0 0 1 --offset 0.033333333333333333 "
+      "--thickness 0.001");
+  EXPECT_EQ(sl["matched"], frames[1].size());
+
+  // Cut the object to a clipboard (a file of each data directory), then paste it 1 m higher.
+  json cut = same("cut scene --bit 0 --clipboard ball");
+  EXPECT_EQ(cut["points"], selected);
+  const uint64_t cut_lsn = cut["lsn"].get<uint64_t>();
+  EXPECT_GT(cut_lsn, 0u);
+  EXPECT_TRUE(fs::exists(Path("data/clipboards/ball.hvc")));
+  EXPECT_TRUE(fs::exists(Path("srvdata/clipboards/ball.hvc")));
+  EXPECT_EQ(all_count(everything), total - selected);
+  EXPECT_EQ(same("window scene --label-mask 1 " + everything)["points"], 0);
+  json copy = same("copy scene --bit 2 --clipboard floor " + BoxArg(floor, -1, 10));
+  EXPECT_EQ(copy["points"], sf["matched"]);
+  EXPECT_EQ(copy["lsn"], 0);
+  const std::string lifted = "--box -10 10 -10 10 0.9 2 -1 10";
+  json paste = same("paste scene --clipboard ball --translate 0 0 1 0");
+  EXPECT_EQ(paste["inserted"], selected);
+  EXPECT_EQ(all_count(lifted), selected);
+  // Undo and redo of the paste, through the log.
+  json undo = same("undo scene " + std::to_string(paste["lsn"].get<uint64_t>()));
+  EXPECT_EQ(undo["removed"], selected);
+  EXPECT_EQ(all_count(lifted), 0u);
+  json redo = same("redo scene " + std::to_string(undo["lsn"].get<uint64_t>()));
+  EXPECT_EQ(redo["redone"], undo["lsn"]);
+  EXPECT_EQ(redo["inserted"], selected);
+  EXPECT_GT(redo["lsn"].get<uint64_t>(), undo["lsn"].get<uint64_t>());
+  EXPECT_EQ(all_count(lifted), selected);
+  RunResult redo_text = both("undo scene " + std::to_string(redo["lsn"].get<uint64_t>()));
+  EXPECT_NE(redo_text.out.find("reverted lsn"), std::string::npos) << redo_text.out;
+  EXPECT_EQ(all_count(lifted), 0u);
+  // Undo of the cut: the object is back where it was.
+  same("undo scene " + std::to_string(cut_lsn));
+  EXPECT_EQ(all_count(everything), total);
+  EXPECT_EQ(same("window scene --label-mask 1 " + everything)["points"], selected);
+  // A matrix (x doubled) before the translation; a time shift moves points to later frames.
+  same("paste scene --clipboard ball --matrix 2 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1 --translate 5 0 0 0");
+  EXPECT_EQ(all_count("--box 4.9 7.1 -10 10 -10 10 -1 10"), selected);
+  json later = same("paste scene --clipboard floor --translate 0 0 0 0.1");
+  EXPECT_EQ(later["inserted"], sf["matched"]);
+  EXPECT_EQ(same("describe scene")["frames"], 4);  // frame 0 + 3 frames (0.1 s at 30 fps)
+  RunResult pt = both("paste scene --clipboard floor --translate 0 0 5 0");
+  EXPECT_EQ(pt.out.rfind("pasted " + std::to_string(sf["matched"].get<size_t>()) +
+                             " points from clipboard 'floor': committed lsn ",
+                         0),
+            0u)
+      << pt.out;
+
+  // Composite a 5 x 5 x 5 cube (centimetres) along a trajectory through frames 0..2.
+  std::vector<Point> cube;
+  for (int i = 0; i < 125; ++i) {
+    Point p;
+    p.x = static_cast<float>(i % 5);
+    p.y = static_cast<float>(i / 5 % 5);
+    p.z = static_cast<float>(i / 25);
+    p.r = 255;
+    cube.push_back(p);
+  }
+  ASSERT_TRUE(ply::WritePly(Path("cube.ply"), cube, /*ascii=*/true).ok());
+  std::ofstream(Path("path.csv")) << "# dx,dy,dz\n0.5,0.5,2\n0.6, 0.5, 2\n\n0.7,0.5,2\n";
+  json comp = same("composite scene --ply " + Quote(Path("cube.ply")) +
+                   " --units-scale 0.01 --first-frame 0 --frames 3 --trajectory " +
+                   Quote(Path("path.csv")));
+  EXPECT_EQ(comp["object_points"], 125);
+  EXPECT_EQ(comp["inserted"], 375);
+  EXPECT_EQ(comp["last_frame"], 2);
+  EXPECT_EQ(all_count("--box 0.49 0.75 0.49 0.55 1.99 2.05 -1 10"), 375u);
+  EXPECT_EQ(all_count("--box 0.69 0.75 0.49 0.55 1.99 2.05 0.05 0.07"), 125u);  // frame 2
+  json still =
+      same("composite scene --ply " + Quote(Path("cube.ply")) + " --first-frame 1 --frames 2");
+  EXPECT_EQ(still["inserted"], 250);
+  EXPECT_EQ(all_count("--box -0.01 4.01 -0.01 4.01 3.99 4.01 -1 10"), 50u);  // cube tops
+  same("undo scene " + std::to_string(still["lsn"].get<uint64_t>()));
+  EXPECT_EQ(all_count("--box -0.01 4.01 -0.01 4.01 3.99 4.01 -1 10"), 0u);
+
+  // Errors of the data or of files: exit status 1, the same message in both modes.
+  fail_both("paste scene --clipboard nosuch", 1, "no clipboard 'nosuch' WHERE");
+  fail_both("select nosuch --bit 1 " + everything, 1, "NotFound: no dataset 'nosuch'");
+  fail_both("cut nosuch --bit 1 --clipboard c", 1, "no dataset 'nosuch'");
+  fail_both("graphcut scene --fg-bit 9 --bg-bit 2 --out-bit 0 " + everything, 1, "graph cut");
+  fail_both("select scene --bit 4 " + everything + " --brush -1000 -1000 " + cam.look_at, 1,
+            "NotFound: brush: no surface under pixel");
+  fail_both("redo scene 999999", 1, "999999");
+  fail_both("composite scene --ply " + Quote(Path("cube.ply")) +
+                " --first-frame 0 --frames 2 --trajectory " + Quote(Path("path.csv")),
+            1, "has 3 offsets for --frames 2");
+  std::ofstream(Path("bad_path.csv")) << "0,0,0\n1;2;3\n";
+  fail_both("composite scene --ply " + Quote(Path("cube.ply")) +
+                " --first-frame 0 --frames 2 --trajectory " + Quote(Path("bad_path.csv")),
+            1, "bad_path.csv:2: expected 'dx,dy,dz'");
+  fail_both("composite scene --ply " + Quote(Path("missing.ply")) + " --first-frame 0 --frames 1",
+            1, "missing.ply");
+  json skew = cam.File();
+  skew["world_from_camera"][0] = 2;
+  std::ofstream(Path("skew.json")) << skew.dump();
+  fail_both("select scene --bit 3 " + everything + " --rect 0 0 10 10 --camera " +
+                Quote(Path("skew.json")),
+            1, "not orthonormal");
+  std::ofstream(Path("nofx.json")) << R"({"fy": 1, "cx": 0, "cy": 0})";
+  fail_both("select scene --bit 3 " + everything + " --rect 0 0 10 10 --camera " +
+                Quote(Path("nofx.json")),
+            1, "\"fx\" is not a number");
+
+  // Usage errors: exit status 2, before any request.
+  const std::string look = std::string(" ") + cam.look_at;
+  const std::vector<std::pair<std::string, std::string>> usage = {
+      {"select scene --bit 1", "a region is required"},
+      {"select scene " + everything, "--bit"},
+      {"select scene --bit 32 " + everything, "--bit"},
+      {"select scene --bit 1 --mode sideways " + everything, "--mode"},
+      {"select scene --bit 1 " + everything + " --normal 0 0 0 1 --offset 0 --thickness 1",
+       "excludes"},
+      {"select scene --bit 1 --normal 0 0 0 1", "--offset"},
+      {"select scene --bit 1 --normal 0 0 0 0 --offset 0 --thickness 1", "all zero"},
+      {"select scene --bit 1 --box 1 0 0 1 0 1 0 1", "X0 must be <= X1"},
+      {"select scene --bit 1 " + everything + " --rect 0 0 10 10", "through a camera"},
+      {"select scene --bit 1 " + everything + look, "is for --lasso, --rect or --brush"},
+      {"select scene --bit 1 " + everything + " --lasso 0 0 10 10" + look, "at least 3"},
+      {"select scene --bit 1 " + everything + " --lasso 0 0 10 10 5" + look, "pairs"},
+      {"select scene --bit 1 " + everything + " --rect 0 0 0 10" + look, "must differ"},
+      {"select scene --bit 1 " + everything + " --rect 0 0 1 1 --brush 3 3" + look, "excludes"},
+      {"select scene --bit 1 " + everything + " --radius 0.1", "--brush"},
+      {"select scene --bit 1 " + everything + " --rect 0 0 1 1 --look-at 0 0 1 0 0 0", "--fov"},
+      {"select scene --bit 1 " + everything +
+           " --rect 0 0 1 1 --look-at 0 0 1 0 0 0 --fov 50 "
+           "--size 10 10 --up 0 0 1",
+       "parallel"},
+      {"select scene --bit 1 " + everything +
+           " --rect 0 0 1 1 --look-at 0 0 0 0 0 0 --fov 50 "
+           "--size 10 10",
+       "must differ"},
+      {"select scene --bit 1 " + everything + " --rect 0 0 1 1 --camera c.json" + look, "excludes"},
+      {"graphcut scene --fg-bit 1 --bg-bit 1 --out-bit 0 " + everything, "must differ"},
+      {"graphcut scene --fg-bit 1 --bg-bit 2 --out-bit 0", "region of interest is required"},
+      {"graphcut scene --fg-bit 1 --bg-bit 2 " + everything, "--out-bit"},
+      {"graphcut scene --fg-bit 1 --bg-bit 2 --out-bit 0 --k 0 " + everything, "--k"},
+      {"graphcut scene --fg-bit 1 --bg-bit 2 --out-bit 0 --intra-radius -1 " + everything,
+       "--intra-radius"},
+      {"copy scene --bit 1", "--clipboard"},
+      {"copy scene --bit 1 --clipboard ../x", "clipboard name"},
+      {"cut scene --clipboard c", "--bit"},
+      {"paste scene", "--clipboard"},
+      {"paste scene --clipboard c --translate 1 2", "--translate"},
+      {"paste scene --clipboard c --matrix 1 2 3", "--matrix"},
+      {"composite scene --ply x.ply --first-frame 0", "--frames"},
+      {"composite scene --ply x.ply --first-frame 0 --frames 0", "--frames"},
+      {"composite scene --ply x.ply --first-frame 4294967295 --frames 2", "passes frame"},
+      {"redo scene", "lsn"},
+      {"redo scene abc", "lsn"},
+  };
+  for (const auto& [args, expect] : usage) {
+    for (bool srv : {false, true}) {
+      RunResult r = Run((srv ? remote : std::string()) + args);
+      EXPECT_EQ(r.code, 2) << args << "\nstdout: " << r.out << "\nstderr: " << r.err;
+      EXPECT_NE(r.err.find(expect), std::string::npos) << args << "\nstderr: " << r.err;
+      EXPECT_EQ(r.err.rfind("hvdb", 0), 0u) << r.err;
+    }
+  }
+  for (const char* cmd : {"select", "graphcut", "copy", "cut", "paste", "composite", "redo"}) {
+    RunResult r = Run(std::string(cmd) + " --help");
+    EXPECT_EQ(r.code, 0) << cmd;
+    EXPECT_NE(r.out.find("--json"), std::string::npos) << cmd << ": " << r.out;
+  }
+  EXPECT_NE(Run("redo --help").out.find("transaction log"), std::string::npos);
+
+  // The server stayed up and the data directories agree.
+  EXPECT_EQ(same("describe scene")["points"], RunJson("describe scene")["points"]);
+  EXPECT_EQ(RunJson("check scene")["ok"], true);
+  EXPECT_EQ(server.Terminate(), 0) << server.log();
 }
 
 TEST_F(HvdbCliTest, ServerNotListeningExitsOne) {

@@ -3,6 +3,7 @@
 #ifndef HVDB_TESTS_EDIT_SCENE_H_
 #define HVDB_TESTS_EDIT_SCENE_H_
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <random>
