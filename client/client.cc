@@ -342,6 +342,50 @@ Result<wire::StatsReply> Connection::Stats(const std::string& dataset) {
   return r.stats();
 }
 
+Result<wire::RenderReply> Connection::Render(const wire::Render& render) {
+  if (render.path_size() > 1) {
+    return Status::InvalidArgument("render: a request with a path is a sequence; use "
+                                   "RenderSequence");
+  }
+  wire::Request req;
+  *req.mutable_render() = render;
+  HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
+  if (!r.has_render()) {
+    return Status::IOError("hvdb-server answered a render with another message");
+  }
+  return std::move(*r.mutable_render());
+}
+
+Status Connection::RenderSequence(
+    const wire::Render& render, const std::function<Status(const wire::RenderReply&)>& on_image) {
+  wire::Request req;
+  *req.mutable_render() = render;
+  HVDB_ASSIGN_OR_RETURN(uint64_t id, Send(&req));
+  Status stopped;
+  for (;;) {
+    HVDB_ASSIGN_OR_RETURN(wire::Response r, Receive(id));
+    if (r.has_error()) {
+      Status st = wire::FromWire(r.error());
+      // Our own cancellation ends the stream with CANCELLED: report why we stopped instead.
+      return stopped.ok() ? st : stopped;
+    }
+    if (!r.has_render()) {
+    return Status::IOError("hvdb-server answered a render with another message");
+  }
+    if (stopped.ok()) {
+      stopped = on_image(r.render());
+      if (!stopped.ok() && !r.render().last()) {
+        wire::Request cancel;
+        cancel.mutable_cancel()->set_target(id);
+        HVDB_ASSIGN_OR_RETURN(uint64_t cid, Send(&cancel));
+        HVDB_ASSIGN_OR_RETURN(wire::Response ack, Receive(cid));
+        (void)ack;
+      }
+    }
+    if (r.render().last()) return stopped;
+  }
+}
+
 namespace {
 CommitInfo CommitFromWire(const wire::CommitReply& c) {
   CommitInfo info;

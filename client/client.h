@@ -93,6 +93,12 @@ class Connection {
   Result<wire::CopyReply> Copy(const wire::CopyRequest& req);
   Result<CommitInfo> Paste(const wire::PasteRequest& req);
   Result<CommitInfo> Composite(const wire::CompositeRequest& req);
+  // Rendering (docs/PROTOCOL.md, "Rendering"): the image of a single-view request.
+  Result<wire::RenderReply> Render(const wire::Render& req);
+  // A sequence (a request with a path; a single view works too): on_image gets every reply
+  // as it arrives, in order. A non-OK status from on_image cancels the rest and is returned.
+  Status RenderSequence(const wire::Render& req,
+                        const std::function<Status(const wire::RenderReply&)>& on_image);
 
   // Pipelining: send a request (its id is assigned and returned), collect its responses later.
   Result<uint64_t> Send(wire::Request* req);

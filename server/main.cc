@@ -34,6 +34,12 @@ int main(int argc, char** argv) {
       ->capture_default_str()->check(CLI::Range(1u, 86400u));
   app.add_option("--max-slice-frames", c.max_slice_frames,
                  "default bound on frames a hyperslice may read")->capture_default_str();
+  app.add_option("--max-renders", c.max_renders,
+                 "render requests running at once, server-wide (more are refused as OVERLOADED)")
+      ->capture_default_str()->check(CLI::Range(1u, 256u));
+  app.add_option("--max-render-points", c.max_render_points,
+                 "points one rendered image may draw (held in memory while rendering)")
+      ->capture_default_str();
   app.add_flag("--no-sync", no_sync, "do not fsync commits (faster, loses the last commits on a "
                                      "power failure)");
   app.add_option("--log-level", log_level, "error, warn, info or debug")->capture_default_str()

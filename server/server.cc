@@ -32,6 +32,7 @@ Server::Server(Config config, std::unique_ptr<Database> db)
       db_(std::move(db)),
       io_(static_cast<int>(config_.io_threads)),
       workers_(config_.worker_threads),
+      renders_(config_.max_renders),
       acceptor_(io_),
       signals_(io_) {}
 

@@ -21,6 +21,7 @@
 
 #include <boost/asio.hpp>
 
+#include "render/renderer_pool.h"
 #include "server/stats.h"
 #include "storage/database.h"
 
@@ -44,6 +45,10 @@ struct Config {
   size_t outbound_high_water = 4u << 20;  // bytes queued per connection before queries pause
   size_t max_ingest_bytes = 512u << 20;   // per connection, points of frames not yet loaded
   uint32_t max_slice_frames = 64;
+  // Render requests (docs/PROTOCOL.md, "Rendering"): at most this many at once, server-wide
+  // (more get OVERLOADED); each holds at most max_render_points points in memory.
+  uint32_t max_renders = 2;
+  uint64_t max_render_points = 16u << 20;
   bool sync = true;
   std::string token_file;  // lines "TOKEN ro|rw"; required for a non-loopback address
   std::string port_file;   // written with the bound port once listening
@@ -68,6 +73,7 @@ class Server {
   Database& db() { return *db_; }
   boost::asio::thread_pool& workers() { return workers_; }
   ServerStats& stats() { return stats_; }
+  render::RendererPool& renders() { return renders_; }
   // Role of a token; kNone if it is unknown (or tokens are required and none was given).
   Role Authenticate(const std::string& token) const;
   void Forget(Session* s);
@@ -81,6 +87,7 @@ class Server {
   std::unique_ptr<Database> db_;
   boost::asio::io_context io_;
   boost::asio::thread_pool workers_;
+  render::RendererPool renders_;
   boost::asio::ip::tcp::acceptor acceptor_;
   boost::asio::signal_set signals_;
   std::map<std::string, Role> tokens_;

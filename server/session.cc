@@ -1,8 +1,10 @@
 #include "server/session.h"
 
 #include <nlohmann/json.hpp>
+#include <optional>
 
 #include "edit/operators.h"
+#include "server/render_service.h"
 
 namespace hvdb::server {
 
@@ -25,6 +27,12 @@ struct Session::Op {
   wire::PointEncoding encoding = wire::COLUMNS;
   uint64_t points = 0;
   bool paused = false;
+  // Renders: the job (set on a worker), its slot of the server's renderer pool, and the next
+  // image of a sequence (advanced on the strand).
+  bool is_render = false;
+  std::unique_ptr<RenderJob> render_job;
+  std::optional<render::RendererPool::Lease> render_lease;
+  size_t next_image = 0;
 };
 
 namespace {
@@ -515,10 +523,7 @@ void Session::Dispatch(wire::Request req) {
         return r;
       });
     case wire::Request::kRender:
-      return RunOnWorker(id, [id] {
-        return ErrorResponse(id, Status::Unsupported("render: this server was built without the "
-                                                     "render service"));
-      });
+      return HandleRender(op, req.render());
     case wire::Request::kIngest:
       return HandleIngest(id, req.ingest());
     case wire::Request::kSelect:
@@ -653,8 +658,96 @@ void Session::ResumePaused() {
   for (auto& [id, op] : ops_) {
     if (!op->paused) continue;
     op->paused = false;
-    asio::post(server_->workers(), [self, op = op] { self->Pump(op); });
+    if (op->is_render) {
+      asio::post(server_->workers(), [self, op = op] { self->RenderNext(op); });
+    } else {
+      asio::post(server_->workers(), [self, op = op] { self->Pump(op); });
+    }
   }
+}
+
+void Session::HandleRender(std::shared_ptr<Op> op, const wire::Render& request) {
+  // An unknown renderer value is refused by RenderJob::Create; until then it counts as auto.
+  render::RendererKind kind = render::RendererKind::kAuto;
+  if (request.renderer() == wire::RENDERER_EGL) kind = render::RendererKind::kEgl;
+  if (request.renderer() == wire::RENDERER_CPU) kind = render::RendererKind::kCpu;
+  // A bounded number of renders run at once, server-wide; the rest are refused at once
+  // (OVERLOADED) rather than queued on the workers behind seconds of rendering.
+  auto lease = server_->renders().TryAcquire(kind);
+  if (!lease.ok()) {
+    ops_.erase(op->id);
+    return SendError(op->id, lease.status());
+  }
+  op->render_lease.emplace(std::move(lease).value());
+  op->is_render = true;
+  auto self = shared_from_this();
+  Server* s = server_;
+  asio::post(server_->workers(), [self, op, s, request] {
+    wire::Response err;
+    try {
+      auto ds = FindDataset(s, request.dataset());
+      if (!ds.ok()) {
+        err = DatasetError(op->id, ds.status());
+      } else {
+        RenderLimits limits;
+        limits.max_points = s->config().max_render_points;
+        auto job = RenderJob::Create(*ds, request, limits);
+        if (job.ok()) {
+          op->render_job = std::move(job).value();
+          return self->RenderNext(op);
+        }
+        err = ErrorResponse(op->id, job.status());
+      }
+    } catch (const std::exception& e) {
+      err = ErrorResponse(op->id, Status::Internal(e.what()));
+    }
+    asio::post(self->strand_, [self, op, err = std::move(err)] {
+      op->render_lease.reset();
+      self->Send(err);
+      self->Finish(op->id);
+    });
+  });
+}
+
+void Session::RenderNext(std::shared_ptr<Op> op) {
+  // On a worker: one image of the request.
+  auto self = shared_from_this();
+  wire::Response resp;
+  resp.set_id(op->id);
+  bool last = true;
+  try {
+    Result<render::Renderer*> renderer = op->render_lease->Get();
+    Result<wire::RenderReply> reply =
+        !renderer.ok() ? Result<wire::RenderReply>(renderer.status())
+        : op->cancelled ? Result<wire::RenderReply>(Status::Cancelled("render cancelled"))
+                        : op->render_job->Render(op->next_image, **renderer, &op->cancelled);
+    if (reply.ok()) {
+      last = reply->last();
+      reply->set_fallback(op->render_lease->fallback());
+      *resp.mutable_render() = std::move(reply).value();
+    } else {
+      resp = ErrorResponse(op->id, reply.status());
+    }
+  } catch (const std::exception& e) {  // e.g. std::bad_alloc for a huge image
+    resp = ErrorResponse(op->id, Status::Internal(e.what()));
+  }
+  asio::post(strand_, [self, op, resp = std::move(resp), last] {
+    if (self->closed_) return;
+    self->Send(resp);
+    if (last) {
+      op->render_lease.reset();  // the slot is free for the next request
+      self->Finish(op->id);
+      return;
+    }
+    ++op->next_image;
+    // Sequences obey the same flow control as queries: the next image is made only while
+    // the connection has room.
+    if (self->bytes_queued_ < self->server_->config().outbound_high_water) {
+      asio::post(self->server_->workers(), [self, op] { self->RenderNext(op); });
+    } else {
+      op->paused = true;  // resumed by WriteNext when the queue drains
+    }
+  });
 }
 
 void Session::HandleIngest(uint64_t id, const wire::Ingest& ing) {

@@ -50,6 +50,10 @@ class Session : public std::enable_shared_from_this<Session> {
   // Runs fn on a worker; its response is sent and the request finished on the strand.
   void RunOnWorker(uint64_t id, std::function<wire::Response()> fn);
   void HandleIngest(uint64_t id, const wire::Ingest& ing);
+  // Render requests: a slot of the server's renderer pool, then one image at a time on a
+  // worker, sequences under the same flow control as queries.
+  void HandleRender(std::shared_ptr<Op> op, const wire::Render& request);
+  void RenderNext(std::shared_ptr<Op> op);
 
   Server* server_;
   boost::asio::ip::tcp::socket socket_;

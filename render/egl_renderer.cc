@@ -1,0 +1,805 @@
+// The GPU renderer: OpenGL 4.3+ core through headless EGL (no window system).
+//
+// Display: the EGL device platform first (the vendor's driver on a GPU machine; hardware
+// devices before software ones), then Mesa's surfaceless platform (llvmpipe), then the default
+// display. Render targets are framebuffer objects; nothing is ever shown.
+//
+// Splats are drawn as one instanced quad each; the vertex shader pulls the 64-byte Point
+// records straight from a shader storage buffer and does the EWA set-up of splat.cc's
+// ProjectSplat(), the fragment shader evaluates the kernel. Modes:
+//   visibility     the two-pass method of Ren et al. 2002 / thesis 5.1.2: pass 1 renders
+//                  depth only (the nearest, by GL_MIN blending of float depth, which needs no
+//                  depth range); pass 2 blends additively, in float, the fragments within dz of
+//                  it (the fuzzy depth test, done in the shader against pass 1's result rather
+//                  than by a depth buffer shifted by dz: the same test, exact in metres); a
+//                  full-screen pass normalises.
+//   probabilistic  splats presorted front to back on the CPU, blended with
+//                  GL_SRC_ALPHA_SATURATE into a 16-bit normalised target, whose clamping at
+//                  one makes accumulation stop at saturation (5.4.1).
+#include <EGL/egl.h>
+#include <EGL/eglext.h>
+#define GL_GLEXT_PROTOTYPES 1
+#include <GL/glcorearb.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <limits>
+#include <map>
+#include <mutex>
+
+#include "render/renderer.h"
+#include "render/splat.h"
+
+namespace hvdb::render {
+
+namespace {
+
+using internal::View;
+
+// ---- Shaders (keep in step with splat.h / splat.cc and cpu_renderer.cc) ----
+
+constexpr const char* kSplatVertexShader = R"(#version 430 core
+layout(std430, binding = 0) readonly buffer PointBuffer { uint words[]; };  // 16 per Point
+// [0, 256): sRGB 8 bit -> linear; [256, 256 + u_num_weights): view weight by camera id.
+layout(std430, binding = 1) readonly buffer TableBuffer { float table[]; };
+uniform vec3 u_rot0, u_rot1, u_rot2, u_trans;
+uniform vec4 u_intr;  // fx fy cx cy
+uniform float u_k[5];
+uniform int u_distorted;
+uniform float u_max_r2, u_near, u_cutoff2, u_filter, u_scale2, u_default_var;
+uniform vec2 u_size;
+uniform int u_num_weights;
+flat out vec2 v_centre;
+flat out vec3 v_conic;
+flat out vec3 v_colour;
+flat out float v_z;
+flat out vec2 v_slope;
+flat out float v_w;
+
+void Cull() {
+  gl_Position = vec4(2.0, 2.0, 2.0, 1.0);  // the whole quad lies outside the clip volume
+  v_centre = vec2(0.0); v_conic = vec3(0.0); v_colour = vec3(0.0); v_z = 0.0; v_slope = vec2(0.0);
+  v_w = 0.0;
+}
+
+void main() {
+  uint base = uint(gl_InstanceID) * 16u;
+  float px = uintBitsToFloat(words[base + 2u]);
+  float py = uintBitsToFloat(words[base + 3u]);
+  float pz = uintBitsToFloat(words[base + 4u]);
+  float xc = u_rot0.x * px + u_rot0.y * py + u_rot0.z * pz + u_trans.x;
+  float yc = u_rot1.x * px + u_rot1.y * py + u_rot1.z * pz + u_trans.y;
+  float zc = u_rot2.x * px + u_rot2.y * py + u_rot2.z * pz + u_trans.z;
+  if (!(zc >= u_near)) { Cull(); return; }
+  float inv_z = 1.0 / zc;
+  float a = xc * inv_z, b = yc * inv_z;
+  float ad = a, bd = b, j00 = 1.0, j01 = 0.0, j10 = 0.0, j11 = 1.0;
+  if (u_distorted != 0) {
+    float r2 = a * a + b * b;
+    if (!(r2 <= u_max_r2)) { Cull(); return; }
+    float radial = 1.0 + r2 * (u_k[0] + r2 * (u_k[1] + r2 * u_k[4]));
+    float drad = u_k[0] + r2 * (2.0 * u_k[1] + 3.0 * u_k[4] * r2);
+    ad = a * radial + 2.0 * u_k[2] * a * b + u_k[3] * (r2 + 2.0 * a * a);
+    bd = b * radial + u_k[2] * (r2 + 2.0 * b * b) + 2.0 * u_k[3] * a * b;
+    j00 = radial + 2.0 * a * a * drad + 2.0 * u_k[2] * b + 6.0 * u_k[3] * a;
+    j01 = 2.0 * a * b * drad + 2.0 * u_k[2] * a + 2.0 * u_k[3] * b;
+    j10 = j01;
+    j11 = radial + 2.0 * b * b * drad + 6.0 * u_k[2] * b + 2.0 * u_k[3] * a;
+    if (!(j00 * j11 - j01 * j10 > 0.0)) { Cull(); return; }
+  }
+  float u = u_intr.x * ad + u_intr.z;
+  float v = u_intr.y * bd + u_intr.w;
+  vec3 p0 = (u_rot0 - a * u_rot2) * inv_z;
+  vec3 p1 = (u_rot1 - b * u_rot2) * inv_z;
+  vec3 t0 = u_intr.x * (j00 * p0 + j01 * p1);
+  vec3 t1 = u_intr.y * (j10 * p0 + j11 * p1);
+  // V: xx xy xz yy yz zz (no arrays: llvmpipe keeps those in memory, not registers).
+  vec3 vd = vec3(u_default_var), vo = vec3(0.0);  // diagonal (xx yy zz), off (xy xz yz)
+  uint flags = (words[base + 14u] >> 24) & 0xffu;
+  if ((flags & 2u) != 0u) {  // kFlagHasCovariance
+    vd = vec3(uintBitsToFloat(words[base + 6u]), uintBitsToFloat(words[base + 9u]),
+              uintBitsToFloat(words[base + 11u]));
+    vo = vec3(uintBitsToFloat(words[base + 7u]), uintBitsToFloat(words[base + 8u]),
+              uintBitsToFloat(words[base + 10u]));
+  }
+  vec3 vt0 = vec3(vd.x * t0.x + vo.x * t0.y + vo.y * t0.z,
+                  vo.x * t0.x + vd.y * t0.y + vo.z * t0.z,
+                  vo.y * t0.x + vo.z * t0.y + vd.z * t0.z);
+  vec3 vt1 = vec3(vd.x * t1.x + vo.x * t1.y + vo.y * t1.z,
+                  vo.x * t1.x + vd.y * t1.y + vo.z * t1.z,
+                  vo.y * t1.x + vo.z * t1.y + vd.z * t1.z);
+  float s00 = (t0.x * vt0.x + t0.y * vt0.y + t0.z * vt0.z) * u_scale2 + u_filter;
+  float s01 = (t0.x * vt1.x + t0.y * vt1.y + t0.z * vt1.z) * u_scale2;
+  float s11 = (t1.x * vt1.x + t1.y * vt1.y + t1.z * vt1.z) * u_scale2 + u_filter;
+  float det = s00 * s11 - s01 * s01;
+  if (!(det > 0.0) || isinf(det)) { Cull(); return; }
+  float ex = sqrt(u_cutoff2 * s00), ey = sqrt(u_cutoff2 * s11);
+  float x0 = max(ceil(u - ex), 0.0), x1 = min(floor(u + ex), u_size.x - 1.0);
+  float y0 = max(ceil(v - ey), 0.0), y1 = min(floor(v + ey), u_size.y - 1.0);
+  if (!(x0 <= x1) || !(y0 <= y1)) { Cull(); return; }
+  // The quad covers exactly the pixels x0..x1, y0..y1: in window coordinates pixel i spans
+  // [i, i + 1]. Image row v is framebuffer row v (no flip), so read-back is top-down.
+  int vid = gl_VertexID;
+  vec2 lo = vec2(x0, y0), hi = vec2(x1 + 1.0, y1 + 1.0);
+  vec2 corner = vec2((vid & 1) != 0 ? hi.x : lo.x, (vid & 2) != 0 ? hi.y : lo.y);
+  gl_Position = vec4(corner / u_size * 2.0 - 1.0, 0.0, 1.0);
+  float inv_det = 1.0 / det;
+  v_centre = vec2(u, v);
+  v_conic = vec3(s11 * inv_det, -s01 * inv_det, s00 * inv_det);
+  uint rgb = words[base + 14u];
+  v_colour = vec3(table[rgb & 0xffu], table[(rgb >> 8) & 0xffu], table[(rgb >> 16) & 0xffu]);
+  uint cam = words[base + 15u] & 0xffffu;
+  v_w = int(cam) < u_num_weights ? table[256u + cam] : 1.0;
+  v_z = zc;
+  float s02 = (u_rot2.x * vt0.x + u_rot2.y * vt0.y + u_rot2.z * vt0.z) * u_scale2;
+  float s12 = (u_rot2.x * vt1.x + u_rot2.y * vt1.y + u_rot2.z * vt1.z) * u_scale2;
+  v_slope = vec2(v_conic.x * s02 + v_conic.y * s12, v_conic.y * s02 + v_conic.z * s12);
+}
+)";
+
+constexpr const char* kSplatFragmentShader = R"(#version 430 core
+flat in vec2 v_centre;
+flat in vec3 v_conic;
+flat in vec3 v_colour;
+flat in float v_z;
+flat in vec2 v_slope;
+flat in float v_w;
+uniform int u_pass;  // 0: visibility depth, 1: visibility blend, 2: probabilistic
+uniform float u_cutoff2, u_dz;
+layout(binding = 0) uniform sampler2D t_zmin;  // pass 1's result, read in pass 2
+layout(location = 0) out vec4 o_acc;
+layout(location = 1) out vec4 o_aux;
+
+void main() {
+  vec2 d = gl_FragCoord.xy - vec2(0.5) - v_centre;  // pixel centres at integers
+  float q = v_conic.x * d.x * d.x + 2.0 * v_conic.y * d.x * d.y + v_conic.z * d.y * d.y;
+  if (q > u_cutoff2) discard;
+  float a = exp(-0.5 * q);
+  float z = max(v_z + v_slope.x * d.x + v_slope.y * d.y, 0.0);  // FragmentDepth()
+  if (u_pass == 0) {
+    o_acc = vec4(z, 0.0, 0.0, 0.0);  // GL_MIN blending keeps the nearest
+    o_aux = vec4(0.0);
+  } else if (u_pass == 1) {
+    float zmin = texelFetch(t_zmin, ivec2(gl_FragCoord.xy), 0).r;
+    float wa = v_w * a;
+    // The fuzzy depth test: only fragments within dz of the nearest blend their colour.
+    o_acc = z - u_dz <= zmin ? vec4(v_colour * wa, wa) : vec4(0.0);
+    o_aux = vec4(a, 0.0, 0.0, 0.0);  // coverage counts every fragment
+  } else {
+    o_acc = vec4(v_colour, min(1.0, v_w * a));
+    o_aux = vec4(z, 0.0, 0.0, 0.0);
+  }
+}
+)";
+
+constexpr const char* kResolveVertexShader = R"(#version 430 core
+void main() {
+  // One triangle that covers the viewport.
+  vec2 p = vec2((gl_VertexID & 1) != 0 ? 3.0 : -1.0, (gl_VertexID & 2) != 0 ? 3.0 : -1.0);
+  gl_Position = vec4(p, 0.0, 1.0);
+}
+)";
+
+constexpr const char* kResolveFragmentShader = R"(#version 430 core
+layout(binding = 0) uniform sampler2D t_acc;
+layout(binding = 1) uniform sampler2D t_aux;
+layout(binding = 2) uniform sampler2D t_depth;
+uniform int u_probabilistic;
+uniform vec4 u_bg;
+layout(location = 0) out vec4 o_rgba;
+layout(location = 1) out vec2 o_cov_depth;
+
+void main() {
+  ivec2 p = ivec2(gl_FragCoord.xy);
+  vec4 s = texelFetch(t_acc, p, 0);
+  float inf = uintBitsToFloat(0x7f800000u);
+  vec3 colour = vec3(0.0);
+  float cov = 0.0, depth = inf;
+  if (u_probabilistic != 0) {
+    if (s.a > 0.0) { colour = s.rgb / s.a; cov = s.a; }
+    depth = texelFetch(t_aux, p, 0).r;
+  } else {
+    float a = texelFetch(t_aux, p, 0).r;
+    if (a > 0.0) {
+      colour = s.rgb / s.a;  // normalisation (fig. 5.2, lines 15-18)
+      cov = min(1.0, a);
+      depth = texelFetch(t_depth, p, 0).r;
+    }
+  }
+  float keep = (1.0 - cov) * u_bg.a;
+  o_rgba = vec4(cov * colour + keep * u_bg.rgb, cov + keep);
+  o_cov_depth = vec2(cov, depth);
+}
+)";
+
+// ---- EGL ----
+
+bool HasExtension(const char* list, const char* name) {
+  if (list == nullptr) return false;
+  size_t n = std::strlen(name);
+  for (const char* p = list; (p = std::strstr(p, name)) != nullptr; p += n) {
+    if ((p == list || p[-1] == ' ') && (p[n] == ' ' || p[n] == '\0')) return true;
+  }
+  return false;
+}
+
+std::string EglErrorName(EGLint e) {
+  switch (e) {
+    case EGL_SUCCESS:
+      return "EGL_SUCCESS";
+    case EGL_NOT_INITIALIZED:
+      return "EGL_NOT_INITIALIZED";
+    case EGL_BAD_ACCESS:
+      return "EGL_BAD_ACCESS";
+    case EGL_BAD_ALLOC:
+      return "EGL_BAD_ALLOC";
+    case EGL_BAD_ATTRIBUTE:
+      return "EGL_BAD_ATTRIBUTE";
+    case EGL_BAD_CONFIG:
+      return "EGL_BAD_CONFIG";
+    case EGL_BAD_CONTEXT:
+      return "EGL_BAD_CONTEXT";
+    case EGL_BAD_DISPLAY:
+      return "EGL_BAD_DISPLAY";
+    case EGL_BAD_MATCH:
+      return "EGL_BAD_MATCH";
+    case EGL_BAD_PARAMETER:
+      return "EGL_BAD_PARAMETER";
+    default: {
+      char buf[32];
+      std::snprintf(buf, sizeof(buf), "EGL error 0x%04x", static_cast<unsigned>(e));
+      return buf;
+    }
+  }
+}
+
+// EGL displays are per-process singletons and eglTerminate ends them for every user, so
+// renderers share each initialised display and the last one out terminates it.
+std::mutex g_display_mu;
+std::map<EGLDisplay, int> g_display_refs;
+
+void ReleaseDisplay(EGLDisplay d) {
+  std::lock_guard<std::mutex> l(g_display_mu);
+  if (--g_display_refs[d] == 0) {
+    g_display_refs.erase(d);
+    eglTerminate(d);
+  }
+}
+
+struct Candidate {
+  EGLDisplay display;
+  std::string label;
+};
+
+std::vector<Candidate> CandidateDisplays(std::string* notes) {
+  std::vector<Candidate> out;
+  const char* client_ext = eglQueryString(EGL_NO_DISPLAY, EGL_EXTENSIONS);
+  auto get_platform_display = reinterpret_cast<PFNEGLGETPLATFORMDISPLAYEXTPROC>(
+      eglGetProcAddress("eglGetPlatformDisplayEXT"));
+  if (get_platform_display != nullptr && HasExtension(client_ext, "EGL_EXT_platform_device")) {
+    auto query_devices =
+        reinterpret_cast<PFNEGLQUERYDEVICESEXTPROC>(eglGetProcAddress("eglQueryDevicesEXT"));
+    auto query_device_string = reinterpret_cast<PFNEGLQUERYDEVICESTRINGEXTPROC>(
+        eglGetProcAddress("eglQueryDeviceStringEXT"));
+    EGLDeviceEXT devices[16];
+    EGLint n = 0;
+    if (query_devices != nullptr && query_devices(16, devices, &n)) {
+      std::vector<Candidate> software;
+      for (EGLint i = 0; i < n; ++i) {
+        const char* ext =
+            query_device_string ? query_device_string(devices[i], EGL_EXTENSIONS) : nullptr;
+        bool sw = HasExtension(ext, "EGL_MESA_device_software");
+        EGLDisplay d = get_platform_display(EGL_PLATFORM_DEVICE_EXT, devices[i], nullptr);
+        if (d == EGL_NO_DISPLAY) continue;
+        Candidate c{d, "device " + std::to_string(i) + (sw ? " (software)" : "")};
+        (sw ? software : out).push_back(c);
+      }
+      out.insert(out.end(), software.begin(), software.end());
+    }
+  } else {
+    *notes += "no EGL_EXT_platform_device; ";
+  }
+  if (get_platform_display != nullptr &&
+      HasExtension(client_ext, "EGL_MESA_platform_surfaceless")) {
+    EGLDisplay d =
+        get_platform_display(EGL_PLATFORM_SURFACELESS_MESA, EGL_DEFAULT_DISPLAY, nullptr);
+    if (d != EGL_NO_DISPLAY) out.push_back({d, "surfaceless"});
+  }
+  EGLDisplay d = eglGetDisplay(EGL_DEFAULT_DISPLAY);
+  if (d != EGL_NO_DISPLAY) out.push_back({d, "default display"});
+  return out;
+}
+
+// ---- GL helpers ----
+
+Result<GLuint> Compile(GLenum type, const char* src) {
+  GLuint s = glCreateShader(type);
+  glShaderSource(s, 1, &src, nullptr);
+  glCompileShader(s);
+  GLint ok = 0;
+  glGetShaderiv(s, GL_COMPILE_STATUS, &ok);
+  if (!ok) {
+    char log[4096];
+    glGetShaderInfoLog(s, sizeof(log), nullptr, log);
+    glDeleteShader(s);
+    return Status::Internal(std::string("EGL renderer: shader does not compile: ") + log);
+  }
+  return s;
+}
+
+Result<GLuint> Link(const char* vs_src, const char* fs_src) {
+  HVDB_ASSIGN_OR_RETURN(GLuint vs, Compile(GL_VERTEX_SHADER, vs_src));
+  auto fs = Compile(GL_FRAGMENT_SHADER, fs_src);
+  if (!fs.ok()) {
+    glDeleteShader(vs);
+    return fs.status();
+  }
+  GLuint p = glCreateProgram();
+  glAttachShader(p, vs);
+  glAttachShader(p, *fs);
+  glLinkProgram(p);
+  glDeleteShader(vs);
+  glDeleteShader(*fs);
+  GLint ok = 0;
+  glGetProgramiv(p, GL_LINK_STATUS, &ok);
+  if (!ok) {
+    char log[4096];
+    glGetProgramInfoLog(p, sizeof(log), nullptr, log);
+    glDeleteProgram(p);
+    return Status::Internal(std::string("EGL renderer: program does not link: ") + log);
+  }
+  return p;
+}
+
+GLuint MakeTexture(GLenum format, uint32_t w, uint32_t h) {
+  GLuint t;
+  glGenTextures(1, &t);
+  glBindTexture(GL_TEXTURE_2D, t);
+  glTexStorage2D(GL_TEXTURE_2D, 1, format, static_cast<GLsizei>(w), static_cast<GLsizei>(h));
+  // No mipmaps: the default minification filter would make the texture incomplete.
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+  return t;
+}
+
+class EglRenderer final : public Renderer {
+ public:
+  static Result<std::unique_ptr<Renderer>> Create() {
+    std::unique_ptr<EglRenderer> r(new EglRenderer());
+    HVDB_RETURN_IF_ERROR(r->Init());
+    return std::unique_ptr<Renderer>(std::move(r));
+  }
+
+  ~EglRenderer() override {
+    if (display_ == EGL_NO_DISPLAY) return;
+    if (context_ != EGL_NO_CONTEXT) {
+      if (MakeCurrent()) {
+        FreeTargets();
+        if (!point_buffers_.empty()) {
+          glDeleteBuffers(static_cast<GLsizei>(point_buffers_.size()), point_buffers_.data());
+        }
+        if (table_buffer_) glDeleteBuffers(1, &table_buffer_);
+        if (vao_) glDeleteVertexArrays(1, &vao_);
+        if (splat_program_) glDeleteProgram(splat_program_);
+        if (resolve_program_) glDeleteProgram(resolve_program_);
+        ReleaseCurrent();
+      }
+      eglDestroyContext(display_, context_);
+    }
+    if (surface_ != EGL_NO_SURFACE) eglDestroySurface(display_, surface_);
+    ReleaseDisplay(display_);
+  }
+
+  RendererKind kind() const override { return RendererKind::kEgl; }
+  std::string name() const override { return name_; }
+  RenderStats last_stats() const override {
+    std::lock_guard<std::mutex> l(mu_);
+    return stats_;
+  }
+
+  Result<Image> Render(std::span<const Point> points, const Camera& camera,
+                       const RenderOptions& options) override {
+    std::lock_guard<std::mutex> l(mu_);
+    auto start = std::chrono::steady_clock::now();
+    HVDB_ASSIGN_OR_RETURN(View view, internal::PrepareView(camera, options));
+    Camera cam = options.width != 0 ? camera.Resized(options.width, options.height) : camera;
+    std::vector<float> weights = internal::ViewWeightTable(cam, options);
+    if (!MakeCurrent()) {
+      return Status::Internal("EGL renderer: eglMakeCurrent failed: " +
+                              EglErrorName(eglGetError()));
+    }
+    Result<Image> img = RenderCurrent(points, view, weights, options);
+    glFinish();
+    ReleaseCurrent();
+    if (img.ok()) {
+      stats_.points = points.size();
+      stats_.milliseconds =
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+              .count();
+    }
+    return img;
+  }
+
+ private:
+  EglRenderer() = default;
+
+  bool MakeCurrent() {
+    eglBindAPI(EGL_OPENGL_API);  // per-thread state: renders may come from any thread
+    return eglMakeCurrent(display_, surface_, surface_, context_) == EGL_TRUE;
+  }
+  void ReleaseCurrent() {
+    eglMakeCurrent(display_, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT);
+  }
+
+  Status Init() {
+    std::string notes;
+    std::vector<Candidate> candidates = CandidateDisplays(&notes);
+    if (candidates.empty()) {
+      return Status::Unsupported("EGL renderer: no EGL display (" + notes +
+                                 "is libEGL with Mesa or a GPU vendor's EGL installed?)");
+    }
+    for (const Candidate& c : candidates) {
+      std::string why;
+      if (TryDisplay(c, &why)) return Status::OK();
+      notes += c.label + ": " + why + "; ";
+    }
+    return Status::Unsupported("EGL renderer: no OpenGL 4.3 core context could be made (" +
+                               notes.substr(0, notes.size() - 2) + ")");
+  }
+
+  bool TryDisplay(const Candidate& c, std::string* why) {
+    EGLint major = 0, minor = 0;
+    if (!eglInitialize(c.display, &major, &minor)) {
+      *why = "eglInitialize: " + EglErrorName(eglGetError());
+      return false;
+    }
+    {
+      std::lock_guard<std::mutex> l(g_display_mu);
+      ++g_display_refs[c.display];
+    }
+    display_ = c.display;
+    auto fail = [&](const std::string& msg) {
+      *why = msg;
+      if (context_ != EGL_NO_CONTEXT) eglDestroyContext(display_, context_);
+      if (surface_ != EGL_NO_SURFACE) eglDestroySurface(display_, surface_);
+      context_ = EGL_NO_CONTEXT;
+      surface_ = EGL_NO_SURFACE;
+      ReleaseDisplay(display_);
+      display_ = EGL_NO_DISPLAY;
+      return false;
+    };
+    if (!eglBindAPI(EGL_OPENGL_API)) return fail("desktop OpenGL is not supported");
+    const char* ext = eglQueryString(display_, EGL_EXTENSIONS);
+    bool surfaceless = HasExtension(ext, "EGL_KHR_surfaceless_context");
+    EGLConfig config = nullptr;
+    EGLint n = 0;
+    const EGLint config_attribs[] = {EGL_RENDERABLE_TYPE, EGL_OPENGL_BIT, EGL_SURFACE_TYPE,
+                                     EGL_PBUFFER_BIT, EGL_NONE};
+    if (!eglChooseConfig(display_, config_attribs, &config, 1, &n) || n == 0) {
+      if (!HasExtension(ext, "EGL_KHR_no_config_context") || !surfaceless) {
+        return fail("no OpenGL-renderable config");
+      }
+      config = EGL_NO_CONFIG_KHR;
+    }
+    for (EGLint minor_version : {5, 3}) {
+      const EGLint ctx_attribs[] = {EGL_CONTEXT_MAJOR_VERSION,
+                                    4,
+                                    EGL_CONTEXT_MINOR_VERSION,
+                                    minor_version,
+                                    EGL_CONTEXT_OPENGL_PROFILE_MASK,
+                                    EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT,
+                                    EGL_NONE};
+      context_ = eglCreateContext(display_, config, EGL_NO_CONTEXT, ctx_attribs);
+      if (context_ != EGL_NO_CONTEXT) break;
+    }
+    if (context_ == EGL_NO_CONTEXT) {
+      return fail("eglCreateContext (OpenGL 4.3 core): " + EglErrorName(eglGetError()));
+    }
+    if (!surfaceless) {
+      const EGLint pb[] = {EGL_WIDTH, 1, EGL_HEIGHT, 1, EGL_NONE};
+      surface_ = eglCreatePbufferSurface(display_, config, pb);
+      if (surface_ == EGL_NO_SURFACE) return fail("no surfaceless contexts and no pbuffer");
+    }
+    if (!MakeCurrent()) return fail("eglMakeCurrent: " + EglErrorName(eglGetError()));
+    Status st = InitGl();
+    ReleaseCurrent();
+    if (!st.ok()) return fail(st.message());
+    name_ = "egl: " + gl_renderer_ + ", OpenGL " + gl_version_ + " (" + c.label + ")";
+    return true;
+  }
+
+  Status InitGl() {
+    const char* r = reinterpret_cast<const char*>(glGetString(GL_RENDERER));
+    const char* v = reinterpret_cast<const char*>(glGetString(GL_VERSION));
+    gl_renderer_ = r ? r : "?";
+    gl_version_ = v ? v : "?";
+    GLint major = 0, minor = 0;
+    glGetIntegerv(GL_MAJOR_VERSION, &major);
+    glGetIntegerv(GL_MINOR_VERSION, &minor);
+    if (major < 4 || (major == 4 && minor < 3)) {
+      return Status::Unsupported("OpenGL " + gl_version_ + " is older than 4.3");
+    }
+    GLint max_ssbo = 0, max_size = 0;
+    glGetIntegerv(GL_MAX_SHADER_STORAGE_BLOCK_SIZE, &max_ssbo);
+    glGetIntegerv(GL_MAX_TEXTURE_SIZE, &max_size);
+    if (max_size < static_cast<GLint>(kMaxImageSize)) {
+      return Status::Unsupported("the largest texture (" + std::to_string(max_size) +
+                                 ") is smaller than 4096");
+    }
+    // Points go to the GPU in chunks that fit one storage buffer binding.
+    chunk_points_ = std::min<size_t>(size_t{1} << 20, static_cast<size_t>(max_ssbo) / 64);
+    if (chunk_points_ == 0) return Status::Unsupported("no shader storage buffers");
+    HVDB_ASSIGN_OR_RETURN(splat_program_, Link(kSplatVertexShader, kSplatFragmentShader));
+    HVDB_ASSIGN_OR_RETURN(resolve_program_, Link(kResolveVertexShader, kResolveFragmentShader));
+    glGenVertexArrays(1, &vao_);  // core profile draws need one, even without attributes
+    glGenBuffers(1, &table_buffer_);
+    GLenum e = glGetError();
+    if (e != GL_NO_ERROR) return Status::Internal("OpenGL error " + std::to_string(e));
+    return Status::OK();
+  }
+
+  void FreeTargets() {
+    GLuint fbos[] = {fbo_depth_, fbo_vis_, fbo_prob_, fbo_out_};
+    glDeleteFramebuffers(4, fbos);
+    GLuint texs[] = {tex_zmin_,   tex_vis_acc_,  tex_vis_cov_, tex_prob_acc_,
+                     tex_prob_z_, tex_out_rgba_, tex_out_cd_};
+    glDeleteTextures(7, texs);
+    fbo_depth_ = fbo_vis_ = fbo_prob_ = fbo_out_ = 0;
+    tex_zmin_ = tex_vis_acc_ = tex_vis_cov_ = tex_prob_acc_ = tex_prob_z_ = 0;
+    tex_out_rgba_ = tex_out_cd_ = 0;
+    target_w_ = target_h_ = 0;
+  }
+
+  Status EnsureTargets(uint32_t w, uint32_t h) {
+    if (w == target_w_ && h == target_h_) return Status::OK();
+    FreeTargets();
+    tex_zmin_ = MakeTexture(GL_R32F, w, h);        // nearest depth (GL_MIN blending)
+    tex_vis_acc_ = MakeTexture(GL_RGBA32F, w, h);  // sum w a c, sum w a
+    tex_vis_cov_ = MakeTexture(GL_R32F, w, h);     // sum a
+    tex_prob_acc_ = MakeTexture(GL_RGBA16, w, h);  // C, A: clamps at one (saturation)
+    tex_prob_z_ = MakeTexture(GL_R32F, w, h);      // nearest depth (GL_MIN blending)
+    tex_out_rgba_ = MakeTexture(GL_RGBA32F, w, h);
+    tex_out_cd_ = MakeTexture(GL_RG32F, w, h);  // coverage, depth
+    auto make_fbo = [](GLuint c0, GLuint c1) {
+      GLuint f;
+      glGenFramebuffers(1, &f);
+      glBindFramebuffer(GL_FRAMEBUFFER, f);
+      glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, c0, 0);
+      if (c1) glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT1, GL_TEXTURE_2D, c1, 0);
+      const GLenum bufs[] = {GL_COLOR_ATTACHMENT0, GL_COLOR_ATTACHMENT1};
+      glDrawBuffers(c1 ? 2 : 1, bufs);
+      return f;
+    };
+    fbo_depth_ = make_fbo(tex_zmin_, 0);
+    fbo_vis_ = make_fbo(tex_vis_acc_, tex_vis_cov_);
+    fbo_prob_ = make_fbo(tex_prob_acc_, tex_prob_z_);
+    fbo_out_ = make_fbo(tex_out_rgba_, tex_out_cd_);
+    for (GLuint f : {fbo_depth_, fbo_vis_, fbo_prob_, fbo_out_}) {
+      glBindFramebuffer(GL_FRAMEBUFFER, f);
+      GLenum st = glCheckFramebufferStatus(GL_FRAMEBUFFER);
+      if (st != GL_FRAMEBUFFER_COMPLETE) {
+        FreeTargets();
+        return Status::Internal("EGL renderer: framebuffer incomplete (status " +
+                                std::to_string(st) + ")");
+      }
+    }
+    target_w_ = w;
+    target_h_ = h;
+    return Status::OK();
+  }
+
+  // Uploads the points chunk by chunk, in `order` when given; returns the points per chunk.
+  std::vector<size_t> Upload(std::span<const Point> points, const std::vector<uint32_t>* order) {
+    size_t n = order ? order->size() : points.size();
+    size_t chunks = (n + chunk_points_ - 1) / chunk_points_;
+    if (point_buffers_.size() < chunks) {
+      size_t old = point_buffers_.size();
+      point_buffers_.resize(chunks);
+      glGenBuffers(static_cast<GLsizei>(chunks - old), point_buffers_.data() + old);
+    }
+    std::vector<size_t> counts;
+    std::vector<Point> staging;
+    for (size_t c = 0; c < chunks; ++c) {
+      size_t lo = c * chunk_points_, cnt = std::min(chunk_points_, n - lo);
+      const Point* data = points.data() + lo;
+      if (order) {
+        staging.resize(cnt);
+        for (size_t i = 0; i < cnt; ++i) staging[i] = points[(*order)[lo + i]];
+        data = staging.data();
+      }
+      glBindBuffer(GL_SHADER_STORAGE_BUFFER, point_buffers_[c]);
+      // A fresh data store each time: the driver need not wait for the last frame's draws.
+      glBufferData(GL_SHADER_STORAGE_BUFFER, static_cast<GLsizeiptr>(cnt * sizeof(Point)), data,
+                   GL_STREAM_DRAW);
+      counts.push_back(cnt);
+    }
+    return counts;
+  }
+
+  void DrawChunks(const std::vector<size_t>& counts) {
+    for (size_t c = 0; c < counts.size(); ++c) {
+      glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, point_buffers_[c]);
+      glDrawArraysInstanced(GL_TRIANGLE_STRIP, 0, 4, static_cast<GLsizei>(counts[c]));
+    }
+  }
+
+  void SetUniforms(const View& view, int num_weights) {
+    GLuint p = splat_program_;
+    auto loc = [p](const char* n) { return glGetUniformLocation(p, n); };
+    glUseProgram(p);
+    glUniform3f(loc("u_rot0"), view.rot[0], view.rot[1], view.rot[2]);
+    glUniform3f(loc("u_rot1"), view.rot[3], view.rot[4], view.rot[5]);
+    glUniform3f(loc("u_rot2"), view.rot[6], view.rot[7], view.rot[8]);
+    glUniform3f(loc("u_trans"), view.trans[0], view.trans[1], view.trans[2]);
+    glUniform4f(loc("u_intr"), view.fx, view.fy, view.cx, view.cy);
+    glUniform1fv(loc("u_k"), 5, view.k);
+    glUniform1i(loc("u_distorted"), view.distorted ? 1 : 0);
+    glUniform1f(loc("u_max_r2"), view.max_r2);
+    glUniform1f(loc("u_near"), view.near_plane);
+    glUniform1f(loc("u_cutoff2"), view.cutoff2);
+    glUniform1f(loc("u_filter"), view.filter);
+    glUniform1f(loc("u_scale2"), view.scale2);
+    glUniform1f(loc("u_default_var"), view.default_var);
+    glUniform2f(loc("u_size"), static_cast<float>(view.width), static_cast<float>(view.height));
+    glUniform1i(loc("u_num_weights"), num_weights);
+    glUniform1f(loc("u_dz"), view.depth_threshold);
+  }
+
+  Result<Image> RenderCurrent(std::span<const Point> points, const View& view,
+                              const std::vector<float>& weights, const RenderOptions& o) {
+    while (glGetError() != GL_NO_ERROR) {
+    }
+    HVDB_RETURN_IF_ERROR(EnsureTargets(view.width, view.height));
+    // The lookup table: sRGB decoding, then the view weights by camera id.
+    std::vector<float> table(internal::SrgbTable().begin(), internal::SrgbTable().end());
+    table.insert(table.end(), weights.begin(), weights.end());
+    glBindBuffer(GL_SHADER_STORAGE_BUFFER, table_buffer_);
+    glBufferData(GL_SHADER_STORAGE_BUFFER, static_cast<GLsizeiptr>(table.size() * sizeof(float)),
+                 table.data(), GL_STREAM_DRAW);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, table_buffer_);
+
+    const bool probabilistic = o.mode == Mode::kProbabilistic;
+    std::vector<size_t> counts;
+    if (probabilistic) {
+      // 5.4.1: "the Gaussians have to be presorted by the CPU according to their depths".
+      // Points behind the near plane are culled anyway and left out of the sort.
+      std::vector<float> keys;
+      std::vector<uint32_t> index;
+      keys.reserve(points.size());
+      index.reserve(points.size());
+      for (size_t i = 0; i < points.size(); ++i) {
+        float z = internal::CameraDepth(view, points[i]);
+        if (z >= view.near_plane) {
+          keys.push_back(z);
+          index.push_back(static_cast<uint32_t>(i));
+        }
+      }
+      std::vector<uint32_t> order = internal::StableOrder(keys);
+      for (uint32_t& i : order) i = index[i];
+      counts = Upload(points, &order);
+    } else {
+      counts = Upload(points, nullptr);
+    }
+
+    SetUniforms(view, static_cast<int>(weights.size()));
+    GLint pass_loc = glGetUniformLocation(splat_program_, "u_pass");
+    glBindVertexArray(vao_);
+    glViewport(0, 0, static_cast<GLsizei>(view.width), static_cast<GLsizei>(view.height));
+    glDisable(GL_CULL_FACE);
+    glDisable(GL_SCISSOR_TEST);
+    const float zero[4] = {0, 0, 0, 0};
+    const float inf[4] = {std::numeric_limits<float>::infinity(), 0, 0, 0};
+    glDisable(GL_DEPTH_TEST);
+    glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
+    glEnable(GL_BLEND);
+    // The splat program samples unit 0 (t_zmin): nothing it renders into may be bound there.
+    glActiveTexture(GL_TEXTURE0);
+    glBindTexture(GL_TEXTURE_2D, 0);
+    if (!probabilistic) {
+      // Pass 1: the nearest depth at each pixel.
+      glBindFramebuffer(GL_FRAMEBUFFER, fbo_depth_);
+      glClearBufferfv(GL_COLOR, 0, inf);
+      glBlendEquation(GL_MIN);
+      glUniform1i(pass_loc, 0);
+      DrawChunks(counts);
+      // Pass 2: additive blending of the fragments that pass the fuzzy depth test.
+      glBindFramebuffer(GL_FRAMEBUFFER, fbo_vis_);
+      glClearBufferfv(GL_COLOR, 0, zero);
+      glClearBufferfv(GL_COLOR, 1, zero);
+      glBindTexture(GL_TEXTURE_2D, tex_zmin_);
+      glBlendEquation(GL_FUNC_ADD);
+      glBlendFunc(GL_ONE, GL_ONE);
+      glUniform1i(pass_loc, 1);
+      DrawChunks(counts);
+    } else {
+      glBindFramebuffer(GL_FRAMEBUFFER, fbo_prob_);
+      glClearBufferfv(GL_COLOR, 0, zero);
+      glClearBufferfv(GL_COLOR, 1, inf);
+      // C += c min(a, 1 - A); A = min(1, A + a): the 16-bit normalised target clamps.
+      glBlendEquationi(0, GL_FUNC_ADD);
+      glBlendFunci(0, GL_SRC_ALPHA_SATURATE, GL_ONE);
+      glBlendEquationi(1, GL_MIN);
+      glBlendFunci(1, GL_ONE, GL_ONE);
+      glUniform1i(pass_loc, 2);
+      DrawChunks(counts);
+    }
+    // Normalisation and compositing over the background, one full-screen pass.
+    glDisable(GL_BLEND);
+    glDisable(GL_DEPTH_TEST);
+    glBindFramebuffer(GL_FRAMEBUFFER, fbo_out_);
+    glUseProgram(resolve_program_);
+    glUniform1i(glGetUniformLocation(resolve_program_, "u_probabilistic"), probabilistic ? 1 : 0);
+    glUniform4f(glGetUniformLocation(resolve_program_, "u_bg"), o.background[0], o.background[1],
+                o.background[2], o.background[3]);
+    glActiveTexture(GL_TEXTURE0);
+    glBindTexture(GL_TEXTURE_2D, probabilistic ? tex_prob_acc_ : tex_vis_acc_);
+    glActiveTexture(GL_TEXTURE1);
+    glBindTexture(GL_TEXTURE_2D, probabilistic ? tex_prob_z_ : tex_vis_cov_);
+    glActiveTexture(GL_TEXTURE2);
+    glBindTexture(GL_TEXTURE_2D, tex_zmin_);
+    glDrawArrays(GL_TRIANGLES, 0, 3);
+
+    Image img;
+    img.width = view.width;
+    img.height = view.height;
+    img.rgba.resize(img.pixels() * 4);
+    std::vector<float> cd(img.pixels() * 2);
+    glPixelStorei(GL_PACK_ALIGNMENT, 4);
+    glReadBuffer(GL_COLOR_ATTACHMENT0);
+    glReadPixels(0, 0, static_cast<GLsizei>(view.width), static_cast<GLsizei>(view.height), GL_RGBA,
+                 GL_FLOAT, img.rgba.data());
+    glReadBuffer(GL_COLOR_ATTACHMENT1);
+    glReadPixels(0, 0, static_cast<GLsizei>(view.width), static_cast<GLsizei>(view.height), GL_RG,
+                 GL_FLOAT, cd.data());
+    img.coverage.resize(img.pixels());
+    img.depth.resize(img.pixels());
+    for (size_t i = 0; i < img.pixels(); ++i) {
+      img.coverage[i] = cd[2 * i];
+      img.depth[i] = cd[2 * i + 1];
+    }
+    GLenum e = glGetError();
+    if (e != GL_NO_ERROR) {
+      return Status::Internal("EGL renderer: OpenGL error 0x" + std::to_string(e) +
+                              " while rendering " + std::to_string(points.size()) + " points");
+    }
+    return img;
+  }
+
+  mutable std::mutex mu_;
+  RenderStats stats_;
+  EGLDisplay display_ = EGL_NO_DISPLAY;
+  EGLContext context_ = EGL_NO_CONTEXT;
+  EGLSurface surface_ = EGL_NO_SURFACE;
+  std::string name_, gl_renderer_, gl_version_;
+  size_t chunk_points_ = 0;
+  GLuint splat_program_ = 0, resolve_program_ = 0, vao_ = 0, table_buffer_ = 0;
+  std::vector<GLuint> point_buffers_;
+  uint32_t target_w_ = 0, target_h_ = 0;
+  GLuint fbo_depth_ = 0, fbo_vis_ = 0, fbo_prob_ = 0, fbo_out_ = 0;
+  GLuint tex_zmin_ = 0, tex_vis_acc_ = 0, tex_vis_cov_ = 0, tex_prob_acc_ = 0, tex_prob_z_ = 0;
+  GLuint tex_out_rgba_ = 0, tex_out_cd_ = 0;
+};
+
+}  // namespace
+
+Result<std::unique_ptr<Renderer>> MakeEglRenderer() {
+  // An operator's (and the tests') switch for the CPU path on machines whose EGL misbehaves.
+  const char* off = std::getenv("HVDB_RENDER_NO_EGL");
+  if (off != nullptr && *off != '\0' && std::strcmp(off, "0") != 0) {
+    return Status::Unsupported("EGL renderer: disabled by HVDB_RENDER_NO_EGL");
+  }
+  return EglRenderer::Create();
+}
+
+Result<std::unique_ptr<Renderer>> MakeRenderer(RendererKind kind) {
+  if (kind == RendererKind::kCpu) return MakeCpuRenderer();
+  auto egl = MakeEglRenderer();
+  if (egl.ok() || kind == RendererKind::kEgl) return egl;
+  internal::LogWarning("falling back to the CPU renderer: " + egl.status().message());
+  return MakeCpuRenderer();
+}
+
+}  // namespace hvdb::render

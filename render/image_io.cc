@@ -1,0 +1,202 @@
+// PNG (8-bit sRGB, through OpenCV's imgcodecs) and OpenEXR (float) output of rendered images.
+#include <ImfChannelList.h>
+#include <ImfFrameBuffer.h>
+#include <ImfHeader.h>
+#include <ImfIO.h>
+#include <ImfOutputFile.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "render/metrics.h"
+#include "render/renderer.h"
+
+namespace hvdb::render {
+
+namespace {
+
+uint8_t ToByte(float v) {
+  float c = std::clamp(v, 0.0f, 1.0f);
+  return static_cast<uint8_t>(std::lround(c * 255.0f));
+}
+
+// OpenEXR writes through an OStream; this one appends to a string.
+class StringOStream : public Imf::OStream {
+ public:
+  explicit StringOStream(std::string* out) : Imf::OStream("memory"), out_(out) {}
+  void write(const char c[], int n) override {
+    if (pos_ + static_cast<uint64_t>(n) > out_->size()) out_->resize(pos_ + n);
+    std::memcpy(out_->data() + pos_, c, static_cast<size_t>(n));
+    pos_ += static_cast<uint64_t>(n);
+  }
+  uint64_t tellp() override { return pos_; }
+  void seekp(uint64_t pos) override { pos_ = pos; }
+
+ private:
+  std::string* out_;
+  uint64_t pos_ = 0;
+};
+
+Status CheckImage(const Image& img) {
+  if (img.width == 0 || img.height == 0 || img.rgba.size() != img.pixels() * 4) {
+    return Status::InvalidArgument("image: empty, or rgba does not hold width x height x 4");
+  }
+  return Status::OK();
+}
+
+Status WriteFile(const std::string& path, const std::string& bytes) {
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  if (!out) return Status::IOError(path + ": cannot open for writing");
+  out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  out.close();
+  if (!out) return Status::IOError(path + ": write failed");
+  return Status::OK();
+}
+
+bool EndsWith(const std::string& s, const std::string& suffix) {
+  if (s.size() < suffix.size()) return false;
+  return std::equal(suffix.rbegin(), suffix.rend(), s.rbegin(),
+                    [](char a, char b) { return std::tolower(a) == std::tolower(b); });
+}
+
+}  // namespace
+
+Srgb8Image ToSrgb8(const Image& img) {
+  Srgb8Image out;
+  out.width = img.width;
+  out.height = img.height;
+  out.channels = 3;
+  for (size_t i = 0; i < img.pixels(); ++i) {
+    if (img.rgba[i * 4 + 3] < 1.0f - 0.5f / 255.0f) {
+      out.channels = 4;
+      break;
+    }
+  }
+  out.data.resize(img.pixels() * out.channels);
+  for (size_t i = 0; i < img.pixels(); ++i) {
+    const float* p = &img.rgba[i * 4];
+    float a = p[3];
+    // Premultiplied to straight colour (PNG stores straight alpha).
+    float inv = a > 0 ? 1.0f / a : 0.0f;
+    for (int c = 0; c < 3; ++c) {
+      float straight = out.channels == 4 ? p[c] * inv : p[c];
+      out.data[i * out.channels + c] = ToByte(LinearToSrgb(straight));
+    }
+    if (out.channels == 4) out.data[i * 4 + 3] = ToByte(a);
+  }
+  return out;
+}
+
+Result<std::string> EncodePng(const Image& img) {
+  HVDB_RETURN_IF_ERROR(CheckImage(img));
+  Srgb8Image s = ToSrgb8(img);
+  cv::Mat m(static_cast<int>(s.height), static_cast<int>(s.width),
+            s.channels == 4 ? CV_8UC4 : CV_8UC3, s.data.data());
+  // OpenCV stores blue first.
+  for (size_t i = 0; i < s.data.size(); i += s.channels) std::swap(s.data[i], s.data[i + 2]);
+  std::vector<uchar> buf;
+  try {
+    if (!cv::imencode(".png", m, buf)) return Status::Internal("PNG encoding failed");
+  } catch (const cv::Exception& e) {
+    return Status::Internal(std::string("PNG encoding failed: ") + e.what());
+  }
+  return std::string(buf.begin(), buf.end());
+}
+
+Status WritePng(const Image& img, const std::string& path) {
+  HVDB_ASSIGN_OR_RETURN(std::string bytes, EncodePng(img));
+  return WriteFile(path, bytes);
+}
+
+Result<std::string> EncodeExr(const Image& img) {
+  HVDB_RETURN_IF_ERROR(CheckImage(img));
+  const int w = static_cast<int>(img.width), h = static_cast<int>(img.height);
+  std::vector<float> depth = img.depth;
+  if (depth.size() != img.pixels()) depth.assign(img.pixels(), INFINITY);
+  std::string out;
+  try {
+    Imf::Header header(w, h);
+    for (const char* c : {"R", "G", "B", "A", "Z"}) {
+      header.channels().insert(c, Imf::Channel(Imf::FLOAT));
+    }
+    StringOStream stream(&out);
+    Imf::OutputFile file(stream, header);
+    Imf::FrameBuffer fb;
+    const size_t px = 4 * sizeof(float);
+    char* base = reinterpret_cast<char*>(const_cast<float*>(img.rgba.data()));
+    const char* names[] = {"R", "G", "B", "A"};
+    for (int c = 0; c < 4; ++c) {
+      fb.insert(names[c], Imf::Slice(Imf::FLOAT, base + c * sizeof(float), px, px * w));
+    }
+    fb.insert("Z", Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(depth.data()), sizeof(float),
+                              sizeof(float) * w));
+    file.setFrameBuffer(fb);
+    file.writePixels(h);
+  } catch (const std::exception& e) {
+    return Status::Internal(std::string("OpenEXR encoding failed: ") + e.what());
+  }
+  return out;
+}
+
+Status WriteExr(const Image& img, const std::string& path) {
+  HVDB_ASSIGN_OR_RETURN(std::string bytes, EncodeExr(img));
+  return WriteFile(path, bytes);
+}
+
+Status WriteImage(const Image& img, const std::string& path) {
+  if (EndsWith(path, ".png")) return WritePng(img, path);
+  if (EndsWith(path, ".exr")) return WriteExr(img, path);
+  return Status::InvalidArgument(path +
+                                 ": the image format comes from the extension, .png or "
+                                 ".exr");
+}
+
+Status WriteSrgb8Png(const Srgb8Image& s, const std::string& path) {
+  if (s.data.size() != size_t{s.width} * s.height * s.channels || s.width == 0 ||
+      (s.channels != 1 && s.channels != 3 && s.channels != 4)) {
+    return Status::InvalidArgument("image: size and data do not agree");
+  }
+  std::vector<uint8_t> bgr = s.data;
+  if (s.channels >= 3) {
+    for (size_t i = 0; i < bgr.size(); i += s.channels) std::swap(bgr[i], bgr[i + 2]);
+  }
+  cv::Mat m(static_cast<int>(s.height), static_cast<int>(s.width),
+            CV_8UC(static_cast<int>(s.channels)), bgr.data());
+  try {
+    if (!cv::imwrite(path, m)) return Status::IOError(path + ": cannot write PNG");
+  } catch (const cv::Exception& e) {
+    return Status::IOError(path + ": " + e.what());
+  }
+  return Status::OK();
+}
+
+Result<Srgb8Image> ReadSrgb8(const std::string& path) {
+  cv::Mat m;
+  try {
+    m = cv::imread(path, cv::IMREAD_UNCHANGED);
+  } catch (const cv::Exception& e) {
+    return Status::IOError(path + ": " + e.what());
+  }
+  if (m.empty()) return Status::NotFound(path + ": missing or not a readable image");
+  if (m.depth() != CV_8U) return Status::InvalidArgument(path + ": not an 8-bit image");
+  Srgb8Image s;
+  s.width = static_cast<uint32_t>(m.cols);
+  s.height = static_cast<uint32_t>(m.rows);
+  s.channels = static_cast<uint32_t>(m.channels());
+  s.data.resize(size_t{s.width} * s.height * s.channels);
+  for (int y = 0; y < m.rows; ++y) {
+    std::memcpy(s.data.data() + static_cast<size_t>(y) * s.width * s.channels, m.ptr(y),
+                size_t{s.width} * s.channels);
+  }
+  if (s.channels >= 3) {
+    for (size_t i = 0; i < s.data.size(); i += s.channels) std::swap(s.data[i], s.data[i + 2]);
+  }
+  return s;
+}
+
+}  // namespace hvdb::render

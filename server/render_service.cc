@@ -1,0 +1,333 @@
+#include "server/render_service.h"
+
+#include <cmath>
+#include <nlohmann/json.hpp>
+
+namespace hvdb::server {
+
+namespace {
+
+Status Invalid(const std::string& field, const std::string& why) {
+  return Status::InvalidArgument(field + ": " + why);
+}
+
+// Prefixes a check's message with the request field it concerns.
+Status InField(const std::string& field, const Status& st) {
+  if (st.ok()) return st;
+  return Status(st.code(), field + ": " + st.message());
+}
+
+constexpr uint32_t kMaxRenderLod = 16;
+// Replies must fit the client's frame limit (256 MiB) with room to spare.
+constexpr size_t kMaxEncodedImage = 200u << 20;
+
+}  // namespace
+
+render::Camera CameraFromInfo(const CameraInfo& info) {
+  render::Camera c;
+  c.width = info.width;
+  c.height = info.height;
+  c.fx = info.fx;
+  c.fy = info.fy;
+  c.cx = info.cx;
+  c.cy = info.cy;
+  c.distortion = info.distortion;
+  c.world_from_camera = info.world_from_camera;
+  return c;
+}
+
+Result<render::Camera> ViewFromWire(const wire::View& view, const DatasetInfo& info,
+                                    const std::string& field) {
+  switch (view.kind_case()) {
+    case wire::View::kCamera: {
+      auto ci = wire::FromWire(view.camera());
+      if (!ci.ok()) return InField(field, ci.status());
+      return CameraFromInfo(*ci);
+    }
+    case wire::View::kLookAt: {
+      const wire::LookAt& l = view.look_at();
+      if (l.eye_size() != 3 || l.target_size() != 3) {
+        return Invalid(field + ".look_at", "eye and target need 3 values each");
+      }
+      if (l.up_size() != 0 && l.up_size() != 3) {
+        return Invalid(field + ".look_at.up", "needs 3 values (or none for 0 1 0)");
+      }
+      if (!(l.fov_y_deg() > 0 && l.fov_y_deg() < 180)) {
+        return Invalid(field + ".look_at.fov_y_deg", "must be in (0, 180) degrees");
+      }
+      std::array<double, 3> eye{}, target{}, up{0, 1, 0};
+      for (int i = 0; i < 3; ++i) {
+        eye[static_cast<size_t>(i)] = l.eye(i);
+        target[static_cast<size_t>(i)] = l.target(i);
+        if (l.up_size() == 3) up[static_cast<size_t>(i)] = l.up(i);
+      }
+      return render::Camera::LookAt(eye, target, up, l.fov_y_deg(), l.width(), l.height());
+    }
+    case wire::View::kDatasetCamera: {
+      for (const CameraInfo& c : info.cameras) {
+        if (c.id == view.dataset_camera()) return CameraFromInfo(c);
+      }
+      return Invalid(field + ".dataset_camera", "dataset '" + info.name + "' has no camera " +
+                                                    std::to_string(view.dataset_camera()));
+    }
+    default:
+      return Invalid(field, "needs a camera, a look_at or a dataset_camera");
+  }
+}
+
+Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> dataset,
+                                                     const wire::Render& r,
+                                                     const RenderLimits& limits) {
+  std::unique_ptr<RenderJob> job(new RenderJob());
+  const DatasetInfo info = dataset->Info();
+  job->dataset_ = std::move(dataset);
+  job->limits_ = limits;
+  switch (r.renderer()) {
+    case wire::RENDERER_AUTO:
+      job->kind_ = render::RendererKind::kAuto;
+      break;
+    case wire::RENDERER_EGL:
+      job->kind_ = render::RendererKind::kEgl;
+      break;
+    case wire::RENDERER_CPU:
+      job->kind_ = render::RendererKind::kCpu;
+      break;
+    default:
+      return Invalid("render.renderer", "unknown value " + std::to_string(r.renderer()));
+  }
+  if (!wire::ImageFormat_IsValid(r.format())) {
+    return Invalid("render.format", "unknown value " + std::to_string(r.format()));
+  }
+  job->format_ = r.format();
+  render::RenderOptions& o = job->options_;
+  switch (r.mode()) {
+    case wire::RENDER_VISIBILITY:
+      o.mode = render::Mode::kVisibility;
+      break;
+    case wire::RENDER_PROBABILISTIC:
+      o.mode = render::Mode::kProbabilistic;
+      break;
+    default:
+      return Invalid("render.mode", "unknown value " + std::to_string(r.mode()));
+  }
+  if (r.lod() > kMaxRenderLod) {
+    return Invalid("render.lod", std::to_string(r.lod()) + " is out of range (0.." +
+                                     std::to_string(kMaxRenderLod) + ")");
+  }
+  // At level i the sampling density falls by 2^i, so splats grow by 2^(i/2) (thesis 8.4).
+  o.splat_scale = static_cast<float>(std::pow(2.0, r.lod() / 2.0));
+  job->query_.lod = static_cast<int>(r.lod());
+  job->query_.temporal_lod = !r.no_temporal_lod();
+  job->query_.label_mask = r.label_mask();
+  if (r.background_size() == 4) {
+    for (int i = 0; i < 4; ++i) o.background[static_cast<size_t>(i)] = r.background(i);
+  } else if (r.background_size() != 0) {
+    return Invalid("render.background", "needs 4 values (linear RGBA) or none");
+  }
+  if (r.depth_threshold() != 0) o.depth_threshold = r.depth_threshold();
+  if (r.cutoff_radius() != 0) o.cutoff_radius = r.cutoff_radius();
+  if ((r.width() == 0) != (r.height() == 0)) {
+    return Invalid("render.width", "give width and height together, or neither");
+  }
+  o.width = r.width();
+  o.height = r.height();
+  if (r.view_dependent()) {
+    if (info.cameras.empty()) {
+      return Invalid("render.view_dependent", "dataset '" + info.name + "' declares no cameras");
+    }
+    o.view_dependent = true;
+    for (const CameraInfo& c : info.cameras)
+      o.source_cameras.push_back({c.id, c.world_from_camera});
+  }
+  // Views.
+  if (r.path_size() > 0) {
+    if (r.has_view()) return Invalid("render.view", "give a view or a path, not both");
+    if (static_cast<uint64_t>(r.path_size()) > limits.max_images) {
+      return Status::LimitExceeded("render.path: " + std::to_string(r.path_size()) +
+                                   " images; at most " + std::to_string(limits.max_images) +
+                                   " per request");
+    }
+    for (int i = 0; i < r.path_size(); ++i) {
+      std::string field = "render.path[" + std::to_string(i) + "]";
+      HVDB_ASSIGN_OR_RETURN(render::Camera c, ViewFromWire(r.path(i), info, field));
+      job->views_.push_back(c);
+    }
+  } else {
+    if (!r.has_view()) return Invalid("render.view", "required (or a path for a sequence)");
+    HVDB_ASSIGN_OR_RETURN(render::Camera c, ViewFromWire(r.view(), info, "render.view"));
+    job->views_.push_back(c);
+  }
+  for (size_t i = 0; i < job->views_.size(); ++i) {
+    std::string field =
+        r.path_size() > 0 ? "render.path[" + std::to_string(i) + "]" : std::string("render.view");
+    HVDB_RETURN_IF_ERROR(InField(field, render::CheckRenderArguments(job->views_[i], o)));
+  }
+  // Regions.
+  if (r.frames_size() > 0) {
+    if (r.frames_size() != r.path_size()) {
+      return Invalid("render.frames", "needs one frame per view of the path (" +
+                                          std::to_string(r.path_size()) + "), got " +
+                                          std::to_string(r.frames_size()));
+    }
+    Window space;
+    space.lo = {-1e30, -1e30, -1e30, 0};
+    space.hi = {1e30, 1e30, 1e30, 0};
+    if (r.has_region()) {
+      HVDB_ASSIGN_OR_RETURN(Region region, wire::FromWire(r.region()));
+      if (!std::holds_alternative<Window>(region)) {
+        return Invalid("render.frames",
+                       "frames go with a window region (its x y z bounds), "
+                       "not a slice");
+      }
+      space = std::get<Window>(region);
+    }
+    for (uint32_t f : r.frames()) {
+      Window w = space;
+      w.lo[3] = w.hi[3] = f / info.fps;  // frame f is at t = f / fps
+      job->regions_.push_back(w);
+    }
+  } else {
+    if (!r.has_region()) return Invalid("render.region", "required (or frames for a sequence)");
+    HVDB_ASSIGN_OR_RETURN(Region region, wire::FromWire(r.region()));
+    job->regions_.push_back(region);
+  }
+  return job;
+}
+
+Status RenderJob::Load(size_t region_index, const std::atomic<bool>* cancelled) {
+  if (loaded_ == region_index) return Status::OK();
+  points_.clear();
+  loaded_ = SIZE_MAX;
+  HVDB_ASSIGN_OR_RETURN(auto cursor, dataset_->Query(regions_[region_index], query_));
+  Batch batch;
+  for (;;) {
+    if (cancelled != nullptr && *cancelled) return Status::Cancelled("render cancelled");
+    HVDB_ASSIGN_OR_RETURN(bool more, cursor->Next(&batch));
+    if (!more) break;
+    if (points_.size() + batch.points.size() > limits_.max_points) {
+      points_.clear();
+      return Status::LimitExceeded("render: the region holds more than " +
+                                   std::to_string(limits_.max_points) +
+                                   " points, the server's limit per image; use a coarser lod "
+                                   "or a smaller region");
+    }
+    points_.insert(points_.end(), batch.points.begin(), batch.points.end());
+  }
+  loaded_ = region_index;
+  return Status::OK();
+}
+
+Result<render::Image> RenderJob::RenderImage(size_t i, render::Renderer& renderer,
+                                             const std::atomic<bool>* cancelled) {
+  if (i >= views_.size()) return Status::InvalidArgument("render: no image " + std::to_string(i));
+  HVDB_RETURN_IF_ERROR(Load(regions_.size() == 1 ? 0 : i, cancelled));
+  if (cancelled != nullptr && *cancelled) return Status::Cancelled("render cancelled");
+  return renderer.Render(points_, views_[i], options_);
+}
+
+Result<wire::RenderReply> RenderJob::Render(size_t i, render::Renderer& renderer,
+                                            const std::atomic<bool>* cancelled) {
+  HVDB_ASSIGN_OR_RETURN(render::Image img, RenderImage(i, renderer, cancelled));
+  wire::RenderReply reply;
+  HVDB_ASSIGN_OR_RETURN(std::string bytes, format_ == wire::IMAGE_EXR ? render::EncodeExr(img)
+                                                                      : render::EncodePng(img));
+  if (bytes.size() > kMaxEncodedImage) {
+    return Status::LimitExceeded("render: the encoded image has " +
+                                 std::to_string(bytes.size() >> 20) +
+                                 " MiB, more than a reply "
+                                 "may carry; ask for PNG or a smaller size");
+  }
+  if (format_ == wire::IMAGE_EXR) {
+    reply.set_exr(std::move(bytes));
+  } else {
+    reply.set_png(std::move(bytes));
+  }
+  reply.set_width(img.width);
+  reply.set_height(img.height);
+  reply.set_renderer_used(renderer.name());
+  reply.set_points(points_.size());
+  reply.set_render_ms(renderer.last_stats().milliseconds);
+  reply.set_index(static_cast<uint32_t>(i));
+  reply.set_last(i + 1 == views_.size());
+  return reply;
+}
+
+Status ParseCameraPath(const std::string& json_text, wire::Render* request) {
+  using nlohmann::json;
+  json doc = json::parse(json_text, nullptr, /*allow_exceptions=*/false);
+  if (doc.is_discarded()) return Invalid("camera path", "not valid JSON");
+  if (!doc.is_object() || !doc.contains("cameras") || !doc["cameras"].is_array()) {
+    return Invalid("camera path", "expected {\"cameras\": [...]}");
+  }
+  request->clear_path();
+  request->clear_frames();
+  const json& cams = doc["cameras"];
+  size_t with_frame = 0;
+  auto numbers = [](const json& j, size_t n, std::vector<double>* out) {
+    if (!j.is_array() || j.size() != n) return false;
+    out->clear();
+    for (const json& v : j) {
+      if (!v.is_number()) return false;
+      out->push_back(v.get<double>());
+    }
+    return true;
+  };
+  for (size_t i = 0; i < cams.size(); ++i) {
+    const json& e = cams[i];
+    std::string where = "camera path entry " + std::to_string(i);
+    if (!e.is_object()) return Invalid(where, "must be an object");
+    wire::View* v = request->add_path();
+    std::vector<double> a;
+    try {
+      if (e.contains("look_at")) {
+        const json& l = e["look_at"];
+        wire::LookAt* o = v->mutable_look_at();
+        if (!numbers(l.value("eye", json()), 3, &a))
+          return Invalid(where, "look_at.eye: 3 numbers");
+        for (double x : a) o->add_eye(x);
+        if (!numbers(l.value("target", json()), 3, &a)) {
+          return Invalid(where, "look_at.target: 3 numbers");
+        }
+        for (double x : a) o->add_target(x);
+        if (l.contains("up")) {
+          if (!numbers(l["up"], 3, &a)) return Invalid(where, "look_at.up: 3 numbers");
+          for (double x : a) o->add_up(x);
+        }
+        o->set_fov_y_deg(l.value("fov_y_deg", 50.0));
+        o->set_width(l.value("width", 1024u));
+        o->set_height(l.value("height", 768u));
+      } else if (e.contains("camera")) {
+        const json& c = e["camera"];
+        wire::Camera* o = v->mutable_camera();
+        o->set_width(c.at("width").get<uint32_t>());
+        o->set_height(c.at("height").get<uint32_t>());
+        for (const char* k : {"fx", "fy", "cx", "cy"}) o->add_intrinsics(c.at(k).get<double>());
+        if (c.contains("distortion")) {
+          if (!numbers(c["distortion"], 5, &a))
+            return Invalid(where, "camera.distortion: 5 numbers");
+          for (double x : a) o->add_distortion(x);
+        }
+        if (!numbers(c.value("world_from_camera", json()), 16, &a)) {
+          return Invalid(where, "camera.world_from_camera: 16 numbers, row-major");
+        }
+        for (double x : a) o->add_world_from_camera(x);
+      } else if (e.contains("dataset_camera")) {
+        v->set_dataset_camera(e["dataset_camera"].get<uint32_t>());
+      } else {
+        return Invalid(where, "needs look_at, camera or dataset_camera");
+      }
+      if (e.contains("frame")) {
+        request->add_frames(e["frame"].get<uint32_t>());
+        ++with_frame;
+      }
+    } catch (const json::exception& ex) {
+      return Invalid(where, ex.what());
+    }
+  }
+  if (with_frame != 0 && with_frame != cams.size()) {
+    return Invalid("camera path", "either every entry has a frame or none does");
+  }
+  return Status::OK();
+}
+
+}  // namespace hvdb::server

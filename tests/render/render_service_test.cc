@@ -1,0 +1,361 @@
+// The render service: RenderJob against an embedded database, camera paths, and render
+// requests through a real hvdb-server (single images, sequences, EXR, OVERLOADED).
+#include "server/render_service.h"
+
+#include <gtest/gtest.h>
+
+#include <fstream>
+
+#include "client/client.h"
+#include "render/metrics.h"
+#include "tests/render/test_scenes.h"
+#include "tests/server/server_process.h"
+#include "tests/storage/test_util.h"
+
+namespace hvdb {
+namespace {
+
+using server::RenderJob;
+using testing::TempDir;
+
+constexpr double kFps = 10;
+
+// The sphere, recoloured per frame so that images of different frames differ.
+std::vector<Point> FramePoints(uint32_t frame) {
+  auto pts = testing::SphereScene(3000);
+  for (Point& p : pts) {
+    p.r = static_cast<uint8_t>(frame == 0 ? 250 : 10);
+    p.g = static_cast<uint8_t>(frame == 1 ? 250 : 10);
+    p.b = static_cast<uint8_t>(frame == 2 ? 250 : 10);
+    p.frame = frame;
+  }
+  return pts;
+}
+
+DatasetInfo Info(const std::string& name, bool cameras) {
+  DatasetInfo info;
+  info.name = name;
+  info.fps = kFps;
+  if (cameras) {
+    for (uint16_t i = 1; i <= 4; ++i) {
+      CameraInfo c;
+      c.id = i;
+      c.name = "cam" + std::to_string(i);
+      render::Camera v =
+          testing::ViewFrom(std::cos(i * 1.5708), 0.3, std::sin(i * 1.5708), 3, 160, 120);
+      c.width = v.width;
+      c.height = v.height;
+      c.fx = v.fx;
+      c.fy = v.fy;
+      c.cx = v.cx;
+      c.cy = v.cy;
+      c.world_from_camera = v.world_from_camera;
+      info.cameras.push_back(c);
+    }
+  }
+  return info;
+}
+
+wire::Region FrameRegion(uint32_t f) {
+  Window w;
+  w.lo = {-1e9, -1e9, -1e9, f / kFps};
+  w.hi = {1e9, 1e9, 1e9, f / kFps};
+  wire::Region r;
+  wire::ToWire(Region(w), &r);
+  return r;
+}
+
+void SetLookAt(wire::View* v, uint32_t w = 160, uint32_t h = 120) {
+  auto* l = v->mutable_look_at();
+  for (double x : {1.05, 1.4, 3.5}) l->add_eye(x);
+  for (double x : {0, 0, 0}) l->add_target(x);
+  l->set_fov_y_deg(50);
+  l->set_width(w);
+  l->set_height(h);
+}
+
+render::Camera TheLookAt(uint32_t w = 160, uint32_t h = 120) {
+  return render::Camera::LookAt({1.05, 1.4, 3.5}, {0, 0, 0}, {0, 1, 0}, 50, w, h);
+}
+
+class RenderJobTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    auto db = Database::Open(dir_.path());
+    ASSERT_TRUE(db.ok()) << db.status().ToString();
+    db_ = std::move(db).value();
+    auto ds = db_->CreateDataset(Info("scene", true));
+    ASSERT_TRUE(ds.ok()) << ds.status().ToString();
+    ds_ = *ds;
+    for (uint32_t f = 0; f < 3; ++f) ASSERT_TRUE(ds_->BulkLoad(f, FramePoints(f)).ok());
+    auto bare = db_->CreateDataset(Info("bare", false));
+    ASSERT_TRUE(bare.ok());
+    bare_ = *bare;
+  }
+  TempDir dir_;
+  std::unique_ptr<Database> db_;
+  std::shared_ptr<Dataset> ds_, bare_;
+};
+
+TEST_F(RenderJobTest, RendersTheRegionLikeTheRendererDoes) {
+  wire::Render req;
+  req.set_dataset("scene");
+  *req.mutable_region() = FrameRegion(1);
+  SetLookAt(req.mutable_view());
+  req.set_renderer(wire::RENDERER_CPU);
+  auto job = RenderJob::Create(ds_, req);
+  ASSERT_TRUE(job.ok()) << job.status().ToString();
+  EXPECT_EQ((*job)->size(), 1u);
+  EXPECT_EQ((*job)->renderer_kind(), render::RendererKind::kCpu);
+  auto cpu = render::MakeCpuRenderer();
+  auto img = (*job)->RenderImage(0, *cpu);
+  ASSERT_TRUE(img.ok()) << img.status().ToString();
+  auto direct = cpu->Render(FramePoints(1), TheLookAt(), {});
+  ASSERT_TRUE(direct.ok());
+  // The query returns the points in its own order: sums may round differently.
+  EXPECT_GE(render::Psnr(render::ToSrgb8(*img), render::ToSrgb8(*direct)), 50);
+  auto reply = (*job)->Render(0, *cpu);
+  ASSERT_TRUE(reply.ok());
+  EXPECT_TRUE(reply->last());
+  EXPECT_EQ(reply->width(), 160u);
+  EXPECT_EQ(reply->points(), 3000u);
+  EXPECT_EQ(reply->renderer_used(), cpu->name());
+  EXPECT_EQ(reply->png().substr(1, 3), "PNG");
+}
+
+TEST_F(RenderJobTest, SequencesFollowFramesAndCameras) {
+  wire::Render req;
+  req.set_dataset("scene");
+  for (uint32_t f = 0; f < 3; ++f) {
+    SetLookAt(req.add_path());
+    req.add_frames(f);
+  }
+  auto dataset_view = req.add_path();
+  dataset_view->set_dataset_camera(2);
+  req.add_frames(0);
+  auto job = RenderJob::Create(ds_, req);
+  ASSERT_TRUE(job.ok()) << job.status().ToString();
+  ASSERT_EQ((*job)->size(), 4u);
+  auto cpu = render::MakeCpuRenderer();
+  for (uint32_t i = 0; i < 4; ++i) {
+    auto img = (*job)->RenderImage(i, *cpu);
+    ASSERT_TRUE(img.ok()) << img.status().ToString();
+    size_t centre = size_t{img->height / 2} * img->width + img->width / 2;
+    const float* p = &img->rgba[centre * 4];
+    int brightest = p[0] > p[1] ? (p[0] > p[2] ? 0 : 2) : (p[1] > p[2] ? 1 : 2);
+    EXPECT_EQ(brightest, static_cast<int>(i % 3)) << "image " << i;
+  }
+}
+
+TEST_F(RenderJobTest, RejectsBadRequestsNamingTheField) {
+  auto error = [&](const wire::Render& r, std::shared_ptr<Dataset> ds = nullptr) {
+    auto job = RenderJob::Create(ds ? ds : ds_, r);
+    return job.ok() ? std::string("ok") : job.status().message();
+  };
+  wire::Render base;
+  base.set_dataset("scene");
+  *base.mutable_region() = FrameRegion(0);
+  SetLookAt(base.mutable_view());
+  EXPECT_EQ(error(base), "ok");
+  wire::Render r = base;
+  r.clear_view();
+  EXPECT_EQ(error(r).rfind("render.view:", 0), 0u) << error(r);
+  r = base;
+  r.set_lod(40);
+  EXPECT_EQ(error(r).rfind("render.lod:", 0), 0u);
+  r = base;
+  r.add_background(1);
+  EXPECT_EQ(error(r).rfind("render.background:", 0), 0u);
+  r = base;
+  r.mutable_view()->mutable_look_at()->set_width(5000);
+  EXPECT_EQ(error(r).rfind("render.view: camera size", 0), 0u) << error(r);
+  r = base;
+  r.mutable_view()->set_dataset_camera(9);
+  EXPECT_EQ(error(r).rfind("render.view.dataset_camera:", 0), 0u);
+  r = base;
+  r.add_frames(1);
+  EXPECT_EQ(error(r).rfind("render.frames:", 0), 0u);
+  r = base;
+  r.set_view_dependent(true);
+  EXPECT_EQ(error(r), "ok");
+  EXPECT_EQ(error(r, bare_).rfind("render.view_dependent:", 0), 0u);
+  r = base;
+  r.clear_region();
+  EXPECT_EQ(error(r).rfind("render.region:", 0), 0u);
+  r = base;
+  r.set_width(100);
+  EXPECT_EQ(error(r).rfind("render.width:", 0), 0u);
+  r = base;
+  r.set_mode(static_cast<wire::RenderMode>(7));
+  EXPECT_EQ(error(r).rfind("render.mode:", 0), 0u);
+  server::RenderLimits few;
+  few.max_points = 100;
+  auto job = RenderJob::Create(ds_, base, few);
+  ASSERT_TRUE(job.ok());
+  auto cpu = render::MakeCpuRenderer();
+  EXPECT_EQ((*job)->RenderImage(0, *cpu).status().code(), StatusCode::kLimitExceeded);
+  std::atomic<bool> cancelled{true};
+  auto job2 = RenderJob::Create(ds_, base);
+  EXPECT_EQ((*job2)->RenderImage(0, *cpu, &cancelled).status().code(), StatusCode::kCancelled);
+}
+
+TEST(CameraPathTest, ParsesTheThreeViewKinds) {
+  wire::Render req;
+  Status st = server::ParseCameraPath(R"({"cameras": [
+      {"frame": 3, "look_at": {"eye": [0, 0, -3], "target": [0, 0, 0], "up": [0, -1, 0],
+                               "fov_y_deg": 40, "width": 320, "height": 240}},
+      {"frame": 4, "camera": {"width": 64, "height": 48, "fx": 50, "fy": 50, "cx": 31.5,
+                              "cy": 23.5, "world_from_camera": [1,0,0,0, 0,1,0,0, 0,0,1,0,
+                                                                0,0,0,1]}},
+      {"frame": 5, "dataset_camera": 2}]})",
+                                      &req);
+  ASSERT_TRUE(st.ok()) << st.ToString();
+  ASSERT_EQ(req.path_size(), 3);
+  EXPECT_EQ(req.frames_size(), 3);
+  EXPECT_EQ(req.frames(2), 5u);
+  EXPECT_EQ(req.path(0).look_at().fov_y_deg(), 40);
+  EXPECT_EQ(req.path(0).look_at().up(1), -1);
+  EXPECT_EQ(req.path(1).camera().intrinsics(2), 31.5);
+  EXPECT_EQ(req.path(2).dataset_camera(), 2u);
+  EXPECT_FALSE(server::ParseCameraPath("{", &req).ok());
+  EXPECT_FALSE(server::ParseCameraPath(R"({"cameras": [{"frame": 1, "dataset_camera": 1},
+                                                       {"dataset_camera": 1}]})",
+                                       &req)
+                   .ok());
+  Status bad = server::ParseCameraPath(R"({"cameras": [{"look_at": {"eye": [1, 2]}}]})", &req);
+  EXPECT_NE(bad.message().find("entry 0"), std::string::npos) << bad.ToString();
+}
+
+// ---- Through hvdb-server ----
+
+class RenderServerTest : public ::testing::Test {
+ protected:
+  void Start(std::vector<std::string> extra = {}) {
+    server_ = std::make_unique<testing::ServerProcess>(dir_.path() + "/data", extra);
+    ASSERT_TRUE(server_->running());
+    client::Options o;
+    o.port = server_->port();
+    o.request_timeout = std::chrono::milliseconds(60000);
+    auto c = client::Connection::Connect(o);
+    ASSERT_TRUE(c.ok()) << c.status().ToString();
+    conn_ = std::move(c).value();
+    ASSERT_TRUE(conn_->CreateDataset(Info("scene", true)).ok());
+    for (uint32_t f = 0; f < 3; ++f) {
+      auto pts = FramePoints(f);
+      ASSERT_TRUE(conn_->Ingest("scene", f, pts).ok());
+    }
+  }
+  render::Srgb8Image Decode(const std::string& png) {
+    std::string path = dir_.path() + "/reply.png";
+    std::ofstream(path, std::ios::binary) << png;
+    auto img = render::ReadSrgb8(path);
+    EXPECT_TRUE(img.ok()) << img.status().ToString();
+    return img.ok() ? *img : render::Srgb8Image{};
+  }
+  TempDir dir_;
+  std::unique_ptr<testing::ServerProcess> server_;
+  std::unique_ptr<client::Connection> conn_;
+};
+
+TEST_F(RenderServerTest, RendersAnImage) {
+  Start();
+  wire::Render req;
+  req.set_dataset("scene");
+  *req.mutable_region() = FrameRegion(2);
+  SetLookAt(req.mutable_view());
+  req.set_renderer(wire::RENDERER_AUTO);
+  auto reply = conn_->Render(req);
+  ASSERT_TRUE(reply.ok()) << reply.status().ToString();
+  EXPECT_EQ(reply->width(), 160u);
+  EXPECT_EQ(reply->height(), 120u);
+  EXPECT_EQ(reply->points(), 3000u);
+  EXPECT_TRUE(reply->last());
+  EXPECT_FALSE(reply->renderer_used().empty());
+  std::printf("server rendered with %s%s in %.1f ms\n", reply->renderer_used().c_str(),
+              reply->fallback() ? " (fallback)" : "", reply->render_ms());
+  auto direct = render::MakeCpuRenderer()->Render(FramePoints(2), TheLookAt(), {});
+  ASSERT_TRUE(direct.ok());
+  EXPECT_GE(render::Psnr(Decode(reply->png()), render::ToSrgb8(*direct)), 35);
+  // EXR on request, at another size.
+  req.set_format(wire::IMAGE_EXR);
+  req.set_width(80);
+  req.set_height(60);
+  req.set_renderer(wire::RENDERER_CPU);
+  reply = conn_->Render(req);
+  ASSERT_TRUE(reply.ok()) << reply.status().ToString();
+  EXPECT_EQ(reply->width(), 80u);
+  EXPECT_TRUE(reply->png().empty());
+  EXPECT_EQ(static_cast<uint8_t>(reply->exr()[0]), 0x76);
+  // Errors keep their codes.
+  req.set_dataset("nope");
+  EXPECT_EQ(conn_->Render(req).status().code(), StatusCode::kNotFound);
+  req.set_dataset("scene");
+  req.clear_view();
+  EXPECT_TRUE(conn_->Render(req).status().IsInvalidArgument());
+  auto stats = conn_->Stats();
+  ASSERT_TRUE(stats.ok());
+  bool counted = false;
+  for (const auto& l : stats->requests()) counted |= l.kind() == "render" && l.count() >= 2;
+  EXPECT_TRUE(counted);
+}
+
+TEST_F(RenderServerTest, StreamsASequence) {
+  Start();
+  wire::Render req;
+  req.set_dataset("scene");
+  for (uint32_t f = 0; f < 3; ++f) {
+    SetLookAt(req.add_path(), 96, 72);
+    req.add_frames(f);
+  }
+  req.set_renderer(wire::RENDERER_CPU);
+  std::vector<uint32_t> seen;
+  Status st = conn_->RenderSequence(req, [&](const wire::RenderReply& r) {
+    seen.push_back(r.index());
+    EXPECT_EQ(r.last(), r.index() == 2);
+    render::Srgb8Image img = Decode(r.png());
+    size_t centre = (size_t{img.height / 2} * img.width + img.width / 2) * img.channels;
+    EXPECT_GT(img.data[centre + r.index()], 150) << "frame " << r.index() << " colour";
+    return Status::OK();
+  });
+  ASSERT_TRUE(st.ok()) << st.ToString();
+  EXPECT_EQ(seen, (std::vector<uint32_t>{0, 1, 2}));
+  // Stopping early cancels the rest.
+  int calls = 0;
+  st = conn_->RenderSequence(req, [&](const wire::RenderReply&) {
+    ++calls;
+    return Status::Cancelled("enough");
+  });
+  EXPECT_EQ(st.message(), "enough");
+  EXPECT_EQ(calls, 1);
+  EXPECT_TRUE(conn_->Ping().ok());  // the connection is still in step
+}
+
+TEST_F(RenderServerTest, RefusesRendersBeyondTheLimit) {
+  Start({"--max-renders", "1"});
+  wire::Request big;
+  auto* r = big.mutable_render();
+  r->set_dataset("scene");
+  *r->mutable_region() = FrameRegion(0);
+  SetLookAt(r->mutable_view(), 2048, 2048);
+  r->set_renderer(wire::RENDERER_CPU);
+  wire::Request small = big;
+  small.mutable_render()->clear_view();
+  SetLookAt(small.mutable_render()->mutable_view(), 16, 16);
+  // Pipelined: the second arrives while the first holds the only slot.
+  auto id1 = conn_->Send(&big);
+  auto id2 = conn_->Send(&small);
+  ASSERT_TRUE(id1.ok() && id2.ok());
+  auto second = conn_->Receive(*id2);
+  ASSERT_TRUE(second.ok());
+  ASSERT_TRUE(second->has_error());
+  EXPECT_EQ(second->error().code(), wire::OVERLOADED);
+  auto first = conn_->Receive(*id1);
+  ASSERT_TRUE(first.ok());
+  EXPECT_TRUE(first->has_render()) << first->DebugString().substr(0, 200);
+  // The slot is free again.
+  auto again = conn_->Render(small.render());
+  EXPECT_TRUE(again.ok()) << again.status().ToString();
+}
+
+}  // namespace
+}  // namespace hvdb
