@@ -12,6 +12,8 @@
 #include <nlohmann/json.hpp>
 
 #include "client/client.h"
+#include "render/job.h"
+#include "render/renderer.h"
 
 namespace hvdb::client {
 
@@ -153,6 +155,25 @@ class EmbeddedBackend final : public Backend {
                                const std::vector<std::array<double, 3>>& trajectory) override {
     HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
     return edit::Composite(*ds, object, first_frame, frame_count, trajectory);
+  }
+
+  Status Render(const wire::Render& request,
+                const std::function<Status(const wire::RenderReply&)>& on_image) override {
+    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(request.dataset()));
+    // What hvdb-server's sessions do, with a renderer of this process instead of one from the
+    // server's pool: the request is checked before a renderer (an EGL context) is made.
+    HVDB_ASSIGN_OR_RETURN(std::unique_ptr<render::RenderJob> job,
+                          render::RenderJob::Create(std::move(ds), request));
+    HVDB_ASSIGN_OR_RETURN(std::unique_ptr<render::Renderer> renderer,
+                          render::MakeRenderer(job->renderer_kind()));
+    const bool fallback = job->renderer_kind() == render::RendererKind::kAuto &&
+                          renderer->kind() != render::RendererKind::kEgl;
+    for (size_t i = 0; i < job->size(); ++i) {
+      HVDB_ASSIGN_OR_RETURN(wire::RenderReply reply, job->Render(i, *renderer));
+      reply.set_fallback(fallback);
+      HVDB_RETURN_IF_ERROR(on_image(reply));
+    }
+    return Status::OK();
   }
 
  private:
@@ -530,6 +551,24 @@ class RemoteBackend final : public Backend {
       return s;
     }
     return r;
+  }
+
+  Status Render(const wire::Render& request,
+                const std::function<Status(const wire::RenderReply&)>& on_image) override {
+    // A render only reads, so it is repeated after a lost connection; the images the caller
+    // already has are not handed to it again.
+    uint32_t delivered = 0;
+    auto deliver = [&](const wire::RenderReply& reply) -> Status {
+      if (reply.index() < delivered) return Status::OK();
+      HVDB_RETURN_IF_ERROR(on_image(reply));
+      delivered = reply.index() + 1;
+      return Status::OK();
+    };
+    Result<bool> r = Run<bool>(true, [&](Connection& c) -> Result<bool> {
+      HVDB_RETURN_IF_ERROR(c.RenderSequence(request, deliver));
+      return true;
+    });
+    return r.ok() ? Status::OK() : Explain(request.dataset(), r.status());
   }
 
  private:

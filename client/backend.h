@@ -10,18 +10,21 @@
 //
 // The editing operators (Select ... Composite) run next to the data: in this process on a data
 // directory, whose clipboards (DIR/clipboards) are the ones hvdb-server uses when it serves that
-// directory, or in the server (the editing requests of docs/PROTOCOL.md).
+// directory, or in the server (the editing requests of docs/PROTOCOL.md). So does Render: the
+// same render::RenderJob (render/job.h) runs in this process or in hvdb-server's sessions.
 #ifndef HVDB_CLIENT_BACKEND_H_
 #define HVDB_CLIENT_BACKEND_H_
 
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
 #include <vector>
 
 #include "edit/operators.h"
+#include "protocol/wire.h"
 #include "storage/database.h"
 #include "storage/status.h"
 
@@ -120,6 +123,16 @@ class Backend {
   virtual Result<CommitInfo> Composite(const std::string& name, const std::vector<Point>& object,
                                        uint32_t first_frame, uint32_t frame_count,
                                        const std::vector<std::array<double, 3>>& trajectory) = 0;
+
+  // ---- Rendering (docs/PROTOCOL.md, "Rendering"): the Render request of the wire protocol,
+  // which is how render::RenderJob takes it in both modes (request.dataset names the dataset).
+  // on_image gets each image's reply (encoded PNG or EXR, renderer used, points, render time,
+  // `fallback` when RENDERER_AUTO found no EGL context), in order; a non-OK status from it stops
+  // the rest and is returned. Embedded, the renderer is made in this process with
+  // render::MakeRenderer (a fallback is logged through render::SetLogHandler's handler, stderr
+  // by default); remote, hvdb-server renders and logs it.
+  virtual Status Render(const wire::Render& request,
+                        const std::function<Status(const wire::RenderReply&)>& on_image) = 0;
 };
 
 // On a data directory, opened (with an advisory lock) on first use.

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The main job: hvdb-server on ./data (127.0.0.1:7878) with a demo dataset built from the real
 # CMU Panoptic point-cloud video in ../shared/data (16 frames of a moving person), queried once
-# through the server with the hvdb CLI. The server keeps running in the foreground; Ctrl-C stops
-# it gracefully.
+# through the server with the hvdb CLI, and frame 5 rendered through it into out/demo.png. The
+# server keeps running in the foreground; Ctrl-C stops it gracefully.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -45,12 +45,21 @@ echo
 echo "== window over the raised arms (y < -1.3 m), all 16 frames, written to out/arms.ply:"
 mkdir -p out
 "$HVDB" --server "$LISTEN" window panoptic --box -1 0 -2 -1.3 -1 1 0 1 --out out/arms.ply
+echo
+echo "== frame 5 (t = 0.1668 s) rendered by the server from 3 m in front, written to out/demo.png:"
+# Positions are metres with y pointing down (the CLI's default --up is 0 -1 0); the person stands
+# within x -0.8..-0.06, y -1.73..-0.07, z -0.72..0.78. --renderer auto: EGL (GPU or llvmpipe),
+# else the CPU renderer.
+"$HVDB" --server "$LISTEN" render panoptic --box -10 10 -10 10 -10 10 0.15 0.18 \
+  --look-at -0.4 -0.9 -3 -0.4 -0.9 0 --fov 40 --size 640 480 --out out/demo.png
 cat <<MSG
 
 hvdb-server is running on $LISTEN with the dataset 'panoptic' ($DATA). Try, in another shell:
   $HVDB --server $LISTEN datasets
   $HVDB --server $LISTEN slice panoptic --normal 0 0 0 1 --offset 0.2 --thickness 0.02 --out slice.ply
   $HVDB --server $LISTEN stats panoptic
+  $HVDB --server $LISTEN render panoptic --box -10 10 -10 10 -10 10 0.3 0.31 \\
+      --look-at 1.5 -0.9 -2.5 -0.4 -0.9 0 --fov 40 --size 640 480 --out side.png
 Ctrl-C stops the server.
 MSG
 wait $server_pid

@@ -4,7 +4,7 @@
 #include <optional>
 
 #include "edit/operators.h"
-#include "server/render_service.h"
+#include "render/job.h"
 
 namespace hvdb::server {
 
@@ -30,7 +30,7 @@ struct Session::Op {
   // Renders: the job (set on a worker), its slot of the server's renderer pool, and the next
   // image of a sequence (advanced on the strand).
   bool is_render = false;
-  std::unique_ptr<RenderJob> render_job;
+  std::unique_ptr<render::RenderJob> render_job;
   std::optional<render::RendererPool::Lease> render_lease;
   size_t next_image = 0;
 };
@@ -689,9 +689,9 @@ void Session::HandleRender(std::shared_ptr<Op> op, const wire::Render& request) 
       if (!ds.ok()) {
         err = DatasetError(op->id, ds.status());
       } else {
-        RenderLimits limits;
+        render::RenderLimits limits;
         limits.max_points = s->config().max_render_points;
-        auto job = RenderJob::Create(*ds, request, limits);
+        auto job = render::RenderJob::Create(*ds, request, limits);
         if (job.ok()) {
           op->render_job = std::move(job).value();
           return self->RenderNext(op);

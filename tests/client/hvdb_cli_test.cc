@@ -30,6 +30,7 @@
 #include <nlohmann/json.hpp>
 
 #include "client/ply.h"
+#include "render/metrics.h"
 #include "tests/edit/scene.h"
 
 namespace hvdb {
@@ -1006,6 +1007,248 @@ TEST_F(HvdbCliTest, EditingOperatorsEmbeddedAndThroughServer) {
   // The server stayed up and the data directories agree.
   EXPECT_EQ(same("describe scene")["points"], RunJson("describe scene")["points"]);
   EXPECT_EQ(RunJson("check scene")["ok"], true);
+  EXPECT_EQ(server.Terminate(), 0) << server.log();
+}
+
+// ---------------------------------------------------------------------------------------------
+// Rendering.
+
+// A PNG written by `hvdb render`, decoded (empty on failure, which the test reports).
+render::Srgb8Image ReadPng(const std::string& path) {
+  Result<render::Srgb8Image> img = render::ReadSrgb8(path);
+  EXPECT_TRUE(img.ok()) << path << ": " << img.status().ToString();
+  return img.ok() ? *img : render::Srgb8Image{};
+}
+
+// Pixels that are not pure black (the default background).
+size_t Covered(const render::Srgb8Image& img) {
+  size_t n = 0;
+  for (size_t i = 0; i + img.channels <= img.data.size(); i += img.channels) {
+    n += (img.data[i] | img.data[i + 1] | img.data[i + 2]) != 0;
+  }
+  return n;
+}
+
+// What must not differ between the modes' `render --json`: all but times and file names.
+json ComparableRender(json j) {
+  j.erase("elapsed_ms");
+  j.erase("render_ms");
+  for (json& image : j["images"]) {
+    image.erase("render_ms");
+    image.erase("file");
+  }
+  return j;
+}
+
+// `hvdb render` on a data directory and through hvdb-server, on the rolling-sphere scene loaded
+// the same way into both: the same request gives the same images (the CPU renderer, so that
+// the test does not depend on an OpenGL driver), single images and camera paths, PNG and EXR,
+// and the same errors.
+TEST_F(HvdbCliTest, RenderEmbeddedAndThroughServer) {
+  constexpr uint32_t kFrames = 3;
+  std::vector<testing::ScenePoint> scene = testing::MovingSphereScene(kFrames, 0.01);
+  std::vector<std::vector<Point>> frames(kFrames);
+  uint64_t next_id = 1;
+  for (const testing::ScenePoint& sp : scene) {
+    Point p = sp.p;
+    p.id = next_id++;
+    frames[p.frame].push_back(p);
+  }
+  std::string files;
+  for (uint32_t f = 0; f < kFrames; ++f) {
+    std::string path = Path("scene" + std::to_string(f) + ".ply");
+    ASSERT_TRUE(ply::WritePly(path, frames[f]).ok());
+    files += " " + Quote(path);
+  }
+
+  ServerProcess server;
+  fs::create_directories(Path("srvdata"));
+  ASSERT_EQ(server.Start(Path("srvdata"), dir_), "");
+  const std::string address = "127.0.0.1:" + std::to_string(server.port());
+  const std::string remote = "--server " + address + " ";
+  for (const std::string& mode : {std::string(), remote}) {
+    RunResult r = Run(mode + "create scene --fps 10");
+    ASSERT_EQ(r.code, 0) << mode << r.err;
+    r = Run(mode + "import scene --frame 0 --keep-ids --sigma 0.006" + files);
+    ASSERT_EQ(r.code, 0) << mode << r.err;
+  }
+
+  // Frame 1 (t = 0.1 s) from above the near edge of the floor, looking at the sphere.
+  const std::string view =
+      " --box -1 2 -1 2 -1 1 0.05 0.15 --look-at 0.5 -0.9 1.2 0.5 0.5 0.05 --fov 50 --up 0 0 1 "
+      "--size 160 120 --renderer cpu";
+  json e = RunJson("render scene" + view + " --out e.png");
+  json s = RunJson(remote + "render scene" + view + " --out s.png");
+  EXPECT_EQ(ComparableRender(e), ComparableRender(s)) << e << "\n" << s;
+  EXPECT_EQ(e["dataset"], "scene");
+  EXPECT_EQ(e["renderer"].get<std::string>().rfind("cpu", 0), 0u) << e;
+  EXPECT_EQ(e["fallback"], false);
+  ASSERT_EQ(e["images"].size(), 1u);
+  EXPECT_EQ(e["images"][0]["file"], "e.png");
+  EXPECT_EQ(e["images"][0]["width"], 160);
+  EXPECT_EQ(e["images"][0]["height"], 120);
+  EXPECT_EQ(e["points"], frames[1].size());
+  EXPECT_TRUE(e["render_ms"].is_number());
+  EXPECT_TRUE(e["elapsed_ms"].is_number());
+  render::Srgb8Image pe = ReadPng(Path("e.png")), ps = ReadPng(Path("s.png"));
+  EXPECT_EQ(pe.width, 160u);
+  EXPECT_EQ(pe.height, 120u);
+  EXPECT_EQ(ps.width, 160u);
+  EXPECT_EQ(ps.height, 120u);
+  EXPECT_TRUE(pe.data == ps.data) << "the embedded and the server's images differ: PSNR "
+                                  << render::Psnr(pe, ps) << " dB";
+  const size_t covered = Covered(pe);
+  EXPECT_GT(covered, size_t{pe.width} * pe.height / 10) << "mostly background";
+  EXPECT_LT(covered, size_t{pe.width} * pe.height);  // the floor ends before the top edge
+  // A background colour shows where nothing is drawn; the points look the same.
+  RunResult r = Run("render scene" + view + " --background 0 0 1 --out blue.png");
+  ASSERT_EQ(r.code, 0) << r.err;
+  render::Srgb8Image blue = ReadPng(Path("blue.png"));
+  ASSERT_EQ(blue.data.size(), pe.data.size());
+  EXPECT_EQ(blue.data[2], 255);  // the top-left corner: empty
+  EXPECT_EQ(blue.data[0], 0);
+  // Plain output: the file, the size, the points, the time and the renderer.
+  for (const std::string& mode : {std::string(), remote}) {
+    r = Run(mode + "render scene" + view + " --out text.png");
+    EXPECT_EQ(r.code, 0) << mode << r.err;
+    EXPECT_EQ(
+        r.out.rfind(
+            "rendered text.png (160x120): " + std::to_string(frames[1].size()) + " points in ", 0),
+        0u)
+        << r.out;
+    EXPECT_NE(r.out.find(" ms with cpu ("), std::string::npos) << r.out;
+  }
+  // The region may be a hyperslice too: t = 0.1 s is frame 1.
+  const std::string slice =
+      " --normal 0 0 0 1 --offset 0.1 --thickness 0.01 --look-at 0.5 -0.9 1.2 0.5 0.5 0.05 "
+      "--fov 50 --up 0 0 1 --size 160 120 --renderer cpu";
+  json se = RunJson("render scene" + slice + " --out se.png");
+  json ss = RunJson(remote + "render scene" + slice + " --out ss.png");
+  EXPECT_EQ(ComparableRender(se), ComparableRender(ss));
+  EXPECT_EQ(se["points"], frames[1].size());
+  render::Srgb8Image sle = ReadPng(Path("se.png"));
+  EXPECT_TRUE(sle.data == ReadPng(Path("ss.png")).data);
+  EXPECT_GT(Covered(sle), size_t{sle.width} * sle.height / 10);
+  // EXR: float channels, the same in both modes.
+  EXPECT_EQ(Run("render scene" + view + " --out e.exr").code, 0);
+  EXPECT_EQ(Run(remote + "render scene" + view + " --out s.exr").code, 0);
+  std::string exr = ReadFile(Path("e.exr"));
+  ASSERT_GT(exr.size(), 4u);
+  EXPECT_EQ(exr.substr(0, 4), std::string("\x76\x2f\x31\x01", 4));
+  EXPECT_TRUE(exr == ReadFile(Path("s.exr")));
+
+  // A camera path over the three frames, and frame 2 again from the side: four files.
+  json path = {{"cameras", json::array()}};
+  for (uint32_t f = 0; f < kFrames; ++f) {
+    path["cameras"].push_back({{"frame", f},
+                               {"look_at",
+                                {{"eye", {0.5, -0.9, 1.2}},
+                                 {"target", {0.5, 0.5, 0.05}},
+                                 {"up", {0, 0, 1}},
+                                 {"fov_y_deg", 50},
+                                 {"width", 96},
+                                 {"height", 72}}}});
+  }
+  path["cameras"].push_back({{"frame", 2},
+                             {"look_at",
+                              {{"eye", {-1.2, 0.5, 0.6}},
+                               {"target", {0.36, 0.5, 0.15}},
+                               {"up", {0, 0, 1}},
+                               {"fov_y_deg", 40},
+                               {"width", 96},
+                               {"height", 72}}}});
+  std::ofstream(Path("cameras.json")) << path.dump(2);
+  const std::string seq = " --path cameras.json --renderer cpu --json --out-dir ";
+  RunResult re = Run("render scene" + seq + "fe"), rs = Run(remote + "render scene" + seq + "fs");
+  ASSERT_EQ(re.code, 0) << re.err;
+  ASSERT_EQ(rs.code, 0) << rs.err;
+  json je = json::parse(re.out), js = json::parse(rs.out);
+  EXPECT_EQ(ComparableRender(je), ComparableRender(js));
+  ASSERT_EQ(je["images"].size(), 4u);
+  EXPECT_EQ(je["images"][3]["file"], "fe/frame_0003.png");
+  size_t n_files = 0;
+  for (const auto& entry : fs::directory_iterator(Path("fe"))) n_files += entry.is_regular_file();
+  EXPECT_EQ(n_files, 4u);
+  std::vector<render::Srgb8Image> seq_images;
+  for (uint32_t i = 0; i < 4; ++i) {
+    const std::string name = "frame_000" + std::to_string(i) + ".png";
+    render::Srgb8Image fe = ReadPng(Path("fe/" + name)), fsrv = ReadPng(Path("fs/" + name));
+    EXPECT_EQ(fe.width, 96u) << name;
+    EXPECT_EQ(fe.height, 72u) << name;
+    EXPECT_TRUE(fe.data == fsrv.data) << name << " differs between the modes";
+    EXPECT_GT(Covered(fe), 96u * 72 / 10) << name;
+    EXPECT_EQ(je["images"][i]["points"], frames[i == 3 ? 2 : i].size());
+    seq_images.push_back(std::move(fe));
+  }
+  EXPECT_FALSE(seq_images[0].data == seq_images[1].data);  // the sphere rolls
+  EXPECT_FALSE(seq_images[2].data == seq_images[3].data);  // another camera
+  // Plain output: one line per image, then the total.
+  r = Run("render scene --path cameras.json --renderer cpu --out-dir plain --size 48 36");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("plain/frame_0000.png (48x36): "), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("rendered 4 images into plain with cpu ("), std::string::npos) << r.out;
+  EXPECT_EQ(ReadPng(Path("plain/frame_0003.png")).width, 48u);
+
+  // Usage errors (exit 2) are found before anything is opened, in both modes.
+  const std::vector<std::pair<std::string, std::string>> usage = {
+      {"render scene --look-at 0 0 -3 0 0 0 --fov 50 --out x.png", "a region is required"},
+      {"render scene --box 0 1 0 1 0 1 0 1 --out x.png", "a camera is required"},
+      {"render scene --box 0 1 0 1 0 1 0 1 --dataset-camera 1", "--out"},
+      {"render scene --box 0 1 0 1 0 1 0 1 --dataset-camera 1 --out x.jpg", ".png or .exr"},
+      {"render scene --box 0 1 0 1 0 1 0 1 --look-at 0 0 -3 0 0 0 --out x.png", "--fov"},
+      {"render scene --box 1 0 0 1 0 1 0 1 --dataset-camera 1 --out x.png", "X0 must be <= X1"},
+      {"render scene --box 0 1 0 1 0 1 0 1 --dataset-camera 1 --mode fuzzy --out x.png", "--mode"},
+      {"render scene --box 0 1 0 1 0 1 0 1 --dataset-camera 1 --renderer vulkan --out x.png",
+       "--renderer"},
+      {"render scene --box 0 1 0 1 0 1 0 1 --dataset-camera 1 --size 0 10 --out x.png", "--size"},
+      {"render scene --box 0 1 0 1 0 1 0 1 --dataset-camera 1 --lod 40 --out x.png", "--lod"},
+      {"render scene --box 0 1 0 1 0 1 0 1 --dataset-camera 1 --background 2 0 0 --out x.png",
+       "--background"},
+      {"render scene --box 0 1 0 1 0 1 0 1 --look-at 0 0 -3 0 0 0 --fov 50 --up 0 0 1 "
+       "--out x.png",
+       "parallel"},
+      {"render scene --box 0 1 0 1 0 1 0 1 --look-at 0 0 -3 0 0 0 --fov 50 --dataset-camera 1 "
+       "--out x.png",
+       "excludes"},
+      {"render scene --path cameras.json", "--out-dir"},
+      {"render scene --out-dir d", "--path"},
+      {"render scene --path cameras.json --out-dir d --out x.png", "excludes"},
+      {"render scene --normal 0 0 0 1 --offset 0 --thickness 0.1 --path cameras.json "
+       "--out-dir d",
+       "must be a --box"},
+  };
+  for (const auto& [args, expect] : usage) {
+    for (const std::string& mode : {std::string(), remote}) {
+      r = Run(mode + args);
+      EXPECT_EQ(r.code, 2) << "hvdb " << mode << args << "\nstderr: " << r.err;
+      EXPECT_NE(r.err.find(expect), std::string::npos) << "hvdb " << mode << args << "\n" << r.err;
+      EXPECT_EQ(r.out, "") << args;
+    }
+  }
+  EXPECT_FALSE(fs::exists(Path("d")));
+  EXPECT_FALSE(fs::exists(Path("x.png")));
+
+  // Errors (exit 1): an unknown dataset, a camera the dataset lacks, an unreadable path file.
+  const std::vector<std::pair<std::string, std::string>> errors = {
+      {"render nosuch" + view + " --out x.png", "NotFound: no dataset 'nosuch'"},
+      {"render scene --box 0 1 0 1 0 1 0 1 --dataset-camera 7 --out x.png",
+       "render.view.dataset_camera"},
+      {"render scene" + view + " --view-dependent --out x.png", "declares no cameras"},
+      {"render scene --path missing.json --out-dir d", "missing.json"},
+      {"render scene" + view + " --out no/such/dir/x.png", "cannot write 'no/such/dir/x.png'"},
+  };
+  for (const auto& [args, expect] : errors) {
+    for (const std::string& mode : {std::string(), remote}) {
+      r = Run(mode + args);
+      EXPECT_EQ(r.code, 1) << "hvdb " << mode << args << "\nstderr: " << r.err;
+      EXPECT_NE(r.err.find(expect), std::string::npos) << "hvdb " << mode << args << "\n" << r.err;
+      EXPECT_EQ(r.err.rfind("hvdb: ", 0), 0u) << r.err;
+    }
+  }
+  EXPECT_FALSE(fs::exists(Path("x.png")));
+  EXPECT_FALSE(fs::exists(Path("d")));
+
+  EXPECT_NE(Run("render --help").out.find("--dataset-camera"), std::string::npos);
   EXPECT_EQ(server.Terminate(), 0) << server.log();
 }
 

@@ -187,7 +187,7 @@ TEST_F(ServerTest, EveryRequestKind) {
   ASSERT_TRUE(rid.ok());
   auto rr = c->Receive(*rid);
   ASSERT_TRUE(rr.ok());
-  // The render service is built in (tests/render/render_service_test.cc): a render without a
+  // The render service is built in (tests/render/job_test.cc): a render without a
   // camera is a bad parameter.
   EXPECT_EQ(rr->error().code(), wire::INVALID_PARAMETER);
   EXPECT_EQ(rr->error().parameter(), "render.view");

@@ -1,12 +1,17 @@
-// The render service: a Render request (docs/PROTOCOL.md, "Rendering") run against a dataset.
+// Render jobs: a Render request (docs/PROTOCOL.md, "Rendering") run against a dataset.
 //
 // RenderJob validates the request once (views, dataset cameras, options), then renders its
 // images one at a time, each from the points of its region, queried at the request's level of
-// detail with splats grown by 2^(lod/2) (thesis 8.4). The server's sessions drive it from the
-// worker pool with a renderer from the server's render::RendererPool; the embedded
-// `hvdb render` (--data) can drive it directly with render::MakeRenderer().
-#ifndef HVDB_SERVER_RENDER_SERVICE_H_
-#define HVDB_SERVER_RENDER_SERVICE_H_
+// detail with splats grown by 2^(lod/2) (thesis 8.4). Two callers drive it: hvdb-server's
+// sessions, from the worker pool with a renderer from the server's RendererPool, and the
+// embedded `hvdb render` (client/backend.cc, --data DIR) with MakeRenderer(). Both therefore
+// give the same images and the same errors for the same request.
+//
+// Unlike the rest of render/ (which needs only storage's Point record), this part of it reads
+// a Dataset and speaks the wire protocol's Render messages: it is its own library,
+// hvdb_render_job (render/CMakeLists.txt), so that the renderers do not depend on either.
+#ifndef HVDB_RENDER_JOB_H_
+#define HVDB_RENDER_JOB_H_
 
 #include <atomic>
 #include <memory>
@@ -17,11 +22,12 @@
 #include "render/renderer.h"
 #include "storage/database.h"
 
-namespace hvdb::server {
+namespace hvdb::render {
 
 struct RenderLimits {
-  uint64_t max_points = 16u << 20;  // points one image may draw (they are held in memory)
-  uint32_t max_images = 100000;     // images in one sequence
+  // Points one image may draw (they are held in memory); hvdb-server: --max-render-points.
+  uint64_t max_points = 16u << 20;
+  uint32_t max_images = 100000;  // images in one sequence
 };
 
 class RenderJob {
@@ -32,15 +38,15 @@ class RenderJob {
                                                    const RenderLimits& limits = {});
   // Images the request asks for: path size for a sequence, else 1.
   size_t size() const { return views_.size(); }
-  render::RendererKind renderer_kind() const { return kind_; }
+  RendererKind renderer_kind() const { return kind_; }
   wire::ImageFormat format() const { return format_; }
 
   // Renders image i (0 <= i < size()) with `renderer`. The points of the previous image are
   // reused when its region is the same. `cancelled`, when given, is checked between batches.
-  Result<render::Image> RenderImage(size_t i, render::Renderer& renderer,
-                                    const std::atomic<bool>* cancelled = nullptr);
+  Result<Image> RenderImage(size_t i, Renderer& renderer,
+                            const std::atomic<bool>* cancelled = nullptr);
   // The same, encoded as the request's format into a reply (index, last, timings filled in).
-  Result<wire::RenderReply> Render(size_t i, render::Renderer& renderer,
+  Result<wire::RenderReply> Render(size_t i, Renderer& renderer,
                                    const std::atomic<bool>* cancelled = nullptr);
 
  private:
@@ -49,22 +55,22 @@ class RenderJob {
 
   std::shared_ptr<Dataset> dataset_;
   RenderLimits limits_;
-  render::RendererKind kind_ = render::RendererKind::kAuto;
+  RendererKind kind_ = RendererKind::kAuto;
   wire::ImageFormat format_ = wire::IMAGE_PNG;
-  render::RenderOptions options_;
+  RenderOptions options_;
   QueryOptions query_;
-  std::vector<render::Camera> views_;
+  std::vector<Camera> views_;
   std::vector<Region> regions_;  // one, or one per image
   std::vector<Point> points_;
   size_t loaded_ = SIZE_MAX;  // which region points_ holds
 };
 
 // A camera of the dataset (storage's CameraInfo) as a render camera: the same fields.
-render::Camera CameraFromInfo(const CameraInfo& info);
+Camera CameraFromInfo(const CameraInfo& info);
 
 // A view of a Render request as a render camera. dataset_camera ids are looked up in `info`.
-Result<render::Camera> ViewFromWire(const wire::View& view, const DatasetInfo& info,
-                                    const std::string& field);
+Result<Camera> ViewFromWire(const wire::View& view, const DatasetInfo& info,
+                            const std::string& field);
 
 // Parses a camera path for a sequence (the `hvdb render --path` file), JSON:
 //   {"cameras": [ VIEW, ... ]}  where each VIEW is one of
@@ -77,6 +83,6 @@ Result<render::Camera> ViewFromWire(const wire::View& view, const DatasetInfo& i
 // Fills request->path (and request->frames); InvalidArgument names the entry at fault.
 Status ParseCameraPath(const std::string& json_text, wire::Render* request);
 
-}  // namespace hvdb::server
+}  // namespace hvdb::render
 
-#endif  // HVDB_SERVER_RENDER_SERVICE_H_
+#endif  // HVDB_RENDER_JOB_H_

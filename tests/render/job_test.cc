@@ -1,6 +1,7 @@
-// The render service: RenderJob against an embedded database, camera paths, and render
-// requests through a real hvdb-server (single images, sequences, EXR, OVERLOADED).
-#include "server/render_service.h"
+// Render jobs (render/job.h): RenderJob against an embedded database, camera paths, and render
+// requests through a real hvdb-server, whose sessions run them (single images, sequences, EXR,
+// OVERLOADED).
+#include "render/job.h"
 
 #include <gtest/gtest.h>
 
@@ -15,7 +16,7 @@
 namespace hvdb {
 namespace {
 
-using server::RenderJob;
+using render::RenderJob;
 using testing::TempDir;
 
 constexpr double kFps = 10;
@@ -188,7 +189,7 @@ TEST_F(RenderJobTest, RejectsBadRequestsNamingTheField) {
   r = base;
   r.set_mode(static_cast<wire::RenderMode>(7));
   EXPECT_EQ(error(r).rfind("render.mode:", 0), 0u);
-  server::RenderLimits few;
+  render::RenderLimits few;
   few.max_points = 100;
   auto job = RenderJob::Create(ds_, base, few);
   ASSERT_TRUE(job.ok());
@@ -201,7 +202,7 @@ TEST_F(RenderJobTest, RejectsBadRequestsNamingTheField) {
 
 TEST(CameraPathTest, ParsesTheThreeViewKinds) {
   wire::Render req;
-  Status st = server::ParseCameraPath(R"({"cameras": [
+  Status st = render::ParseCameraPath(R"({"cameras": [
       {"frame": 3, "look_at": {"eye": [0, 0, -3], "target": [0, 0, 0], "up": [0, -1, 0],
                                "fov_y_deg": 40, "width": 320, "height": 240}},
       {"frame": 4, "camera": {"width": 64, "height": 48, "fx": 50, "fy": 50, "cx": 31.5,
@@ -217,12 +218,12 @@ TEST(CameraPathTest, ParsesTheThreeViewKinds) {
   EXPECT_EQ(req.path(0).look_at().up(1), -1);
   EXPECT_EQ(req.path(1).camera().intrinsics(2), 31.5);
   EXPECT_EQ(req.path(2).dataset_camera(), 2u);
-  EXPECT_FALSE(server::ParseCameraPath("{", &req).ok());
-  EXPECT_FALSE(server::ParseCameraPath(R"({"cameras": [{"frame": 1, "dataset_camera": 1},
+  EXPECT_FALSE(render::ParseCameraPath("{", &req).ok());
+  EXPECT_FALSE(render::ParseCameraPath(R"({"cameras": [{"frame": 1, "dataset_camera": 1},
                                                        {"dataset_camera": 1}]})",
                                        &req)
                    .ok());
-  Status bad = server::ParseCameraPath(R"({"cameras": [{"look_at": {"eye": [1, 2]}}]})", &req);
+  Status bad = render::ParseCameraPath(R"({"cameras": [{"look_at": {"eye": [1, 2]}}]})", &req);
   EXPECT_NE(bad.message().find("entry 0"), std::string::npos) << bad.ToString();
 }
 

@@ -1,9 +1,9 @@
-#include "server/render_service.h"
+#include "render/job.h"
 
 #include <cmath>
 #include <nlohmann/json.hpp>
 
-namespace hvdb::server {
+namespace hvdb::render {
 
 namespace {
 
@@ -23,8 +23,8 @@ constexpr size_t kMaxEncodedImage = 200u << 20;
 
 }  // namespace
 
-render::Camera CameraFromInfo(const CameraInfo& info) {
-  render::Camera c;
+Camera CameraFromInfo(const CameraInfo& info) {
+  Camera c;
   c.width = info.width;
   c.height = info.height;
   c.fx = info.fx;
@@ -36,8 +36,8 @@ render::Camera CameraFromInfo(const CameraInfo& info) {
   return c;
 }
 
-Result<render::Camera> ViewFromWire(const wire::View& view, const DatasetInfo& info,
-                                    const std::string& field) {
+Result<Camera> ViewFromWire(const wire::View& view, const DatasetInfo& info,
+                            const std::string& field) {
   switch (view.kind_case()) {
     case wire::View::kCamera: {
       auto ci = wire::FromWire(view.camera());
@@ -61,7 +61,7 @@ Result<render::Camera> ViewFromWire(const wire::View& view, const DatasetInfo& i
         target[static_cast<size_t>(i)] = l.target(i);
         if (l.up_size() == 3) up[static_cast<size_t>(i)] = l.up(i);
       }
-      return render::Camera::LookAt(eye, target, up, l.fov_y_deg(), l.width(), l.height());
+      return Camera::LookAt(eye, target, up, l.fov_y_deg(), l.width(), l.height());
     }
     case wire::View::kDatasetCamera: {
       for (const CameraInfo& c : info.cameras) {
@@ -84,13 +84,13 @@ Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> da
   job->limits_ = limits;
   switch (r.renderer()) {
     case wire::RENDERER_AUTO:
-      job->kind_ = render::RendererKind::kAuto;
+      job->kind_ = RendererKind::kAuto;
       break;
     case wire::RENDERER_EGL:
-      job->kind_ = render::RendererKind::kEgl;
+      job->kind_ = RendererKind::kEgl;
       break;
     case wire::RENDERER_CPU:
-      job->kind_ = render::RendererKind::kCpu;
+      job->kind_ = RendererKind::kCpu;
       break;
     default:
       return Invalid("render.renderer", "unknown value " + std::to_string(r.renderer()));
@@ -99,13 +99,13 @@ Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> da
     return Invalid("render.format", "unknown value " + std::to_string(r.format()));
   }
   job->format_ = r.format();
-  render::RenderOptions& o = job->options_;
+  RenderOptions& o = job->options_;
   switch (r.mode()) {
     case wire::RENDER_VISIBILITY:
-      o.mode = render::Mode::kVisibility;
+      o.mode = Mode::kVisibility;
       break;
     case wire::RENDER_PROBABILISTIC:
-      o.mode = render::Mode::kProbabilistic;
+      o.mode = Mode::kProbabilistic;
       break;
     default:
       return Invalid("render.mode", "unknown value " + std::to_string(r.mode()));
@@ -149,18 +149,18 @@ Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> da
     }
     for (int i = 0; i < r.path_size(); ++i) {
       std::string field = "render.path[" + std::to_string(i) + "]";
-      HVDB_ASSIGN_OR_RETURN(render::Camera c, ViewFromWire(r.path(i), info, field));
+      HVDB_ASSIGN_OR_RETURN(Camera c, ViewFromWire(r.path(i), info, field));
       job->views_.push_back(c);
     }
   } else {
     if (!r.has_view()) return Invalid("render.view", "required (or a path for a sequence)");
-    HVDB_ASSIGN_OR_RETURN(render::Camera c, ViewFromWire(r.view(), info, "render.view"));
+    HVDB_ASSIGN_OR_RETURN(Camera c, ViewFromWire(r.view(), info, "render.view"));
     job->views_.push_back(c);
   }
   for (size_t i = 0; i < job->views_.size(); ++i) {
     std::string field =
         r.path_size() > 0 ? "render.path[" + std::to_string(i) + "]" : std::string("render.view");
-    HVDB_RETURN_IF_ERROR(InField(field, render::CheckRenderArguments(job->views_[i], o)));
+    HVDB_RETURN_IF_ERROR(InField(field, CheckRenderArguments(job->views_[i], o)));
   }
   // Regions.
   if (r.frames_size() > 0) {
@@ -208,7 +208,7 @@ Status RenderJob::Load(size_t region_index, const std::atomic<bool>* cancelled) 
       points_.clear();
       return Status::LimitExceeded("render: the region holds more than " +
                                    std::to_string(limits_.max_points) +
-                                   " points, the server's limit per image; use a coarser lod "
+                                   " points, the limit per image; use a coarser lod "
                                    "or a smaller region");
     }
     points_.insert(points_.end(), batch.points.begin(), batch.points.end());
@@ -217,20 +217,20 @@ Status RenderJob::Load(size_t region_index, const std::atomic<bool>* cancelled) 
   return Status::OK();
 }
 
-Result<render::Image> RenderJob::RenderImage(size_t i, render::Renderer& renderer,
-                                             const std::atomic<bool>* cancelled) {
+Result<Image> RenderJob::RenderImage(size_t i, Renderer& renderer,
+                                     const std::atomic<bool>* cancelled) {
   if (i >= views_.size()) return Status::InvalidArgument("render: no image " + std::to_string(i));
   HVDB_RETURN_IF_ERROR(Load(regions_.size() == 1 ? 0 : i, cancelled));
   if (cancelled != nullptr && *cancelled) return Status::Cancelled("render cancelled");
   return renderer.Render(points_, views_[i], options_);
 }
 
-Result<wire::RenderReply> RenderJob::Render(size_t i, render::Renderer& renderer,
+Result<wire::RenderReply> RenderJob::Render(size_t i, Renderer& renderer,
                                             const std::atomic<bool>* cancelled) {
-  HVDB_ASSIGN_OR_RETURN(render::Image img, RenderImage(i, renderer, cancelled));
+  HVDB_ASSIGN_OR_RETURN(Image img, RenderImage(i, renderer, cancelled));
   wire::RenderReply reply;
-  HVDB_ASSIGN_OR_RETURN(std::string bytes, format_ == wire::IMAGE_EXR ? render::EncodeExr(img)
-                                                                      : render::EncodePng(img));
+  HVDB_ASSIGN_OR_RETURN(std::string bytes,
+                        format_ == wire::IMAGE_EXR ? EncodeExr(img) : EncodePng(img));
   if (bytes.size() > kMaxEncodedImage) {
     return Status::LimitExceeded("render: the encoded image has " +
                                  std::to_string(bytes.size() >> 20) +
@@ -330,4 +330,4 @@ Status ParseCameraPath(const std::string& json_text, wire::Render* request) {
   return Status::OK();
 }
 
-}  // namespace hvdb::server
+}  // namespace hvdb::render
