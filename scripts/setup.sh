@@ -12,6 +12,7 @@ PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libprotobuf-dev protobuf-compiler
   nlohmann-json3-dev libcli11-dev
+  libspatialindex-dev libnanoflann-dev libpcl-dev python3-matplotlib
   clang libclang-rt-14-dev
 )
 

@@ -1,0 +1,102 @@
+// 3. Thesis Figure 8.14, dynamic inserts: sets of ins_set random points committed one
+// transaction at a time into an initially empty frame (the logarithmic method's Bkd-tree
+// forest), the time of every set and the running average; once without and once with a
+// durable commit (log fsync) per set.
+#include <numeric>
+
+#include "bench/bench.h"
+
+namespace hvdb::bench {
+
+namespace {
+
+const char* kExp = "3-inserts";
+
+}  // namespace
+
+void RunInserts(Ctx& ctx) {
+  const Config& c = ctx.cfg;
+  Report& R = ctx.report;
+  Curve curve{"inserts", kExp,
+              "Figure 8.14: " + std::to_string(c.ins_set) + "-point sets into an empty Bkd-tree",
+              "points in the tree", "time per set (ms)", false, true, {}};
+
+  // The physical limit of a durable commit: appending the same bytes and fdatasync.
+  const uint64_t set_bytes = c.ins_set * kPointRecordSize;
+  std::vector<double> sync_samples;
+  for (int r = 0; r < c.limit_reps; ++r) {
+    sync_samples.push_back(AppendSyncMs(c.scratch, set_bytes, 5));
+  }
+  R.Add("ins.limit.append_fdatasync", kExp, "ms", sync_samples, {{"bytes", set_bytes}},
+        "physical limit of a durable commit: append the set's bytes to a file and fdatasync "
+        "(each sample the median of 5)");
+
+  for (int durable = 0; durable < 2; ++durable) {
+    const size_t total = durable ? c.ins_durable_total : c.ins_total;
+    const std::string tag = durable ? "durable" : "nosync";
+    const std::string dir = c.scratch + "/ins_" + tag;
+    Log("3 inserts (%s): %zu points in sets of %zu", tag.c_str(), total, c.ins_set);
+    Db db = Db::Create(dir, "ins", c.DbOptions(durable != 0), c.fps);
+    const std::vector<Point> pts = UniformPoints(total, c.seed + 300 + durable);
+    std::vector<double> ms, x, avg;
+    double sum = 0;
+    for (size_t at = 0; at < total; at += c.ins_set) {
+      const size_t n = std::min(c.ins_set, total - at);
+      Transaction txn;
+      txn.Insert(std::vector<Point>(pts.begin() + static_cast<std::ptrdiff_t>(at),
+                                    pts.begin() + static_cast<std::ptrdiff_t>(at + n)));
+      Timer t;
+      Check(db.ds->Commit(txn), "commit");
+      const double m = t.Ms();
+      ms.push_back(m);
+      sum += m;
+      x.push_back(static_cast<double>(at + n));
+      avg.push_back(sum / static_cast<double>(ms.size()));
+      if (ms.size() % 500 == 0) {
+        Log("3 inserts (%s): %zu points, average %.3f ms per set", tag.c_str(), at + n,
+            avg.back());
+      }
+    }
+    DatasetStats st = db.ds->Stats();
+    nlohmann::json p = {{"set_points", c.ins_set},
+                        {"total_points", total},
+                        {"sets", ms.size()},
+                        {"sync", durable != 0},
+                        {"trees_at_end", st.trees},
+                        {"buffered_points_at_end", st.buffered_points},
+                        {"wal_bytes_at_end", st.wal_bytes}};
+    const std::string f = "ins." + tag;
+    R.Add(f + ".set", kExp, "ms", ms, p, "time of one Commit of a " + std::to_string(c.ins_set) +
+                                             "-point insert (one sample per set)");
+    Figure& mean = R.Add(f + ".set.mean", kExp, "ms", {}, p,
+                         "average time per set over the whole run (min/max: of the sets)");
+    const auto [mn, mx] = std::minmax_element(ms.begin(), ms.end());
+    mean.fixed = Figure::Stats{sum / static_cast<double>(ms.size()), *mn, *mx, ms.size()};
+    Figure& rate = R.Add(f + ".rate", kExp, "Mpoints/s", {}, p,
+                         "sustained insert rate: points / total commit time");
+    const double r = static_cast<double>(total) / sum / 1e3;
+    rate.fixed = Figure::Stats{r, r, r, 1};
+    db.Close();
+    RemoveAll(dir);
+
+    curve.series.push_back({tag == "durable" ? "every set (durable commit)" : "every set (no fsync)",
+                            x, ms, "points"});
+    curve.series.push_back({tag == "durable" ? "running average (durable)"
+                                             : "running average (no fsync)",
+                            x, avg, "line"});
+  }
+  R.AddTarget("ins.nosync.set.mean", "<=", 110, "thesis 2008, Figure 8.14",
+              "under 110 ms per 1000-point insert");
+  R.AddTarget("ins.nosync.set.mean", "<=", 0.5, "issue 7 goal",
+              "1000-point sets under 0.5 ms on average");
+  R.AddTarget("ins.nosync.rate", ">=", 2.0, "issue 7 goal", ">= 2 million points/s sustained");
+  R.AddTarget("ins.durable.set", "<=", 0.5, "issue 7 goal",
+              "a durable 1000-point commit within 0.5 ms including the fsync (median commit)");
+  R.Ratio("ins.durable.set.x_fdatasync", kExp, "ins.durable.set", "ins.limit.append_fdatasync",
+          "durable commit (median) / raw append + fdatasync of the same bytes");
+  curve.series.push_back({"thesis 2008 bound", {0, static_cast<double>(c.ins_total)}, {110, 110},
+                          "dashed"});
+  R.AddCurve(curve);
+}
+
+}  // namespace hvdb::bench
