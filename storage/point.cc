@@ -48,6 +48,7 @@ Point DecodePoint(const uint8_t* src) {
 }
 
 void EncodePoints(std::span<const Point> points, uint8_t* dst) {
+  if (points.empty()) return;  // data() may be null: memcpy must not see it
   if constexpr (std::endian::native == std::endian::little) {
     // Same layout (static_asserts in point.h); only the reserved field must be cleared.
     std::memcpy(dst, points.data(), points.size() * kPointRecordSize);
@@ -58,6 +59,7 @@ void EncodePoints(std::span<const Point> points, uint8_t* dst) {
 }
 
 void DecodePoints(const uint8_t* src, size_t n, Point* out) {
+  if (n == 0) return;
   if constexpr (std::endian::native == std::endian::little) {
     std::memcpy(static_cast<void*>(out), src, n * kPointRecordSize);
   } else {
