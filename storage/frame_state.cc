@@ -52,10 +52,11 @@ std::string TreeFileName(uint32_t frame, uint64_t seq) {
 bool ParseTreeFileName(const std::string& name, uint32_t* frame, uint64_t* seq) {
   // "ffffffff-ssssssssssssssss.kdt": 8 + 1 + 16 + 4 characters.
   if (name.size() != 29 || name.substr(25) != ".kdt" || name[8] != '-') return false;
+  const std::string fpart = name.substr(0, 8), spart = name.substr(9, 16);
   char* end = nullptr;
-  unsigned long f = std::strtoul(name.substr(0, 8).c_str(), &end, 10);
+  unsigned long f = std::strtoul(fpart.c_str(), &end, 10);
   if (*end != '\0') return false;
-  unsigned long long s = std::strtoull(name.substr(9, 16).c_str(), &end, 16);
+  unsigned long long s = std::strtoull(spart.c_str(), &end, 16);
   if (*end != '\0') return false;
   *frame = static_cast<uint32_t>(f);
   *seq = s;
