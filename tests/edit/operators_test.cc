@@ -17,12 +17,7 @@ namespace {
 constexpr double kFps = 10;
 using Key = std::pair<uint32_t, uint64_t>;
 
-Window Everything() {
-  Window w;
-  w.lo = {-1e9, -1e9, -1e9, -1e9};
-  w.hi = {1e9, 1e9, 1e9, 1e9};
-  return w;
-}
+Window Everything() { return testing::EverythingWindow(); }
 
 std::map<Key, Point> ReadAll(Dataset& ds) {
   std::map<Key, Point> out;

@@ -29,18 +29,9 @@ using testing::TempDir;
 
 constexpr double kFps = 10.0;
 
-Window Everything() {
-  Window w;
-  w.lo = {-1e9, -1e9, -1e9, -1e9};
-  w.hi = {1e9, 1e9, 1e9, 1e9};
-  return w;
-}
+Window Everything() { return testing::EverythingWindow(); }
 
-Window FrameWindow(uint32_t f) {
-  Window w = Everything();
-  w.lo[3] = w.hi[3] = f / kFps;
-  return w;
-}
+Window FrameWindow(uint32_t f) { return testing::FrameWindow(f, kFps); }
 
 client::Options Opts(uint16_t port) {
   client::Options o;

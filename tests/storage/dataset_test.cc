@@ -38,18 +38,9 @@ std::vector<Point> RunQuery(Dataset& ds, const Region& r, QueryOptions o = {}) {
   return out;
 }
 
-Window Everything() {
-  Window w;
-  w.lo = {-1e9, -1e9, -1e9, -1e9};
-  w.hi = {1e9, 1e9, 1e9, 1e9};
-  return w;
-}
+Window Everything() { return testing::EverythingWindow(); }
 
-Window FrameWindow(uint32_t f) {
-  Window w = Everything();
-  w.lo[3] = w.hi[3] = f / kFps;
-  return w;
-}
+Window FrameWindow(uint32_t f) { return testing::FrameWindow(f, kFps); }
 
 std::set<std::pair<uint32_t, uint64_t>> Keys(const std::vector<Point>& pts) {
   std::set<std::pair<uint32_t, uint64_t>> s;

@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "storage/database.h"
 #include "storage/point.h"
 
 namespace hvdb::testing {
@@ -51,6 +52,20 @@ inline std::vector<Point> RandomPoints(std::mt19937_64& rng, size_t n, uint32_t 
   std::vector<Point> pts(n);
   for (auto& p : pts) p = RandomPoint(rng, frame, extent);
   return pts;
+}
+
+// A window over all of space and time, and the same restricted to frame f at `fps`.
+inline Window EverythingWindow() {
+  Window w;
+  w.lo = {-1e9, -1e9, -1e9, -1e9};
+  w.hi = {1e9, 1e9, 1e9, 1e9};
+  return w;
+}
+
+inline Window FrameWindow(uint32_t f, double fps) {
+  Window w = EverythingWindow();
+  w.lo[3] = w.hi[3] = f / fps;
+  return w;
 }
 
 }  // namespace hvdb::testing
