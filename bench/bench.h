@@ -1,4 +1,4 @@
-// hvdb-bench: the run's configuration and the experiments (issue 7, items 1-7).
+// hvdb-bench: the run's configuration and the experiments (issue 7, items 1-8).
 #ifndef HVDB_BENCH_BENCH_H_
 #define HVDB_BENCH_BENCH_H_
 
@@ -60,6 +60,11 @@ struct Config {
   size_t slice_points = 100'000;
   std::vector<int> slice_spans = {8, 32, 128};
 
+  // 8. End to end through hvdb-server.
+  size_t e2e_points = 2'000'000;
+  std::vector<int> e2e_clients = {1, 8, 32};
+  int e2e_queries = 640;  // windows per client count, shared among the clients
+
   static Config Quick();
   bool Runs(int experiment) const { return only.empty() || only.count(experiment) > 0; }
   Options DbOptions(bool sync = true) const;
@@ -76,6 +81,7 @@ void RunWindows(Ctx& ctx);    // 2 and 5 (+6)
 void RunInserts(Ctx& ctx);    // 3
 void RunRTree(Ctx& ctx);      // 4 (and the bulk-load comparison)
 void RunSlices(Ctx& ctx);     // 7 (+6)
+void RunServer(Ctx& ctx);     // 8
 
 }  // namespace hvdb::bench
 

@@ -4,6 +4,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <ctime>
 #include <filesystem>
@@ -42,6 +43,8 @@ Config Config::Quick() {
   c.rt4d_max_points = 40'000;
   c.slice_frames = 136;
   c.slice_points = 2'000;
+  c.e2e_points = 100'000;
+  c.e2e_queries = 64;
   return c;
 }
 
@@ -111,7 +114,10 @@ nlohmann::json ConfigJson(const Config& c) {
           {"bulk_reps", c.bulk_reps},
           {"slice_frames", c.slice_frames},
           {"slice_points", c.slice_points},
-          {"slice_spans", c.slice_spans}};
+          {"slice_spans", c.slice_spans},
+          {"e2e_points", c.e2e_points},
+          {"e2e_clients", c.e2e_clients},
+          {"e2e_queries", c.e2e_queries}};
 }
 
 int Main(int argc, char** argv) {
@@ -143,7 +149,7 @@ int Main(int argc, char** argv) {
                  "directory for the datasets (several GB at full size; removed at the end; "
                  "default: $TMPDIR/hvdb-bench-PID)");
   app.add_flag("--keep-scratch", keep_scratch, "leave the scratch directory in place");
-  app.add_option("--only", only, "experiments to run (1-7; 6 is part of every other one)")
+  app.add_option("--only", only, "experiments to run (1-8; 6 is part of every other one)")
       ->delimiter(',');
   app.add_option("--seed", c.seed, "random seed of the synthetic points")->capture_default_str();
   app.add_option("--cache-mib", c.cache_mib, "hvdb buffer pool (and R*-tree buffer) in MiB")
@@ -190,6 +196,13 @@ int Main(int argc, char** argv) {
   g7->add_option("--slice-spans", c.slice_spans, "frames spanned by the tilted slices")
       ->delimiter(',')
       ->capture_default_str();
+  auto* g8 = app.add_option_group("8 end to end through hvdb-server");
+  g8->add_option("--e2e-points", c.e2e_points, "points in the served frame")->capture_default_str();
+  g8->add_option("--e2e-clients", c.e2e_clients, "concurrent client counts")
+      ->delimiter(',')
+      ->capture_default_str();
+  g8->add_option("--e2e-queries", c.e2e_queries, "windows per client count (split among clients)")
+      ->capture_default_str();
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -197,8 +210,8 @@ int Main(int argc, char** argv) {
   }
   c.only.insert(only.begin(), only.end());
   for (int e : c.only) {
-    if (e < 1 || e > 7) {
-      std::cerr << "hvdb-bench: --only takes experiments 1-7, got " << e << "\n";
+    if (e < 1 || e > 8) {
+      std::cerr << "hvdb-bench: --only takes experiments 1-8, got " << e << "\n";
       return 2;
     }
   }
@@ -207,6 +220,8 @@ int Main(int argc, char** argv) {
       c.win_cold < 1 || c.ins_total == 0 || c.ins_durable_total == 0 ||
       c.rt_small_frames == 0 || c.rt_small_points == 0 || c.rt_large_frames == 0 ||
       c.rt_large_points == 0 || c.slice_frames == 0 || c.slice_points == 0 ||
+      c.e2e_points == 0 || c.e2e_queries < 1 || c.e2e_clients.empty() ||
+      std::any_of(c.e2e_clients.begin(), c.e2e_clients.end(), [](int n) { return n < 1 || n > 256; }) ||
       c.bulk_reps < 1 || c.warm_reps < 1 || c.cold_reps < 1 || c.limit_reps < 1) {
     std::cerr << "hvdb-bench: sizes, steps and repetitions must be positive (and win-max >= "
                  "win-min)\n";
@@ -273,6 +288,7 @@ int Main(int argc, char** argv) {
   step(3, "3-inserts", RunInserts);
   step(4, "4-rtree", RunRTree);
   step(7, "7-slices", RunSlices);
+  step(8, "8-server", RunServer);
   ctx.limits.reset();
 
   nlohmann::json j = ctx.report.ToJson();
