@@ -1,0 +1,394 @@
+// ingest-bench: accuracy and throughput of the ingest pipeline (ingest/), as JSON in the figure
+// format of the other benchmarks (bench/README.md).
+//
+//  1. Generated structured-light recordings (ingest/generator.h, exact ground truth from the
+//     analytic scene): per brick, the matcher's disparity error after subpixel refinement and
+//     the valid fraction over non-occluded pixels (pixels whose surface point the right camera
+//     also sees), bad-pixel rates; and the 3D error of the merged, cleaned points (distance
+//     along the viewing ray to the true surface): RMSE, median, p90.
+//  2. Real sequences of ../shared/data, described by recording.yml files written into the
+//     scratch directory with absolute path patterns (nothing is copied) and ingested by the
+//     hvdb-ingest binary into a scratch data directory: points per frame, frames/s, points/s,
+//     peak memory (of that process). For the RGB-D sequences with poses, how well consecutive
+//     frames agree in world space: the points of frame i+1 projected into the camera of frame i
+//     and compared with frame i's own depth map.
+// The Middlebury stereo pairs are stereo-bench's (bench/stereo_bench.cc).
+#include <sys/resource.h>
+
+#include <CLI/CLI.hpp>
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <vector>
+
+#include "client/backend.h"
+#include "ingest/generator.h"
+#include "ingest/pipeline.h"
+#include "ingest/rectify.h"
+
+namespace fs = std::filesystem;
+using namespace hvdb;
+using namespace hvdb::ingest;
+
+namespace {
+
+const std::string kData = HVDB_SHARED_DATA;
+
+nlohmann::json Figure(const std::string& name, const std::string& unit, std::vector<double> v,
+                      nlohmann::json params) {
+  std::sort(v.begin(), v.end());
+  if (v.empty()) v.push_back(NAN);
+  return {{"name", name},          {"unit", unit},          {"median", v[v.size() / 2]},
+          {"min", v.front()},      {"max", v.back()},       {"repetitions", v.size()},
+          {"params", std::move(params)}};
+}
+
+double Quantile(std::vector<double> v, double q) {
+  if (v.empty()) return NAN;
+  std::sort(v.begin(), v.end());
+  return v[std::min(v.size() - 1, static_cast<size_t>(q * static_cast<double>(v.size())))];
+}
+
+[[noreturn]] void Die(const std::string& what, const Status& st) {
+  std::fprintf(stderr, "ingest-bench: %s: %s\n", what.c_str(), st.ToString().c_str());
+  std::exit(1);
+}
+
+template <typename T>
+T Check(Result<T> r, const std::string& what) {
+  if (!r.ok()) Die(what, r.status());
+  return std::move(r).value();
+}
+
+// ---- 1. generated recordings ---------------------------------------------------------------
+
+void RunGenerated(const std::string& scratch, bool quick, nlohmann::json& figures) {
+  GeneratorOptions g;
+  g.bricks = quick ? 2 : 3;
+  g.frames = quick ? 1 : 4;
+  g.width = quick ? 160 : 320;
+  g.height = quick ? 120 : 240;
+  const std::string dir = scratch + "/generated";
+  fs::remove_all(dir);
+  Check(GenerateRecording(g, dir), "generate");
+  const Recording rec = Check(OpenRecording(dir), "open generated recording");
+  IngestOptions opt;
+  opt.dataset = "gen";
+  const nlohmann::json params = {{"bricks", g.bricks}, {"width", g.width}, {"height", g.height},
+                                 {"frames", g.frames}, {"seed", g.seed},
+                                 {"window", opt.stereo.window},
+                                 {"num_disparities", opt.stereo.num_disparities}};
+  std::vector<double> abs_err_all, valid_pct, bad1, bad05, stereo_ms, rmse, med3d, p90_3d;
+  const FrameProcessor proc = Check(FrameProcessor::Make(rec, opt), "frame processor");
+  for (int f = 0; f < rec.frames; ++f) {
+    const SyntheticScene scene(g.seed, f, g.fps);
+    const FrameInput in = Check(LoadFrame(rec, f), "load frame");
+    for (const StereoView& v : in.stereo) {
+      const Brick& b = rec.calibration.bricks[static_cast<size_t>(v.brick)];
+      const Rectification r = Check(PrepareRectification(rec.calibration.cameras[b.left],
+                                                         rec.calibration.cameras[b.right]),
+                                    "rectify");
+      cv::Mat l, rr;
+      Rectify(r, v.left, v.right, &l, &rr);
+      const DisparityMap dm = Check(MatchStereo(l, rr, opt.stereo), "match");
+      stereo_ms.push_back(dm.timing.total_ms);
+      const cv::Vec3d Or = rec.calibration.cameras[b.right].Centre();
+      const double fx = r.left.K(0, 0);
+      size_t nonocc = 0, valid = 0, b1 = 0, b05 = 0;
+      std::vector<double> err;
+      for (int y = 0; y < l.rows; ++y) {
+        for (int x = 0; x < l.cols; ++x) {
+          const Ray ray = CameraRay(r.left, {static_cast<double>(x), static_cast<double>(y)});
+          auto hit = scene.Intersect(ray);
+          if (!hit) continue;
+          const cv::Vec3d pc = r.left.R * hit->position + r.left.T;
+          const double d_gt = r.baseline * fx / pc[2];
+          if (d_gt < opt.stereo.min_disparity + 1 ||
+              d_gt > opt.stereo.min_disparity + opt.stereo.num_disparities - 2 || x - d_gt < 1)
+            continue;
+          const Ray to_right{Or, hit->position - Or};
+          if (scene.Occluded(to_right, 1e-6, 1 - 1e-4)) continue;  // occluded in the right view
+          ++nonocc;
+          const float d = dm.d.at<float>(y, x);
+          if (!std::isfinite(d)) continue;
+          ++valid;
+          const double e = std::abs(d - d_gt);
+          err.push_back(e);
+          b1 += e > 1;
+          b05 += e > 0.5;
+        }
+      }
+      abs_err_all.insert(abs_err_all.end(), err.begin(), err.end());
+      valid_pct.push_back(100.0 * valid / std::max<size_t>(1, nonocc));
+      bad1.push_back(100.0 * b1 / std::max<size_t>(1, valid));
+      bad05.push_back(100.0 * b05 / std::max<size_t>(1, valid));
+      std::printf("generated frame %d brick %d: median |d - d_gt| %.3f px, valid %.1f%% of %zu "
+                  "non-occluded, bad>1px %.2f%%, %.0f ms\n",
+                  f, v.brick, Quantile(err, 0.5), valid_pct.back(), nonocc, bad1.back(),
+                  dm.timing.total_ms);
+    }
+    // 3D error of the merged, cleaned points.
+    FrameReport rep;
+    const std::vector<Point> pts = Check(proc.Process(in, &rep), "process frame");
+    std::vector<double> e3;
+    for (const Point& p : pts) {
+      const CameraModel& c = rec.calibration.cameras[p.camera];
+      const cv::Vec3d o = c.Centre(), P(p.x, p.y, p.z);
+      auto hit = scene.Intersect(Ray{o, P - o});
+      if (!hit) {
+        e3.push_back(1.0);  // a point in front of nothing: counted as a 1 m error
+        continue;
+      }
+      e3.push_back(cv::norm(hit->position - P));
+    }
+    double s = 0;
+    for (double e : e3) s += e * e;
+    rmse.push_back(std::sqrt(s / std::max<size_t>(1, e3.size())));
+    med3d.push_back(Quantile(e3, 0.5));
+    p90_3d.push_back(Quantile(e3, 0.9));
+    std::printf("generated frame %d: %zu points, %llu outliers removed, 3D error RMSE %.2f mm, "
+                "median %.2f mm, p90 %.2f mm\n",
+                f, pts.size(), static_cast<unsigned long long>(rep.outliers_removed),
+                rmse.back() * 1e3, med3d.back() * 1e3, p90_3d.back() * 1e3);
+  }
+  figures.push_back(Figure("generated.disparity.median_abs_error", "px",
+                           {Quantile(abs_err_all, 0.5)}, params));
+  figures.back()["target"] = {{"op", "<="}, {"value", 0.1}, {"source", "issue 5"}};
+  figures.push_back(Figure("generated.disparity.valid_nonoccluded", "%", valid_pct, params));
+  figures.back()["target"] = {{"op", ">="}, {"value", 95}, {"source", "issue 5"}};
+  figures.push_back(Figure("generated.disparity.bad_1px", "%", bad1, params));
+  figures.push_back(Figure("generated.disparity.bad_0.5px", "%", bad05, params));
+  figures.push_back(Figure("generated.stereo_time", "ms", stereo_ms, params));
+  auto mm = [](std::vector<double> v) {
+    for (double& x : v) x *= 1e3;
+    return v;
+  };
+  figures.push_back(Figure("generated.points.rmse_3d", "mm", mm(rmse), params));
+  figures.push_back(Figure("generated.points.median_3d", "mm", mm(med3d), params));
+  figures.push_back(Figure("generated.points.p90_3d", "mm", mm(p90_3d), params));
+}
+
+// ---- 2. real sequences -----------------------------------------------------------------------
+
+struct RealSet {
+  std::string name;
+  std::string dir;  // recording directory written here
+  bool poses = false;
+};
+
+void WriteYaml(const std::string& path, const std::string& text) {
+  std::ofstream(path) << "%YAML:1.0\n---\n" << text;
+}
+
+std::string Matrix(int rows, int cols, const std::vector<double>& v) {
+  std::ostringstream o;
+  o << "!!opencv-matrix\n      rows: " << rows << "\n      cols: " << cols << "\n      dt: d\n      data: [ ";
+  for (size_t i = 0; i < v.size(); ++i) o << (i ? ", " : "") << v[i];
+  o << " ]\n";
+  return o.str();
+}
+
+std::string CameraYaml(const std::string& name, int w, int h, double fx, double fy, double cx,
+                       double cy, const std::vector<double>& R, const std::vector<double>& T) {
+  std::ostringstream o;
+  o << "   - name: " << name << "\n     width: " << w << "\n     height: " << h
+    << "\n     K: " << Matrix(3, 3, {fx, 0, cx, 0, fy, cy, 0, 0, 1}) << "     R: " << Matrix(3, 3, R)
+    << "     T: " << Matrix(3, 1, T) << "     reprojection_error: 0.5\n";
+  return o.str();
+}
+
+const std::vector<double> kEye{1, 0, 0, 0, 1, 0, 0, 0, 1}, kZero{0, 0, 0};
+
+std::vector<RealSet> DescribeRealSets(const std::string& scratch, bool quick) {
+  std::vector<RealSet> sets;
+  const int rgbd_frames = quick ? 3 : 24;
+  {  // 7-Scenes redkitchen: 640x480 Kinect v1, depth in mm (0 and 65535 invalid), poses.
+    RealSet s{"7scenes", scratch + "/rec-7scenes", true};
+    fs::create_directories(s.dir);
+    const std::string src = kData + "/sevenscenes-redkitchen-rgbd/rgbd-frames/";
+    WriteYaml(s.dir + "/calibration.yml",
+              "cameras:\n" + CameraYaml("kinect", 640, 480, 585, 585, 320, 240, kEye, kZero));
+    WriteYaml(s.dir + "/recording.yml",
+              "format: \"hvdb-recording\"\nversion: 1\nkind: \"depth\"\nframes: " +
+                  std::to_string(rgbd_frames) +
+                  "\nfps: 30\nfirst_frame: 150\nframe_step: 1\ndepth_encoding: \"png16\"\n"
+                  "depth_scale: 0.001\ndepth_invalid: [ 0, 65535 ]\ncameras:\n   - { name: kinect, colour: \"" +
+                  src + "frame-{frame:06d}.color.png\", depth: \"" + src +
+                  "frame-{frame:06d}.depth.png\", pose: \"" + src + "frame-{frame:06d}.pose.txt\" }\n");
+    sets.push_back(s);
+  }
+  {  // Shelf bin: 640x480, depth registered to colour, every second frame from 15.
+    RealSet s{"shelf", scratch + "/rec-shelf", true};
+    fs::create_directories(s.dir);
+    const std::string src = kData + "/apc-shelf-rgbd-sequence/sample/";
+    WriteYaml(s.dir + "/calibration.yml",
+              "cameras:\n" + CameraYaml("realsense", 640, 480, 615.1951904296875, 615.19525146484375,
+                                        298.44268798828125, 247.51919555664062, kEye, kZero));
+    WriteYaml(s.dir + "/recording.yml",
+              "format: \"hvdb-recording\"\nversion: 1\nkind: \"depth\"\nframes: " +
+                  std::to_string(rgbd_frames) +
+                  "\nfps: 15\nfirst_frame: 15\nframe_step: 2\ndepth_encoding: \"png16\"\n"
+                  "depth_scale: 0.001\ndepth_invalid: [ 0 ]\ncameras:\n   - { name: realsense, colour: \"" +
+                  src + "frame-{frame:06d}.color.png\", depth: \"" + src +
+                  "frame-{frame:06d}.depth.png\", pose: \"" + src + "frame-{frame:06d}.pose.txt\" }\n");
+    sets.push_back(s);
+  }
+  {  // SJTU 10-camera stage, one frame; cameras 3 and 6 are held out of the shared copy.
+    RealSet s{"sjtu", scratch + "/rec-sjtu", false};
+    fs::create_directories(s.dir);
+    const std::string src = kData + "/sjtu-fvv-multiview-rgbd/";
+    std::ifstream in(src + "para_cameras.txt");
+    double zmin = 0, zmax = 0;
+    in >> zmin >> zmax;
+    std::string cams = "cameras:\n", files = "cameras:\n", key;
+    for (int c = 0; c < 10; ++c) {
+      int id = 0, w = 0, h = 0;
+      double fx, fy, cx, cy, C[3];
+      std::vector<double> R(9);
+      in >> key >> id >> key >> w >> h >> key >> fx >> fy >> cx >> cy >> key;
+      for (double& r : R) in >> r;
+      in >> key >> C[0] >> C[1] >> C[2];
+      if (id == 3 || id == 6) continue;
+      // X_cam = R (X - C): T = -R C.
+      std::vector<double> T{-(R[0] * C[0] + R[1] * C[1] + R[2] * C[2]),
+                            -(R[3] * C[0] + R[4] * C[1] + R[5] * C[2]),
+                            -(R[6] * C[0] + R[7] * C[1] + R[8] * C[2])};
+      const std::string name = "cam" + std::to_string(id);
+      cams += CameraYaml(name, w, h, fx, fy, cx, cy, R, T);
+      files += "   - { name: " + name + ", colour: \"" + src + "frame_0/images/" +
+               std::to_string(id) + ".png\", depth: \"" + src + "frame_0/depths/" +
+               std::to_string(id) + ".png\" }\n";
+    }
+    WriteYaml(s.dir + "/calibration.yml", cams);
+    std::ostringstream o;
+    o << "format: \"hvdb-recording\"\nversion: 1\nkind: \"depth\"\nframes: 1\nfps: 30\n"
+         "depth_encoding: \"inverse8\"\ndepth_invalid: [ 0 ]\nz_near: "
+      << zmin << "\nz_far: " << zmax << "\nworld_scale: 0.37\n" << files;
+    WriteYaml(s.dir + "/recording.yml", o.str());
+    sets.push_back(s);
+  }
+  {  // Panoptic point-cloud video: 16 binary PLY frames in centimetres.
+    RealSet s{"panoptic", scratch + "/rec-panoptic", false};
+    fs::create_directories(s.dir);
+    WriteYaml(s.dir + "/recording.yml",
+              "format: \"hvdb-recording\"\nversion: 1\nkind: \"ply\"\nframes: " +
+                  std::to_string(quick ? 3 : 16) + "\nfps: 29.97\nfirst_frame: 380\nply: \"" + kData +
+                  "/cmu-panoptic-kinoptic-171026-pose3/kinoptic_ptclouds/ptcloud_hd{frame:08d}.ply\"\n"
+                  "ply_scale: 0.01\n");
+    sets.push_back(s);
+  }
+  return sets;
+}
+
+// Consecutive frames of a posed RGB-D recording: frame i+1's points in frame i's camera.
+void FrameAgreement(const RealSet& s, const std::string& data, nlohmann::json& figures) {
+  const Recording rec = Check(OpenRecording(s.dir), "open " + s.name);
+  auto backend = client::MakeEmbeddedBackend(data, 256u << 20);
+  std::vector<double> rel_all;
+  std::vector<double> within2;
+  for (int i = 0; i + 1 < rec.frames; ++i) {
+    const FrameInput fi = Check(LoadFrame(rec, i), "load");
+    const DepthFrameView& v = fi.depth[0];
+    Window w;
+    for (int a = 0; a < 3; ++a) {
+      w.lo[a] = -1e9;
+      w.hi[a] = 1e9;
+    }
+    w.lo[3] = w.hi[3] = (i + 1) / rec.fps;
+    auto q = Check(backend->Query(s.name, w, QueryOptions{}), "query");
+    Batch b;
+    size_t n = 0, ok2 = 0;
+    while (Check(q->Next(&b), "next")) {
+      for (const Point& p : b.points) {
+        double z = 0;
+        const cv::Point2d px = v.model.Project(cv::Vec3d(p.x, p.y, p.z), &z);
+        const int u = static_cast<int>(std::lround(px.x)), vv = static_cast<int>(std::lround(px.y));
+        if (z <= 0 || u < 0 || vv < 0 || u >= v.depth.cols || vv >= v.depth.rows) continue;
+        const float zi = v.depth.at<float>(vv, u);
+        if (!(zi > 0)) continue;
+        const double rel = std::abs(z - zi) / zi;
+        rel_all.push_back(rel * 100);
+        ++n;
+        ok2 += rel <= 0.02;
+      }
+    }
+    within2.push_back(100.0 * ok2 / std::max<size_t>(1, n));
+  }
+  figures.push_back(Figure("real." + s.name + ".consecutive.median_rel_depth", "%",
+                           {Quantile(rel_all, 0.5)}, {{"pairs", rec.frames - 1}}));
+  figures.push_back(Figure("real." + s.name + ".consecutive.within_2pct", "%", within2,
+                           {{"pairs", rec.frames - 1}}));
+  std::printf("%s: consecutive frames agree: median relative depth difference %.2f%%, %.1f%% "
+              "of points within 2%%\n",
+              s.name.c_str(), Quantile(rel_all, 0.5), Quantile(within2, 0.5));
+}
+
+void RunReal(const std::string& scratch, bool quick, nlohmann::json& figures) {
+  for (const RealSet& s : DescribeRealSets(scratch, quick)) {
+    const std::string data = scratch + "/data-" + s.name, report = scratch + "/" + s.name + ".json";
+    fs::remove_all(data);
+    const std::string cmd = std::string(HVDB_INGEST_BIN) + " run " + s.dir + " --dataset " + s.name +
+                            " --data " + data + " --quiet --report " + report +
+                            (s.name == "sjtu" ? " --stride 2" : "");
+    std::printf("%s\n", cmd.c_str());
+    std::fflush(stdout);
+    if (std::system(cmd.c_str()) != 0) {
+      std::fprintf(stderr, "ingest-bench: %s failed\n", cmd.c_str());
+      std::exit(1);
+    }
+    std::ifstream in(report);
+    const auto j = nlohmann::json::parse(in);
+    std::vector<double> ppf, valid, removed;
+    for (const auto& f : j["frames"]) {
+      ppf.push_back(f["points"].get<double>());
+      valid.push_back(f["valid_depth_pct"].get<double>());
+      removed.push_back(f["outliers_removed"].get<double>());
+    }
+    const nlohmann::json p = {{"frames", j["ingested"]}, {"recording", s.dir},
+                              {"stride", s.name == "sjtu" ? 2 : 1}};
+    figures.push_back(Figure("real." + s.name + ".points_per_frame", "points", ppf, p));
+    figures.push_back(Figure("real." + s.name + ".frames_per_s", "frames/s", {j["frames_per_s"].get<double>()}, p));
+    figures.push_back(Figure("real." + s.name + ".points_per_s", "points/s", {j["points_per_s"].get<double>()}, p));
+    figures.push_back(Figure("real." + s.name + ".peak_rss", "MiB", {j["peak_rss_mb"].get<double>()}, p));
+    if (s.name != "panoptic") {
+      figures.push_back(Figure("real." + s.name + ".valid_depth", "%", valid, p));
+      figures.push_back(Figure("real." + s.name + ".outliers_removed", "points", removed, p));
+    }
+    if (s.poses) FrameAgreement(s, data, figures);
+    fs::remove_all(data);
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"ingest-bench: accuracy and throughput of hvdb-ingest on generated recordings "
+               "(exact ground truth) and on the real sequences in ../shared/data"};
+  std::string out = "ingest.json", scratch;
+  bool quick = false, keep = false;
+  app.add_option("--out", out, "JSON file to write")->capture_default_str();
+  app.add_option("--scratch", scratch, "scratch directory (default: $TMPDIR/ingest-bench-PID)");
+  app.add_flag("--quick", quick, "small sizes for a CI smoke run");
+  app.add_flag("--keep-scratch", keep, "leave the scratch directory");
+  CLI11_PARSE(app, argc, argv);
+  if (scratch.empty()) {
+    const char* t = std::getenv("TMPDIR");
+    scratch = std::string(t && *t ? t : "/tmp") + "/ingest-bench-" + std::to_string(::getpid());
+  }
+  fs::create_directories(scratch);
+  nlohmann::json figures = nlohmann::json::array();
+  RunGenerated(scratch, quick, figures);
+  RunReal(scratch, quick, figures);
+  rusage ru{};
+  getrusage(RUSAGE_SELF, &ru);
+  nlohmann::json doc = {{"benchmark", "ingest"}, {"quick", quick},
+                        {"peak_rss_mib", ru.ru_maxrss / 1024.0}, {"figures", figures}};
+  std::ofstream(out) << doc.dump(2) << "\n";
+  if (!keep) fs::remove_all(scratch);
+  std::printf("wrote %s\n", out.c_str());
+  return 0;
+}

@@ -1,0 +1,203 @@
+// hvdb-ingest: recordings into hvdb datasets (docs/RECORDING.md), and the tools around it.
+//
+//   hvdb-ingest run REC --dataset NAME (--data DIR | --server HOST:PORT)   the pipeline
+//   hvdb-ingest check REC                         load every frame, report what is wrong
+//   hvdb-ingest calibrate --left IMG... [--right IMG...] --out calibration.yml
+//   hvdb-ingest stereo LEFT RIGHT ... --out DISP.pfm                      the matcher alone
+//   hvdb-ingest generate OUT ...                  a synthetic recording with ground truth
+#include <unistd.h>
+
+#include <cstdio>
+#include <fstream>
+#include <iostream>
+
+#include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
+
+#include "client/backend.h"
+#include "ingest/commands.h"
+#include "ingest/pipeline.h"
+#include "ingest/recording.h"
+
+namespace hvdb::ingest {
+namespace {
+
+int Fail(const Status& st) {
+  std::cerr << "hvdb-ingest: " << st.ToString() << "\n";
+  return st.IsInvalidArgument() || st.IsNotFound() ? 2 : 1;
+}
+
+void RegisterRun(CLI::App& app, int* rc) {
+  auto* cmd = app.add_subcommand("run", "Ingest a recording (stereo, depth or PLY) into a dataset");
+  struct Args {
+    std::string rec, data, server, token, report;
+    size_t cache_mb = 256;
+    IngestOptions o;
+    double y = 0.40, uv = 0.15;
+    bool no_photo = false, no_subpixel = false, quiet = false;
+  };
+  auto a = std::make_shared<Args>();
+  cmd->add_option("recording", a->rec, "recording directory (with recording.yml)")->required();
+  cmd->add_option("--dataset", a->o.dataset, "dataset to ingest into (created if missing)")->required();
+  cmd->add_option("--data", a->data, "data directory: write it directly (no server)");
+  cmd->add_option("--server", a->server, "HOST:PORT of a running hvdb-server to stream into");
+  cmd->add_option("--token", a->token, "access token for the server (read-write role)");
+  cmd->add_option("--workers", a->o.workers, "frames processed in parallel (0: all cores)")->capture_default_str();
+  cmd->add_option("--first", a->o.first, "first recording frame")->capture_default_str();
+  cmd->add_option("--count", a->o.count, "frames to ingest (-1: to the end)")->capture_default_str();
+  cmd->add_option("--frame-offset", a->o.frame_offset, "dataset frame of recording frame 0")->capture_default_str();
+  cmd->add_flag("--skip-bad-frames", a->o.skip_bad_frames, "report bad frames and go on without them");
+  cmd->add_option("--report", a->report, "write the JSON report (per-frame statistics) here");
+  cmd->add_option("--depth-out", a->o.depth_out, "write every depth map made as DIR/NNNNNN/<camera>.depth.exr");
+  cmd->add_option("--stride", a->o.stride, "depth: use every n-th pixel in x and y")->capture_default_str();
+  cmd->add_option("--min-disparity", a->o.stereo.min_disparity, "stereo: smallest disparity (px)")->capture_default_str();
+  cmd->add_option("--num-disparities", a->o.stereo.num_disparities, "stereo: disparities searched")->capture_default_str();
+  cmd->add_option("--window", a->o.stereo.window, "stereo: matching window side (odd)")->capture_default_str();
+  cmd->add_flag("--no-subpixel", a->no_subpixel, "stereo: integer disparities only");
+  cmd->add_flag("--no-photo-consistency", a->no_photo, "keep every point (no outlier removal)");
+  cmd->add_option("--y-threshold", a->y, "photo-consistency: max luminance deviation (0..1)")->capture_default_str();
+  cmd->add_option("--uv-threshold", a->uv, "photo-consistency: max chrominance deviation (0..1)")->capture_default_str();
+  cmd->add_option("--cache-mb", a->cache_mb, "--data: block cache in MiB")->capture_default_str();
+  cmd->add_flag("--quiet", a->quiet, "no progress bar");
+  cmd->callback([a, rc] {
+    if (a->data.empty() == a->server.empty()) {
+      *rc = Fail(Status::InvalidArgument("give exactly one of --data DIR and --server HOST:PORT"));
+      return;
+    }
+    if (!(a->y > 0 && a->y <= 1 && a->uv > 0 && a->uv <= 1)) {
+      *rc = Fail(Status::InvalidArgument("--y-threshold and --uv-threshold must be in (0, 1]"));
+      return;
+    }
+    auto rec = OpenRecording(a->rec);
+    if (!rec.ok()) {
+      *rc = Fail(rec.status());
+      return;
+    }
+    std::unique_ptr<client::Backend> backend;
+    if (!a->data.empty()) {
+      backend = client::MakeEmbeddedBackend(a->data, a->cache_mb << 20);
+    } else {
+      auto b = client::MakeRemoteBackend({a->server, a->token});
+      if (!b.ok()) {
+        *rc = Fail(b.status());
+        return;
+      }
+      backend = std::move(b).value();
+    }
+    IngestOptions o = a->o;
+    o.stereo.subpixel = !a->no_subpixel;
+    o.photo_consistency = !a->no_photo;
+    o.photo.max_dy = a->y;
+    o.photo.max_du = o.photo.max_dv = a->uv;
+    o.progress = !a->quiet && ::isatty(2);
+    auto report = RunIngest(*rec, *backend, o);
+    if (!report.ok()) {
+      *rc = Fail(report.status());
+      return;
+    }
+    const nlohmann::json j = report->ToJson();
+    if (!a->report.empty()) {
+      std::ofstream out(a->report);
+      out << j.dump(2) << "\n";
+      if (!out) {
+        *rc = Fail(Status::IOError(a->report + ": cannot write the report"));
+        return;
+      }
+    }
+    std::printf("ingested %d frames (%d already present, %d skipped), %llu points in %.1f s: "
+                "%.2f frames/s, %.0f points/s, peak memory %.0f MiB\n",
+                report->ingested, report->present, report->skipped,
+                static_cast<unsigned long long>(report->points), report->seconds,
+                j["frames_per_s"].get<double>(), j["points_per_s"].get<double>(), report->peak_rss_mb);
+    *rc = report->skipped ? 3 : 0;
+  });
+}
+
+void RegisterCheck(CLI::App& app, int* rc) {
+  auto* cmd = app.add_subcommand("check", "Load every frame of a recording and report what is wrong");
+  auto rec_dir = std::make_shared<std::string>();
+  cmd->add_option("recording", *rec_dir, "recording directory")->required();
+  cmd->callback([rec_dir, rc] {
+    auto rec = OpenRecording(*rec_dir);
+    if (!rec.ok()) {
+      *rc = Fail(rec.status());
+      return;
+    }
+    int bad = 0;
+    for (int i = 0; i < rec->frames; ++i) {
+      auto f = LoadFrame(*rec, i);
+      if (!f.ok()) {
+        std::printf("frame %d: %s\n", i, f.status().ToString().c_str());
+        ++bad;
+      }
+    }
+    std::printf("%d frames, %d bad\n", rec->frames, bad);
+    *rc = bad ? 1 : 0;
+  });
+}
+
+void RegisterCalibrate(CLI::App& app, int* rc) {
+  auto* cmd = app.add_subcommand(
+      "calibrate", "Calibrate a camera or a stereo pair from checkerboard images (OpenCV)");
+  struct Args {
+    std::vector<std::string> left, right;
+    std::string out, pattern = "9x6";
+    CheckerboardOptions o;
+  };
+  auto a = std::make_shared<Args>();
+  cmd->add_option("--left", a->left, "images of the (left) camera")->required();
+  cmd->add_option("--right", a->right, "images of the right camera, same order (stereo)");
+  cmd->add_option("--pattern", a->pattern, "inner corners, COLSxROWS")->capture_default_str();
+  cmd->add_option("--square", a->o.square, "square side in metres")->capture_default_str();
+  cmd->add_option("--left-name", a->o.left_name, "camera name in the YAML")->capture_default_str();
+  cmd->add_option("--right-name", a->o.right_name, "camera name in the YAML")->capture_default_str();
+  cmd->add_option("--out", a->out, "calibration YAML to write")->required();
+  cmd->callback([a, rc] {
+    int w = 0, h = 0;
+    if (std::sscanf(a->pattern.c_str(), "%dx%d", &w, &h) != 2) {
+      *rc = Fail(Status::InvalidArgument("--pattern must look like 9x6"));
+      return;
+    }
+    a->o.pattern = {w, h};
+    auto r = CalibrateCheckerboard(a->left, a->right, a->o);
+    if (!r.ok()) {
+      *rc = Fail(r.status());
+      return;
+    }
+    for (const auto& s : r->skipped) std::printf("skipped %s\n", s.c_str());
+    Status st = SaveCalibration(r->calibration, a->out);
+    if (!st.ok()) {
+      *rc = Fail(st);
+      return;
+    }
+    std::printf("%zu views used; reprojection error (sigma_C): left %.3f px", r->used.size(), r->left_rms);
+    if (!a->right.empty()) {
+      const auto& rc2 = r->calibration.cameras[1];
+      std::printf(", right %.3f px, stereo %.3f px; baseline %.4f m", r->right_rms, r->stereo_rms,
+                  cv::norm(rc2.T));
+    }
+    std::printf("\nwrote %s\n", a->out.c_str());
+    *rc = 0;
+  });
+}
+
+}  // namespace
+}  // namespace hvdb::ingest
+
+int main(int argc, char** argv) {
+  CLI::App app{"hvdb-ingest: turn recordings (stereo on structured light, depth, PLY) into hvdb "
+               "datasets. Formats: docs/RECORDING.md."};
+  app.require_subcommand(1);
+  int rc = 0;
+  hvdb::ingest::RegisterRun(app, &rc);
+  hvdb::ingest::RegisterCheck(app, &rc);
+  hvdb::ingest::RegisterCalibrate(app, &rc);
+  hvdb::ingest::RegisterStereoCommand(app);
+  hvdb::ingest::RegisterGenerateCommand(app);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  return rc;
+}

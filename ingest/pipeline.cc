@@ -1,0 +1,404 @@
+#include "ingest/pipeline.h"
+
+#include <sys/resource.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdio>
+#include <deque>
+#include <filesystem>
+#include <mutex>
+#include <optional>
+#include <thread>
+
+#include "ingest/generator.h"  // WriteDepthExr
+#include "ingest/rectify.h"
+
+namespace hvdb::ingest {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double MsSince(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+double PeakRssMb() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return static_cast<double>(u.ru_maxrss) / 1024.0;  // ru_maxrss is in KiB on Linux
+}
+
+int HardwareThreads() { return std::max(1, static_cast<int>(std::thread::hardware_concurrency())); }
+
+double ValidPct(const cv::Mat& depth) {
+  if (depth.empty()) return 0;
+  return 100.0 * cv::countNonZero(depth > 0) / static_cast<double>(depth.total());
+}
+
+// The window holding dataset frame f (t = f / fps, inclusive bounds) over all space.
+Window FrameWindow(uint32_t f, double fps) {
+  Window w;
+  const double big = 1e30;
+  for (int a = 0; a < 3; ++a) {
+    w.lo[a] = -big;
+    w.hi[a] = big;
+  }
+  w.lo[3] = w.hi[3] = f / fps;
+  return w;
+}
+
+// Whether dataset frame f holds any point: the first batch of a query on it.
+Result<bool> FramePresent(client::Backend& backend, const std::string& dataset, uint32_t f,
+                          double fps) {
+  HVDB_ASSIGN_OR_RETURN(auto q, backend.Query(dataset, FrameWindow(f, fps), QueryOptions{}));
+  Batch b;
+  while (true) {
+    HVDB_ASSIGN_OR_RETURN(bool more, q->Next(&b));
+    if (!more) return false;
+    if (!b.points.empty()) return true;
+  }
+}
+
+void Progress(int done, int total, double secs, bool final) {
+  const int width = 30;
+  const int fill = total ? done * width / total : width;
+  const double fps = secs > 0 ? done / secs : 0;
+  const double eta = fps > 0 ? (total - done) / fps : 0;
+  std::fprintf(stderr, "\r[%.*s%.*s] %d/%d frames  %.2f frames/s  ETA %.0f s   ", fill,
+               "==============================", width - fill, "                              ",
+               done, total, fps, eta);
+  if (final) std::fprintf(stderr, "\n");
+  std::fflush(stderr);
+}
+
+}  // namespace
+
+nlohmann::json IngestReport::ToJson() const {
+  nlohmann::json j;
+  j["frames_total"] = frames_total;
+  j["ingested"] = ingested;
+  j["already_present"] = present;
+  j["skipped"] = skipped;
+  j["points"] = points;
+  j["bytes_read"] = bytes_read;
+  j["seconds"] = seconds;
+  j["frames_per_s"] = seconds > 0 ? ingested / seconds : 0;
+  j["points_per_s"] = seconds > 0 ? static_cast<double>(points) / seconds : 0;
+  j["peak_rss_mb"] = peak_rss_mb;
+  nlohmann::json fr = nlohmann::json::array();
+  for (const auto& f : frames) {
+    nlohmann::json e = {{"frame", f.frame},
+                        {"dataset_frame", f.dataset_frame},
+                        {"status", f.status},
+                        {"valid_depth_pct", f.valid_depth_pct},
+                        {"points", f.points},
+                        {"outliers_removed", f.outliers_removed},
+                        {"stage_ms", f.stage_ms}};
+    if (!f.error.empty()) e["error"] = f.error;
+    fr.push_back(e);
+  }
+  j["frames"] = fr;
+  return j;
+}
+
+Status EnsureDataset(client::Backend& backend, const Recording& rec, const std::string& dataset) {
+  auto info = backend.Describe(dataset);
+  if (info.ok()) {
+    if (std::abs(info->fps - rec.fps) > 1e-9)
+      return Status::InvalidArgument("dataset '" + dataset + "' has " + std::to_string(info->fps) +
+                                     " fps but the recording " + std::to_string(rec.fps) +
+                                     "; ingest into a new dataset or one of the same rate");
+    return Status::OK();
+  }
+  if (!info.status().IsNotFound()) return info.status();
+  DatasetInfo d;
+  d.name = dataset;
+  d.fps = rec.fps;
+  // The colour cameras, with the calibration's index as id (Point::camera).
+  auto add = [&](int idx) {
+    const CameraModel& c = rec.calibration.cameras[static_cast<size_t>(idx)];
+    const render::Camera rc = c.ToRenderCamera();
+    CameraInfo ci;
+    ci.id = static_cast<uint16_t>(idx);
+    ci.name = c.name;
+    ci.width = rc.width;
+    ci.height = rc.height;
+    ci.fx = rc.fx;
+    ci.fy = rc.fy;
+    ci.cx = rc.cx;
+    ci.cy = rc.cy;
+    ci.distortion = rc.distortion;
+    ci.world_from_camera = rc.world_from_camera;
+    d.cameras.push_back(ci);
+  };
+  if (rec.kind == RecordingKind::kStereo) {
+    for (const auto& b : rec.calibration.bricks) add(b.colour);
+  } else if (rec.kind == RecordingKind::kDepth) {
+    for (const auto& f : rec.files) add(rec.calibration.Find(f.camera));
+  }
+  auto created = backend.CreateDataset(d);
+  if (!created.ok() && created.status().code() != StatusCode::kAlreadyExists) return created.status();
+  return Status::OK();
+}
+
+Result<FrameProcessor> FrameProcessor::Make(const Recording& rec, const IngestOptions& options) {
+  FrameProcessor p;
+  p.rec_ = &rec;
+  p.opt_ = options;
+  if (p.opt_.stride < 1) return Status::InvalidArgument("stride must be >= 1");
+  if (rec.kind == RecordingKind::kStereo) {
+    for (const Brick& b : rec.calibration.bricks) {
+      HVDB_ASSIGN_OR_RETURN(Rectification r,
+                            PrepareRectification(rec.calibration.cameras[b.left],
+                                                 rec.calibration.cameras[b.right]));
+      HVDB_RETURN_IF_ERROR(p.opt_.stereo.Validate(r.size));
+      p.rect_.push_back(std::make_shared<const Rectification>(std::move(r)));
+    }
+  }
+  return p;
+}
+
+Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameReport* rep) const {
+  const Recording& rec = *rec_;
+  const Calibration& cal = rec.calibration;
+  std::vector<Point> points;
+  if (rec.kind == RecordingKind::kPly) {
+    points = in.points;
+    rep->points = points.size();
+    return points;
+  }
+  PointOptions po;
+  po.sigma_c = cal.SigmaC();
+  po.normals = opt_.normals;
+  po.stride = opt_.stride;
+  po.frame = rep->dataset_frame;
+  // Camera models (pinhole versions for the depth views) must outlive the colour views below.
+  std::vector<CameraModel> colour_models;
+  std::vector<cv::Mat> colour_images;
+  double valid = 0;
+  size_t views = 0;
+  auto write_depth = [&](const std::string& camera, const cv::Mat& depth) -> Status {
+    if (opt_.depth_out.empty()) return Status::OK();
+    char dir[16];
+    std::snprintf(dir, sizeof dir, "%06d", in.index);
+    const auto path = std::filesystem::path(opt_.depth_out) / dir;
+    std::error_code ec;
+    std::filesystem::create_directories(path, ec);
+    return WriteDepthExr((path / (camera + ".depth.exr")).string(), depth);
+  };
+  if (rec.kind == RecordingKind::kStereo) {
+    for (const StereoView& v : in.stereo) {
+      const Brick& b = cal.bricks[static_cast<size_t>(v.brick)];
+      const Rectification& r = *rect_[static_cast<size_t>(v.brick)];
+      auto t0 = Clock::now();
+      cv::Mat l, rr;
+      Rectify(r, v.left, v.right, &l, &rr);
+      rep->stage_ms["rectify"] += MsSince(t0);
+      t0 = Clock::now();
+      HVDB_ASSIGN_OR_RETURN(DisparityMap dm, MatchStereo(l, rr, opt_.stereo));
+      rep->stage_ms["stereo"] += MsSince(t0);
+      t0 = Clock::now();
+      const double fx = r.left.K(0, 0);
+      cv::Mat depth = DepthFromDisparity(dm.d, r.baseline, fx, r.doffs);
+      cv::Mat sigma = DepthSigmaFromDisparity(dm.d, dm.dx, r.baseline, fx, cal.SigmaC());
+      valid += ValidPct(depth);
+      ++views;
+      const CameraModel colour = Pinhole(cal.cameras[static_cast<size_t>(b.colour)]);
+      WarpedDepth w = WarpDepth(r.left, depth, sigma, colour);
+      HVDB_RETURN_IF_ERROR(write_depth(colour.name, w.depth));
+      DepthView dv;
+      dv.camera = &colour;
+      dv.depth = w.depth;
+      dv.sigma_z = w.carried;
+      dv.colour = Undistort(cal.cameras[static_cast<size_t>(b.colour)], v.colour);
+      dv.camera_id = static_cast<uint16_t>(b.colour);
+      std::vector<Point> pts = PointsFromDepth(dv, po);
+      points.insert(points.end(), pts.begin(), pts.end());
+      colour_models.push_back(cal.cameras[static_cast<size_t>(b.colour)]);
+      colour_images.push_back(v.colour);
+      rep->stage_ms["points"] += MsSince(t0);
+    }
+  } else {
+    for (const DepthFrameView& v : in.depth) {
+      auto t0 = Clock::now();
+      const CameraModel pin = Pinhole(v.model);
+      DepthView dv;
+      dv.camera = &pin;
+      dv.depth = Undistort(v.model, v.depth, /*nearest=*/true);  // never blend across edges
+      dv.colour = Undistort(v.model, v.colour);
+      dv.camera_id = static_cast<uint16_t>(v.camera);
+      valid += ValidPct(dv.depth);
+      ++views;
+      std::vector<Point> pts = PointsFromDepth(dv, po);
+      points.insert(points.end(), pts.begin(), pts.end());
+      colour_models.push_back(v.model);
+      colour_images.push_back(v.colour);
+      rep->stage_ms["points"] += MsSince(t0);
+    }
+  }
+  rep->valid_depth_pct = views ? valid / static_cast<double>(views) : 0;
+  if (opt_.photo_consistency && !points.empty()) {
+    auto t0 = Clock::now();
+    std::vector<ColourView> cv_views;
+    for (size_t i = 0; i < colour_models.size(); ++i)
+      cv_views.push_back(ColourView{&colour_models[i], colour_images[i]});
+    PhotoConsistencyOptions pc = opt_.photo;
+    if (pc.threads == 0) pc.threads = std::max(1, HardwareThreads() / std::max(1, opt_.workers));
+    PhotoConsistencyStats st;
+    std::vector<uint8_t> keep = PhotoConsistencyMask(points, cv_views, pc, &st);
+    size_t out = 0;
+    for (size_t i = 0; i < points.size(); ++i)
+      if (keep[i]) points[out++] = points[i];
+    rep->outliers_removed = points.size() - out;
+    points.resize(out);
+    rep->stage_ms["photo"] += MsSince(t0);
+  }
+  rep->points = points.size();
+  return points;
+}
+
+Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
+                               const IngestOptions& options_in) {
+  IngestOptions opt = options_in;
+  if (opt.dataset.empty()) return Status::InvalidArgument("no dataset given");
+  if (opt.workers <= 0) opt.workers = HardwareThreads();
+  if (opt.max_in_flight <= 0) opt.max_in_flight = opt.workers + 1;
+  if (opt.stereo.threads <= 0) opt.stereo.threads = std::max(1, HardwareThreads() / opt.workers);
+  if (opt.first < 0 || opt.first >= rec.frames)
+    return Status::InvalidArgument("--first " + std::to_string(opt.first) +
+                                   " is outside the recording's frames 0.." +
+                                   std::to_string(rec.frames - 1));
+  const int last = opt.count < 0 ? rec.frames : std::min(rec.frames, opt.first + opt.count);
+  HVDB_RETURN_IF_ERROR(EnsureDataset(backend, rec, opt.dataset));
+  HVDB_ASSIGN_OR_RETURN(FrameProcessor proc, FrameProcessor::Make(rec, opt));
+
+  const auto t_start = Clock::now();
+  IngestReport report;
+  report.frames_total = last - opt.first;
+  std::vector<FrameReport> reports(static_cast<size_t>(report.frames_total));
+  // Resume: which frames are already in the dataset (each got there in one atomic bulk load).
+  std::vector<int> todo;
+  for (int i = opt.first; i < last; ++i) {
+    FrameReport& fr = reports[static_cast<size_t>(i - opt.first)];
+    fr.frame = i;
+    fr.dataset_frame = opt.frame_offset + static_cast<uint32_t>(i);
+    HVDB_ASSIGN_OR_RETURN(bool present, FramePresent(backend, opt.dataset, fr.dataset_frame, rec.fps));
+    if (present) {
+      fr.status = "present";
+      ++report.present;
+    } else {
+      todo.push_back(i);
+    }
+  }
+
+  // Workers -> bounded queue of finished frames -> this thread commits.
+  struct Done {
+    int index;
+    Result<std::vector<Point>> points;
+    uint64_t bytes;
+  };
+  std::mutex mu;
+  std::condition_variable cv_space, cv_ready;
+  std::deque<Done> ready;
+  std::atomic<size_t> next{0};
+  std::atomic<bool> stop{false};
+  int in_flight = 0;  // claimed and not yet committed (bounds memory)
+  auto worker = [&] {
+    while (!stop) {
+      {
+        std::unique_lock lk(mu);
+        cv_space.wait(lk, [&] { return stop || in_flight < opt.max_in_flight; });
+        if (stop) return;
+        ++in_flight;
+      }
+      const size_t k = next++;
+      if (k >= todo.size()) {
+        std::lock_guard lk(mu);
+        --in_flight;
+        cv_ready.notify_all();
+        return;
+      }
+      const int i = todo[k];
+      FrameReport& fr = reports[static_cast<size_t>(i - opt.first)];
+      auto t0 = Clock::now();
+      Result<FrameInput> in = LoadFrame(rec, i);
+      fr.stage_ms["load"] = MsSince(t0);
+      Done d{i, in.ok() ? proc.Process(*in, &fr) : Result<std::vector<Point>>(in.status()),
+             in.ok() ? in->bytes_read : 0};
+      std::lock_guard lk(mu);
+      ready.push_back(std::move(d));
+      cv_ready.notify_all();
+    }
+  };
+  std::vector<std::thread> threads;
+  for (int w = 0; w < opt.workers; ++w) threads.emplace_back(worker);
+
+  Status failure;
+  size_t handled = 0;
+  const int total = static_cast<int>(todo.size());
+  if (opt.progress) Progress(0, total, 0, false);
+  while (handled < todo.size()) {
+    Done d{0, Status::Internal("unset"), 0};
+    {
+      std::unique_lock lk(mu);
+      cv_ready.wait(lk, [&] { return !ready.empty(); });
+      d = std::move(ready.front());
+      ready.pop_front();
+    }
+    FrameReport& fr = reports[static_cast<size_t>(d.index - opt.first)];
+    if (d.points.ok()) {
+      auto t0 = Clock::now();
+      const uint64_t n = d.points->size();
+      auto loaded = n ? backend.BulkLoad(opt.dataset, fr.dataset_frame, std::move(d.points).value())
+                      : Result<uint64_t>(uint64_t{0});
+      fr.stage_ms["commit"] = MsSince(t0);
+      if (!loaded.ok()) {
+        failure = Status(loaded.status().code(), "frame " + std::to_string(d.index) + ": commit: " +
+                                                     loaded.status().message());
+      } else {
+        ++report.ingested;
+        report.points += *loaded;
+        report.bytes_read += d.bytes;
+      }
+    } else {
+      fr.status = "skipped";
+      fr.error = d.points.status().ToString();
+      if (!opt.skip_bad_frames) {
+        failure = Status(d.points.status().code(),
+                         "frame " + std::to_string(d.index) + ": " + d.points.status().message() +
+                             " (--skip-bad-frames goes on without it)");
+      } else {
+        ++report.skipped;
+        if (opt.progress) std::fprintf(stderr, "\nskipped frame %d: %s\n", d.index, fr.error.c_str());
+      }
+    }
+    {
+      std::lock_guard lk(mu);
+      --in_flight;
+      if (!failure.ok()) stop = true;
+      cv_space.notify_all();
+    }
+    ++handled;
+    if (opt.progress) Progress(static_cast<int>(handled), total, MsSince(t_start) / 1000, false);
+    if (!failure.ok()) break;
+  }
+  {
+    std::lock_guard lk(mu);
+    stop = true;
+    cv_space.notify_all();
+  }
+  for (auto& t : threads) t.join();
+  if (opt.progress) Progress(static_cast<int>(handled), total, MsSince(t_start) / 1000, true);
+  if (!failure.ok()) return failure;
+  report.seconds = MsSince(t_start) / 1000;
+  report.peak_rss_mb = PeakRssMb();
+  report.frames = std::move(reports);
+  return report;
+}
+
+}  // namespace hvdb::ingest

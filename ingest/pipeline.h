@@ -1,0 +1,92 @@
+// The ingest pipeline: recording -> points -> dataset, frame by frame, on a pool of workers.
+//
+// Per frame (thesis 4, 5.1-5.3):
+//   stereo  per brick: rectify the grey pair, match (S1-S5), depth from disparity (3.24) with
+//           its uncertainty (5.8), warp into the brick's colour camera, probabilistic points
+//           (5.9-5.12); merge the bricks; photo-consistency cleaning in every colour camera (5.3)
+//   depth   per camera: undistort, probabilistic points; merge; photo-consistency cleaning
+//   ply     the file's points as they are
+// and one atomic bulk load per frame. Workers process frames in parallel; one committer writes
+// them as they complete, so the slowest stage never waits behind I/O, and at most
+// `max_in_flight` finished frames wait in memory.
+//
+// Resumable: frames already present in the dataset are skipped, so an ingest killed at any
+// moment and started again continues with the frames not yet committed; a frame is never
+// half present because its insert is one bulk load (atomic per frame).
+#ifndef HVDB_INGEST_PIPELINE_H_
+#define HVDB_INGEST_PIPELINE_H_
+
+#include <functional>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "client/backend.h"
+#include "ingest/photo_consistency.h"
+#include "ingest/points.h"
+#include "ingest/recording.h"
+#include "ingest/stereo.h"
+
+namespace hvdb::ingest {
+
+struct IngestOptions {
+  std::string dataset;
+  uint32_t frame_offset = 0;   // recording frame i goes to dataset frame frame_offset + i
+  int first = 0, count = -1;   // recording frames [first, first + count); -1 = to the end
+  int workers = 0;             // 0 = hardware threads
+  int max_in_flight = 0;       // finished frames waiting for the committer; 0 = workers + 1
+  StereoParams stereo;         // threads = 0: hardware threads / workers
+  int stride = 1;              // depth: take every stride-th pixel
+  bool normals = true;
+  bool photo_consistency = true;
+  PhotoConsistencyOptions photo;
+  bool skip_bad_frames = false;  // a bad frame is reported and skipped instead of stopping
+  std::string depth_out;       // if set: DIR/NNNNNN/<camera>.depth.exr of every depth map made
+  bool progress = false;       // a progress bar on stderr
+};
+
+struct FrameReport {
+  int frame = 0;               // recording frame
+  uint32_t dataset_frame = 0;
+  std::string status = "ingested";  // ingested | present (skipped on resume) | skipped (bad)
+  std::string error;
+  double valid_depth_pct = 0;  // stereo/depth: pixels with depth / pixels
+  uint64_t points = 0, outliers_removed = 0;
+  std::map<std::string, double> stage_ms;  // load, rectify, stereo, points, photo, commit
+};
+
+struct IngestReport {
+  int frames_total = 0, ingested = 0, present = 0, skipped = 0;
+  uint64_t points = 0, bytes_read = 0;
+  double seconds = 0, peak_rss_mb = 0;
+  std::vector<FrameReport> frames;  // in frame order
+  nlohmann::json ToJson() const;
+};
+
+// Creates the dataset when it does not exist (fps and colour cameras from the recording).
+Status EnsureDataset(client::Backend& backend, const Recording& recording,
+                     const std::string& dataset);
+
+// One frame's points, without committing them (tests and benchmarks use it directly).
+class FrameProcessor {
+ public:
+  static Result<FrameProcessor> Make(const Recording& recording, const IngestOptions& options);
+  Result<std::vector<Point>> Process(const FrameInput& input, FrameReport* report) const;
+
+ private:
+  const Recording* rec_ = nullptr;
+  IngestOptions opt_;
+  std::vector<std::shared_ptr<const struct Rectification>> rect_;  // per brick
+};
+
+// Runs the whole ingest. Returns an error for the first bad frame unless skip_bad_frames; the
+// frames committed before it stay (run again to continue).
+Result<IngestReport> RunIngest(const Recording& recording, client::Backend& backend,
+                               const IngestOptions& options);
+
+}  // namespace hvdb::ingest
+
+#endif  // HVDB_INGEST_PIPELINE_H_

@@ -1,0 +1,363 @@
+// The whole ingest pipeline on generated recordings (with ground truth), on depth and PLY
+// recordings, through a real hvdb-server, after a SIGKILL, and with bad frames.
+#include "ingest/pipeline.h"
+
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <map>
+#include <thread>
+
+#include <nlohmann/json.hpp>
+
+#include "client/backend.h"
+#include "ingest/generator.h"
+#include "tests/ingest/test_util.h"
+#include "tests/server/server_process.h"
+
+namespace hvdb::ingest {
+namespace {
+
+using testing::TempDir;
+namespace fs = std::filesystem;
+
+GeneratorOptions Rig(int frames, int width, int height) {
+  GeneratorOptions g;
+  g.bricks = 2;
+  g.frames = frames;
+  g.width = width;
+  g.height = height;
+  g.supersample = 2;
+  g.seed = 11;
+  return g;
+}
+
+IngestOptions Options(const std::string& dataset) {
+  IngestOptions o;
+  o.dataset = dataset;
+  o.stereo.num_disparities = 64;
+  return o;
+}
+
+// Per dataset frame: the number of points.
+std::map<uint32_t, uint64_t> FrameCounts(client::Backend& b, const std::string& dataset,
+                                         uint32_t frames, double fps) {
+  std::map<uint32_t, uint64_t> out;
+  for (uint32_t f = 0; f < frames; ++f) {
+    Window w;
+    for (int a = 0; a < 3; ++a) {
+      w.lo[a] = -1e9;
+      w.hi[a] = 1e9;
+    }
+    w.lo[3] = w.hi[3] = f / fps;
+    auto q = b.Query(dataset, w, QueryOptions{});
+    EXPECT_TRUE(q.ok()) << q.status().ToString();
+    if (!q.ok()) return out;
+    Batch batch;
+    uint64_t n = 0;
+    while (true) {
+      auto more = (*q)->Next(&batch);
+      EXPECT_TRUE(more.ok());
+      if (!more.ok() || !*more) break;
+      n += batch.points.size();
+    }
+    out[f] = n;
+  }
+  return out;
+}
+
+// Depth error of every point against the generator's ground truth in its own camera: the point
+// is projected into that (distorted) camera and compared with the exact depth there,
+// bilinearly interpolated where the four neighbours lie on one surface. One entry per point;
+// NaN where there is no reliable truth.
+std::vector<double> DepthErrors(const std::string& rec_dir, const Calibration& cal,
+                                const std::vector<Point>& points, int frame) {
+  std::map<int, cv::Mat> gt;
+  std::vector<double> err;
+  char dir[16];
+  std::snprintf(dir, sizeof dir, "%06d", frame);
+  for (const Point& p : points) {
+    const CameraModel& c = cal.cameras[p.camera];
+    if (!gt.count(p.camera)) {
+      auto z = ReadDepthExr(rec_dir + "/groundtruth/" + dir + "/" + c.name + ".depth.exr");
+      EXPECT_TRUE(z.ok());
+      gt[p.camera] = z.ok() ? *z : cv::Mat();
+    }
+    const cv::Mat& z = gt[p.camera];
+    double zc = 0;
+    const cv::Point2d px = c.Project(cv::Vec3d(p.x, p.y, p.z), &zc);
+    const int u = static_cast<int>(std::floor(px.x)), v = static_cast<int>(std::floor(px.y));
+    err.push_back(NAN);
+    if (u < 0 || v < 0 || u + 1 >= z.cols || v + 1 >= z.rows) continue;
+    const float a = z.at<float>(v, u), b = z.at<float>(v, u + 1), cc = z.at<float>(v + 1, u),
+                d = z.at<float>(v + 1, u + 1);
+    const float lo = std::min({a, b, cc, d}), hi = std::max({a, b, cc, d});
+    if (!std::isfinite(hi) || hi - lo > 0.02f * lo) continue;  // an edge: no reliable truth
+    const double fx = px.x - u, fy = px.y - v;
+    const double truth = (a * (1 - fx) + b * fx) * (1 - fy) + (cc * (1 - fx) + d * fx) * fy;
+    err.back() = std::abs(zc - truth);
+  }
+  return err;
+}
+
+double Quantile(std::vector<double> v, double q) {
+  std::erase_if(v, [](double x) { return std::isnan(x); });
+  if (v.empty()) return NAN;
+  std::sort(v.begin(), v.end());
+  return v[std::min(v.size() - 1, static_cast<size_t>(q * v.size()))];
+}
+
+TEST(Pipeline, GeneratedStereoRecordingGivesAccuratePoints) {
+  TempDir dir;
+  ASSERT_TRUE(GenerateRecording(Rig(2, 240, 180), dir / "rec").ok());
+  auto rec = OpenRecording(dir / "rec");
+  ASSERT_TRUE(rec.ok()) << rec.status().ToString();
+  IngestOptions o = Options("gen");
+  auto proc = FrameProcessor::Make(*rec, o);
+  ASSERT_TRUE(proc.ok()) << proc.status().ToString();
+  auto in = LoadFrame(*rec, 1);
+  ASSERT_TRUE(in.ok());
+  FrameReport rep;
+  rep.dataset_frame = 1;
+  auto pts = proc->Process(*in, &rep);
+  ASSERT_TRUE(pts.ok()) << pts.status().ToString();
+  EXPECT_GT(rep.valid_depth_pct, 60) << "valid disparities";
+  EXPECT_GT(pts->size(), 2u * 240 * 180 * 4 / 10) << "points from two bricks";
+  EXPECT_GT(rep.outliers_removed, 0u);
+  for (const Point& p : *pts) {
+    ASSERT_TRUE(p.flags & kFlagHasCovariance);
+    ASSERT_TRUE(p.camera == rec->calibration.bricks[0].colour || p.camera == rec->calibration.bricks[1].colour);
+  }
+  // In disparity terms (|dz| fB / z^2, f and B of the brick's grey pair): the matcher's
+  // subpixel accuracy survives depth, warping and point making.
+  const double fB = rec->calibration.cameras[rec->calibration.bricks[0].left].K(0, 0) * 0.12;
+  std::vector<double> err = DepthErrors(dir / "rec", rec->calibration, *pts, 1);
+  for (size_t i = 0; i < err.size(); ++i) {
+    const Point& p = (*pts)[i];
+    double z = 0;
+    rec->calibration.cameras[p.camera].Project(cv::Vec3d(p.x, p.y, p.z), &z);
+    err[i] *= fB / (z * z);
+  }
+  std::erase_if(err, [](double x) { return std::isnan(x); });
+  ASSERT_GT(err.size(), pts->size() / 2);
+  const double med = Quantile(err, 0.5), p90 = Quantile(err, 0.9);
+  std::printf("depth error vs ground truth, in disparity pixels: median %.3f, p90 %.3f over %zu points\n",
+              med, p90, err.size());
+  EXPECT_LT(med, 0.15);
+  EXPECT_LT(p90, 0.8);
+}
+
+TEST(Pipeline, RunIngestsEveryFrameAndResumesWithoutDuplicates) {
+  TempDir dir;
+  ASSERT_TRUE(GenerateRecording(Rig(3, 128, 96), dir / "rec").ok());
+  auto rec = OpenRecording(dir / "rec");
+  ASSERT_TRUE(rec.ok());
+  auto backend = client::MakeEmbeddedBackend(dir / "data", 64 << 20);
+  IngestOptions o = Options("v");
+  o.stereo.num_disparities = 32;
+  auto rep = RunIngest(*rec, *backend, o);
+  ASSERT_TRUE(rep.ok()) << rep.status().ToString();
+  EXPECT_EQ(rep->ingested, 3);
+  EXPECT_EQ(rep->frames.size(), 3u);
+  EXPECT_GT(rep->points, 0u);
+  const auto counts = FrameCounts(*backend, "v", 3, rec->fps);
+  for (const auto& fr : rep->frames) {
+    EXPECT_EQ(fr.status, "ingested");
+    EXPECT_EQ(counts.at(fr.dataset_frame), fr.points);
+    EXPECT_GT(fr.stage_ms.at("stereo"), 0);
+  }
+  const nlohmann::json j = rep->ToJson();
+  EXPECT_EQ(j["frames"].size(), 3u);
+  // Run again: everything is present, nothing is added.
+  auto again = RunIngest(*rec, *backend, o);
+  ASSERT_TRUE(again.ok());
+  EXPECT_EQ(again->ingested, 0);
+  EXPECT_EQ(again->present, 3);
+  EXPECT_EQ(FrameCounts(*backend, "v", 3, rec->fps), counts);
+  auto info = backend->Describe("v");
+  ASSERT_TRUE(info.ok());
+  EXPECT_EQ(info->cameras.size(), 2u);
+  EXPECT_DOUBLE_EQ(info->fps, rec->fps);
+}
+
+// hvdb-ingest killed with SIGKILL after its first committed frame, then run again: the result
+// is frame for frame what an uninterrupted ingest gives.
+TEST(Pipeline, ResumeAfterKillMatchesAnUninterruptedRun) {
+  TempDir dir;
+  const int frames = 6;
+  ASSERT_TRUE(GenerateRecording(Rig(frames, 128, 96), dir / "rec").ok());
+  auto rec = OpenRecording(dir / "rec");
+  ASSERT_TRUE(rec.ok());
+  std::map<uint32_t, uint64_t> reference;
+  {
+    auto backend = client::MakeEmbeddedBackend(dir / "ref", 64 << 20);
+    IngestOptions o = Options("v");
+    o.stereo.num_disparities = 32;
+    ASSERT_TRUE(RunIngest(*rec, *backend, o).ok());
+    reference = FrameCounts(*backend, "v", frames, rec->fps);
+  }
+  const std::string args = " run " + (dir / "rec") + " --dataset v --data " + (dir / "data") +
+                           " --num-disparities 32 --workers 1 --quiet";
+  for (int attempt = 0; attempt < 2; ++attempt) {
+    const pid_t pid = ::fork();
+    if (pid == 0) {
+      ::execl("/bin/sh", "sh", "-c", (std::string("exec ") + HVDB_INGEST_PATH + args + " >/dev/null 2>&1").c_str(),
+              static_cast<char*>(nullptr));
+      ::_exit(127);
+    }
+    // Wait for a committed frame (a tree file), then kill at once.
+    const fs::path trees = fs::path(dir / "data") / "v" / "trees";
+    const size_t want = static_cast<size_t>(attempt) + 1;
+    bool seen = false;
+    for (int i = 0; i < 6000 && !seen; ++i) {
+      std::error_code ec;
+      size_t n = 0;
+      for (auto it = fs::directory_iterator(trees, ec); !ec && it != fs::directory_iterator(); ++it) ++n;
+      seen = n >= want;
+      if (!seen) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    ASSERT_TRUE(seen) << "no frame committed";
+    ::kill(pid, SIGKILL);
+    int st = 0;
+    ::waitpid(pid, &st, 0);
+  }
+  auto r = testing::RunCommand(std::string(HVDB_INGEST_PATH) + args + " --report " + (dir / "report.json"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  std::ifstream in(dir / "report.json");
+  const auto j = nlohmann::json::parse(in);
+  EXPECT_GE(j["already_present"].get<int>(), 1) << r.output;
+  EXPECT_EQ(j["already_present"].get<int>() + j["ingested"].get<int>(), frames);
+  auto backend = client::MakeEmbeddedBackend(dir / "data", 64 << 20);
+  EXPECT_EQ(FrameCounts(*backend, "v", frames, rec->fps), reference);
+  auto check = backend->Check("v");
+  ASSERT_TRUE(check.ok());
+  EXPECT_TRUE(check->empty());
+}
+
+// The generator's exact depth maps as a depth recording (EXR), pointed at with absolute path
+// patterns, ingested through a real hvdb-server.
+TEST(Pipeline, DepthRecordingThroughTheServer) {
+  TempDir dir;
+  ASSERT_TRUE(GenerateRecording(Rig(2, 160, 120), dir / "rec").ok());
+  auto stereo = OpenRecording(dir / "rec");
+  ASSERT_TRUE(stereo.ok());
+  Calibration cal;
+  Recording r;
+  r.dir = dir / "depth";
+  fs::create_directories(r.dir);
+  r.kind = RecordingKind::kDepth;
+  r.frames = 2;
+  r.fps = stereo->fps;
+  for (const Brick& b : stereo->calibration.bricks) {
+    cal.cameras.push_back(stereo->calibration.cameras[b.colour]);
+    CameraFiles cf;
+    cf.camera = cal.cameras.back().name;
+    cf.colour = (dir / "rec") + "/frames/{frame:06d}/{camera}.png";
+    cf.depth = (dir / "rec") + "/groundtruth/{frame:06d}/{camera}.depth.exr";
+    r.files.push_back(cf);
+  }
+  ASSERT_TRUE(SaveCalibration(cal, r.dir + "/calibration.yml").ok());
+  ASSERT_TRUE(SaveRecording(r).ok());
+  hvdb::testing::ServerProcess server(dir / "data");
+  ASSERT_TRUE(server.running());
+  const std::string addr = "127.0.0.1:" + std::to_string(server.port());
+  auto out = testing::RunCommand(std::string(HVDB_INGEST_PATH) + " run " + r.dir +
+                                 " --dataset d --server " + addr + " --quiet");
+  ASSERT_EQ(out.exit_code, 0) << out.output;
+  EXPECT_NE(out.output.find("ingested 2 frames"), std::string::npos) << out.output;
+  auto backend = client::MakeRemoteBackend({addr, ""});
+  ASSERT_TRUE(backend.ok());
+  const auto counts = FrameCounts(**backend, "d", 2, r.fps);
+  EXPECT_GT(counts.at(0), 160u * 120u);
+  EXPECT_GT(counts.at(1), 160u * 120u);
+  // The points of frame 0 agree with the exact depth (their only error is the undistortion's
+  // nearest-neighbour resampling).
+  Window w;
+  for (int a = 0; a < 3; ++a) {
+    w.lo[a] = -1e9;
+    w.hi[a] = 1e9;
+  }
+  auto q = (*backend)->Query("d", w, QueryOptions{});
+  ASSERT_TRUE(q.ok());
+  std::vector<Point> pts;
+  Batch b;
+  while (*(*q)->Next(&b)) pts.insert(pts.end(), b.points.begin(), b.points.end());
+  std::vector<Point> f0;
+  for (const Point& p : pts)
+    if (p.frame == 0) f0.push_back(p);
+  // Point::camera is the index in the depth recording's calibration, the same cameras.
+  auto err = DepthErrors(dir / "rec", cal, f0, 0);
+  std::erase_if(err, [](double x) { return std::isnan(x); });
+  ASSERT_GT(err.size(), f0.size() / 2);
+  EXPECT_LT(Quantile(err, 0.5), 0.003);
+}
+
+TEST(Pipeline, PlyRecordingAndBadFrames) {
+  TempDir dir;
+  Recording r;
+  r.dir = dir / "ply";
+  fs::create_directories(r.dir + "/frames");
+  r.kind = RecordingKind::kPly;
+  r.frames = 3;
+  r.fps = 25;
+  r.ply_scale = 0.01;  // centimetres
+  ASSERT_TRUE(SaveRecording(r).ok());
+  for (int f = 0; f < 3; ++f) {
+    char name[64];
+    std::snprintf(name, sizeof name, "%s/frames/%06d.ply", r.dir.c_str(), f);
+    std::ofstream out(name);
+    out << "ply\nformat ascii 1.0\nelement vertex " << 10 + f
+        << "\nproperty float x\nproperty float y\nproperty float z\nproperty uchar red\n"
+           "property uchar green\nproperty uchar blue\nend_header\n";
+    for (int i = 0; i < 10 + f; ++i) out << i << " " << 2 * i << " 100 255 0 0\n";
+  }
+  // Frame 1 is broken: stop with its name, or skip it.
+  std::ofstream(r.dir + "/frames/000001.ply") << "ply\nformat ascii 1.0\nelement vertex 5\nend_header\n";
+  const std::string base = std::string(HVDB_INGEST_PATH) + " run " + r.dir + " --dataset p --quiet --data " + (dir / "data");
+  auto stop = testing::RunCommand(base);
+  EXPECT_NE(stop.exit_code, 0);
+  EXPECT_NE(stop.output.find("000001.ply"), std::string::npos) << stop.output;
+  EXPECT_NE(stop.output.find("--skip-bad-frames"), std::string::npos) << stop.output;
+  auto skip = testing::RunCommand(base + " --skip-bad-frames --report " + (dir / "r.json"));
+  EXPECT_EQ(skip.exit_code, 3) << skip.output;
+  std::ifstream in(dir / "r.json");
+  const auto j = nlohmann::json::parse(in);
+  EXPECT_EQ(j["skipped"].get<int>(), 1);
+  bool listed = false;
+  for (const auto& f : j["frames"])
+    if (f["frame"] == 1) listed = f["status"] == "skipped" && f["error"].get<std::string>().find("000001.ply") != std::string::npos;
+  EXPECT_TRUE(listed) << j.dump();
+  auto backend = client::MakeEmbeddedBackend(dir / "data", 16 << 20);
+  const auto counts = FrameCounts(*backend, "p", 3, 25);
+  EXPECT_EQ(counts.at(0), 10u);
+  EXPECT_EQ(counts.at(1), 0u);
+  EXPECT_EQ(counts.at(2), 12u);
+  auto q = backend->Query("p", Window{{-1, -1, 0.5, 2 / 25.0}, {1, 1, 1.5, 2 / 25.0}}, QueryOptions{});
+  ASSERT_TRUE(q.ok());
+  Batch b;
+  ASSERT_TRUE(*(*q)->Next(&b));
+  EXPECT_NEAR(b.points[0].z, 1.0, 1e-6);  // 100 cm
+}
+
+TEST(Pipeline, UsageErrors) {
+  TempDir dir;
+  auto none = testing::RunCommand(std::string(HVDB_INGEST_PATH) + " run " + dir.path() + " --dataset x --data " + (dir / "d"));
+  EXPECT_EQ(none.exit_code, 2);
+  EXPECT_NE(none.output.find("recording.yml"), std::string::npos) << none.output;
+  auto both = testing::RunCommand(std::string(HVDB_INGEST_PATH) + " run " + dir.path() + " --dataset x");
+  EXPECT_NE(both.exit_code, 0);
+  EXPECT_NE(both.output.find("--data"), std::string::npos);
+  for (const char* sub : {"run", "check", "calibrate", "stereo", "generate"}) {
+    auto h = testing::RunCommand(std::string(HVDB_INGEST_PATH) + " " + sub + " --help");
+    EXPECT_EQ(h.exit_code, 0) << sub << ": " << h.output;
+  }
+}
+
+}  // namespace
+}  // namespace hvdb::ingest
