@@ -18,6 +18,8 @@
 
 #include "client/backend.h"
 #include "ingest/generator.h"
+#include "render/metrics.h"
+#include "render/renderer.h"
 #include "tests/ingest/test_util.h"
 #include "tests/server/server_process.h"
 
@@ -151,6 +153,29 @@ TEST(Pipeline, GeneratedStereoRecordingGivesAccuratePoints) {
               med, p90, err.size());
   EXPECT_LT(med, 0.15);
   EXPECT_LT(p90, 0.8);
+
+  // The ingested frame rendered (CPU EWA splatting) from each brick's own colour camera looks
+  // like that camera's image: PSNR over the pixels the splats cover fully. Measured 18.0 and
+  // 18.3 dB (seed 11, 240x180); the render issue's goal is 25 dB: not met yet (see the ingest
+  // note: the generator's textures vary per pixel and the splats' pixel-sized Gaussians blur
+  // them). The floor guards against regressions.
+  auto cpu = render::MakeCpuRenderer();
+  for (const Brick& b : rec->calibration.bricks) {
+    const CameraModel& cam = rec->calibration.cameras[b.colour];
+    render::RenderOptions ro;
+    auto img = cpu->Render(*pts, cam.ToRenderCamera(), ro);
+    ASSERT_TRUE(img.ok()) << img.status().ToString();
+    auto photo = render::ReadSrgb8(rec->Path(rec->files[static_cast<size_t>(&b - &rec->calibration.bricks[0])].colour, 1));
+    ASSERT_TRUE(photo.ok()) << photo.status().ToString();
+    std::vector<uint8_t> mask(img->pixels());
+    size_t covered = 0;
+    for (size_t i = 0; i < mask.size(); ++i) covered += mask[i] = img->coverage[i] >= 0.99f;
+    const double psnr = render::Psnr(render::ToSrgb8(*img), *photo, &mask);
+    std::printf("%s: rendered ingest vs its photo: PSNR %.2f dB over %zu of %zu pixels\n",
+                cam.name.c_str(), psnr, covered, mask.size());
+    EXPECT_GT(covered, mask.size() / 2);
+    EXPECT_GE(psnr, 16.5) << cam.name;
+  }
 }
 
 TEST(Pipeline, RunIngestsEveryFrameAndResumesWithoutDuplicates) {
