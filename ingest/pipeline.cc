@@ -282,7 +282,7 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
   report.frames_total = last - opt.first;
   std::vector<FrameReport> reports(static_cast<size_t>(report.frames_total));
   // Resume: which frames are already in the dataset (each got there in one atomic bulk load).
-  std::vector<int> todo;
+  std::vector<int> pending;
   for (int i = opt.first; i < last; ++i) {
     FrameReport& fr = reports[static_cast<size_t>(i - opt.first)];
     fr.frame = i;
@@ -292,7 +292,7 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
       fr.status = "present";
       ++report.present;
     } else {
-      todo.push_back(i);
+      pending.push_back(i);
     }
   }
 
@@ -317,13 +317,13 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
         ++in_flight;
       }
       const size_t k = next++;
-      if (k >= todo.size()) {
+      if (k >= pending.size()) {
         std::lock_guard lk(mu);
         --in_flight;
         cv_ready.notify_all();
         return;
       }
-      const int i = todo[k];
+      const int i = pending[k];
       FrameReport& fr = reports[static_cast<size_t>(i - opt.first)];
       auto t0 = Clock::now();
       Result<FrameInput> in = LoadFrame(rec, i);
@@ -340,9 +340,9 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
 
   Status failure;
   size_t handled = 0;
-  const int total = static_cast<int>(todo.size());
+  const int total = static_cast<int>(pending.size());
   if (opt.progress) Progress(0, total, 0, false);
-  while (handled < todo.size()) {
+  while (handled < pending.size()) {
     Done d{0, Status::Internal("unset"), 0};
     {
       std::unique_lock lk(mu);
