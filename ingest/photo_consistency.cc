@@ -16,26 +16,8 @@ namespace hvdb::ingest {
 
 namespace {
 
+using render::internal::ParallelFor;
 using render::internal::Splat;
-
-// Runs fn(i) for i in [0, tasks) on up to `threads` threads (the caller's included).
-template <typename Fn>
-void ParallelFor(size_t tasks, unsigned threads, const Fn& fn) {
-  const size_t n = std::min<size_t>(threads, tasks);
-  if (n <= 1) {
-    for (size_t i = 0; i < tasks; ++i) fn(i);
-    return;
-  }
-  std::atomic<size_t> next{0};
-  auto work = [&] {
-    for (size_t i = next++; i < tasks; i = next++) fn(i);
-  };
-  std::vector<std::thread> pool;
-  pool.reserve(n - 1);
-  for (size_t t = 1; t < n; ++t) pool.emplace_back(work);
-  work();
-  for (auto& t : pool) t.join();
-}
 
 // BT.601 on sRGB-encoded values in [0, 1], U and V scaled to [-0.5, 0.5] (see the header).
 struct Yuv {

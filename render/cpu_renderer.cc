@@ -19,29 +19,11 @@ namespace hvdb::render {
 
 namespace {
 
+using internal::ParallelFor;
 using internal::Splat;
 using internal::View;
 
 constexpr uint32_t kBandRows = 16;
-
-// Runs fn(i) for i in [0, tasks) on up to `threads` threads (the caller's included).
-template <typename Fn>
-void ParallelFor(size_t tasks, unsigned threads, const Fn& fn) {
-  size_t n = std::min<size_t>(threads, tasks);
-  if (n <= 1) {
-    for (size_t i = 0; i < tasks; ++i) fn(i);
-    return;
-  }
-  std::atomic<size_t> next{0};
-  auto work = [&] {
-    for (size_t i = next++; i < tasks; i = next++) fn(i);
-  };
-  std::vector<std::thread> pool;
-  pool.reserve(n - 1);
-  for (size_t t = 1; t < n; ++t) pool.emplace_back(work);
-  work();
-  for (auto& t : pool) t.join();
-}
 
 class CpuRenderer final : public Renderer {
  public:

@@ -8,9 +8,11 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <span>
+#include <thread>
 #include <vector>
 
 #include "render/renderer.h"
@@ -107,6 +109,26 @@ inline Resolved Composite(float r, float g, float b, float coverage,
   o.rgba[3] = coverage + keep;
   o.coverage = coverage;
   return o;
+}
+
+// Runs fn(i) for i in [0, tasks) on up to `threads` threads (the caller's included). Used by
+// the CPU renderer and by ingest's photo-consistency test.
+template <typename Fn>
+void ParallelFor(size_t tasks, unsigned threads, const Fn& fn) {
+  const size_t n = std::min<size_t>(threads, tasks);
+  if (n <= 1) {
+    for (size_t i = 0; i < tasks; ++i) fn(i);
+    return;
+  }
+  std::atomic<size_t> next{0};
+  auto work = [&] {
+    for (size_t i = next++; i < tasks; i = next++) fn(i);
+  };
+  std::vector<std::thread> pool;
+  pool.reserve(n - 1);
+  for (size_t t = 1; t < n; ++t) pool.emplace_back(work);
+  work();
+  for (auto& t : pool) t.join();
 }
 
 // A stable order of `keys` (ascending), by LSD radix sort.
