@@ -1,14 +1,22 @@
-// 8. End to end through hvdb-server: a full frame and a 10,000-point window over loopback
-// against the same queries embedded, then 1, 8 and 32 concurrent clients issuing windows:
-// queries/s, MB/s and latency percentiles. The server is the real binary (HVDB_SERVER_BIN),
-// started on a free loopback port and stopped with SIGTERM.
+// 8. End to end through hvdb-server: a full frame and 10,000-point windows through the local
+// fast path (Unix socket + shared-memory ring) and through TCP loopback (records in frame
+// attachments; the point-column encoding of protocol v1 for reference), each next to the same
+// queries embedded and to the loopback limit of the same bytes (a plain socket pair moving
+// them, request and answer, in the same run); then 1, 8 and 32 concurrent clients on both
+// paths: queries/s and latency percentiles. The server is the real binary (HVDB_SERVER_BIN),
+// started on a free loopback port and its own Unix socket, and stopped with SIGTERM.
+#include <netinet/in.h>
+#include <netinet/tcp.h>
 #include <signal.h>
+#include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <condition_variable>
+#include <cstring>
 #include <fstream>
 #include <thread>
 
@@ -36,14 +44,15 @@ Window RandomWindow(Rng& rng, size_t n, size_t want) {
 
 class ServerProcess {
  public:
-  explicit ServerProcess(const std::string& data) {
+  ServerProcess(const std::string& data, const std::string& sock) {
     port_file_ = data + ".port";
     ::unlink(port_file_.c_str());
+    const std::string unix_listen = "unix:" + sock;
     pid_ = ::fork();
     if (pid_ == 0) {
       ::execl(HVDB_SERVER_BIN, HVDB_SERVER_BIN, "--data", data.c_str(), "--listen", "127.0.0.1:0",
-              "--port-file", port_file_.c_str(), "--log-level", "warn", "--cache-mb", "1024",
-              static_cast<char*>(nullptr));
+              "--listen", unix_listen.c_str(), "--port-file", port_file_.c_str(), "--log-level",
+              "warn", "--cache-mb", "1024", static_cast<char*>(nullptr));
       ::_exit(127);
     }
     for (int i = 0; i < 1000 && port_ == 0; ++i) {
@@ -67,20 +76,98 @@ class ServerProcess {
   uint16_t port_ = 0;
 };
 
-std::unique_ptr<client::Connection> Connect(uint16_t port) {
+// The two ways a client on this machine reaches the server.
+enum class Path { kTcp, kLocal, kTcpColumns };
+
+client::Options PathOptions(Path p, uint16_t port, const std::string& sock) {
   client::Options o;
   o.port = port;
-  return Check(client::Connection::Connect(o), "connect to hvdb-server");
+  o.prefer_local = false;
+  if (p == Path::kLocal) o.unix_path = sock;
+  o.columns = p == Path::kTcpColumns;
+  return o;
 }
 
-// Runs the query through the server to the end; returns (ms, points).
-std::pair<double, uint64_t> RemoteQuery(client::Connection& c, const Region& r) {
+std::unique_ptr<client::Connection> Connect(const client::Options& o) {
+  auto c = Check(client::Connection::Connect(o), "connect to hvdb-server");
+  if (o.unix_path.empty() == (c->transport().find("shared memory") != std::string::npos)) {
+    Die("connected without the transport asked for: " + c->transport());
+  }
+  return c;
+}
+
+// Runs the query through the server to the end, copying every batch into the caller's
+// Batch (like Cursor::Next embedded), or looking at it in place (`view`); returns (ms, points).
+std::pair<double, uint64_t> RemoteQuery(client::Connection& c, const Region& r, bool view = false) {
   Timer t;
   auto q = Check(c.Query("e2e", r), "remote query");
-  Batch b;
   uint64_t n = 0;
-  while (Check(q->Next(&b), "remote batch")) n += b.points.size();
+  if (view) {
+    client::BatchView v;
+    while (Check(q->NextView(&v), "remote batch")) n += v.points.size();
+  } else {
+    Batch b;
+    while (Check(q->Next(&b), "remote batch")) n += b.points.size();
+  }
   return {t.Ms(), n};
+}
+
+// The loopback limit for the same bytes: a connected socket pair (TCP on 127.0.0.1, or a Unix
+// stream socket pair), a one-byte request, then `bytes` sent from one buffer and received into
+// another, as a query's answer would be. Returns ms per round trip for each rep.
+std::vector<double> SocketPairLimit(bool tcp, size_t bytes, int reps) {
+  int fds[2];
+  if (tcp) {
+    int lst = ::socket(AF_INET, SOCK_STREAM, 0);
+    sockaddr_in a{};
+    a.sin_family = AF_INET;
+    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    socklen_t len = sizeof(a);
+    if (::bind(lst, reinterpret_cast<sockaddr*>(&a), sizeof(a)) != 0 || ::listen(lst, 1) != 0 ||
+        ::getsockname(lst, reinterpret_cast<sockaddr*>(&a), &len) != 0) {
+      Die("socket pair: listen on loopback");
+    }
+    fds[0] = ::socket(AF_INET, SOCK_STREAM, 0);
+    if (::connect(fds[0], reinterpret_cast<sockaddr*>(&a), sizeof(a)) != 0) Die("socket pair: connect");
+    fds[1] = ::accept(lst, nullptr, nullptr);
+    ::close(lst);
+    int one = 1;
+    for (int fd : fds) ::setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one));
+  } else if (::socketpair(AF_UNIX, SOCK_STREAM, 0, fds) != 0) {
+    Die("socketpair");
+  }
+  std::vector<char> src(bytes, 7), dst(bytes);
+  std::thread server([&] {
+    char req;
+    for (int r = 0; r < reps; ++r) {
+      if (::recv(fds[1], &req, 1, MSG_WAITALL) != 1) return;
+      for (size_t at = 0; at < bytes;) {
+        ssize_t n = ::send(fds[1], src.data() + at, bytes - at, MSG_NOSIGNAL);
+        if (n <= 0) return;
+        at += static_cast<size_t>(n);
+      }
+    }
+  });
+  std::vector<double> ms;
+  for (int r = 0; r < reps; ++r) {
+    Timer t;
+    char req = 1;
+    if (::send(fds[0], &req, 1, 0) != 1) Die("socket pair: send");
+    for (size_t at = 0; at < bytes;) {
+      ssize_t n = ::recv(fds[0], dst.data() + at, bytes - at, 0);
+      if (n <= 0) Die("socket pair: recv");
+      at += static_cast<size_t>(n);
+    }
+    ms.push_back(t.Ms());
+  }
+  server.join();
+  ::close(fds[0]);
+  ::close(fds[1]);
+  return ms;
+}
+
+const char* PathName(Path p) {
+  return p == Path::kLocal ? "local" : p == Path::kTcp ? "tcp" : "tcp_columns";
 }
 
 }  // namespace
@@ -89,10 +176,15 @@ void RunServer(Ctx& ctx) {
   const Config& c = ctx.cfg;
   Report& R = ctx.report;
   const std::string dir = c.scratch + "/e2e";
+  const std::string sock = c.scratch + "/e2e.sock";
   RemoveAll(dir);
   const size_t n = c.e2e_points;
+  const uint64_t frame_bytes = static_cast<uint64_t>(n) * kPointRecordSize;
   Log("8 server: one frame of %zu points, windows of ~%zu points", n, c.win_result);
   std::vector<Window> windows;
+  nlohmann::json fp = {{"points", n}};
+  nlohmann::json wp = {{"points", n}, {"result", c.win_result}};
+  uint64_t win_points = 0;
   {
     Db db = Db::Create(dir, "e2e", c.DbOptions(), c.fps);
     Check(db.ds->BulkLoad(0, UniformPoints(n, c.seed + 8000, 0)), "bulk load");
@@ -104,75 +196,140 @@ void RunServer(Ctx& ctx) {
     std::vector<double> frame_ms, win_ms;
     for (int r = 0; r < c.warm_reps; ++r) frame_ms.push_back(RunQuery(*db.ds, FrameWindow(0, c.fps), qo).ms);
     for (const Window& w : windows) RunQuery(*db.ds, w, qo);
-    for (const Window& w : windows) win_ms.push_back(RunQuery(*db.ds, w, qo).ms);
-    nlohmann::json p = {{"points", n}};
-    R.Add("e2e.frame.embedded", kExp, "ms", frame_ms, p, "full frame, embedded, warm");
-    R.Add("e2e.window.embedded", kExp, "ms", win_ms, {{"points", n}, {"result", c.win_result}},
-          "10k-point window, embedded, warm");
+    for (const Window& w : windows) {
+      QueryRun q = RunQuery(*db.ds, w, qo);
+      win_ms.push_back(q.ms);
+      win_points += q.points;
+    }
+    R.Add("e2e.frame.embedded", kExp, "ms", frame_ms, fp, "full frame, embedded, warm");
+    R.Add("e2e.window.embedded", kExp, "ms", win_ms, wp, "10k-point window, embedded, warm");
     db.Close();
   }
-  ServerProcess server(dir);
-  {
-    auto conn = Connect(server.port());
+  // The loopback limit of the same bytes, both kinds of socket.
+  const uint64_t win_bytes = win_points / windows.size() * kPointRecordSize;
+  R.Add("e2e.frame.socketpair_tcp", kExp, "ms", SocketPairLimit(true, frame_bytes, c.warm_reps),
+        {{"bytes", frame_bytes}}, "the frame's bytes through a plain TCP loopback socket pair");
+  R.Add("e2e.frame.socketpair_unix", kExp, "ms", SocketPairLimit(false, frame_bytes, c.warm_reps),
+        {{"bytes", frame_bytes}}, "the frame's bytes through a plain Unix socket pair");
+  R.Add("e2e.window.socketpair_tcp", kExp, "ms",
+        SocketPairLimit(true, win_bytes, static_cast<int>(windows.size())), {{"bytes", win_bytes}},
+        "a window's bytes through a plain TCP loopback socket pair (round trip)");
+
+  ServerProcess server(dir, sock);
+  for (Path path : {Path::kLocal, Path::kTcp, Path::kTcpColumns}) {
+    const std::string p = PathName(path);
+    auto conn = Connect(PathOptions(path, server.port(), sock));
     RemoteQuery(*conn, FrameWindow(0, c.fps));
-    std::vector<double> frame_ms, win_ms;
-    for (int r = 0; r < c.warm_reps; ++r) frame_ms.push_back(RemoteQuery(*conn, FrameWindow(0, c.fps)).first);
+    std::vector<double> frame_ms, win_ms, view_ms;
+    for (int r = 0; r < c.warm_reps; ++r) {
+      auto [ms, got] = RemoteQuery(*conn, FrameWindow(0, c.fps));
+      if (got != n) Die("8 server: the frame through " + p + " has " + std::to_string(got) + " points");
+      frame_ms.push_back(ms);
+    }
     for (const Window& w : windows) RemoteQuery(*conn, w);
     for (const Window& w : windows) win_ms.push_back(RemoteQuery(*conn, w).first);
-    R.Add("e2e.frame.server", kExp, "ms", frame_ms, {{"points", n}},
-          "full frame through hvdb-server over loopback, one client, warm");
-    R.Add("e2e.window.server", kExp, "ms", win_ms, {{"points", n}, {"result", c.win_result}},
-          "10k-point window through hvdb-server, one client, warm");
-    R.Ratio("e2e.frame.server_over_embedded", kExp, "e2e.frame.server", "e2e.frame.embedded",
-            "full frame: server time / embedded time");
-    R.Ratio("e2e.window.server_over_embedded", kExp, "e2e.window.server", "e2e.window.embedded",
-            "10k window: server time / embedded time");
-    const double mb = static_cast<double>(n) * kPointRecordSize / 1e6;
-    R.Add("e2e.frame.server.throughput", kExp, "MB/s", {mb / (Median(frame_ms) / 1000)},
-          {{"points", n}}, "full frame through the server (64-byte points)");
-  }
-  // Concurrent clients: each issues its share of windows back to back.
-  Curve qps_c{"server_clients", kExp, "Windows through hvdb-server against concurrent clients",
-              "clients", "queries per second", true, false, {}};
-  Series qps_s{"windows/s", {}, {}, "line"};
-  for (int clients : c.e2e_clients) {
-    const int per = std::max(1, c.e2e_queries / clients);
-    std::vector<std::vector<double>> lat(static_cast<size_t>(clients));
-    std::atomic<uint64_t> points{0};
-    std::vector<std::thread> threads;
-    Timer wall;
-    for (int t = 0; t < clients; ++t) {
-      threads.emplace_back([&, t] {
-        auto conn = Connect(server.port());
-        Rng rng(c.seed + 8100 + static_cast<uint64_t>(t));
-        for (int q = 0; q < per; ++q) {
-          auto [ms, got] = RemoteQuery(*conn, windows[rng.Next() % windows.size()]);
-          lat[static_cast<size_t>(t)].push_back(ms);
-          points += got;
-        }
-      });
+    const std::string how = path == Path::kLocal ? "through the Unix socket and shared memory"
+                            : path == Path::kTcp ? "through TCP loopback (records)"
+                                                 : "through TCP loopback (point columns, v1)";
+    R.Add("e2e.frame." + p, kExp, "ms", frame_ms, fp, "full frame " + how + ", one client, warm");
+    R.Add("e2e.window." + p, kExp, "ms", win_ms, wp, "10k-point window " + how + ", warm");
+    R.Ratio("e2e.frame." + p + "_over_embedded", kExp, "e2e.frame." + p, "e2e.frame.embedded",
+            "full frame: " + p + " time / embedded time");
+    R.Ratio("e2e.window." + p + "_over_embedded", kExp, "e2e.window." + p, "e2e.window.embedded",
+            "10k window: " + p + " time / embedded time");
+    R.Add("e2e.frame." + p + ".throughput", kExp, "MB/s",
+          {static_cast<double>(frame_bytes) / 1e6 / (Median(frame_ms) / 1000)}, fp,
+          "full frame " + how + " (64-byte points)");
+    if (path == Path::kLocal) {
+      for (int r = 0; r < c.warm_reps; ++r) view_ms.push_back(RemoteQuery(*conn, FrameWindow(0, c.fps), true).first);
+      R.Add("e2e.frame.local_view", kExp, "ms", view_ms, fp,
+            "full frame through shared memory, read in place (QueryStream::NextView, no copy)");
+      R.Ratio("e2e.frame.local_view_over_embedded", kExp, "e2e.frame.local_view",
+              "e2e.frame.embedded", "full frame read in place / embedded time");
     }
-    for (auto& th : threads) th.join();
-    const double secs = wall.Ms() / 1000;
-    std::vector<double> all;
-    for (const auto& l : lat) all.insert(all.end(), l.begin(), l.end());
-    std::sort(all.begin(), all.end());
-    auto pct = [&](double p) { return all[std::min(all.size() - 1, static_cast<size_t>(p * all.size()))]; };
-    const std::string f = "e2e.clients" + std::to_string(clients);
-    nlohmann::json p = {{"clients", clients}, {"queries", all.size()}, {"points", n}};
-    R.Add(f + ".qps", kExp, "queries/s", {all.size() / secs}, p, "windows per second, all clients");
-    R.Add(f + ".mbps", kExp, "MB/s", {points.load() * kPointRecordSize / 1e6 / secs}, p,
-          "result bytes per second, all clients");
-    R.Add(f + ".latency", kExp, "ms", all, p, "window latency seen by a client (median; p95, p99 in params)");
-    R.Get(f + ".latency").params["p95_ms"] = pct(0.95);
-    R.Get(f + ".latency").params["p99_ms"] = pct(0.99);
-    qps_s.x.push_back(clients);
-    qps_s.y.push_back(all.size() / secs);
-    Log("8 server: %d clients: %.0f windows/s, p50 %.2f ms, p95 %.2f ms, p99 %.2f ms", clients,
-        all.size() / secs, pct(0.5), pct(0.95), pct(0.99));
   }
-  qps_c.series.push_back(qps_s);
-  R.AddCurve(qps_c);
+  R.Ratio("e2e.frame.tcp_over_socketpair", kExp, "e2e.frame.tcp", "e2e.frame.socketpair_tcp",
+          "full frame through TCP / the same bytes through a plain TCP socket pair");
+  R.Ratio("e2e.window.tcp_over_socketpair", kExp, "e2e.window.tcp", "e2e.window.socketpair_tcp",
+          "10k window through TCP / its bytes through a plain TCP socket pair");
+  R.AddTarget("e2e.frame.local_over_embedded", "<=", 1.25, "issue 13 goal",
+              "full frame through the local fast path at most 1.25x embedded");
+  R.AddTarget("e2e.window.local_over_embedded", "<=", 1.25, "issue 13 goal",
+              "10k window through the local fast path at most 1.25x embedded");
+  R.AddTarget("e2e.frame.tcp_over_socketpair", "<=", 1.5, "issue 13 goal",
+              "full frame through TCP at most 1.5x the socket-pair limit for the same bytes");
+  R.AddTarget("e2e.window.tcp_over_embedded", "<=", 1.5, "issue 13 goal",
+              "10k window through TCP at most 1.5x embedded");
+
+  // Concurrent clients: each connects first, then all issue their share of windows back to back.
+  for (Path path : {Path::kLocal, Path::kTcp}) {
+    const std::string p = PathName(path);
+    Curve qps_c{"server_clients_" + p, kExp, "Windows through hvdb-server (" + p +
+                ") against concurrent clients", "clients", "queries per second", true, false, {}};
+    Series qps_s{"windows/s", {}, {}, "line"};
+    for (int clients : c.e2e_clients) {
+      const int per = std::max(1, c.e2e_queries / clients);
+      std::vector<std::vector<double>> lat(static_cast<size_t>(clients));
+      std::atomic<uint64_t> points{0};
+      std::vector<std::unique_ptr<client::Connection>> conns;
+      for (int t = 0; t < clients; ++t) conns.push_back(Connect(PathOptions(path, server.port(), sock)));
+      std::mutex mu;
+      std::condition_variable cv;
+      bool go = false;
+      std::vector<std::thread> threads;
+      for (int t = 0; t < clients; ++t) {
+        threads.emplace_back([&, t] {
+          {
+            std::unique_lock<std::mutex> l(mu);
+            cv.wait(l, [&] { return go; });
+          }
+          Rng rng(c.seed + 8100 + static_cast<uint64_t>(t));
+          for (int q = 0; q < per; ++q) {
+            auto [ms, got] = RemoteQuery(*conns[static_cast<size_t>(t)],
+                                         windows[rng.Next() % windows.size()]);
+            lat[static_cast<size_t>(t)].push_back(ms);
+            points += got;
+          }
+        });
+      }
+      Timer wall;
+      {
+        std::lock_guard<std::mutex> l(mu);
+        go = true;
+      }
+      cv.notify_all();
+      for (auto& th : threads) th.join();
+      const double secs = wall.Ms() / 1000;
+      std::vector<double> all;
+      for (const auto& l : lat) all.insert(all.end(), l.begin(), l.end());
+      std::sort(all.begin(), all.end());
+      auto pct = [&](double q) { return all[std::min(all.size() - 1, static_cast<size_t>(q * all.size()))]; };
+      const std::string f = "e2e." + p + ".clients" + std::to_string(clients);
+      nlohmann::json params = {{"clients", clients}, {"queries", all.size()}, {"points", n}};
+      R.Add(f + ".qps", kExp, "queries/s", {all.size() / secs}, params, "windows per second, all clients");
+      R.Add(f + ".mbps", kExp, "MB/s", {points.load() * kPointRecordSize / 1e6 / secs}, params,
+            "result bytes per second, all clients");
+      R.Add(f + ".latency", kExp, "ms", all, params,
+            "window latency seen by a client (median; p95, p99 in params)");
+      R.Get(f + ".latency").params["p95_ms"] = pct(0.95);
+      R.Get(f + ".latency").params["p99_ms"] = pct(0.99);
+      qps_s.x.push_back(clients);
+      qps_s.y.push_back(all.size() / secs);
+      Log("8 server: %s, %d clients: %.0f windows/s, p50 %.2f ms, p95 %.2f ms, p99 %.2f ms",
+          p.c_str(), clients, all.size() / secs, pct(0.5), pct(0.95), pct(0.99));
+    }
+    qps_c.series.push_back(qps_s);
+    R.AddCurve(qps_c);
+    const std::string last = "e2e." + p + ".clients" + std::to_string(c.e2e_clients.back());
+    if (c.e2e_clients.size() >= 2) {
+      const std::string prev =
+          "e2e." + p + ".clients" + std::to_string(c.e2e_clients[c.e2e_clients.size() - 2]);
+      R.Ratio("e2e." + p + ".clients_scaling", kExp, last + ".qps", prev + ".qps",
+              "windows/s with the most clients / with the next fewer");
+      R.AddTarget("e2e." + p + ".clients_scaling", ">=", 1.0, "issue 13 goal",
+                  "more clients do not make the server slower in total");
+    }
+  }
   RemoveAll(dir);
 }
 

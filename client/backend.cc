@@ -283,6 +283,10 @@ class RemoteBackend final : public Backend {
 
   bool remote() const override { return true; }
   std::string where() const override { return address_; }
+  std::string transport() const override {
+    auto* c = const_cast<Client&>(client_).connection();
+    return c ? c->transport() : "not connected";
+  }
 
   Result<std::vector<std::string>> ListDatasets() override {
     HVDB_ASSIGN_OR_RETURN(std::vector<std::string> names,

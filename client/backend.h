@@ -75,6 +75,8 @@ class Backend {
   virtual bool remote() const = 0;
   // Where the data is, for messages: the data directory, or HOST:PORT of the server.
   virtual std::string where() const = 0;
+  // Remote: what the connection runs on ("tcp HOST:PORT", "unix PATH + shared memory").
+  virtual std::string transport() const { return "embedded"; }
 
   // Names of the datasets, sorted.
   virtual Result<std::vector<std::string>> ListDatasets() = 0;
@@ -139,10 +141,11 @@ class Backend {
 std::unique_ptr<Backend> MakeEmbeddedBackend(std::string data_dir, size_t cache_bytes);
 
 struct RemoteOptions {
-  std::string address;  // HOST:PORT
+  std::string address;  // HOST:PORT or unix:PATH (a loopback server's Unix socket is used by itself)
   std::string token;    // "" for servers that need none
 };
-// Validates the address (InvalidArgument if it is not HOST:PORT); connects on first use.
+// Validates the address (InvalidArgument if it is neither HOST:PORT nor unix:PATH); connects on
+// first use.
 Result<std::unique_ptr<Backend>> MakeRemoteBackend(const RemoteOptions& options);
 
 }  // namespace hvdb::client

@@ -1,9 +1,19 @@
 #include "client/client.h"
 
+#include <fcntl.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
+#include <poll.h>
+#include <sys/socket.h>
+
+#include <cerrno>
+#include <cstring>
+
 #include <utility>  // before Asio: Boost 1.74's awaitable.hpp needs std::exchange
 
 #include <boost/asio.hpp>
 
+#include "protocol/shm.h"
 #include "storage/coding.h"
 
 namespace hvdb::client {
@@ -12,9 +22,15 @@ namespace asio = boost::asio;
 using asio::ip::tcp;
 
 Status ParseAddress(const std::string& address, Options* options) {
+  if (address.rfind("unix:", 0) == 0) {
+    if (address.size() == 5) return Status::InvalidArgument("--server: unix: needs a PATH");
+    options->unix_path = address.substr(5);
+    return Status::OK();
+  }
   auto colon = address.rfind(':');
   if (colon == std::string::npos || colon == 0 || colon + 1 == address.size()) {
-    return Status::InvalidArgument("--server: expected HOST:PORT, got '" + address + "'");
+    return Status::InvalidArgument("--server: expected HOST:PORT or unix:PATH, got '" + address +
+                                   "'");
   }
   std::string host = address.substr(0, colon);
   if (host.size() > 2 && host.front() == '[' && host.back() == ']') {  // [::1]:7878
@@ -28,103 +44,232 @@ Status ParseAddress(const std::string& address, Options* options) {
   }
   options->host = std::move(host);
   options->port = static_cast<uint16_t>(std::stoi(port));
+  options->unix_path.clear();
   return Status::OK();
 }
 
+// The socket is used non-blocking with poll() for deadlines: no event loop per call, and
+// frames are cut out of one receive buffer, so a small response costs one recv().
 struct Connection::Impl {
-  asio::io_context io;
-  tcp::socket sock{io};
+  asio::io_context io;  // for connecting with a deadline only
+  asio::generic::stream_protocol::socket sock{io};
   Options opts;
+  std::string where;
+  std::unique_ptr<wire::ShmRing> ring;
+  std::string rbuf;  // received, not yet consumed: rbuf[rpos..]
+  size_t rpos = 0;
+  std::vector<uint32_t> releases;  // ring slots to hand back
+  Connection* owner = nullptr;
 
-  // Runs the pending operation until it completes or the timeout passes (then it is aborted).
-  Status Wait(bool* done, boost::system::error_code* ec, std::chrono::milliseconds timeout,
-              const char* what) {
-    io.restart();
-    io.run_for(timeout);
-    if (!*done) {
-      boost::system::error_code ignored;
-      sock.close(ignored);
-      io.restart();
-      io.run();
-      return Status::IOError(std::string(what) + ": timed out after " +
-                             std::to_string(timeout.count()) + " ms");
+  int fd() { return sock.native_handle(); }
+
+  Status Poll(short events, std::chrono::steady_clock::time_point deadline, const char* what) {
+    for (;;) {
+      auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+          deadline - std::chrono::steady_clock::now());
+      if (left.count() <= 0) {
+        return Status::IOError(std::string(what) + ": timed out after " +
+                               std::to_string(opts.request_timeout.count()) + " ms");
+      }
+      pollfd p{fd(), events, 0};
+      int r = ::poll(&p, 1, static_cast<int>(left.count()));
+      if (r > 0) return Status::OK();
+      if (r < 0 && errno != EINTR) return Status::IOError(std::string(what) + ": " + std::strerror(errno));
     }
-    if (*ec) return Status::IOError(std::string(what) + ": " + ec->message());
+  }
+
+  Status WriteAll(const char* data, size_t n) {
+    const auto deadline = std::chrono::steady_clock::now() + opts.request_timeout;
+    while (n > 0) {
+      ssize_t w = ::send(fd(), data, n, MSG_NOSIGNAL);
+      if (w > 0) {
+        data += w;
+        n -= static_cast<size_t>(w);
+      } else if (w < 0 && (errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR)) {
+        HVDB_RETURN_IF_ERROR(Poll(POLLOUT, deadline, "send to hvdb-server"));
+      } else {
+        return Status::IOError(std::string("send to hvdb-server: ") + std::strerror(errno));
+      }
+    }
     return Status::OK();
   }
+  Status Write(const std::string& data) { return WriteAll(data.data(), data.size()); }
 
-  Status Write(const std::string& data) {
-    bool done = false;
-    boost::system::error_code ec;
-    asio::async_write(sock, asio::buffer(data), [&](boost::system::error_code e, size_t) {
-      ec = e;
-      done = true;
-    });
-    return Wait(&done, &ec, opts.request_timeout, "send to hvdb-server");
+  // One recv into dst (up to n bytes), waiting if nothing is there. Before waiting, ring slots
+  // the caller is done with go back to the server, so that it never waits on us.
+  Result<size_t> RecvSome(char* dst, size_t n, std::chrono::steady_clock::time_point deadline) {
+    for (;;) {
+      ssize_t r = ::recv(fd(), dst, n, 0);
+      if (r > 0) return static_cast<size_t>(r);
+      if (r == 0) return Status::IOError("hvdb-server closed the connection");
+      if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR) {
+        return Status::IOError(std::string("receive from hvdb-server: ") + std::strerror(errno));
+      }
+      HVDB_RETURN_IF_ERROR(owner->FlushReleases());
+      HVDB_RETURN_IF_ERROR(Poll(POLLIN, deadline, "receive from hvdb-server"));
+    }
   }
 
-  Status ReadFrame(std::string* payload) {
-    uint8_t header[wire::kFrameHeaderSize];
-    bool done = false;
-    boost::system::error_code ec;
-    asio::async_read(sock, asio::buffer(header), [&](boost::system::error_code e, size_t) {
-      ec = e;
-      done = true;
-    });
-    HVDB_RETURN_IF_ERROR(Wait(&done, &ec, opts.request_timeout, "receive from hvdb-server"));
-    uint32_t len = DecodeLE<uint32_t>(header);
-    if (len > (256u << 20)) return Status::IOError("hvdb-server sent a frame of " + std::to_string(len) + " bytes");
-    payload->resize(len);
-    done = false;
-    asio::async_read(sock, asio::buffer(*payload), [&](boost::system::error_code e, size_t) {
-      ec = e;
-      done = true;
-    });
-    return Wait(&done, &ec, opts.request_timeout, "receive from hvdb-server");
+  // Exactly n bytes into dst: first what is buffered, then large remainders straight into dst.
+  Status ReadExact(char* dst, size_t n, std::chrono::steady_clock::time_point deadline) {
+    size_t have = std::min(n, rbuf.size() - rpos);
+    std::memcpy(dst, rbuf.data() + rpos, have);
+    rpos += have;
+    dst += have;
+    n -= have;
+    if (rpos == rbuf.size()) {
+      rbuf.clear();
+      rpos = 0;
+    }
+    while (n >= (64u << 10)) {
+      HVDB_ASSIGN_OR_RETURN(size_t got, RecvSome(dst, n, deadline));
+      dst += got;
+      n -= got;
+    }
+    while (n > 0) {
+      // Small reads go through the buffer: one recv may bring several frames.
+      char tmp[64 << 10];
+      HVDB_ASSIGN_OR_RETURN(size_t got, RecvSome(tmp, sizeof(tmp), deadline));
+      size_t use = std::min(n, got);
+      std::memcpy(dst, tmp, use);
+      dst += use;
+      n -= use;
+      rbuf.append(tmp + use, got - use);
+    }
+    return Status::OK();
   }
 };
 
-Connection::Connection(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+Connection::Connection(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {
+  impl_->owner = this;
+}
 Connection::~Connection() {
   boost::system::error_code ignored;
   impl_->sock.close(ignored);
 }
 
+std::string Connection::transport() const {
+  if (impl_->opts.unix_path.empty()) return "tcp " + impl_->where;
+  return "unix " + impl_->opts.unix_path + (impl_->ring ? " + shared memory" : "");
+}
+
 Result<std::unique_ptr<Connection>> Connection::Connect(const Options& options) {
+  return ConnectOnce(options);
+}
+
+Result<std::unique_ptr<Connection>> Connection::ConnectOnce(const Options& options) {
   auto impl = std::make_unique<Impl>();
   impl->opts = options;
   boost::system::error_code ec;
-  tcp::resolver resolver(impl->io);
-  auto endpoints = resolver.resolve(options.host, std::to_string(options.port), ec);
-  if (ec) return Status::IOError("resolve " + options.host + ": " + ec.message());
   bool done = false;
-  asio::async_connect(impl->sock, endpoints, [&](boost::system::error_code e, const tcp::endpoint&) {
-    ec = e;
-    done = true;
-  });
-  std::string where = options.host + ":" + std::to_string(options.port);
-  Status st = impl->Wait(&done, &ec, options.connect_timeout, ("connect to " + where).c_str());
-  if (!st.ok()) {
-    return Status::IOError(st.message() + " (is hvdb-server running there?)");
+  auto wait = [&](const std::string& what) -> Status {
+    impl->io.restart();
+    impl->io.run_for(options.connect_timeout);
+    if (!done) {
+      boost::system::error_code ignored;
+      impl->sock.close(ignored);
+      impl->io.restart();
+      impl->io.run();
+      return Status::IOError(what + ": timed out after " +
+                             std::to_string(options.connect_timeout.count()) + " ms");
+    }
+    if (ec) return Status::IOError(what + ": " + ec.message());
+    return Status::OK();
+  };
+  const bool local = !options.unix_path.empty();
+  if (local) {
+    impl->where = "unix:" + options.unix_path;
+    asio::local::stream_protocol::endpoint ep(options.unix_path);
+    impl->sock.async_connect(asio::generic::stream_protocol::endpoint(ep),
+                             [&](boost::system::error_code e) {
+                               ec = e;
+                               done = true;
+                             });
+    Status st = wait("connect to " + impl->where);
+    if (!st.ok()) return Status::IOError(st.message() + " (is hvdb-server listening there?)");
+  } else {
+    impl->where = options.host + ":" + std::to_string(options.port);
+    tcp::resolver resolver(impl->io);
+    auto endpoints = resolver.resolve(options.host, std::to_string(options.port), ec);
+    if (ec) return Status::IOError("resolve " + options.host + ": " + ec.message());
+    Status st = Status::IOError("connect to " + impl->where + ": no address");
+    for (const auto& e : endpoints) {
+      boost::system::error_code ignored;
+      impl->sock.close(ignored);
+      done = false;
+      impl->sock.async_connect(asio::generic::stream_protocol::endpoint(e.endpoint()),
+                               [&](boost::system::error_code err) {
+                                 ec = err;
+                                 done = true;
+                               });
+      st = wait("connect to " + impl->where);
+      if (st.ok()) break;
+    }
+    if (!st.ok()) return Status::IOError(st.message() + " (is hvdb-server running there?)");
+    int one = 1;
+    ::setsockopt(impl->fd(), IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one));
   }
-  impl->sock.set_option(tcp::no_delay(true));
+  impl->sock.non_blocking(true, ec);
+  if (ec) return Status::IOError("set the socket non-blocking: " + ec.message());
+  std::unique_ptr<Connection> c(new Connection(std::move(impl)));
+  Impl& im = *c->impl_;
   wire::Hello hello;
   hello.set_protocol_version(wire::kProtocolVersion);
   hello.set_token(options.token);
-  hello.set_client_name("hvdb-client 0.1");
+  hello.set_client_name("hvdb-client 0.2");
   if (options.draco) hello.add_capabilities("draco");
-  HVDB_RETURN_IF_ERROR(impl->Write(wire::Frame(hello)));
-  std::string payload;
-  HVDB_RETURN_IF_ERROR(impl->ReadFrame(&payload));
+  if (local && options.shm) hello.add_capabilities("shm");
+  HVDB_RETURN_IF_ERROR(im.Write(wire::Frame(hello)));
+  // The reply's first bytes may carry the ring's descriptor (SCM_RIGHTS).
+  const auto deadline = std::chrono::steady_clock::now() + options.request_timeout;
+  uint8_t header[wire::kFrameHeaderSize];
+  int ring_fd = -1;
+  if (local) {
+    HVDB_RETURN_IF_ERROR(wire::RecvWithFd(im.fd(), header, sizeof(header), &ring_fd,
+                                          options.request_timeout));
+  } else {
+    HVDB_RETURN_IF_ERROR(im.ReadExact(reinterpret_cast<char*>(header), sizeof(header), deadline));
+  }
+  struct FdGuard {
+    int& fd;
+    ~FdGuard() {
+      if (fd >= 0) ::close(fd);
+    }
+  } guard{ring_fd};
+  uint32_t len;
+  bool attachment;
+  if (!wire::ParseFrameHeader(header, 1u << 20, &len, &attachment) || attachment) {
+    return Status::IOError(im.where + " did not answer the handshake like hvdb-server (protocol "
+                           "version " + std::to_string(wire::kProtocolVersion) + ")");
+  }
+  std::string payload(len, '\0');
+  HVDB_RETURN_IF_ERROR(im.ReadExact(payload.data(), len, deadline));
   wire::HelloReply reply;
   if (!reply.ParseFromString(payload) || reply.protocol_version() == 0) {
     // A refusal is an error Response with id 0.
     wire::Response r;
     if (r.ParseFromString(payload) && r.has_error()) return wire::FromWire(r.error());
-    return Status::IOError(where + " did not answer the handshake like hvdb-server");
+    return Status::IOError(im.where + " did not answer the handshake like hvdb-server");
   }
-  std::unique_ptr<Connection> c(new Connection(std::move(impl)));
   c->role_ = reply.role();
+  if (reply.shm_slots() > 0) {
+    if (ring_fd < 0) return Status::IOError("hvdb-server announced a ring but sent no descriptor");
+    if (reply.shm_slot_bytes() % sizeof(Point) != 0 || reply.shm_slot_bytes() == 0 ||
+        reply.shm_slot_bytes() > (64u << 20) || reply.shm_slots() > 4096) {
+      return Status::IOError("hvdb-server announced a ring of an unexpected shape");
+    }
+    int fd = ring_fd;
+    ring_fd = -1;
+    HVDB_ASSIGN_OR_RETURN(im.ring, wire::ShmRing::Map(fd, reply.shm_slots(), reply.shm_slot_bytes()));
+  }
+  if (!local && options.prefer_local && !reply.local_socket().empty()) {
+    // The server is on this machine: take its Unix socket (and ring) instead. If that fails
+    // (another mount namespace, permissions), this TCP connection is as good, only slower.
+    Options lo = options;
+    lo.unix_path = reply.local_socket();
+    auto fast = ConnectOnce(lo);
+    if (fast.ok()) return fast;
+  }
   return c;
 }
 
@@ -139,34 +284,97 @@ Result<uint64_t> Connection::Send(wire::Request* req) {
   return req->id();
 }
 
-Result<wire::Response> Connection::Receive(uint64_t id) {
+void Connection::ReleaseSlot(int slot) {
+  impl_->releases.push_back(static_cast<uint32_t>(slot));
+  // Half the ring with us: hand it back now rather than when we next wait.
+  if (impl_->releases.size() * 2 >= impl_->ring->slots()) (void)FlushReleases();
+}
+
+Status Connection::FlushReleases() {
+  if (impl_->releases.empty() || broken_) return Status::OK();
+  wire::Request req;
+  for (uint32_t s : impl_->releases) req.mutable_release()->add_slots(s);
+  impl_->releases.clear();
+  Status st = impl_->Write(wire::Frame(req));
+  if (!st.ok()) broken_ = true;
+  return st;
+}
+
+Status Connection::ReceiveFull(uint64_t id, Incoming* in, std::vector<Point>* records) {
   auto it = pending_.find(id);
   if (it != pending_.end() && !it->second.empty()) {
-    wire::Response r = std::move(it->second.front());
+    *in = std::move(it->second.front());
     it->second.pop_front();
     if (it->second.empty()) pending_.erase(it);
-    return r;
+    if (records) records->swap(in->records);
+    return Status::OK();
   }
+  Impl& im = *impl_;
   for (;;) {
     if (broken_) return Status::IOError("connection to hvdb-server is broken; reconnect");
-    std::string payload;
-    Status st = impl_->ReadFrame(&payload);
-    if (!st.ok()) {
+    const auto deadline = std::chrono::steady_clock::now() + im.opts.request_timeout;
+    auto fail = [&](Status st) {
       broken_ = true;
       return st;
+    };
+    uint8_t header[wire::kFrameHeaderSize + wire::kAttachmentHeaderSize];
+    Status st = im.ReadExact(reinterpret_cast<char*>(header), wire::kFrameHeaderSize, deadline);
+    if (!st.ok()) return fail(st);
+    uint32_t len, att = 0;
+    bool has_att;
+    if (!wire::ParseFrameHeader(header, 256u << 20, &len, &has_att)) {
+      return fail(Status::IOError("hvdb-server sent a frame of " + std::to_string(len) + " bytes"));
     }
-    wire::Response r;
-    if (!r.ParseFromString(payload)) {
+    if (has_att) {
+      st = im.ReadExact(reinterpret_cast<char*>(header) + wire::kFrameHeaderSize,
+                        wire::kAttachmentHeaderSize, deadline);
+      if (!st.ok()) return fail(st);
+      att = DecodeLE<uint32_t>(header + wire::kFrameHeaderSize);
+      if (att % sizeof(Point) != 0 || att > (256u << 20)) {
+        return fail(Status::IOError("hvdb-server sent an attachment of " + std::to_string(att) +
+                                    " bytes, not whole point records"));
+      }
+    }
+    std::string payload(len, '\0');
+    st = im.ReadExact(payload.data(), len, deadline);
+    if (!st.ok()) return fail(st);
+    Incoming got;
+    if (!got.r.ParseFromString(payload)) {
+      return fail(Status::IOError("hvdb-server sent an undecodable response"));
+    }
+    if (has_att) {
+      // Straight into the caller's batch when it is the one waiting; resize keeps the
+      // elements it already has (no zeroing of a reused buffer).
+      std::vector<Point>* dst = got.r.id() == id && records ? records : &got.records;
+      dst->resize(att / sizeof(Point));
+      st = im.ReadExact(reinterpret_cast<char*>(dst->data()), att, deadline);
+      if (!st.ok()) return fail(st);
+    }
+    if (got.r.has_batch() && got.r.batch().shm_slot() > 0) {
+      const wire::PointBatch& b = got.r.batch();
+      if (!im.ring || b.shm_slot() > im.ring->slots() ||
+          static_cast<uint64_t>(b.record_count()) * sizeof(Point) > im.ring->slot_bytes()) {
+        return fail(Status::IOError("hvdb-server named a ring slot this connection does not have"));
+      }
+      got.slot = static_cast<int>(b.shm_slot()) - 1;
+    }
+    if (got.r.id() == 0 && got.r.has_error()) {  // connection-level: the server is closing
       broken_ = true;
-      return Status::IOError("hvdb-server sent an undecodable response");
+      return wire::FromWire(got.r.error());
     }
-    if (r.id() == id) return r;
-    if (r.id() == 0 && r.has_error()) {  // connection-level: the server is closing
-      broken_ = true;
-      return wire::FromWire(r.error());
+    if (got.r.id() == id) {
+      *in = std::move(got);
+      return Status::OK();
     }
-    pending_[r.id()].push_back(std::move(r));
+    pending_[got.r.id()].push_back(std::move(got));
   }
+}
+
+Result<wire::Response> Connection::Receive(uint64_t id) {
+  Incoming in;
+  HVDB_RETURN_IF_ERROR(ReceiveFull(id, &in, nullptr));
+  if (in.slot >= 0) ReleaseSlot(in.slot);  // the caller asked for the message only
+  return std::move(in.r);
 }
 
 Result<wire::Response> Connection::Call(wire::Request* req) {
@@ -226,12 +434,16 @@ Result<std::unique_ptr<QueryStream>> Connection::Query(const std::string& datase
   q->set_no_temporal_lod(!opts.temporal_lod);
   q->set_batch_points(static_cast<uint32_t>(std::min<size_t>(opts.batch_points, UINT32_MAX)));
   q->set_label_mask(opts.label_mask);
-  q->set_encoding(impl_->opts.draco ? wire::DRACO : wire::COLUMNS);
+  q->set_encoding(impl_->opts.draco     ? wire::DRACO
+                  : impl_->opts.columns ? wire::COLUMNS
+                                        : wire::RECORDS);
   HVDB_ASSIGN_OR_RETURN(uint64_t id, Send(&req));
   return std::unique_ptr<QueryStream>(new QueryStream(this, id));
 }
 
 QueryStream::~QueryStream() {
+  if (held_slot_ >= 0 && !conn_->broken()) conn_->ReleaseSlot(held_slot_);
+  held_slot_ = -1;
   if (done_ || conn_->broken()) return;
   // Stop the server's work and drain what is already on its way.
   if (!Cancel().ok()) return;
@@ -242,9 +454,19 @@ QueryStream::~QueryStream() {
   }
 }
 
-Result<bool> QueryStream::Next(Batch* batch) {
+Result<bool> QueryStream::Next(Batch* batch) { return Advance(batch, nullptr); }
+Result<bool> QueryStream::NextView(BatchView* view) { return Advance(nullptr, view); }
+
+Result<bool> QueryStream::Advance(Batch* batch, BatchView* view) {
+  if (held_slot_ >= 0) {
+    conn_->ReleaseSlot(held_slot_);
+    held_slot_ = -1;
+  }
   if (done_) return false;
-  HVDB_ASSIGN_OR_RETURN(wire::Response r, conn_->Receive(id_));
+  std::vector<Point>* dst = batch ? &batch->points : &view_buf_;
+  Connection::Incoming in;
+  HVDB_RETURN_IF_ERROR(conn_->ReceiveFull(id_, &in, dst));
+  const wire::Response& r = in.r;
   if (r.has_error()) {
     done_ = true;
     return wire::FromWire(r.error());
@@ -260,13 +482,45 @@ Result<bool> QueryStream::Next(Batch* batch) {
     return Status::IOError("hvdb-server answered a query with an unexpected message");
   }
   const wire::PointBatch& b = r.batch();
-  batch->level = static_cast<int>(b.level());
-  batch->level_done = b.level_done();
-  batch->splat_scale = b.splat_scale();
-  batch->points.clear();
-  Status st = b.encoding() == wire::DRACO ? wire::DecodeDraco(b.draco(), &batch->points)
-                                          : wire::DecodeColumns(b.columns(), &batch->points);
-  if (!st.ok()) return Status::IOError("bad batch from hvdb-server: " + st.message());
+  std::span<const Point> points;
+  Status st;
+  if (b.encoding() == wire::RECORDS) {
+    if (in.slot >= 0) {
+      points = {reinterpret_cast<const Point*>(conn_->impl_->ring->slot(static_cast<uint32_t>(in.slot))),
+                b.record_count()};
+    } else if (dst->size() != b.record_count()) {
+      st = Status::InvalidArgument("batch announces " + std::to_string(b.record_count()) +
+                                   " records, its attachment holds " + std::to_string(dst->size()));
+    } else {
+      points = *dst;
+    }
+  } else {
+    dst->clear();
+    st = b.encoding() == wire::DRACO ? wire::DecodeDraco(b.draco(), dst)
+                                     : wire::DecodeColumns(b.columns(), dst);
+    points = *dst;
+  }
+  if (!st.ok()) {
+    if (in.slot >= 0) conn_->ReleaseSlot(in.slot);
+    return Status::IOError("bad batch from hvdb-server: " + st.message());
+  }
+  if (batch) {
+    batch->level = static_cast<int>(b.level());
+    batch->level_done = b.level_done();
+    batch->splat_scale = b.splat_scale();
+    if (in.slot >= 0) {
+      // The one copy of the fast path: out of the ring into the caller's batch.
+      batch->points.resize(points.size());
+      std::memcpy(static_cast<void*>(batch->points.data()), points.data(), points.size_bytes());
+      conn_->ReleaseSlot(in.slot);
+    }
+  } else {
+    view->level = static_cast<int>(b.level());
+    view->level_done = b.level_done();
+    view->splat_scale = b.splat_scale();
+    view->points = points;
+    held_slot_ = in.slot;
+  }
   return true;
 }
 

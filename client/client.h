@@ -1,11 +1,15 @@
 // The hvdb client library: talks to hvdb-server over the wire protocol (docs/PROTOCOL.md).
 //
-// Connection is one TCP connection. Its synchronous calls (Ping, Describe, Commit, ...) send a
-// request and wait for its answer; Query returns a QueryStream that yields batches as they
-// arrive, so many requests can be in flight on one connection (pipelining: Send/Receive).
-// Every call has a deadline (Options::request_timeout). A Connection is not thread-safe: use one
-// per thread. Client adds reconnection with exponential backoff for requests that are safe to
-// repeat (everything but Commit, Revert and Ingest, which are reported as failed instead).
+// Connection is one TCP or Unix-socket connection. Its synchronous calls (Ping, Describe,
+// Commit, ...) send a request and wait for its answer; Query returns a QueryStream that yields
+// batches as they arrive, so many requests can be in flight on one connection (pipelining:
+// Send/Receive). Query results come as the stored 64-byte records: over TCP in the frames'
+// attachments, read straight into the caller's batch; over the Unix socket through a
+// shared-memory ring (the local fast path), which a loopback TCP connection switches to by
+// itself. Every call has a deadline (Options::request_timeout). A Connection is not
+// thread-safe: use one per thread. Client adds reconnection with exponential backoff for
+// requests that are safe to repeat (everything but Commit, Revert and Ingest, which are
+// reported as failed instead).
 #ifndef HVDB_CLIENT_CLIENT_H_
 #define HVDB_CLIENT_CLIENT_H_
 
@@ -28,6 +32,11 @@ namespace hvdb::client {
 struct Options {
   std::string host = "127.0.0.1";
   uint16_t port = 7878;
+  std::string unix_path;  // set: connect to this Unix socket instead of host:port
+  // On loopback TCP, move to the Unix socket the server names (the local fast path).
+  bool prefer_local = true;
+  bool shm = true;        // on a Unix socket, ask for the shared-memory ring
+  bool columns = false;   // ask for point columns instead of records (interop, tests)
   std::string token;  // for servers that require one
   std::chrono::milliseconds connect_timeout{5000};
   std::chrono::milliseconds request_timeout{120000};
@@ -36,10 +45,18 @@ struct Options {
   std::chrono::milliseconds backoff{100};         // Client: first retry delay, doubled each time
 };
 
-// Parses "HOST:PORT" into options.host/port.
+// Parses "HOST:PORT" into options.host/port, or "unix:PATH" into options.unix_path.
 Status ParseAddress(const std::string& address, Options* options);
 
 class Connection;
+
+// A batch as it lies in the connection's buffers: valid until the stream's next call.
+struct BatchView {
+  int level = 0;
+  bool level_done = false;
+  float splat_scale = 1.f;
+  std::span<const Point> points;
+};
 
 // The results of one query, batch by batch. Destroying it before the end cancels the query.
 class QueryStream {
@@ -49,6 +66,9 @@ class QueryStream {
   QueryStream& operator=(const QueryStream&) = delete;
   // Next batch; false at the end. Errors from the server come back as their Status.
   Result<bool> Next(Batch* batch);
+  // The next batch without a copy: on the fast path the records in the shared-memory ring
+  // (the slot goes back to the server at the next call), else the received records.
+  Result<bool> NextView(BatchView* view);
   // Asks the server to stop; Next() then reports Cancelled (or the end, if it came first).
   Status Cancel();
   uint64_t id() const { return id_; }
@@ -59,9 +79,12 @@ class QueryStream {
  private:
   friend class Connection;
   QueryStream(Connection* c, uint64_t id) : conn_(c), id_(id) {}
+  Result<bool> Advance(Batch* batch, BatchView* view);
   Connection* conn_;
   uint64_t id_;
   bool done_ = false;
+  int held_slot_ = -1;            // NextView's ring slot, released at the next call
+  std::vector<Point> view_buf_;   // NextView's records off the socket
   std::vector<uint32_t> frames_;
   bool clipped_ = false;
 };
@@ -107,16 +130,33 @@ class Connection {
 
   wire::Role role() const { return role_; }
   bool broken() const { return broken_; }
+  // "tcp HOST:PORT", "unix PATH" or "unix PATH + shared memory": what this connection uses.
+  std::string transport() const;
 
  private:
+  friend class QueryStream;
   struct Impl;
+  // A response with what came beside its message: the records of a RECORDS batch, or the ring
+  // slot that holds them.
+  struct Incoming {
+    wire::Response r;
+    std::vector<Point> records;
+    int slot = -1;
+  };
   explicit Connection(std::unique_ptr<Impl> impl);
+  static Result<std::unique_ptr<Connection>> ConnectOnce(const Options& options);
   Result<wire::Response> Call(wire::Request* req);
+  // The next response to `id`; a records attachment for it goes straight into *records
+  // (when given) instead of in->records.
+  Status ReceiveFull(uint64_t id, Incoming* in, std::vector<Point>* records);
+  // Ring slots go back to the server in one frame, when the client is about to wait.
+  void ReleaseSlot(int slot);
+  Status FlushReleases();
   std::unique_ptr<Impl> impl_;
   uint64_t next_id_ = 1;
   wire::Role role_ = wire::ROLE_NONE;
   bool broken_ = false;
-  std::map<uint64_t, std::deque<wire::Response>> pending_;
+  std::map<uint64_t, std::deque<Incoming>> pending_;
 };
 
 // A Connection that reconnects (with exponential backoff) when the server goes away.

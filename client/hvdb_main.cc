@@ -763,7 +763,9 @@ Cli::Cli(CLI::App& app) : app_(app) {
                      ->capture_default_str()
                      ->check(CLI::Range(size_t{8}, size_t{1} << 30));
   app.add_option("--server", g_.server,
-                 "HOST:PORT of an hvdb-server to work on, instead of a data directory");
+                 "HOST:PORT or unix:PATH of an hvdb-server to work on, instead of a data "
+                 "directory (a server on this machine is reached through its Unix socket and "
+                 "shared memory by itself)");
   g_.token_opt = app.add_option(
       "--token", g_.token,
       "Access token for --server (default: $HVDB_TOKEN; the environment keeps it out of ps)");
@@ -2244,7 +2246,10 @@ int Cli::CmdPing() {
     Result<double> ms = db().Ping();
     if (!ms.ok()) return Fail(ms.status());
     rtts.push_back(*ms);
-    if (!ping_.json) std::printf("pong from %s in %.3f ms\n", db().where().c_str(), *ms);
+    if (!ping_.json) {
+      std::printf("pong from %s (%s) in %.3f ms\n", db().where().c_str(), db().transport().c_str(),
+                  *ms);
+    }
   }
   double lo = *std::min_element(rtts.begin(), rtts.end());
   double hi = *std::max_element(rtts.begin(), rtts.end());
@@ -2253,6 +2258,7 @@ int Cli::CmdPing() {
   double avg = sum / static_cast<double>(rtts.size());
   if (ping_.json) {
     PrintJson({{"server", db().where()},
+               {"transport", db().transport()},
                {"count", rtts.size()},
                {"rtt_ms", rtts},
                {"min_ms", lo},

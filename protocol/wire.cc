@@ -26,22 +26,55 @@ std::string Frame(const google::protobuf::MessageLite& msg) {
   return s;
 }
 
-bool ParseFrameHeader(const uint8_t header[4], uint32_t max_frame, uint32_t* len) {
-  *len = DecodeLE<uint32_t>(header);
+std::string FrameHead(const google::protobuf::MessageLite& msg, uint32_t attachment_len) {
+  const size_t len = msg.ByteSizeLong();
+  std::string s(kFrameHeaderSize + kAttachmentHeaderSize + len, '\0');
+  auto* p = reinterpret_cast<uint8_t*>(s.data());
+  EncodeLE(p, static_cast<uint32_t>(len) | kAttachmentFlag);
+  EncodeLE(p + kFrameHeaderSize, attachment_len);
+  msg.SerializeWithCachedSizesToArray(p + kFrameHeaderSize + kAttachmentHeaderSize);
+  return s;
+}
+
+bool ParseFrameHeader(const uint8_t header[4], uint32_t max_frame, uint32_t* len,
+                      bool* has_attachment) {
+  const uint32_t w = DecodeLE<uint32_t>(header);
+  *len = w & ~kAttachmentFlag;
+  if (has_attachment) *has_attachment = (w & kAttachmentFlag) != 0;
   return *len <= max_frame;
 }
 
-FrameReader::Result FrameReader::Next(std::string* payload, std::string* error) {
+FrameReader::Result FrameReader::Next(std::string* payload, std::string* error,
+                                      std::string* attachment) {
   if (buf_.size() - pos_ < kFrameHeaderSize) return Result::kNeedMore;
   uint32_t len;
-  if (!ParseFrameHeader(reinterpret_cast<const uint8_t*>(buf_.data() + pos_), max_frame_, &len)) {
+  bool has_att = false;
+  const auto* at = reinterpret_cast<const uint8_t*>(buf_.data() + pos_);
+  if (!ParseFrameHeader(at, max_frame_, &len, &has_att)) {
     *error = "frame of " + std::to_string(len) + " bytes exceeds the limit of " +
              std::to_string(max_frame_);
     return Result::kBad;
   }
-  if (buf_.size() - pos_ - kFrameHeaderSize < len) return Result::kNeedMore;
-  payload->assign(buf_, pos_ + kFrameHeaderSize, len);
-  pos_ += kFrameHeaderSize + len;
+  size_t head = kFrameHeaderSize;
+  uint32_t att = 0;
+  if (has_att) {
+    if (attachment == nullptr) {
+      *error = "a frame with an attachment where none may come";
+      return Result::kBad;
+    }
+    if (buf_.size() - pos_ < kFrameHeaderSize + kAttachmentHeaderSize) return Result::kNeedMore;
+    att = DecodeLE<uint32_t>(at + kFrameHeaderSize);
+    if (att > max_frame_) {
+      *error = "attachment of " + std::to_string(att) + " bytes exceeds the limit of " +
+               std::to_string(max_frame_);
+      return Result::kBad;
+    }
+    head += kAttachmentHeaderSize;
+  }
+  if (buf_.size() - pos_ - head < static_cast<size_t>(len) + att) return Result::kNeedMore;
+  payload->assign(buf_, pos_ + head, len);
+  if (attachment) attachment->assign(buf_, pos_ + head + len, att);
+  pos_ += head + len + att;
   if (pos_ > (1u << 16) && pos_ * 2 > buf_.size()) {
     buf_.erase(0, pos_);
     pos_ = 0;

@@ -1,8 +1,10 @@
 // The hvdb wire protocol: framing and conversions between engine values and messages.
 // docs/PROTOCOL.md is the specification; hvdb.proto holds the message bodies.
 //
-// Framing: every frame is a 4-byte little-endian payload length followed by that many bytes of
-// a serialized protobuf message (Hello/HelloReply first, then Request / Response).
+// Framing: every frame is a 4-byte little-endian word W, the message length L = W & 0x7fffffff,
+// and, when bit 31 of W is set, a 4-byte little-endian attachment length A; then L bytes of a
+// serialized protobuf message (Hello/HelloReply first, then Request / Response) and A bytes of
+// attachment (the raw point records of a RECORDS batch). Only the server sends attachments.
 #ifndef HVDB_PROTOCOL_WIRE_H_
 #define HVDB_PROTOCOL_WIRE_H_
 
@@ -19,8 +21,10 @@
 
 namespace hvdb::wire {
 
-inline constexpr uint32_t kProtocolVersion = 1;
+inline constexpr uint32_t kProtocolVersion = 2;
 inline constexpr uint32_t kFrameHeaderSize = 4;
+inline constexpr uint32_t kAttachmentFlag = 1u << 31;
+inline constexpr uint32_t kAttachmentHeaderSize = 4;
 inline constexpr uint32_t kDefaultMaxFrame = 16u << 20;
 // Results are streamed in batches of at most this many bytes of point data.
 inline constexpr uint32_t kMaxBatchBytes = 1u << 20;
@@ -29,6 +33,9 @@ inline constexpr uint32_t kMaxBatchPoints = kMaxBatchBytes / 64;
 // Appends a frame holding `msg` to `out`.
 void AppendFrame(const google::protobuf::MessageLite& msg, std::string* out);
 std::string Frame(const google::protobuf::MessageLite& msg);
+// The header and message of a frame whose attachment (attachment_len bytes) the caller sends
+// right after it, e.g. with scatter/gather from where the records already lie.
+std::string FrameHead(const google::protobuf::MessageLite& msg, uint32_t attachment_len);
 
 // Incremental frame splitter: feed bytes, take whole payloads out. Needs no socket, so the
 // fuzzer and the tests drive it directly.
@@ -37,9 +44,10 @@ class FrameReader {
   explicit FrameReader(uint32_t max_frame = kDefaultMaxFrame) : max_frame_(max_frame) {}
   enum class Result { kFrame, kNeedMore, kBad };
   void Feed(const uint8_t* data, size_t n) { buf_.append(reinterpret_cast<const char*>(data), n); }
-  // kFrame: *payload holds the next frame's payload. kBad: the length is over the limit
-  // (*error says so); the stream cannot be resynchronised and must be closed.
-  Result Next(std::string* payload, std::string* error);
+  // kFrame: *payload holds the next frame's message and *attachment (if given) its attachment
+  // (empty if none). kBad: a length is over the limit, or an attachment came where none may
+  // (attachment == nullptr); *error says which. The stream cannot be resynchronised.
+  Result Next(std::string* payload, std::string* error, std::string* attachment = nullptr);
 
  private:
   uint32_t max_frame_;
@@ -47,8 +55,10 @@ class FrameReader {
   size_t pos_ = 0;
 };
 
-// Length from a frame header; false when it exceeds max_frame.
-bool ParseFrameHeader(const uint8_t header[4], uint32_t max_frame, uint32_t* len);
+// Message length and attachment flag from a frame's first word; false when the length exceeds
+// max_frame (*len is set either way).
+bool ParseFrameHeader(const uint8_t header[4], uint32_t max_frame, uint32_t* len,
+                      bool* has_attachment = nullptr);
 
 // ---- Points ----
 void EncodeColumns(std::span<const Point> pts, PointColumns* out);

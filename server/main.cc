@@ -14,8 +14,9 @@ int main(int argc, char** argv) {
   app.set_config("--config", "", "read options from an INI/TOML file (keys = long option names)");
   app.add_option("--data", c.data_dir, "data directory")->capture_default_str();
   app.add_option("--listen", c.listen,
-                 "HOST:PORT to listen on (port 0: any free port); a non-loopback address needs "
-                 "--token-file")
+                 "address to listen on, repeatable: HOST:PORT (port 0: any free port; a "
+                 "non-loopback address needs --token-file) or unix:PATH (the local fast path; "
+                 "'unix:' alone is DATA/hvdb.sock). Default: 127.0.0.1:7878 and unix:")
       ->capture_default_str();
   app.add_option("--token-file", c.token_file, "access tokens, one 'TOKEN ro|rw' per line");
   app.add_option("--port-file", c.port_file, "write the bound port to this file");
@@ -40,6 +41,9 @@ int main(int argc, char** argv) {
   app.add_option("--max-render-points", c.max_render_points,
                  "points one rendered image may draw (held in memory while rendering)")
       ->capture_default_str();
+  app.add_option("--shm-slots", c.shm_slots,
+                 "1 MiB slots of each local client's shared-memory ring (0: none)")
+      ->capture_default_str()->check(CLI::Range(0u, 1024u));
   app.add_flag("--no-sync", no_sync, "do not fsync commits (faster, loses the last commits on a "
                                      "power failure)");
   app.add_option("--log-level", log_level, "error, warn, info or debug")->capture_default_str()
@@ -56,7 +60,9 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "hvdb-server: %s\n", server.status().ToString().c_str());
       return 1;
     }
-    std::printf("hvdb-server listening on port %u\n", (*server)->port());
+    std::printf("hvdb-server listening on port %u%s%s\n", (*server)->port(),
+                (*server)->local_socket().empty() ? "" : " and unix:",
+                (*server)->local_socket().c_str());
     std::fflush(stdout);
     (*server)->Run(/*handle_signals=*/true);
   } catch (const std::exception& e) {

@@ -1,8 +1,12 @@
 #include "server/server.h"
 
+#include <sys/socket.h>
+#include <sys/stat.h>
+#include <sys/un.h>
 #include <unistd.h>
 
 #include <cstdio>
+#include <filesystem>
 #include <ctime>
 #include <fstream>
 #include <sstream>
@@ -34,6 +38,7 @@ Server::Server(Config config, std::unique_ptr<Database> db)
       workers_(config_.worker_threads),
       renders_(config_.max_renders),
       acceptor_(io_),
+      unix_acceptor_(io_),
       signals_(io_) {}
 
 Server::~Server() {
@@ -59,14 +64,39 @@ static bool ParseHostPort(const std::string& s, std::string* host, uint16_t* por
 }
 
 Result<std::unique_ptr<Server>> Server::Create(const Config& config) {
-  std::string host;
-  uint16_t port;
-  if (!ParseHostPort(config.listen, &host, &port)) {
-    return Status::InvalidArgument("--listen: expected HOST:PORT, got '" + config.listen + "'");
+  // --listen: at most one HOST:PORT and at most one unix:PATH.
+  std::string tcp_listen, local_socket;
+  bool non_loopback = false;
+  for (const std::string& l : config.listen) {
+    if (l.rfind("unix:", 0) == 0) {
+      if (!local_socket.empty()) return Status::InvalidArgument("--listen: more than one unix:PATH");
+      std::string path = l.substr(5).empty() ? config.data_dir + "/hvdb.sock" : l.substr(5);
+      std::error_code fec;
+      auto abs = std::filesystem::absolute(path, fec);
+      local_socket = fec ? path : abs.lexically_normal().string();
+      if (local_socket.size() >= sizeof(sockaddr_un{}.sun_path)) {
+        return Status::InvalidArgument("--listen unix:" + local_socket + ": a Unix socket path "
+                                       "has at most " +
+                                       std::to_string(sizeof(sockaddr_un{}.sun_path) - 1) +
+                                       " characters; give a shorter one (unix:/tmp/hvdb.sock)");
+      }
+      continue;
+    }
+    if (!tcp_listen.empty()) return Status::InvalidArgument("--listen: more than one HOST:PORT");
+    std::string host;
+    uint16_t port;
+    if (!ParseHostPort(l, &host, &port)) {
+      return Status::InvalidArgument("--listen: expected HOST:PORT or unix:PATH, got '" + l + "'");
+    }
+    boost::system::error_code ec;
+    auto addr = asio::ip::make_address(host, ec);
+    if (ec) return Status::InvalidArgument("--listen: '" + host + "' is not an IP address");
+    non_loopback = !addr.is_loopback();
+    tcp_listen = l;
   }
-  boost::system::error_code ec;
-  auto addr = asio::ip::make_address(host, ec);
-  if (ec) return Status::InvalidArgument("--listen: '" + host + "' is not an IP address");
+  if (tcp_listen.empty() && local_socket.empty()) {
+    return Status::InvalidArgument("--listen: give at least one HOST:PORT or unix:PATH");
+  }
   std::map<std::string, Role> tokens;
   if (!config.token_file.empty()) {
     std::ifstream in(config.token_file);
@@ -86,8 +116,8 @@ Result<std::unique_ptr<Server>> Server::Create(const Config& config) {
       tokens[tok] = role == "rw" ? Role::kReadWrite : Role::kReadOnly;
     }
   }
-  if (!addr.is_loopback() && tokens.empty()) {
-    return Status::InvalidArgument("--listen " + config.listen +
+  if (non_loopback && tokens.empty()) {
+    return Status::InvalidArgument("--listen " + tcp_listen +
                                    " is not a loopback address: give --token-file so that "
                                    "clients must authenticate");
   }
@@ -99,25 +129,55 @@ Result<std::unique_ptr<Server>> Server::Create(const Config& config) {
   std::unique_ptr<Server> s(new Server(config, std::move(db)));
   s->tokens_ = std::move(tokens);
   s->require_token_ = !s->tokens_.empty();
+  s->tcp_listen_ = tcp_listen;
+  s->local_socket_ = local_socket;
   HVDB_RETURN_IF_ERROR(s->Listen());
   return s;
 }
 
 Status Server::Listen() {
-  std::string host;
-  uint16_t port;
-  ParseHostPort(config_.listen, &host, &port);
-  tcp::endpoint ep(asio::ip::make_address(host), port);
-  boost::system::error_code ec;
-  acceptor_.open(ep.protocol(), ec);
-  if (!ec) acceptor_.set_option(tcp::acceptor::reuse_address(true), ec);
-  if (!ec) acceptor_.bind(ep, ec);
-  if (!ec) acceptor_.listen(asio::socket_base::max_listen_connections, ec);
-  if (ec) return Status::IOError("listen on " + config_.listen + ": " + ec.message());
-  port_ = acceptor_.local_endpoint().port();
+  if (!local_socket_.empty()) HVDB_RETURN_IF_ERROR(ListenUnix(local_socket_));
+  if (!tcp_listen_.empty()) {
+    std::string host;
+    uint16_t port;
+    ParseHostPort(tcp_listen_, &host, &port);
+    tcp::endpoint ep(asio::ip::make_address(host), port);
+    boost::system::error_code ec;
+    acceptor_.open(ep.protocol(), ec);
+    if (!ec) acceptor_.set_option(tcp::acceptor::reuse_address(true), ec);
+    if (!ec) acceptor_.bind(ep, ec);
+    if (!ec) acceptor_.listen(asio::socket_base::max_listen_connections, ec);
+    if (ec) return Status::IOError("listen on " + tcp_listen_ + ": " + ec.message());
+    port_ = acceptor_.local_endpoint().port();
+  }
   if (!config_.port_file.empty()) {
     std::ofstream(config_.port_file) << port_ << "\n";
   }
+  return Status::OK();
+}
+
+Status Server::ListenUnix(const std::string& path) {
+  using local = asio::local::stream_protocol;
+  struct stat st {};
+  if (::lstat(path.c_str(), &st) == 0) {
+    if (!S_ISSOCK(st.st_mode)) {
+      return Status::InvalidArgument("--listen unix:" + path + ": the path exists and is not a "
+                                     "socket; give another path");
+    }
+    // A socket file left by a server that was killed is removed; a live one is not ours.
+    local::socket probe(io_);
+    boost::system::error_code ec;
+    probe.connect(local::endpoint(path), ec);
+    if (!ec) {
+      return Status::IOError("--listen unix:" + path + ": another server is listening there");
+    }
+    ::unlink(path.c_str());
+  }
+  boost::system::error_code ec;
+  unix_acceptor_.open(local(), ec);
+  if (!ec) unix_acceptor_.bind(local::endpoint(path), ec);
+  if (!ec) unix_acceptor_.listen(asio::socket_base::max_listen_connections, ec);
+  if (ec) return Status::IOError("listen on unix:" + path + ": " + ec.message());
   return Status::OK();
 }
 
@@ -137,20 +197,42 @@ void Server::Accept() {
       }
       return;
     }
-    auto session = std::make_shared<Session>(this, std::move(socket));
-    bool refuse = false;
-    {
-      std::lock_guard<std::mutex> l(mu_);
-      refuse = sessions_.size() >= config_.max_connections;
-      sessions_.insert(session);
-    }
-    session->Start();
-    if (refuse) {
-      session->Refuse(Status::Overloaded("the server has " + std::to_string(config_.max_connections) +
-                                         " connections, its limit; retry later"));
-    }
+    boost::system::error_code ignored;
+    socket.set_option(tcp::no_delay(true), ignored);
+    auto peer = socket.remote_endpoint(ignored);
+    const bool loopback = !ignored && peer.address().is_loopback();
+    Admit(std::make_shared<Session>(this, StreamSocket(std::move(socket)), false, loopback));
     Accept();
   });
+}
+
+void Server::AcceptUnix() {
+  unix_acceptor_.async_accept(asio::make_strand(io_), [this](boost::system::error_code ec,
+                                                             asio::local::stream_protocol::socket socket) {
+    if (ec) {
+      if (!stopping_) {
+        Log(LogLevel::kWarn, "accept on unix:" + local_socket_ + ": " + ec.message());
+        AcceptUnix();
+      }
+      return;
+    }
+    Admit(std::make_shared<Session>(this, StreamSocket(std::move(socket)), true, false));
+    AcceptUnix();
+  });
+}
+
+void Server::Admit(std::shared_ptr<Session> session) {
+  bool refuse = false;
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    refuse = sessions_.size() >= config_.max_connections;
+    sessions_.insert(session);
+  }
+  session->Start();
+  if (refuse) {
+    session->Refuse(Status::Overloaded("the server has " + std::to_string(config_.max_connections) +
+                                       " connections, its limit; retry later"));
+  }
 }
 
 void Server::Forget(Session* s) {
@@ -174,15 +256,23 @@ void Server::Run(bool handle_signals) {
       Stop();
     });
   }
-  Accept();
-  Log(LogLevel::kInfo, "hvdb-server listening on " + acceptor_.local_endpoint().address().to_string() +
-                           ":" + std::to_string(port_) + ", data " + config_.data_dir);
+  if (acceptor_.is_open()) {
+    Accept();
+    Log(LogLevel::kInfo, "hvdb-server listening on " +
+                             acceptor_.local_endpoint().address().to_string() + ":" +
+                             std::to_string(port_) + ", data " + config_.data_dir);
+  }
+  if (unix_acceptor_.is_open()) {
+    AcceptUnix();
+    Log(LogLevel::kInfo, "hvdb-server listening on unix:" + local_socket_ + " (local fast path)");
+  }
   std::vector<std::thread> threads;
   for (unsigned i = 1; i < config_.io_threads; ++i) threads.emplace_back([this] { io_.run(); });
   io_.run();
   for (auto& t : threads) t.join();
   // Queries and commits still on the workers finish (cancelled queries end at once).
   workers_.join();
+  if (!local_socket_.empty()) ::unlink(local_socket_.c_str());
   Log(LogLevel::kInfo, "stopped");
 }
 
@@ -191,6 +281,7 @@ void Server::Stop() {
   asio::post(io_, [this] {
     boost::system::error_code ignored;
     acceptor_.close(ignored);
+    unix_acceptor_.close(ignored);
     signals_.cancel(ignored);
     std::set<std::shared_ptr<Session>> all;
     {

@@ -33,7 +33,10 @@ void SetLogLevel(LogLevel level);
 
 struct Config {
   std::string data_dir = "./data";
-  std::string listen = "127.0.0.1:7878";  // port 0: any free port (printed at start)
+  // Addresses to listen on: HOST:PORT (port 0: any free port, printed at start) and at most
+  // one unix:PATH (the local fast path; "unix:" alone is DATA_DIR/hvdb.sock). Loopback TCP
+  // clients are told the Unix socket's path and switch to it.
+  std::vector<std::string> listen = {"127.0.0.1:7878", "unix:"};
   unsigned io_threads = std::max(1u, std::thread::hardware_concurrency());
   unsigned worker_threads = std::max(1u, std::thread::hardware_concurrency());
   size_t cache_mb = 256;
@@ -49,6 +52,8 @@ struct Config {
   // (more get OVERLOADED); each holds at most max_render_points points in memory.
   uint32_t max_renders = 2;
   uint64_t max_render_points = 16u << 20;
+  // Slots of the shared-memory ring of each fast-path connection (1 MiB each; 0: no ring).
+  uint32_t shm_slots = 16;
   bool sync = true;
   std::string token_file;  // lines "TOKEN ro|rw"; required for a non-loopback address
   std::string port_file;   // written with the bound port once listening
@@ -67,6 +72,8 @@ class Server {
   // Stops accepting, cancels in-flight work, closes connections. Thread-safe.
   void Stop();
   uint16_t port() const { return port_; }
+  // The absolute path of the Unix socket ("" if none).
+  const std::string& local_socket() const { return local_socket_; }
 
   // For sessions.
   const Config& config() const { return config_; }
@@ -81,7 +88,10 @@ class Server {
  private:
   Server(Config config, std::unique_ptr<Database> db);
   Status Listen();
+  Status ListenUnix(const std::string& path);
   void Accept();
+  void AcceptUnix();
+  void Admit(std::shared_ptr<Session> session);
 
   Config config_;
   std::unique_ptr<Database> db_;
@@ -89,6 +99,9 @@ class Server {
   boost::asio::thread_pool workers_;
   render::RendererPool renders_;
   boost::asio::ip::tcp::acceptor acceptor_;
+  boost::asio::local::stream_protocol::acceptor unix_acceptor_;
+  std::string tcp_listen_;    // "" if none
+  std::string local_socket_;  // "" if none
   boost::asio::signal_set signals_;
   std::map<std::string, Role> tokens_;
   bool require_token_ = false;

@@ -1,271 +1,27 @@
 #include "server/session.h"
 
-#include <nlohmann/json.hpp>
-#include <optional>
+#include <algorithm>
+#include <array>
 
-#include "edit/operators.h"
-#include "render/job.h"
+#include <nlohmann/json.hpp>
+
+#include "server/requests.h"
 
 namespace hvdb::server {
 
 namespace asio = boost::asio;
-using asio::ip::tcp;
 
-struct Session::Op {
-  uint64_t id = 0;
-  std::string kind;
-  std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
-  std::atomic<bool> cancelled{false};
-  // Queries: the cursor is set on a worker and cancelled from the strand.
-  std::mutex mu;
-  std::unique_ptr<Cursor> cursor;
-  void Cancel() {
-    cancelled = true;
-    std::lock_guard<std::mutex> l(mu);
-    if (cursor) cursor->Cancel();
-  }
-  wire::PointEncoding encoding = wire::COLUMNS;
-  uint64_t points = 0;
-  bool paused = false;
-  // Renders: the job (set on a worker), its slot of the server's renderer pool, and the next
-  // image of a sequence (advanced on the strand).
-  bool is_render = false;
-  std::unique_ptr<render::RenderJob> render_job;
-  std::optional<render::RendererPool::Lease> render_lease;
-  size_t next_image = 0;
-};
-
-namespace {
-
-const char* KindOf(const wire::Request& r) {
-  switch (r.body_case()) {
-    case wire::Request::kPing: return "ping";
-    case wire::Request::kList: return "list";
-    case wire::Request::kCreate: return "create";
-    case wire::Request::kDrop: return "drop";
-    case wire::Request::kDescribe: return "describe";
-    case wire::Request::kQuery: return "query";
-    case wire::Request::kCancel: return "cancel";
-    case wire::Request::kEdit: return "edit";
-    case wire::Request::kRevert: return "revert";
-    case wire::Request::kIngest: return "ingest";
-    case wire::Request::kStats: return "stats";
-    case wire::Request::kRender: return "render";
-    case wire::Request::kSelect: return "select";
-    case wire::Request::kGraphCut: return "graph_cut";
-    case wire::Request::kCopy: return "copy";
-    case wire::Request::kPaste: return "paste";
-    case wire::Request::kComposite: return "composite";
-    default: return "unknown";
-  }
-}
-
-bool Writes(const wire::Request& r) {
-  switch (r.body_case()) {
-    case wire::Request::kCreate:
-    case wire::Request::kDrop:
-    case wire::Request::kEdit:
-    case wire::Request::kRevert:
-    case wire::Request::kIngest:
-    case wire::Request::kSelect:
-    case wire::Request::kGraphCut:
-    case wire::Request::kCopy:
-    case wire::Request::kPaste:
-    case wire::Request::kComposite: return true;
-    default: return false;
-  }
-}
-
-wire::Response ErrorResponse(uint64_t id, const Status& st,
-                             wire::ErrorCode code = wire::ERROR_UNSPECIFIED) {
-  wire::Response r;
-  r.set_id(id);
-  wire::ToWire(st, r.mutable_error());
-  if (code != wire::ERROR_UNSPECIFIED) r.mutable_error()->set_code(code);
-  return r;
-}
-
-// A dataset lookup failure is UNKNOWN_DATASET, not a generic NOT_FOUND.
-Result<std::shared_ptr<Dataset>> FindDataset(Server* s, const std::string& name) {
-  auto ds = s->db().GetDataset(name);
-  // The engine's message names the data directory: not the client's business.
-  if (!ds.ok() && ds.status().IsNotFound()) {
-    return Status::NotFound("no dataset '" + name + "' on this server (list them with the "
-                            "ListDatasets request, `hvdb --server ... datasets`)");
-  }
-  return ds;
-}
-
-wire::Response DatasetError(uint64_t id, const Status& st) {
-  return ErrorResponse(id, st, st.IsNotFound() ? wire::UNKNOWN_DATASET : wire::ERROR_UNSPECIFIED);
-}
-
-wire::Response CommitResponse(uint64_t id, const CommitInfo& c) {
-  wire::Response r;
-  r.set_id(id);
-  auto* cr = r.mutable_commit();
-  cr->set_lsn(c.lsn);
-  cr->set_inserted(c.inserted);
-  cr->set_removed(c.removed);
-  for (uint64_t a : c.assigned_ids) cr->add_assigned_ids(a);
-  return r;
-}
-
-Result<Affine4> AffineFromWire(const google::protobuf::RepeatedField<double>& m,
-                               const google::protobuf::RepeatedField<double>& c) {
-  Affine4 a;
-  if (!m.empty()) {
-    if (m.size() != 16) return Status::InvalidArgument("matrix: needs 16 values");
-    for (int i = 0; i < 16; ++i) a.a[static_cast<size_t>(i)] = m[i];
-  }
-  if (!c.empty()) {
-    if (c.size() != 4) return Status::InvalidArgument("offset: needs 4 values");
-    for (int i = 0; i < 4; ++i) a.c[static_cast<size_t>(i)] = c[i];
-  }
-  return a;
-}
-
-// The editing operators of edit/operators.h, on a worker.
-wire::Response RunEditOperator(Server* s, uint64_t id, const wire::Request& req) {
-  std::string name;
-  switch (req.body_case()) {
-    case wire::Request::kSelect: name = req.select().dataset(); break;
-    case wire::Request::kGraphCut: name = req.graph_cut().dataset(); break;
-    case wire::Request::kCopy: name = req.copy().dataset(); break;
-    case wire::Request::kPaste: name = req.paste().dataset(); break;
-    default: name = req.composite().dataset(); break;
-  }
-  auto ds = FindDataset(s, name);
-  if (!ds.ok()) return DatasetError(id, ds.status());
-  Dataset& d = **ds;
-  wire::Response r;
-  r.set_id(id);
-  edit::ClipboardStore clipboards(s->config().data_dir);
-  if (req.has_select()) {
-    const wire::SelectRequest& q = req.select();
-    edit::SelectRequest sr;
-    auto region = wire::FromWire(q.region());
-    if (!region.ok()) return ErrorResponse(id, region.status());
-    sr.region = *region;
-    sr.bit = static_cast<int>(std::min<uint32_t>(q.bit(), 999));
-    if (!wire::SelectMode_IsValid(q.mode())) {
-      return ErrorResponse(id, Status::InvalidArgument("select.mode: unknown value"));
-    }
-    sr.mode = static_cast<edit::SelectMode>(q.mode());
-    if (q.has_lasso()) {
-      edit::Lasso l;
-      auto cam = wire::FromWire(q.lasso().camera());
-      if (!cam.ok()) return ErrorResponse(id, cam.status());
-      l.camera = *cam;
-      if (q.lasso().polygon_size() % 2) {
-        return ErrorResponse(id, Status::InvalidArgument("lasso.polygon: needs x y pairs"));
-      }
-      for (int i = 0; i + 1 < q.lasso().polygon_size(); i += 2) {
-        l.polygon.push_back({q.lasso().polygon(i), q.lasso().polygon(i + 1)});
-      }
-      sr.shape = l;
-    } else if (q.has_brush()) {
-      edit::Brush b;
-      auto cam = wire::FromWire(q.brush().camera());
-      if (!cam.ok()) return ErrorResponse(id, cam.status());
-      b.camera = *cam;
-      b.u = q.brush().u();
-      b.v = q.brush().v();
-      b.pixel_radius = q.brush().pixel_radius();
-      b.radius = q.brush().radius();
-      b.depth = q.brush().nearest() ? edit::Brush::Depth::kNearest : edit::Brush::Depth::kMedian;
-      sr.shape = b;
-    }
-    auto res = edit::Select(d, sr);
-    if (!res.ok()) return ErrorResponse(id, res.status());
-    auto* o = r.mutable_selected();
-    o->set_matched(res->matched);
-    o->set_selected(res->selected);
-    o->set_lsn(res->lsn);
-    if (res->brush_center) {
-      for (double v : *res->brush_center) o->add_brush_center(v);
-    }
-  } else if (req.has_graph_cut()) {
-    const wire::GraphCutRequest& q = req.graph_cut();
-    edit::GraphCutRequest g;
-    auto roi = wire::FromWire(q.roi());
-    if (!roi.ok()) return ErrorResponse(id, roi.status());
-    g.roi = *roi;
-    g.foreground_bit = static_cast<int>(std::min<uint32_t>(q.foreground_bit(), 999));
-    g.background_bit = static_cast<int>(std::min<uint32_t>(q.background_bit(), 999));
-    g.out_bit = static_cast<int>(std::min<uint32_t>(q.out_bit(), 999));
-    if (q.k() != 0) g.params.k = static_cast<int>(std::min<uint32_t>(q.k(), 64));
-    if (q.intra_radius() != 0) g.params.intra_radius = q.intra_radius();
-    if (q.inter_radius() != 0) g.params.inter_radius = q.inter_radius();
-    g.params.use_normals = !q.colour_only();
-    auto res = edit::GraphCutSelect(d, g);
-    if (!res.ok()) return ErrorResponse(id, res.status());
-    auto* o = r.mutable_graph_cut();
-    o->set_roi_points(res->roi_points);
-    o->set_selected(res->selected);
-    o->set_lsn(res->lsn);
-    o->set_energy(res->cut.energy);
-    o->set_intra_edges(res->cut.intra_edges);
-    o->set_inter_edges(res->cut.inter_edges);
-    o->set_load_ms(res->load_ms);
-    o->set_neighbours_ms(res->cut.neighbours_ms);
-    o->set_gmm_ms(res->cut.gmm_ms);
-    o->set_graph_ms(res->cut.graph_ms);
-    o->set_maxflow_ms(res->cut.maxflow_ms);
-    o->set_commit_ms(res->commit_ms);
-  } else if (req.has_copy()) {
-    const wire::CopyRequest& q = req.copy();
-    std::optional<hvdb::Region> region;
-    if (q.has_region()) {
-      auto rr = wire::FromWire(q.region());
-      if (!rr.ok()) return ErrorResponse(id, rr.status());
-      region = *rr;
-    }
-    auto res = edit::Copy(d, static_cast<int>(std::min<uint32_t>(q.bit(), 999)), region,
-                          clipboards, q.clipboard(), q.cut());
-    if (!res.ok()) return ErrorResponse(id, res.status());
-    r.mutable_copied()->set_points(res->points);
-    r.mutable_copied()->set_lsn(res->lsn);
-  } else if (req.has_paste()) {
-    const wire::PasteRequest& q = req.paste();
-    auto map = AffineFromWire(q.matrix(), q.offset());
-    if (!map.ok()) return ErrorResponse(id, map.status());
-    auto clip = clipboards.Get(q.clipboard());
-    if (!clip.ok()) return ErrorResponse(id, clip.status());
-    auto c = edit::Paste(d, *clip, *map);
-    if (!c.ok()) return ErrorResponse(id, c.status());
-    return CommitResponse(id, *c);
-  } else {
-    const wire::CompositeRequest& q = req.composite();
-    std::vector<Point> object;
-    Status st = wire::DecodeColumns(q.object(), &object);
-    if (!st.ok()) return ErrorResponse(id, st);
-    if (q.trajectory_size() % 3) {
-      return ErrorResponse(id, Status::InvalidArgument("composite.trajectory: needs x y z per frame"));
-    }
-    std::vector<std::array<double, 3>> path;
-    for (int i = 0; i + 2 < q.trajectory_size(); i += 3) {
-      path.push_back({q.trajectory(i), q.trajectory(i + 1), q.trajectory(i + 2)});
-    }
-    auto c = edit::Composite(d, object, q.first_frame(), q.frame_count(), path);
-    if (!c.ok()) return ErrorResponse(id, c.status());
-    return CommitResponse(id, *c);
-  }
-  return r;
-}
-
-}  // namespace
-
-Session::Session(Server* server, tcp::socket socket)
+Session::Session(Server* server, StreamSocket socket, bool unix_socket, bool loopback)
     : server_(server),
       socket_(std::move(socket)),
+      unix_socket_(unix_socket),
+      loopback_(loopback),
       strand_(asio::make_strand(static_cast<asio::io_context&>(socket_.get_executor().context()))),
       timer_(strand_) {}
 
 void Session::Start() {
   server_->stats().connections_open++;
   server_->stats().connections_total++;
-  socket_.set_option(tcp::no_delay(true));
   deadline_ = Clock::now() + std::chrono::seconds(std::min(server_->config().handshake_timeout_s,
                                                            server_->config().idle_timeout_s));
   auto self = shared_from_this();
@@ -296,13 +52,23 @@ void Session::ReadHeader() {
                    asio::bind_executor(strand_, [self](boost::system::error_code ec, size_t) {
                      if (ec || self->closed_) return self->CloseOnStrand();
                      uint32_t len;
+                     bool attachment = false;
                      if (!wire::ParseFrameHeader(self->header_,
-                                                 self->server_->config().max_frame_bytes, &len)) {
+                                                 self->server_->config().max_frame_bytes, &len,
+                                                 &attachment)) {
                        self->close_after_write_ = true;
                        self->SendError(0, Status::InvalidArgument(
                                               "frame of " + std::to_string(len) +
                                               " bytes exceeds the limit of " +
                                               std::to_string(self->server_->config().max_frame_bytes)),
+                                       wire::MALFORMED);
+                       return;
+                     }
+                     if (attachment) {
+                       self->close_after_write_ = true;
+                       self->SendError(0, Status::InvalidArgument(
+                                              "a client frame may not carry an attachment (bit "
+                                              "31 of the length word)"),
                                        wire::MALFORMED);
                        return;
                      }
@@ -360,14 +126,41 @@ void Session::OnHello(const std::string& payload) {
   wire::HelloReply reply;
   reply.set_protocol_version(wire::kProtocolVersion);
   reply.add_capabilities("draco");
+  reply.add_capabilities("records");
   reply.add_capabilities("progressive");
   reply.add_capabilities("pipelining");
-  reply.set_server_name("hvdb-server 0.1");
+  if (unix_socket_) reply.add_capabilities("shm");
+  reply.set_server_name("hvdb-server 0.2");
   reply.set_role(role_ == Role::kReadWrite ? wire::ROLE_READ_WRITE : wire::ROLE_READ_ONLY);
-  std::string frame = wire::Frame(reply);
-  bytes_queued_ += frame.size();
-  out_.push_back(std::move(frame));
-  WriteNext();
+  if (loopback_ && !server_->local_socket().empty()) {
+    reply.set_local_socket(server_->local_socket());
+  }
+  const bool wants_shm = std::find(hello.capabilities().begin(), hello.capabilities().end(),
+                                   "shm") != hello.capabilities().end();
+  if (unix_socket_ && wants_shm && server_->config().shm_slots > 0) {
+    // The fast path: a ring of slots the workers write batches into, its descriptor passed
+    // with this very frame. Nothing else has been written yet, so a direct sendmsg is safe.
+    auto ring = wire::ShmRing::Create(server_->config().shm_slots, wire::kMaxBatchBytes);
+    if (ring.ok()) {
+      ring_ = std::shared_ptr<wire::ShmRing>(std::move(ring).value());
+      reply.set_shm_slots(ring_->slots());
+      reply.set_shm_slot_bytes(ring_->slot_bytes());
+      slot_held_.assign(ring_->slots(), 0);
+      for (int i = static_cast<int>(ring_->slots()) - 1; i >= 0; --i) free_slots_.push_back(i);
+      std::string frame = wire::Frame(reply);
+      Status st = wire::SendWithFd(socket_.native_handle(), frame, ring_->fd(),
+                                   std::chrono::seconds(server_->config().handshake_timeout_s));
+      if (!st.ok()) {
+        Log(LogLevel::kWarn, "handshake with shared memory failed: " + st.ToString());
+        return CloseOnStrand();
+      }
+      server_->stats().bytes_out += frame.size();
+      return;
+    }
+    // No memfd (e.g. a sandbox without it): the connection works without the ring, and says so.
+    Log(LogLevel::kWarn, "no shared-memory ring for a local client: " + ring.status().ToString());
+  }
+  Send(reply);
 }
 
 void Session::Dispatch(wire::Request req) {
@@ -384,6 +177,7 @@ void Session::Dispatch(wire::Request req) {
     r.mutable_ack()->set_value(it != ops_.end() ? 1 : 0);
     return Send(r);
   }
+  if (req.body_case() == wire::Request::kRelease) return OnRelease(req.release());
   if (req.body_case() == wire::Request::kPing) {
     wire::Response r;
     r.set_id(id);
@@ -532,61 +326,13 @@ void Session::Dispatch(wire::Request req) {
     case wire::Request::kPaste:
     case wire::Request::kComposite:
       return RunOnWorker(id, [s, id, req] { return RunEditOperator(s, id, req); });
-    case wire::Request::kQuery: {
-      const wire::Query& q = req.query();
-      auto region = wire::FromWire(q.region());
-      if (!region.ok()) {
-        ops_.erase(id);
-        return SendError(id, region.status());
-      }
-      if (!wire::PointEncoding_IsValid(q.encoding())) {
-        ops_.erase(id);
-        return SendError(id, Status::InvalidArgument("query.encoding: unknown value " +
-                                                     std::to_string(q.encoding())));
-      }
-      if (q.lod() > 64) {
-        ops_.erase(id);
-        return SendError(id, Status::InvalidArgument("query.lod: " + std::to_string(q.lod()) +
-                                                     " is out of range"));
-      }
-      QueryOptions o;
-      o.lod = static_cast<int>(q.lod());
-      o.progressive = q.progressive();
-      o.temporal_lod = !q.no_temporal_lod();
-      o.label_mask = q.label_mask();
-      o.batch_points = q.batch_points() == 0 ? 16384u : std::min(q.batch_points(), wire::kMaxBatchPoints);
-      // A batch may overrun batch_points by up to one bucket level; keep it under 1 MiB.
-      o.batch_points = std::min<size_t>(o.batch_points, wire::kMaxBatchPoints - 2048);
-      op->encoding = q.encoding();
-      auto self = shared_from_this();
-      asio::post(server_->workers(), [self, op, s, name = q.dataset(), r = *region, o] {
-        auto ds = FindDataset(s, name);
-        Result<std::unique_ptr<Cursor>> cursor =
-            ds.ok() ? (*ds)->Query(r, o) : Result<std::unique_ptr<Cursor>>(ds.status());
-        if (!cursor.ok()) {
-          wire::Response resp = ds.ok() ? ErrorResponse(op->id, cursor.status())
-                                        : DatasetError(op->id, ds.status());
-          asio::post(self->strand_, [self, op, resp] {
-            self->Send(resp);
-            self->Finish(op->id);
-          });
-          return;
-        }
-        {
-          std::lock_guard<std::mutex> l(op->mu);
-          op->cursor = std::move(cursor).value();
-          if (op->cancelled) op->cursor->Cancel();
-        }
-        self->Pump(op);
-      });
-      return;
-    }
+    case wire::Request::kQuery:
+      return HandleQuery(op, req.query());
     default:
       ops_.erase(id);
       return SendError(id, Status::InvalidArgument("request: unknown kind"), wire::MALFORMED);
   }
 }
-
 void Session::RunOnWorker(uint64_t id, std::function<wire::Response()> fn) {
   auto self = shared_from_this();
   asio::post(server_->workers(), [self, id, fn = std::move(fn)] {
@@ -602,154 +348,6 @@ void Session::RunOnWorker(uint64_t id, std::function<wire::Response()> fn) {
     });
   });
 }
-
-void Session::Pump(std::shared_ptr<Op> op) {
-  // On a worker: produce one batch.
-  auto self = shared_from_this();
-  wire::Response resp;
-  resp.set_id(op->id);
-  bool last = false;
-  Batch batch;
-  Result<bool> more = op->cancelled ? Result<bool>(Status::Cancelled("query cancelled"))
-                                    : op->cursor->Next(&batch);
-  if (!more.ok()) {
-    resp = ErrorResponse(op->id, more.status());
-    last = true;
-  } else if (!*more) {
-    auto* d = resp.mutable_done();
-    d->set_points(op->points);
-    for (uint32_t f : op->cursor->frames()) d->add_frames(f);
-    d->set_clipped(op->cursor->clipped());
-    last = true;
-  } else {
-    op->points += batch.points.size();
-    auto* b = resp.mutable_batch();
-    b->set_level(static_cast<uint32_t>(batch.level));
-    b->set_level_done(batch.level_done);
-    b->set_splat_scale(batch.splat_scale);
-    b->set_encoding(op->encoding);
-    if (op->encoding == wire::DRACO) {
-      Status st = wire::EncodeDraco(batch.points, 16, b->mutable_draco());
-      if (!st.ok()) {
-        resp = ErrorResponse(op->id, st);
-        last = true;
-      }
-    } else {
-      wire::EncodeColumns(batch.points, b->mutable_columns());
-    }
-  }
-  asio::post(strand_, [self, op, resp = std::move(resp), last] {
-    if (self->closed_) return;
-    self->Send(resp);
-    if (last) {
-      self->Finish(op->id);
-      return;
-    }
-    if (self->bytes_queued_ < self->server_->config().outbound_high_water) {
-      asio::post(self->server_->workers(), [self, op] { self->Pump(op); });
-    } else {
-      op->paused = true;  // resumed by WriteNext when the queue drains
-    }
-  });
-}
-
-void Session::ResumePaused() {
-  auto self = shared_from_this();
-  for (auto& [id, op] : ops_) {
-    if (!op->paused) continue;
-    op->paused = false;
-    if (op->is_render) {
-      asio::post(server_->workers(), [self, op = op] { self->RenderNext(op); });
-    } else {
-      asio::post(server_->workers(), [self, op = op] { self->Pump(op); });
-    }
-  }
-}
-
-void Session::HandleRender(std::shared_ptr<Op> op, const wire::Render& request) {
-  // An unknown renderer value is refused by RenderJob::Create; until then it counts as auto.
-  render::RendererKind kind = render::RendererKind::kAuto;
-  if (request.renderer() == wire::RENDERER_EGL) kind = render::RendererKind::kEgl;
-  if (request.renderer() == wire::RENDERER_CPU) kind = render::RendererKind::kCpu;
-  // A bounded number of renders run at once, server-wide; the rest are refused at once
-  // (OVERLOADED) rather than queued on the workers behind seconds of rendering.
-  auto lease = server_->renders().TryAcquire(kind);
-  if (!lease.ok()) {
-    ops_.erase(op->id);
-    return SendError(op->id, lease.status());
-  }
-  op->render_lease.emplace(std::move(lease).value());
-  op->is_render = true;
-  auto self = shared_from_this();
-  Server* s = server_;
-  asio::post(server_->workers(), [self, op, s, request] {
-    wire::Response err;
-    try {
-      auto ds = FindDataset(s, request.dataset());
-      if (!ds.ok()) {
-        err = DatasetError(op->id, ds.status());
-      } else {
-        render::RenderLimits limits;
-        limits.max_points = s->config().max_render_points;
-        auto job = render::RenderJob::Create(*ds, request, limits);
-        if (job.ok()) {
-          op->render_job = std::move(job).value();
-          return self->RenderNext(op);
-        }
-        err = ErrorResponse(op->id, job.status());
-      }
-    } catch (const std::exception& e) {
-      err = ErrorResponse(op->id, Status::Internal(e.what()));
-    }
-    asio::post(self->strand_, [self, op, err = std::move(err)] {
-      op->render_lease.reset();
-      self->Send(err);
-      self->Finish(op->id);
-    });
-  });
-}
-
-void Session::RenderNext(std::shared_ptr<Op> op) {
-  // On a worker: one image of the request.
-  auto self = shared_from_this();
-  wire::Response resp;
-  resp.set_id(op->id);
-  bool last = true;
-  try {
-    Result<render::Renderer*> renderer = op->render_lease->Get();
-    Result<wire::RenderReply> reply =
-        !renderer.ok() ? Result<wire::RenderReply>(renderer.status())
-        : op->cancelled ? Result<wire::RenderReply>(Status::Cancelled("render cancelled"))
-                        : op->render_job->Render(op->next_image, **renderer, &op->cancelled);
-    if (reply.ok()) {
-      last = reply->last();
-      reply->set_fallback(op->render_lease->fallback());
-      *resp.mutable_render() = std::move(reply).value();
-    } else {
-      resp = ErrorResponse(op->id, reply.status());
-    }
-  } catch (const std::exception& e) {  // e.g. std::bad_alloc for a huge image
-    resp = ErrorResponse(op->id, Status::Internal(e.what()));
-  }
-  asio::post(strand_, [self, op, resp = std::move(resp), last] {
-    if (self->closed_) return;
-    self->Send(resp);
-    if (last) {
-      op->render_lease.reset();  // the slot is free for the next request
-      self->Finish(op->id);
-      return;
-    }
-    ++op->next_image;
-    // Sequences obey the same flow control as queries: the next image is made only while
-    // the connection has room.
-    if (self->bytes_queued_ < self->server_->config().outbound_high_water) {
-      asio::post(self->server_->workers(), [self, op] { self->RenderNext(op); });
-    } else {
-      op->paused = true;  // resumed by WriteNext when the queue drains
-    }
-  });
-}
-
 void Session::HandleIngest(uint64_t id, const wire::Ingest& ing) {
   // Chunks are collected here, in arrival order; the frame is bulk-loaded on `last`. Once a
   // chunk of a frame fails, the frame's other chunks are refused too, so that no part of a
@@ -819,11 +417,19 @@ void Session::Finish(uint64_t id) {
   ops_.erase(it);
 }
 
-void Session::Send(const wire::Response& r) {
+void Session::Send(const google::protobuf::MessageLite& m) {
+  Enqueue(OutFrame{wire::Frame(m), {}});
+}
+
+void Session::SendRecords(const wire::Response& r, std::vector<Point> records) {
+  const auto bytes = static_cast<uint32_t>(records.size() * sizeof(Point));
+  Enqueue(OutFrame{wire::FrameHead(r, bytes), std::move(records)});
+}
+
+void Session::Enqueue(OutFrame f) {
   if (closed_) return;
-  std::string frame = wire::Frame(r);
-  bytes_queued_ += frame.size();
-  out_.push_back(std::move(frame));
+  bytes_queued_ += f.bytes();
+  out_.push_back(std::move(f));
   WriteNext();
 }
 
@@ -835,12 +441,21 @@ void Session::WriteNext() {
   if (writing_ || out_.empty() || closed_) return;
   writing_ = true;
   auto self = shared_from_this();
-  asio::async_write(socket_, asio::buffer(out_.front()),
+  const OutFrame& f = out_.front();
+  std::array<asio::const_buffer, 2> bufs = {
+      asio::buffer(f.head), asio::buffer(f.records.data(), f.records.size() * sizeof(Point))};
+  asio::async_write(socket_, bufs,
                     asio::bind_executor(strand_, [self](boost::system::error_code ec, size_t n) {
                       self->writing_ = false;
                       if (ec) return self->CloseOnStrand();
                       self->server_->stats().bytes_out += n;
-                      self->bytes_queued_ -= self->out_.front().size();
+                      OutFrame& done = self->out_.front();
+                      self->bytes_queued_ -= done.bytes();
+                      // The records' buffer serves the next batch (a few, so memory stays
+                      // bounded by the flow control's high-water mark).
+                      if (done.records.capacity() != 0 && self->spare_.size() < 4) {
+                        self->spare_.push_back(std::move(done.records));
+                      }
                       self->out_.pop_front();
                       // A write finishing is progress too: a slow reader is not idle.
                       self->deadline_ = Clock::now() + std::chrono::seconds(
@@ -875,9 +490,12 @@ void Session::CloseOnStrand() {
   for (auto& [id, op] : ops_) op->Cancel();
   ops_.clear();
   ingest_.clear();
+  spare_.clear();
+  // Workers still making a batch hold their own reference; the ring goes with the last one.
+  ring_.reset();
   boost::system::error_code ignored;
   timer_.cancel(ignored);
-  socket_.shutdown(tcp::socket::shutdown_both, ignored);
+  socket_.shutdown(StreamSocket::shutdown_both, ignored);
   socket_.close(ignored);
   server_->stats().connections_open--;
   server_->Forget(this);

@@ -1,27 +1,40 @@
-// Session: one client connection. All socket I/O and session state live on the session's
-// strand; request work runs on the server's worker pool and posts its responses back.
+// Session: one client connection (TCP or Unix socket). All socket I/O and session state live on
+// the session's strand; request work runs on the server's worker pool and posts its responses
+// back. session.cc: framing, handshake, dispatch, the write queue; session_stream.cc: the
+// streamed requests (query batches and render sequences) under flow control.
 #ifndef HVDB_SERVER_SESSION_H_
 #define HVDB_SERVER_SESSION_H_
 
+#include <atomic>
 #include <chrono>
 #include <deque>
 #include <map>
-#include <set>
 #include <memory>
+#include <mutex>
+#include <optional>
+#include <set>
 #include <string>
+#include <vector>
 
 #include <utility>  // before Asio: Boost 1.74's awaitable.hpp needs std::exchange
 
 #include <boost/asio.hpp>
 
+#include "protocol/shm.h"
 #include "protocol/wire.h"
+#include "render/job.h"
 #include "server/server.h"
 
 namespace hvdb::server {
 
+// Either transport: Asio's generic stream socket holds a TCP or a Unix-domain socket.
+using StreamSocket = boost::asio::generic::stream_protocol::socket;
+
 class Session : public std::enable_shared_from_this<Session> {
  public:
-  Session(Server* server, boost::asio::ip::tcp::socket socket);
+  // `unix_socket`: the connection came in on the Unix socket (the fast path may be offered);
+  // `loopback`: a TCP peer on this machine (the Unix socket's path is advertised to it).
+  Session(Server* server, StreamSocket socket, bool unix_socket, bool loopback);
   void Start();
   // Closes the connection and cancels its requests. Safe from any thread.
   void Close();
@@ -29,34 +42,80 @@ class Session : public std::enable_shared_from_this<Session> {
   void Refuse(const Status& st);
 
  private:
-  struct Op;  // an in-flight request
   using Clock = std::chrono::steady_clock;
+  // An in-flight request.
+  struct Op {
+    uint64_t id = 0;
+    std::string kind;
+    Clock::time_point start = Clock::now();
+    std::atomic<bool> cancelled{false};
+    // Queries: the cursor is set on a worker and cancelled from the strand.
+    std::mutex mu;
+    std::unique_ptr<Cursor> cursor;
+    void Cancel() {
+      cancelled = true;
+      std::lock_guard<std::mutex> l(mu);
+      if (cursor) cursor->Cancel();
+    }
+    wire::PointEncoding encoding = wire::COLUMNS;
+    bool shm = false;  // RECORDS batches go through the shared-memory ring
+    uint64_t points = 0;
+    bool paused = false;
+    // Renders: the job (set on a worker), its slot of the server's renderer pool, and the next
+    // image of a sequence (advanced on the strand).
+    bool is_render = false;
+    std::unique_ptr<render::RenderJob> render_job;
+    std::optional<render::RendererPool::Lease> render_lease;
+    size_t next_image = 0;
+  };
+  // An outbound frame: header and message, and the point records of a RECORDS batch sent
+  // from where they lie (scatter/gather).
+  struct OutFrame {
+    std::string head;
+    std::vector<Point> records;
+    size_t bytes() const { return head.size() + records.size() * sizeof(Point); }
+  };
 
   void ReadHeader();
   void ReadBody(uint32_t len);
   void OnFrame();
   void OnHello(const std::string& payload);
   void Dispatch(wire::Request req);
-  void Send(const wire::Response& r);
+  void Send(const google::protobuf::MessageLite& m);
+  void SendRecords(const wire::Response& r, std::vector<Point> records);
+  void Enqueue(OutFrame f);
   void SendError(uint64_t id, const Status& st, wire::ErrorCode code = wire::ERROR_UNSPECIFIED);
   void WriteNext();
   void ArmTimer();
   void CloseOnStrand();
   // Ends request `id`: records its latency and forgets it.
   void Finish(uint64_t id);
-  // Query streaming: produce one batch on a worker, then decide on the strand.
-  void Pump(std::shared_ptr<Op> op);
-  void ResumePaused();
   // Runs fn on a worker; its response is sent and the request finished on the strand.
   void RunOnWorker(uint64_t id, std::function<wire::Response()> fn);
   void HandleIngest(uint64_t id, const wire::Ingest& ing);
+
+  // ---- session_stream.cc ----
+  void HandleQuery(std::shared_ptr<Op> op, const wire::Query& q);
+  // On the strand: starts the op's next batch on a worker if the connection has room (queued
+  // bytes under the high-water mark, and a free ring slot for the fast path); else pauses it.
+  void Schedule(std::shared_ptr<Op> op);
+  // On a worker: produces one batch (into ring slot `slot` when >= 0, else into `buf`). The
+  // worker holds its own reference to the ring: a close on the strand cannot unmap it under it.
+  void Pump(std::shared_ptr<Op> op, int slot, std::vector<Point> buf,
+            std::shared_ptr<wire::ShmRing> ring);
+  void ResumePaused();
+  // Ring slots (on the strand): -1 when none is free.
+  int AcquireSlot();
+  void OnRelease(const wire::ReleaseSlots& r);
+  std::vector<Point> TakeSpare();
   // Render requests: a slot of the server's renderer pool, then one image at a time on a
   // worker, sequences under the same flow control as queries.
   void HandleRender(std::shared_ptr<Op> op, const wire::Render& request);
   void RenderNext(std::shared_ptr<Op> op);
 
   Server* server_;
-  boost::asio::ip::tcp::socket socket_;
+  StreamSocket socket_;
+  const bool unix_socket_, loopback_;
   boost::asio::strand<boost::asio::io_context::executor_type> strand_;
   boost::asio::steady_timer timer_;
   Clock::time_point deadline_;
@@ -67,10 +126,17 @@ class Session : public std::enable_shared_from_this<Session> {
   bool closed_ = false;
   bool close_after_write_ = false;
   // Outbound frames; bytes_queued_ is what flow control looks at.
-  std::deque<std::string> out_;
+  std::deque<OutFrame> out_;
   size_t bytes_queued_ = 0;
   bool writing_ = false;
   std::map<uint64_t, std::shared_ptr<Op>> ops_;
+  // The fast path: the ring (shared with workers writing into it, so it outlives a close while
+  // a batch is being made) and which slots the client holds.
+  std::shared_ptr<wire::ShmRing> ring_;
+  std::vector<int> free_slots_;
+  std::vector<uint8_t> slot_held_;  // 1: sent to the client, not yet released
+  // Record buffers of written RECORDS frames, reused for the next batches.
+  std::vector<std::vector<Point>> spare_;
   // Bulk ingest: points of frames whose last chunk has not come yet.
   std::map<std::pair<std::string, uint32_t>, std::vector<Point>> ingest_;
   size_t ingest_bytes_ = 0;

@@ -38,8 +38,18 @@ class CursorImpl {
     }
   }
 
-  Result<bool> Next(Batch* batch) {
-    batch->points.clear();
+  // Fills batch->points, or, when `buf` is set, buf[0..cap) (batch->points untouched; the
+  // count goes to *n): the server's shared-memory ring is filled straight from the blocks.
+  Result<bool> Next(Batch* batch, Point* buf = nullptr, size_t cap = 0, size_t* n = nullptr) {
+    out_ = Out{buf ? nullptr : &batch->points, buf, 0, cap};
+    if (buf && n) *n = 0;
+    Result<bool> r = NextBatch(batch);
+    if (buf && n) *n = out_.n;
+    return r;
+  }
+
+  Result<bool> NextBatch(Batch* batch) {
+    if (out_.vec) out_.vec->clear();
     batch->level_done = false;
     if (cancelled_.load(std::memory_order_relaxed)) return Status::Cancelled("query cancelled");
     if (task_ >= tasks_.size()) return false;
@@ -53,7 +63,7 @@ class CursorImpl {
         return true;
       }
       if (cancelled_.load(std::memory_order_relaxed)) return Status::Cancelled("query cancelled");
-      HVDB_ASSIGN_OR_RETURN(bool finished, RunTask(t, batch));
+      HVDB_ASSIGN_OR_RETURN(bool finished, RunTask(t));
       if (!finished) return true;  // batch full; resume this task next time
       ++task_;
       bucket_pos_ = 0;
@@ -73,12 +83,31 @@ class CursorImpl {
     int level;
   };
 
-  void Emit(Point p, const FrameVersion& v, Batch* batch) {
+  // Where a batch's points go: a vector, or a caller's buffer of fixed capacity.
+  struct Out {
+    std::vector<Point>* vec = nullptr;
+    Point* buf = nullptr;
+    size_t n = 0, cap = 0;
+    size_t size() const { return vec ? vec->size() : n; }
+    bool Room(size_t k) const { return vec || n + k <= cap; }
+    Point* Grow(size_t k) {
+      if (vec) {
+        size_t at = vec->size();
+        vec->resize(at + k);
+        return vec->data() + at;
+      }
+      Point* p = buf + n;
+      n += k;
+      return p;
+    }
+  };
+
+  void Emit(Point p, const FrameVersion& v) {
     if (plan_.slice) {
       double t = plan_.FrameTime(v.frame);
       plan_.slice->Project(&p, t, temporal_stride_ / plan_.fps);
     }
-    batch->points.push_back(p);
+    *out_.Grow(1) = p;
   }
 
   bool Accept(const Point& p, bool inside) const {
@@ -87,11 +116,15 @@ class CursorImpl {
   }
 
   // Returns true when the task is done, false when the batch filled up first.
-  Result<bool> RunTask(const Task& t, Batch* batch) {
+  Result<bool> RunTask(const Task& t) {
     const FrameVersion& v = *versions_[t.frame_idx];
     if (t.slot < 0) {
-      for (const Point& p : *v.t0) {
-        if (LevelOfId(p.id, max_level()) == t.level && Accept(p, false)) Emit(p, v, batch);
+      const std::vector<Point>& t0 = *v.t0;
+      for (; bucket_pos_ < t0.size(); ++bucket_pos_) {
+        const Point& p = t0[bucket_pos_];
+        if (LevelOfId(p.id, max_level()) != t.level || !Accept(p, false)) continue;
+        if (!out_.Room(1)) return false;  // a fixed buffer is full: resume at this point
+        Emit(p, v);
       }
       return true;
     }
@@ -108,16 +141,19 @@ class CursorImpl {
     const auto& hits = it->second;
     const size_t limit = opts_.batch_points;
     for (; bucket_pos_ < hits.size(); ++bucket_pos_) {
-      if (batch->points.size() >= limit) return false;
       const auto& hit = hits[bucket_pos_];
       const auto k = static_cast<size_t>(t.level);
+      if (out_.size() >= limit || (!out_.Room(hit.entry.count[k]) && out_.size() > 0)) return false;
+      if (!out_.Room(hit.entry.count[k])) {
+        return Status::InvalidArgument("query buffer of " + std::to_string(out_.cap) +
+                                       " points cannot hold one bucket level of " +
+                                       std::to_string(hit.entry.count[k]));
+      }
       if (hit.inside && !slot.dead && opts_.label_mask == 0 && !plan_.slice) {
         // Every record is a result as stored: copy runs of records, no per-point work.
         HVDB_RETURN_IF_ERROR(slot.tree->ReadRange(
             t.level, hit.entry.start[k], hit.entry.count[k], [&](const uint8_t* rec, size_t n) {
-              size_t at = batch->points.size();
-              batch->points.resize(at + n);
-              DecodePoints(rec, n, batch->points.data() + at);
+              DecodePoints(rec, n, out_.Grow(n));
             }));
         continue;
       }
@@ -126,7 +162,7 @@ class CursorImpl {
             for (size_t j = 0; j < n; ++j) {
               Point p = DecodePoint(rec + j * kPointRecordSize);
               if (slot.IsDead(p.id) || !Accept(p, hit.inside)) continue;
-              Emit(p, v, batch);
+              Emit(p, v);
             }
           }));
     }
@@ -146,6 +182,7 @@ class CursorImpl {
   size_t task_ = 0, bucket_pos_ = 0;
   std::map<std::pair<uint32_t, int>, std::vector<KdTree::BucketHit>> buckets_;
   std::atomic<bool> cancelled_{false};
+  Out out_;
 };
 
 Result<std::unique_ptr<Cursor>> DatasetImpl::Query(const Region& region,
@@ -159,6 +196,12 @@ Result<std::unique_ptr<Cursor>> DatasetImpl::Query(const Region& region,
 Cursor::Cursor(std::unique_ptr<CursorImpl> impl) : impl_(std::move(impl)) {}
 Cursor::~Cursor() = default;
 Result<bool> Cursor::Next(Batch* batch) { return impl_->Next(batch); }
+Result<bool> Cursor::NextInto(Point* buf, size_t capacity, size_t* n, Batch* info) {
+  if (buf == nullptr || capacity == 0) {
+    return Status::InvalidArgument("Cursor::NextInto: needs a buffer");
+  }
+  return impl_->Next(info, buf, capacity, n);
+}
 void Cursor::Cancel() { impl_->Cancel(); }
 const std::vector<uint32_t>& Cursor::frames() const { return impl_->frames(); }
 bool Cursor::clipped() const { return impl_->clipped(); }

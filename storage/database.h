@@ -104,6 +104,10 @@ class Cursor {
   Cursor& operator=(const Cursor&) = delete;
   // Fills `batch` with the next points. Returns false when the query is exhausted.
   Result<bool> Next(Batch* batch);
+  // The same, into buf[0..capacity) instead of info->points (left untouched): *n points, never
+  // more than capacity (a batch ends early rather than overflow). For a caller that owns the
+  // memory the results must land in, e.g. hvdb-server's shared-memory ring.
+  Result<bool> NextInto(Point* buf, size_t capacity, size_t* n, Batch* info);
   // Stops the query; Next() then returns Cancelled. Safe to call from another thread.
   void Cancel();
   // Frames the query reads (after bounds and temporal LOD), and whether a slice was clipped.

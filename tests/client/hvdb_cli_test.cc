@@ -300,13 +300,8 @@ TEST_F(HvdbCliTest, ErrorsExitOneNamingTheCulprit) {
 // ---------------------------------------------------------------------------------------------
 // Server mode.
 
-// hvdb-server, built next to hvdb: build/client/hvdb -> build/server/hvdb-server.
-std::string ServerPath() {
-  std::string p = HVDB_CLI_PATH;
-  const std::string cli = "client/hvdb", server = "server/hvdb-server";
-  size_t at = p.rfind(cli);
-  return at == std::string::npos ? std::string() : p.replace(at, cli.size(), server);
-}
+// hvdb-server, from CMake (packagers build into other output directories).
+std::string ServerPath() { return HVDB_SERVER_PATH; }
 
 // A port on 127.0.0.1 where nothing listens (bound, then released).
 int ClosedPort() {
@@ -347,7 +342,10 @@ class ServerProcess {
     }
     const std::string port_file = work_dir + "/server.port";
     err_path_ = work_dir + "/server.stderr";
-    std::vector<std::string> args = {binary,      "--listen",     "127.0.0.1:0", "--port-file",
+    // TCP and the Unix socket in the data directory: `hvdb --server 127.0.0.1:PORT` moves to
+    // the local fast path by itself, as it does for users.
+    std::vector<std::string> args = {binary,      "--listen",     "127.0.0.1:0", "--listen",
+                                      "unix:",     "--port-file",
                                       port_file,   "--data",       data_dir,      "--io-threads",
                                       "2",         "--workers",    "2"};
     std::vector<char*> argv;

@@ -1,5 +1,6 @@
-// libFuzzer target for the server's input path: frame splitting, message decoding and the
-// conversions that validate requests (docs/PROTOCOL.md). Built with clang when HVDB_FUZZ=ON;
+// libFuzzer target for both input paths: the server's (frame splitting, message decoding and the
+// conversions that validate requests) and the client's (frames with attachments, responses and
+// their point batches). docs/PROTOCOL.md. Built with clang when HVDB_FUZZ=ON;
 // scripts/test.sh runs it for a short while on tests/server/fuzz_corpus/.
 #include <cstddef>
 #include <cstdint>
@@ -10,6 +11,28 @@
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   using namespace hvdb;
+  // The client's side: frames that may carry attachments, decoded as responses.
+  {
+    wire::FrameReader reader(1u << 20);
+    reader.Feed(data, size);
+    std::string payload, error, attachment;
+    while (reader.Next(&payload, &error, &attachment) == wire::FrameReader::Result::kFrame) {
+      wire::Response r;
+      if (!r.ParseFromString(payload) || !r.has_batch()) continue;
+      std::vector<Point> pts;
+      const wire::PointBatch& b = r.batch();
+      if (b.encoding() == wire::RECORDS) {
+        if (attachment.size() == static_cast<size_t>(b.record_count()) * kPointRecordSize) {
+          pts.resize(b.record_count());
+          DecodePoints(reinterpret_cast<const uint8_t*>(attachment.data()), pts.size(), pts.data());
+        }
+      } else if (b.encoding() == wire::DRACO) {
+        (void)wire::DecodeDraco(b.draco(), &pts);
+      } else {
+        (void)wire::DecodeColumns(b.columns(), &pts);
+      }
+    }
+  }
   wire::FrameReader reader(1u << 20);
   reader.Feed(data, size);
   std::string payload, error;
