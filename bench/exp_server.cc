@@ -17,7 +17,10 @@
 #include <cmath>
 #include <condition_variable>
 #include <cstring>
+#include <cstdlib>
 #include <fstream>
+#include <map>
+#include <sstream>
 #include <thread>
 
 #include "bench/bench.h"
@@ -47,12 +50,21 @@ class ServerProcess {
   ServerProcess(const std::string& data, const std::string& sock) {
     port_file_ = data + ".port";
     ::unlink(port_file_.c_str());
-    const std::string unix_listen = "unix:" + sock;
+    std::vector<std::string> args = {HVDB_SERVER_BIN, "--data",      data,        "--listen",
+                                     "127.0.0.1:0",   "--listen",    "unix:" + sock,
+                                     "--port-file",   port_file_,    "--log-level", "warn",
+                                     "--cache-mb",    "1024"};
+    // HVDB_BENCH_SERVER_ARGS: more flags for the server (e.g. "--io-threads 1 --workers 2").
+    if (const char* extra = std::getenv("HVDB_BENCH_SERVER_ARGS")) {
+      std::istringstream in(extra);
+      for (std::string a; in >> a;) args.push_back(a);
+    }
     pid_ = ::fork();
     if (pid_ == 0) {
-      ::execl(HVDB_SERVER_BIN, HVDB_SERVER_BIN, "--data", data.c_str(), "--listen", "127.0.0.1:0",
-              "--listen", unix_listen.c_str(), "--port-file", port_file_.c_str(), "--log-level",
-              "warn", "--cache-mb", "1024", static_cast<char*>(nullptr));
+      std::vector<char*> argv;
+      for (auto& a : args) argv.push_back(a.data());
+      argv.push_back(nullptr);
+      ::execv(argv[0], argv.data());
       ::_exit(127);
     }
     for (int i = 0; i < 1000 && port_ == 0; ++i) {
@@ -114,57 +126,65 @@ std::pair<double, uint64_t> RemoteQuery(client::Connection& c, const Region& r, 
 
 // The loopback limit for the same bytes: a connected socket pair (TCP on 127.0.0.1, or a Unix
 // stream socket pair), a one-byte request, then `bytes` sent from one buffer and received into
-// another, as a query's answer would be. Returns ms per round trip for each rep.
-std::vector<double> SocketPairLimit(bool tcp, size_t bytes, int reps) {
-  int fds[2];
-  if (tcp) {
-    int lst = ::socket(AF_INET, SOCK_STREAM, 0);
-    sockaddr_in a{};
-    a.sin_family = AF_INET;
-    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-    socklen_t len = sizeof(a);
-    if (::bind(lst, reinterpret_cast<sockaddr*>(&a), sizeof(a)) != 0 || ::listen(lst, 1) != 0 ||
-        ::getsockname(lst, reinterpret_cast<sockaddr*>(&a), &len) != 0) {
-      Die("socket pair: listen on loopback");
-    }
-    fds[0] = ::socket(AF_INET, SOCK_STREAM, 0);
-    if (::connect(fds[0], reinterpret_cast<sockaddr*>(&a), sizeof(a)) != 0) Die("socket pair: connect");
-    fds[1] = ::accept(lst, nullptr, nullptr);
-    ::close(lst);
-    int one = 1;
-    for (int fd : fds) ::setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one));
-  } else if (::socketpair(AF_UNIX, SOCK_STREAM, 0, fds) != 0) {
-    Die("socketpair");
-  }
-  std::vector<char> src(bytes, 7), dst(bytes);
-  std::thread server([&] {
-    char req;
-    for (int r = 0; r < reps; ++r) {
-      if (::recv(fds[1], &req, 1, MSG_WAITALL) != 1) return;
-      for (size_t at = 0; at < bytes;) {
-        ssize_t n = ::send(fds[1], src.data() + at, bytes - at, MSG_NOSIGNAL);
-        if (n <= 0) return;
-        at += static_cast<size_t>(n);
+// another, as a query's answer would be.
+class SocketPair {
+ public:
+  SocketPair(bool tcp, size_t bytes) : src_(bytes, 7), dst_(bytes) {
+    if (tcp) {
+      int lst = ::socket(AF_INET, SOCK_STREAM, 0);
+      sockaddr_in a{};
+      a.sin_family = AF_INET;
+      a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+      socklen_t len = sizeof(a);
+      if (::bind(lst, reinterpret_cast<sockaddr*>(&a), sizeof(a)) != 0 || ::listen(lst, 1) != 0 ||
+          ::getsockname(lst, reinterpret_cast<sockaddr*>(&a), &len) != 0) {
+        Die("socket pair: listen on loopback");
       }
+      fds_[0] = ::socket(AF_INET, SOCK_STREAM, 0);
+      if (::connect(fds_[0], reinterpret_cast<sockaddr*>(&a), sizeof(a)) != 0) Die("socket pair: connect");
+      fds_[1] = ::accept(lst, nullptr, nullptr);
+      ::close(lst);
+      int one = 1;
+      for (int fd : fds_) ::setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one));
+    } else if (::socketpair(AF_UNIX, SOCK_STREAM, 0, fds_) != 0) {
+      Die("socketpair");
     }
-  });
-  std::vector<double> ms;
-  for (int r = 0; r < reps; ++r) {
+    server_ = std::thread([this] {
+      char req;
+      while (::recv(fds_[1], &req, 1, MSG_WAITALL) == 1 && req == 1) {
+        for (size_t at = 0; at < src_.size();) {
+          ssize_t n = ::send(fds_[1], src_.data() + at, src_.size() - at, MSG_NOSIGNAL);
+          if (n <= 0) return;
+          at += static_cast<size_t>(n);
+        }
+      }
+    });
+  }
+  ~SocketPair() {
+    char stop = 0;
+    (void)!::send(fds_[0], &stop, 1, MSG_NOSIGNAL);
+    server_.join();
+    ::close(fds_[0]);
+    ::close(fds_[1]);
+  }
+  // One request and its answer; ms.
+  double RoundTrip() {
     Timer t;
     char req = 1;
-    if (::send(fds[0], &req, 1, 0) != 1) Die("socket pair: send");
-    for (size_t at = 0; at < bytes;) {
-      ssize_t n = ::recv(fds[0], dst.data() + at, bytes - at, 0);
+    if (::send(fds_[0], &req, 1, 0) != 1) Die("socket pair: send");
+    for (size_t at = 0; at < dst_.size();) {
+      ssize_t n = ::recv(fds_[0], dst_.data() + at, dst_.size() - at, 0);
       if (n <= 0) Die("socket pair: recv");
       at += static_cast<size_t>(n);
     }
-    ms.push_back(t.Ms());
+    return t.Ms();
   }
-  server.join();
-  ::close(fds[0]);
-  ::close(fds[1]);
-  return ms;
-}
+
+ private:
+  std::vector<char> src_, dst_;
+  int fds_[2] = {-1, -1};
+  std::thread server_;
+};
 
 const char* PathName(Path p) {
   return p == Path::kLocal ? "local" : p == Path::kTcp ? "tcp" : "tcp_columns";
@@ -178,76 +198,88 @@ void RunServer(Ctx& ctx) {
   const std::string dir = c.scratch + "/e2e";
   const std::string sock = c.scratch + "/e2e.sock";
   RemoveAll(dir);
+  RemoveAll(dir + "-embedded");
   const size_t n = c.e2e_points;
   const uint64_t frame_bytes = static_cast<uint64_t>(n) * kPointRecordSize;
   Log("8 server: one frame of %zu points, windows of ~%zu points", n, c.win_result);
   std::vector<Window> windows;
   nlohmann::json fp = {{"points", n}};
   nlohmann::json wp = {{"points", n}, {"result", c.win_result}};
-  uint64_t win_points = 0;
+  // The embedded side reads its own copy of the dataset (the server holds the other's lock),
+  // open through the whole experiment: every figure below is measured interleaved with the
+  // others, rep by rep, so that a noisy machine moves them together.
+  Db emb = Db::Create(dir + "-embedded", "e2e", c.DbOptions(), c.fps);
   {
+    auto pts = UniformPoints(n, c.seed + 8000, 0);
     Db db = Db::Create(dir, "e2e", c.DbOptions(), c.fps);
-    Check(db.ds->BulkLoad(0, UniformPoints(n, c.seed + 8000, 0)), "bulk load");
-    Rng rng(c.seed + 8001);
-    for (int i = 0; i < c.win_queries; ++i) windows.push_back(RandomWindow(rng, n, c.win_result));
-    // Embedded, warm (one untimed pass first).
-    QueryOptions qo;
-    RunQuery(*db.ds, FrameWindow(0, c.fps), qo);
-    std::vector<double> frame_ms, win_ms;
-    for (int r = 0; r < c.warm_reps; ++r) frame_ms.push_back(RunQuery(*db.ds, FrameWindow(0, c.fps), qo).ms);
-    for (const Window& w : windows) RunQuery(*db.ds, w, qo);
-    for (const Window& w : windows) {
-      QueryRun q = RunQuery(*db.ds, w, qo);
-      win_ms.push_back(q.ms);
-      win_points += q.points;
-    }
-    R.Add("e2e.frame.embedded", kExp, "ms", frame_ms, fp, "full frame, embedded, warm");
-    R.Add("e2e.window.embedded", kExp, "ms", win_ms, wp, "10k-point window, embedded, warm");
+    Check(db.ds->BulkLoad(0, pts), "bulk load");
     db.Close();
+    Check(emb.ds->BulkLoad(0, std::move(pts)), "bulk load (embedded copy)");
   }
-  // The loopback limit of the same bytes, both kinds of socket.
+  Rng rng(c.seed + 8001);
+  for (int i = 0; i < c.win_queries; ++i) windows.push_back(RandomWindow(rng, n, c.win_result));
+  QueryOptions qo;
+  uint64_t win_points = 0;
+  for (const Window& w : windows) win_points += RunQuery(*emb.ds, w, qo).points;
   const uint64_t win_bytes = win_points / windows.size() * kPointRecordSize;
-  R.Add("e2e.frame.socketpair_tcp", kExp, "ms", SocketPairLimit(true, frame_bytes, c.warm_reps),
-        {{"bytes", frame_bytes}}, "the frame's bytes through a plain TCP loopback socket pair");
-  R.Add("e2e.frame.socketpair_unix", kExp, "ms", SocketPairLimit(false, frame_bytes, c.warm_reps),
-        {{"bytes", frame_bytes}}, "the frame's bytes through a plain Unix socket pair");
-  R.Add("e2e.window.socketpair_tcp", kExp, "ms",
-        SocketPairLimit(true, win_bytes, static_cast<int>(windows.size())), {{"bytes", win_bytes}},
-        "a window's bytes through a plain TCP loopback socket pair (round trip)");
 
   ServerProcess server(dir, sock);
-  for (Path path : {Path::kLocal, Path::kTcp, Path::kTcpColumns}) {
-    const std::string p = PathName(path);
-    auto conn = Connect(PathOptions(path, server.port(), sock));
-    RemoteQuery(*conn, FrameWindow(0, c.fps));
-    std::vector<double> frame_ms, win_ms, view_ms;
-    for (int r = 0; r < c.warm_reps; ++r) {
-      auto [ms, got] = RemoteQuery(*conn, FrameWindow(0, c.fps));
-      if (got != n) Die("8 server: the frame through " + p + " has " + std::to_string(got) + " points");
-      frame_ms.push_back(ms);
+  const std::vector<Path> paths = {Path::kLocal, Path::kTcp, Path::kTcpColumns};
+  std::map<Path, std::unique_ptr<client::Connection>> conns;
+  for (Path path : paths) conns[path] = Connect(PathOptions(path, server.port(), sock));
+  SocketPair tcp_frame(true, frame_bytes), unix_frame(false, frame_bytes), tcp_win(true, win_bytes);
+  // Warm: one pass of everything.
+  RunQuery(*emb.ds, FrameWindow(0, c.fps), qo);
+  for (Path path : paths) RemoteQuery(*conns[path], FrameWindow(0, c.fps));
+  for (const Window& w : windows) {
+    for (Path path : paths) RemoteQuery(*conns[path], w);
+  }
+  std::map<std::string, std::vector<double>> ms;  // figure -> samples
+  const int frame_reps = 3 * c.warm_reps;
+  for (int r = 0; r < frame_reps; ++r) {
+    ms["frame.embedded"].push_back(RunQuery(*emb.ds, FrameWindow(0, c.fps), qo).ms);
+    for (Path path : paths) {
+      auto [t, got] = RemoteQuery(*conns[path], FrameWindow(0, c.fps));
+      if (got != n) Die(std::string("8 server: the frame through ") + PathName(path) + " has " + std::to_string(got) + " points");
+      ms[std::string("frame.") + PathName(path)].push_back(t);
     }
-    for (const Window& w : windows) RemoteQuery(*conn, w);
-    for (const Window& w : windows) win_ms.push_back(RemoteQuery(*conn, w).first);
+    ms["frame.local_view"].push_back(RemoteQuery(*conns[Path::kLocal], FrameWindow(0, c.fps), true).first);
+    ms["frame.socketpair_tcp"].push_back(tcp_frame.RoundTrip());
+    ms["frame.socketpair_unix"].push_back(unix_frame.RoundTrip());
+  }
+  for (const Window& w : windows) {
+    ms["window.embedded"].push_back(RunQuery(*emb.ds, w, qo).ms);
+    for (Path path : paths) ms[std::string("window.") + PathName(path)].push_back(RemoteQuery(*conns[path], w).first);
+    ms["window.socketpair_tcp"].push_back(tcp_win.RoundTrip());
+  }
+  conns.clear();
+  R.Add("e2e.frame.embedded", kExp, "ms", ms["frame.embedded"], fp, "full frame, embedded, warm");
+  R.Add("e2e.window.embedded", kExp, "ms", ms["window.embedded"], wp, "10k-point window, embedded, warm");
+  R.Add("e2e.frame.socketpair_tcp", kExp, "ms", ms["frame.socketpair_tcp"], {{"bytes", frame_bytes}},
+        "the frame's bytes through a plain TCP loopback socket pair (request and answer)");
+  R.Add("e2e.frame.socketpair_unix", kExp, "ms", ms["frame.socketpair_unix"], {{"bytes", frame_bytes}},
+        "the frame's bytes through a plain Unix socket pair (request and answer)");
+  R.Add("e2e.window.socketpair_tcp", kExp, "ms", ms["window.socketpair_tcp"], {{"bytes", win_bytes}},
+        "a window's bytes through a plain TCP loopback socket pair (request and answer)");
+  for (Path path : paths) {
+    const std::string p = PathName(path);
     const std::string how = path == Path::kLocal ? "through the Unix socket and shared memory"
                             : path == Path::kTcp ? "through TCP loopback (records)"
                                                  : "through TCP loopback (point columns, v1)";
-    R.Add("e2e.frame." + p, kExp, "ms", frame_ms, fp, "full frame " + how + ", one client, warm");
-    R.Add("e2e.window." + p, kExp, "ms", win_ms, wp, "10k-point window " + how + ", warm");
+    R.Add("e2e.frame." + p, kExp, "ms", ms["frame." + p], fp, "full frame " + how + ", one client, warm");
+    R.Add("e2e.window." + p, kExp, "ms", ms["window." + p], wp, "10k-point window " + how + ", warm");
     R.Ratio("e2e.frame." + p + "_over_embedded", kExp, "e2e.frame." + p, "e2e.frame.embedded",
             "full frame: " + p + " time / embedded time");
     R.Ratio("e2e.window." + p + "_over_embedded", kExp, "e2e.window." + p, "e2e.window.embedded",
             "10k window: " + p + " time / embedded time");
     R.Add("e2e.frame." + p + ".throughput", kExp, "MB/s",
-          {static_cast<double>(frame_bytes) / 1e6 / (Median(frame_ms) / 1000)}, fp,
+          {static_cast<double>(frame_bytes) / 1e6 / (Median(ms["frame." + p]) / 1000)}, fp,
           "full frame " + how + " (64-byte points)");
-    if (path == Path::kLocal) {
-      for (int r = 0; r < c.warm_reps; ++r) view_ms.push_back(RemoteQuery(*conn, FrameWindow(0, c.fps), true).first);
-      R.Add("e2e.frame.local_view", kExp, "ms", view_ms, fp,
-            "full frame through shared memory, read in place (QueryStream::NextView, no copy)");
-      R.Ratio("e2e.frame.local_view_over_embedded", kExp, "e2e.frame.local_view",
-              "e2e.frame.embedded", "full frame read in place / embedded time");
-    }
   }
+  R.Add("e2e.frame.local_view", kExp, "ms", ms["frame.local_view"], fp,
+        "full frame through shared memory, read in place (QueryStream::NextView, no copy)");
+  R.Ratio("e2e.frame.local_view_over_embedded", kExp, "e2e.frame.local_view", "e2e.frame.embedded",
+          "full frame read in place / embedded time");
   R.Ratio("e2e.frame.tcp_over_socketpair", kExp, "e2e.frame.tcp", "e2e.frame.socketpair_tcp",
           "full frame through TCP / the same bytes through a plain TCP socket pair");
   R.Ratio("e2e.window.tcp_over_socketpair", kExp, "e2e.window.tcp", "e2e.window.socketpair_tcp",
@@ -271,8 +303,8 @@ void RunServer(Ctx& ctx) {
       const int per = std::max(1, c.e2e_queries / clients);
       std::vector<std::vector<double>> lat(static_cast<size_t>(clients));
       std::atomic<uint64_t> points{0};
-      std::vector<std::unique_ptr<client::Connection>> conns;
-      for (int t = 0; t < clients; ++t) conns.push_back(Connect(PathOptions(path, server.port(), sock)));
+      std::vector<std::unique_ptr<client::Connection>> clients_conns;
+      for (int t = 0; t < clients; ++t) clients_conns.push_back(Connect(PathOptions(path, server.port(), sock)));
       std::mutex mu;
       std::condition_variable cv;
       bool go = false;
@@ -283,11 +315,11 @@ void RunServer(Ctx& ctx) {
             std::unique_lock<std::mutex> l(mu);
             cv.wait(l, [&] { return go; });
           }
-          Rng rng(c.seed + 8100 + static_cast<uint64_t>(t));
+          Rng crng(c.seed + 8100 + static_cast<uint64_t>(t));
           for (int q = 0; q < per; ++q) {
-            auto [ms, got] = RemoteQuery(*conns[static_cast<size_t>(t)],
-                                         windows[rng.Next() % windows.size()]);
-            lat[static_cast<size_t>(t)].push_back(ms);
+            auto [q_ms, got] = RemoteQuery(*clients_conns[static_cast<size_t>(t)],
+                                         windows[crng.Next() % windows.size()]);
+            lat[static_cast<size_t>(t)].push_back(q_ms);
             points += got;
           }
         });
@@ -330,7 +362,9 @@ void RunServer(Ctx& ctx) {
                   "more clients do not make the server slower in total");
     }
   }
+  emb.Close();
   RemoveAll(dir);
+  RemoveAll(dir + "-embedded");
 }
 
 }  // namespace hvdb::bench

@@ -79,6 +79,7 @@ class Server {
   const Config& config() const { return config_; }
   Database& db() { return *db_; }
   boost::asio::thread_pool& workers() { return workers_; }
+  boost::asio::io_context& io() { return io_; }
   ServerStats& stats() { return stats_; }
   render::RendererPool& renders() { return renders_; }
   // Role of a token; kNone if it is unknown (or tokens are required and none was given).

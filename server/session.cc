@@ -418,12 +418,12 @@ void Session::Finish(uint64_t id) {
 }
 
 void Session::Send(const google::protobuf::MessageLite& m) {
-  Enqueue(OutFrame{wire::Frame(m), {}});
+  Enqueue(OutFrame{wire::Frame(m), {}, 0});
 }
 
-void Session::SendRecords(const wire::Response& r, std::vector<Point> records) {
-  const auto bytes = static_cast<uint32_t>(records.size() * sizeof(Point));
-  Enqueue(OutFrame{wire::FrameHead(r, bytes), std::move(records)});
+void Session::SendRecords(const wire::Response& r, std::vector<Point> records, size_t count) {
+  const auto bytes = static_cast<uint32_t>(count * sizeof(Point));
+  Enqueue(OutFrame{wire::FrameHead(r, bytes), std::move(records), count});
 }
 
 void Session::Enqueue(OutFrame f) {
@@ -443,7 +443,7 @@ void Session::WriteNext() {
   auto self = shared_from_this();
   const OutFrame& f = out_.front();
   std::array<asio::const_buffer, 2> bufs = {
-      asio::buffer(f.head), asio::buffer(f.records.data(), f.records.size() * sizeof(Point))};
+      asio::buffer(f.head), asio::buffer(f.records.data(), f.count * sizeof(Point))};
   asio::async_write(socket_, bufs,
                     asio::bind_executor(strand_, [self](boost::system::error_code ec, size_t n) {
                       self->writing_ = false;
@@ -453,7 +453,7 @@ void Session::WriteNext() {
                       self->bytes_queued_ -= done.bytes();
                       // The records' buffer serves the next batch (a few, so memory stays
                       // bounded by the flow control's high-water mark).
-                      if (done.records.capacity() != 0 && self->spare_.size() < 4) {
+                      if (done.records.capacity() != 0 && self->spare_.size() < kMaxSpares) {
                         self->spare_.push_back(std::move(done.records));
                       }
                       self->out_.pop_front();

@@ -72,8 +72,9 @@ class Session : public std::enable_shared_from_this<Session> {
   // from where they lie (scatter/gather).
   struct OutFrame {
     std::string head;
-    std::vector<Point> records;
-    size_t bytes() const { return head.size() + records.size() * sizeof(Point); }
+    std::vector<Point> records;  // a reusable buffer: the first `count` are sent
+    size_t count = 0;
+    size_t bytes() const { return head.size() + count * sizeof(Point); }
   };
 
   void ReadHeader();
@@ -82,7 +83,7 @@ class Session : public std::enable_shared_from_this<Session> {
   void OnHello(const std::string& payload);
   void Dispatch(wire::Request req);
   void Send(const google::protobuf::MessageLite& m);
-  void SendRecords(const wire::Response& r, std::vector<Point> records);
+  void SendRecords(const wire::Response& r, std::vector<Point> records, size_t count);
   void Enqueue(OutFrame f);
   void SendError(uint64_t id, const Status& st, wire::ErrorCode code = wire::ERROR_UNSPECIFIED);
   void WriteNext();
@@ -96,13 +97,26 @@ class Session : public std::enable_shared_from_this<Session> {
 
   // ---- session_stream.cc ----
   void HandleQuery(std::shared_ptr<Op> op, const wire::Query& q);
-  // On the strand: starts the op's next batch on a worker if the connection has room (queued
-  // bytes under the high-water mark, and a free ring slot for the fast path); else pauses it.
+  // What the strand lets one worker task produce: ring slots to fill (fast path), or a number
+  // of batches and record buffers to fill them in. The task holds its own reference to the
+  // ring: a close on the strand cannot unmap it under the worker.
+  struct Grant {
+    std::vector<int> slots;
+    std::vector<std::vector<Point>> bufs;
+    size_t batches = 0;
+    std::shared_ptr<wire::ShmRing> ring;
+  };
+  static constexpr size_t kSlotsPerTask = 4;
+  static constexpr size_t kBatchesPerTask = 2;
+  // Record buffers (1 MiB) kept for reuse by a connection: what the high-water mark lets be
+  // queued. More are allocated while a fast reader keeps several tasks' worth in flight.
+  static constexpr size_t kMaxSpares = 4;
+  Grant MakeGrant(const Op& op);
+  // On the strand: starts the op's next batches on a worker if the connection has room (queued
+  // bytes under the high-water mark, and free ring slots for the fast path); else pauses it.
   void Schedule(std::shared_ptr<Op> op);
-  // On a worker: produces one batch (into ring slot `slot` when >= 0, else into `buf`). The
-  // worker holds its own reference to the ring: a close on the strand cannot unmap it under it.
-  void Pump(std::shared_ptr<Op> op, int slot, std::vector<Point> buf,
-            std::shared_ptr<wire::ShmRing> ring);
+  // On a worker: produces the granted batches, posting each to the strand as it is made.
+  void Pump(std::shared_ptr<Op> op, Grant g);
   void ResumePaused();
   // Ring slots (on the strand): -1 when none is free.
   int AcquireSlot();

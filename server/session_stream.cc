@@ -31,26 +31,26 @@ void Session::HandleQuery(std::shared_ptr<Op> op, const wire::Query& q) {
   o.batch_points = q.batch_points() == 0 ? 16384u : std::min(q.batch_points(), wire::kMaxBatchPoints);
   op->encoding = q.encoding();
   op->shm = op->encoding == wire::RECORDS && ring_ != nullptr;
-  // A batch may overrun batch_points by up to one bucket level; keep it under 1 MiB. (Into a
-  // ring slot the cursor never overruns: it ends the batch early instead.)
-  if (!op->shm) o.batch_points = std::min<size_t>(o.batch_points, wire::kMaxBatchPoints - 2048);
-  // The first batch is made by the same worker task that opens the cursor, with a ring slot
-  // (or a record buffer) taken here on the strand.
-  const int slot = op->shm ? AcquireSlot() : -1;
-  std::vector<Point> buf = op->encoding == wire::RECORDS && !op->shm ? TakeSpare()
-                                                                       : std::vector<Point>();
+  // Encoded batches may overrun batch_points by up to one bucket level; keep them under 1 MiB.
+  // (Records go into a fixed buffer or ring slot, and the cursor ends a batch early instead.)
+  if (op->encoding != wire::RECORDS) {
+    o.batch_points = std::min<size_t>(o.batch_points, wire::kMaxBatchPoints - 2048);
+  }
+  // The first batches are made by the same worker task that opens the cursor, with what the
+  // strand grants here (ring slots, record buffers).
+  Grant g = MakeGrant(*op);
   auto self = shared_from_this();
   Server* s = server_;
-  asio::post(server_->workers(), [self, op, s, name = q.dataset(), r = *region, o, slot,
-                                  buf = std::move(buf), ring = ring_]() mutable {
+  asio::post(server_->io(), [self, op, s, name = q.dataset(), r = *region, o,
+                                  g = std::move(g)]() mutable {
     auto ds = FindDataset(s, name);
     Result<std::unique_ptr<Cursor>> cursor =
         ds.ok() ? (*ds)->Query(r, o) : Result<std::unique_ptr<Cursor>>(ds.status());
     if (!cursor.ok()) {
       wire::Response resp = ds.ok() ? ErrorResponse(op->id, cursor.status())
                                     : DatasetError(op->id, ds.status());
-      asio::post(self->strand_, [self, op, resp, slot] {
-        if (slot >= 0) self->free_slots_.push_back(slot);
+      asio::post(self->strand_, [self, op, resp, slots = std::move(g.slots)] {
+        for (int slot : slots) self->free_slots_.push_back(slot);
         self->Send(resp);
         self->Finish(op->id);
       });
@@ -61,13 +61,37 @@ void Session::HandleQuery(std::shared_ptr<Op> op, const wire::Query& q) {
       op->cursor = std::move(cursor).value();
       if (op->cancelled) op->cursor->Cancel();
     }
-    if (op->shm && slot < 0) {
-      // Every slot is with the client: wait on the strand for a release.
-      asio::post(self->strand_, [self, op] { self->Schedule(op); });
-      return;
-    }
-    self->Pump(op, slot, std::move(buf), std::move(ring));
+    self->Pump(op, std::move(g));
   });
+}
+
+Session::Grant Session::MakeGrant(const Op& op) {
+  Grant g;
+  if (op.shm) {
+    // Several slots at once: the worker fills them back to back while the client empties the
+    // ones before (no hop through the strand between batches).
+    while (g.slots.size() < kSlotsPerTask) {
+      int slot = AcquireSlot();
+      if (slot < 0) break;
+      g.slots.push_back(slot);
+    }
+    g.batches = g.slots.size();
+    g.ring = ring_;
+  } else {
+    // Two batches a task: a small query's batch and its QueryDone go out together. Bounded:
+    // the strand admits a task only under the high-water mark.
+    g.batches = kBatchesPerTask;
+    if (op.encoding == wire::RECORDS) {
+      // Fixed 1 MiB buffers the cursor fills like a ring slot, recycled once written (sized
+      // once: no zeroing per batch).
+      while (g.bufs.size() < g.batches) {
+        std::vector<Point> b = TakeSpare();
+        if (b.size() != wire::kMaxBatchPoints) b.resize(wire::kMaxBatchPoints);
+        g.bufs.push_back(std::move(b));
+      }
+    }
+  }
+  return g;
 }
 
 void Session::Schedule(std::shared_ptr<Op> op) {
@@ -76,98 +100,123 @@ void Session::Schedule(std::shared_ptr<Op> op) {
     op->paused = true;  // resumed by WriteNext when the queue drains
     return;
   }
-  int slot = -1;
-  if (op->shm) {
-    slot = AcquireSlot();
-    if (slot < 0) {
-      op->paused = true;  // resumed by OnRelease
-      return;
-    }
+  Grant g = MakeGrant(*op);
+  if (g.batches == 0) {
+    op->paused = true;  // every ring slot is with the client: resumed by OnRelease
+    return;
   }
-  std::vector<Point> buf = op->encoding == wire::RECORDS && !op->shm ? TakeSpare()
-                                                                       : std::vector<Point>();
   auto self = shared_from_this();
-  asio::post(server_->workers(), [self, op, slot, buf = std::move(buf), ring = ring_]() mutable {
-    self->Pump(op, slot, std::move(buf), std::move(ring));
+  asio::post(server_->io(), [self, op, g = std::move(g)]() mutable {
+    self->Pump(op, std::move(g));
   });
 }
 
-void Session::Pump(std::shared_ptr<Op> op, int slot, std::vector<Point> buf,
-                   std::shared_ptr<wire::ShmRing> ring) {
-  // On a worker: produce one batch.
+void Session::Pump(std::shared_ptr<Op> op, Grant g) {
+  // On a worker: up to g.batches batches, handed to the strand in one post at the end (one
+  // wake-up of the network thread per task, not per batch).
   auto self = shared_from_this();
-  wire::Response resp;
-  resp.set_id(op->id);
-  bool last = false;
-  Batch batch;
-  batch.points = std::move(buf);
-  size_t in_slot = 0;
-  Result<bool> more = Status::OK();
-  if (op->cancelled) {
-    more = Status::Cancelled("query cancelled");
-  } else if (slot >= 0) {
-    more = op->cursor->NextInto(reinterpret_cast<Point*>(ring->slot(static_cast<uint32_t>(slot))),
-                                ring->slot_bytes() / sizeof(Point), &in_slot, &batch);
-  } else {
-    more = op->cursor->Next(&batch);
+  if (op->shm && g.slots.empty()) {
+    // The cursor was opened with every slot with the client: wait for a release.
+    asio::post(strand_, [self, op] { self->Schedule(op); });
+    return;
   }
-  bool used_slot = false;
-  std::vector<Point> records;
-  if (!more.ok()) {
-    resp = ErrorResponse(op->id, more.status());
-    last = true;
-  } else if (!*more) {
-    auto* d = resp.mutable_done();
-    d->set_points(op->points);
-    for (uint32_t f : op->cursor->frames()) d->add_frames(f);
-    d->set_clipped(op->cursor->clipped());
-    last = true;
-  } else {
-    auto* b = resp.mutable_batch();
-    b->set_level(static_cast<uint32_t>(batch.level));
-    b->set_level_done(batch.level_done);
-    b->set_splat_scale(batch.splat_scale);
-    b->set_encoding(op->encoding);
-    if (slot >= 0) {
-      op->points += in_slot;
-      b->set_record_count(static_cast<uint32_t>(in_slot));
-      b->set_shm_slot(static_cast<uint32_t>(slot) + 1);
-      used_slot = true;
+  struct Made {
+    wire::Response resp;
+    std::vector<Point> records;  // RECORDS over the socket: the first `count`
+    size_t count = 0;
+    int held_slot = -1;          // RECORDS in a ring slot
+  };
+  std::vector<Made> made;
+  std::vector<std::vector<Point>> back;
+  bool finished = false;
+  std::vector<bool> used(g.slots.size(), false);
+  for (size_t i = 0; i < g.batches && !finished; ++i) {
+    const int slot = op->shm ? g.slots[i] : -1;
+    Made m;
+    wire::Response& resp = m.resp;
+    resp.set_id(op->id);
+    Batch batch;
+    if (i < g.bufs.size()) batch.points = std::move(g.bufs[i]);
+    size_t in_slot = 0;
+    Result<bool> more = Status::OK();
+    if (op->cancelled) {
+      more = Status::Cancelled("query cancelled");
+    } else if (slot >= 0) {
+      more = op->cursor->NextInto(reinterpret_cast<Point*>(g.ring->slot(static_cast<uint32_t>(slot))),
+                                  g.ring->slot_bytes() / sizeof(Point), &in_slot, &batch);
     } else if (op->encoding == wire::RECORDS) {
-      op->points += batch.points.size();
-      b->set_record_count(static_cast<uint32_t>(batch.points.size()));
-      records = std::move(batch.points);
-    } else if (op->encoding == wire::DRACO) {
-      op->points += batch.points.size();
-      Status st = wire::EncodeDraco(batch.points, 16, b->mutable_draco());
-      if (!st.ok()) {
-        resp = ErrorResponse(op->id, st);
-        last = true;
-      }
+      more = op->cursor->NextInto(batch.points.data(), batch.points.size(), &in_slot, &batch);
     } else {
-      op->points += batch.points.size();
-      wire::EncodeColumns(batch.points, b->mutable_columns());
+      more = op->cursor->Next(&batch);
     }
-  }
-  asio::post(strand_, [self, op, resp = std::move(resp), last, slot, used_slot,
-                       records = std::move(records)]() mutable {
-    if (self->closed_) return;
-    if (slot >= 0) {
-      if (used_slot) {
-        self->slot_held_[static_cast<size_t>(slot)] = 1;
+    if (!more.ok()) {
+      resp = ErrorResponse(op->id, more.status());
+      finished = true;
+    } else if (!*more) {
+      auto* d = resp.mutable_done();
+      d->set_points(op->points);
+      for (uint32_t f : op->cursor->frames()) d->add_frames(f);
+      d->set_clipped(op->cursor->clipped());
+      finished = true;
+    } else {
+      auto* b = resp.mutable_batch();
+      b->set_level(static_cast<uint32_t>(batch.level));
+      b->set_level_done(batch.level_done);
+      b->set_splat_scale(batch.splat_scale);
+      b->set_encoding(op->encoding);
+      if (slot >= 0) {
+        op->points += in_slot;
+        b->set_record_count(static_cast<uint32_t>(in_slot));
+        b->set_shm_slot(static_cast<uint32_t>(slot) + 1);
+        m.held_slot = slot;
+        used[i] = true;
+      } else if (op->encoding == wire::RECORDS) {
+        op->points += in_slot;
+        b->set_record_count(static_cast<uint32_t>(in_slot));
+        m.records = std::move(batch.points);
+        m.count = in_slot;
+      } else if (op->encoding == wire::DRACO) {
+        op->points += batch.points.size();
+        Status st = wire::EncodeDraco(batch.points, 16, b->mutable_draco());
+        if (!st.ok()) {
+          resp = ErrorResponse(op->id, st);
+          finished = true;
+        }
       } else {
-        self->free_slots_.push_back(slot);
+        op->points += batch.points.size();
+        wire::EncodeColumns(batch.points, b->mutable_columns());
       }
     }
-    if (resp.has_batch() && resp.batch().encoding() == wire::RECORDS && slot < 0) {
-      self->SendRecords(resp, std::move(records));
-    } else {
-      self->Send(resp);
+    // A record buffer that carried no batch goes back to the session for the next task.
+    if (m.records.empty() && batch.points.size() == wire::kMaxBatchPoints) {
+      back.push_back(std::move(batch.points));
     }
-    if (last) {
-      self->Finish(op->id);
-      return;
+    made.push_back(std::move(m));
+  }
+  for (size_t i = made.size(); i < g.bufs.size(); ++i) back.push_back(std::move(g.bufs[i]));
+  // Slots not filled go back; a query not finished asks for its next grant.
+  std::vector<int> unused;
+  for (size_t k = 0; k < g.slots.size(); ++k) {
+    if (!used[k]) unused.push_back(g.slots[k]);
+  }
+  asio::post(strand_, [self, op, made = std::move(made), finished, unused = std::move(unused),
+                       back = std::move(back)]() mutable {
+    for (int slot : unused) self->free_slots_.push_back(slot);
+    for (auto& b : back) {
+      if (self->spare_.size() < kMaxSpares) self->spare_.push_back(std::move(b));
     }
+    if (self->closed_) return;
+    for (Made& m : made) {
+      if (m.held_slot >= 0) {
+        self->slot_held_[static_cast<size_t>(m.held_slot)] = 1;
+        self->Send(m.resp);
+      } else if (m.resp.has_batch() && m.resp.batch().encoding() == wire::RECORDS) {
+        self->SendRecords(m.resp, std::move(m.records), m.count);
+      } else {
+        self->Send(m.resp);
+      }
+    }
+    if (finished) return self->Finish(op->id);
     self->Schedule(op);
   });
 }

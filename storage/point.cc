@@ -27,7 +27,7 @@ void EncodePoint(const Point& p, uint8_t* dst) {
   EncodeLE<uint16_t>(dst + 62, 0);
 }
 
-Point DecodePoint(const uint8_t* src) {
+Point DecodePointFieldwise(const uint8_t* src) {
   Point p;
   p.id = DecodeLE<uint64_t>(src + 0);
   p.x = DecodeLE<float>(src + 8);

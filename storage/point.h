@@ -7,8 +7,10 @@
 #define HVDB_STORAGE_POINT_H_
 
 #include <array>
+#include <bit>
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <span>
 
 namespace hvdb {
@@ -46,7 +48,19 @@ static_assert(offsetof(Point, x) == 8 && offsetof(Point, frame) == 20 &&
 
 // Writes the 64-byte little-endian record of `p` to dst.
 void EncodePoint(const Point& p, uint8_t* dst);
-Point DecodePoint(const uint8_t* src);
+Point DecodePointFieldwise(const uint8_t* src);
+// Inline, one copy on little-endian machines: queries decode every record of a bucket that
+// straddles the region's boundary to test it.
+inline Point DecodePoint(const uint8_t* src) {
+  if constexpr (std::endian::native == std::endian::little) {
+    Point p;
+    std::memcpy(static_cast<void*>(&p), src, kPointRecordSize);
+    p.reserved = 0;
+    return p;
+  } else {
+    return DecodePointFieldwise(src);
+  }
+}
 // Arrays: dst must hold points.size() * 64 bytes.
 void EncodePoints(std::span<const Point> points, uint8_t* dst);
 void DecodePoints(const uint8_t* src, size_t n, Point* out);
