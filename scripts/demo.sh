@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# The main job: hvdb-server on ./data (127.0.0.1:7878) with a demo dataset built from the real
+# The main job: hvdb-server on ./data (127.0.0.1:7878, and the Unix socket ./data/hvdb.sock
+# that local clients switch to by themselves) with a demo dataset built from the real
 # CMU Panoptic point-cloud video in ../shared/data (16 frames of a moving person), queried once
 # through the server with the hvdb CLI, and frame 5 rendered through it into out/demo.png. The
 # server keeps running in the foreground; Ctrl-C stops it gracefully.
@@ -27,13 +28,17 @@ if ! "$HVDB" --data "$DATA" describe panoptic >/dev/null 2>&1; then
 fi
 "$HVDB" --data "$DATA" check panoptic
 
-"$SERVER" --data "$DATA" --listen "$LISTEN" &
+"$SERVER" --data "$DATA" --listen "$LISTEN" --listen unix: &
 server_pid=$!
 trap 'kill -TERM $server_pid 2>/dev/null || true' INT TERM
 for _ in $(seq 100); do
   "$HVDB" --server "$LISTEN" ping >/dev/null 2>&1 && break
   sleep 0.1
 done
+
+echo
+echo "== the connection (a local client takes the Unix socket and shared memory by itself):"
+"$HVDB" --server "$LISTEN" ping
 
 echo
 echo "== describe, through the server:"

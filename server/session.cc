@@ -146,6 +146,7 @@ void Session::OnHello(const std::string& payload) {
       reply.set_shm_slots(ring_->slots());
       reply.set_shm_slot_bytes(ring_->slot_bytes());
       slot_held_.assign(ring_->slots(), 0);
+      slot_owner_.assign(ring_->slots(), {});
       for (int i = static_cast<int>(ring_->slots()) - 1; i >= 0; --i) free_slots_.push_back(i);
       std::string frame = wire::Frame(reply);
       Status st = wire::SendWithFd(socket_.native_handle(), frame, ring_->fd(),

@@ -59,6 +59,7 @@ class Session : public std::enable_shared_from_this<Session> {
     }
     wire::PointEncoding encoding = wire::COLUMNS;
     bool shm = false;  // RECORDS batches go through the shared-memory ring
+    uint32_t slots_held = 0;  // ring slots granted to it or with the client for it
     uint64_t points = 0;
     bool paused = false;
     // Renders: the job (set on a worker), its slot of the server's renderer pool, and the next
@@ -111,7 +112,7 @@ class Session : public std::enable_shared_from_this<Session> {
   // Record buffers (1 MiB) kept for reuse by a connection: what the high-water mark lets be
   // queued. More are allocated while a fast reader keeps several tasks' worth in flight.
   static constexpr size_t kMaxSpares = 4;
-  Grant MakeGrant(const Op& op);
+  Grant MakeGrant(const std::shared_ptr<Op>& op);
   // On the strand: starts the op's next batches on a worker if the connection has room (queued
   // bytes under the high-water mark, and free ring slots for the fast path); else pauses it.
   void Schedule(std::shared_ptr<Op> op);
@@ -120,6 +121,8 @@ class Session : public std::enable_shared_from_this<Session> {
   void ResumePaused();
   // Ring slots (on the strand): -1 when none is free.
   int AcquireSlot();
+  // A slot back in the free list, off its query's count.
+  void ReturnSlot(int slot);
   void OnRelease(const wire::ReleaseSlots& r);
   std::vector<Point> TakeSpare();
   // Render requests: a slot of the server's renderer pool, then one image at a time on a
@@ -149,6 +152,7 @@ class Session : public std::enable_shared_from_this<Session> {
   std::shared_ptr<wire::ShmRing> ring_;
   std::vector<int> free_slots_;
   std::vector<uint8_t> slot_held_;  // 1: sent to the client, not yet released
+  std::vector<std::weak_ptr<Op>> slot_owner_;  // the query each slot was granted to
   // Record buffers of written RECORDS frames, reused for the next batches.
   std::vector<std::vector<Point>> spare_;
   // Bulk ingest: points of frames whose last chunk has not come yet.

@@ -38,7 +38,7 @@ void Session::HandleQuery(std::shared_ptr<Op> op, const wire::Query& q) {
   }
   // The first batches are made by the same worker task that opens the cursor, with what the
   // strand grants here (ring slots, record buffers).
-  Grant g = MakeGrant(*op);
+  Grant g = MakeGrant(op);
   auto self = shared_from_this();
   Server* s = server_;
   asio::post(server_->io(), [self, op, s, name = q.dataset(), r = *region, o,
@@ -50,7 +50,7 @@ void Session::HandleQuery(std::shared_ptr<Op> op, const wire::Query& q) {
       wire::Response resp = ds.ok() ? ErrorResponse(op->id, cursor.status())
                                     : DatasetError(op->id, ds.status());
       asio::post(self->strand_, [self, op, resp, slots = std::move(g.slots)] {
-        for (int slot : slots) self->free_slots_.push_back(slot);
+        for (int slot : slots) self->ReturnSlot(slot);
         self->Send(resp);
         self->Finish(op->id);
       });
@@ -65,30 +65,36 @@ void Session::HandleQuery(std::shared_ptr<Op> op, const wire::Query& q) {
   });
 }
 
-Session::Grant Session::MakeGrant(const Op& op) {
+Session::Grant Session::MakeGrant(const std::shared_ptr<Op>& op) {
   Grant g;
-  if (op.shm) {
+  if (op->shm) {
     // Several slots at once: the worker fills them back to back while the client empties the
     // ones before (no hop through the strand between batches).
     while (g.slots.size() < kSlotsPerTask) {
       int slot = AcquireSlot();
       if (slot < 0) break;
       g.slots.push_back(slot);
+      slot_owner_[static_cast<size_t>(slot)] = op;
+      ++op->slots_held;
     }
     g.batches = g.slots.size();
     g.ring = ring_;
-  } else {
-    // Two batches a task: a small query's batch and its QueryDone go out together. Bounded:
-    // the strand admits a task only under the high-water mark.
-    g.batches = kBatchesPerTask;
-    if (op.encoding == wire::RECORDS) {
-      // Fixed 1 MiB buffers the cursor fills like a ring slot, recycled once written (sized
-      // once: no zeroing per batch).
-      while (g.bufs.size() < g.batches) {
-        std::vector<Point> b = TakeSpare();
-        if (b.size() != wire::kMaxBatchPoints) b.resize(wire::kMaxBatchPoints);
-        g.bufs.push_back(std::move(b));
-      }
+    // A query holding slots waits for the client to release them (flow control). One holding
+    // none, with every slot held for other queries of this connection, sends its records
+    // through the socket instead: a client reading its queries in any order never waits on a
+    // query that cannot get a slot.
+    if (!g.slots.empty() || op->slots_held > 0) return g;
+  }
+  // Two batches a task: a small query's batch and its QueryDone go out together. Bounded: the
+  // strand admits a task only under the high-water mark.
+  g.batches = kBatchesPerTask;
+  if (op->encoding == wire::RECORDS) {
+    // Fixed 1 MiB buffers the cursor fills like a ring slot, recycled once written (sized
+    // once: no zeroing per batch).
+    while (g.bufs.size() < g.batches) {
+      std::vector<Point> b = TakeSpare();
+      if (b.size() != wire::kMaxBatchPoints) b.resize(wire::kMaxBatchPoints);
+      g.bufs.push_back(std::move(b));
     }
   }
   return g;
@@ -100,9 +106,9 @@ void Session::Schedule(std::shared_ptr<Op> op) {
     op->paused = true;  // resumed by WriteNext when the queue drains
     return;
   }
-  Grant g = MakeGrant(*op);
+  Grant g = MakeGrant(op);
   if (g.batches == 0) {
-    op->paused = true;  // every ring slot is with the client: resumed by OnRelease
+    op->paused = true;  // its ring slots are with the client: resumed by OnRelease
     return;
   }
   auto self = shared_from_this();
@@ -115,8 +121,8 @@ void Session::Pump(std::shared_ptr<Op> op, Grant g) {
   // On a worker: up to g.batches batches, handed to the strand in one post at the end (one
   // wake-up of the network thread per task, not per batch).
   auto self = shared_from_this();
-  if (op->shm && g.slots.empty()) {
-    // The cursor was opened with every slot with the client: wait for a release.
+  if (g.batches == 0) {
+    // The cursor was opened with its slots with the client: wait for a release.
     asio::post(strand_, [self, op] { self->Schedule(op); });
     return;
   }
@@ -131,7 +137,7 @@ void Session::Pump(std::shared_ptr<Op> op, Grant g) {
   bool finished = false;
   std::vector<bool> used(g.slots.size(), false);
   for (size_t i = 0; i < g.batches && !finished; ++i) {
-    const int slot = op->shm ? g.slots[i] : -1;
+    const int slot = i < g.slots.size() ? g.slots[i] : -1;
     Made m;
     wire::Response& resp = m.resp;
     resp.set_id(op->id);
@@ -201,7 +207,7 @@ void Session::Pump(std::shared_ptr<Op> op, Grant g) {
   }
   asio::post(strand_, [self, op, made = std::move(made), finished, unused = std::move(unused),
                        back = std::move(back)]() mutable {
-    for (int slot : unused) self->free_slots_.push_back(slot);
+    for (int slot : unused) self->ReturnSlot(slot);
     for (auto& b : back) {
       if (self->spare_.size() < kMaxSpares) self->spare_.push_back(std::move(b));
     }
@@ -219,6 +225,14 @@ void Session::Pump(std::shared_ptr<Op> op, Grant g) {
     if (finished) return self->Finish(op->id);
     self->Schedule(op);
   });
+}
+
+void Session::ReturnSlot(int slot) {
+  free_slots_.push_back(slot);
+  if (auto op = slot_owner_[static_cast<size_t>(slot)].lock()) {
+    if (op->slots_held > 0) --op->slots_held;
+  }
+  slot_owner_[static_cast<size_t>(slot)].reset();
 }
 
 int Session::AcquireSlot() {
@@ -239,7 +253,7 @@ void Session::OnRelease(const wire::ReleaseSlots& r) {
                        wire::MALFORMED);
     }
     slot_held_[s] = 0;
-    free_slots_.push_back(static_cast<int>(s));
+    ReturnSlot(static_cast<int>(s));
   }
   ResumePaused();
 }

@@ -1,5 +1,6 @@
 // Writes the seed corpus of frame_decoder_fuzz (tests/server/fuzz_corpus/): one valid session
-// per request kind. Run by hand when the protocol changes: make_fuzz_corpus DIR.
+// per request kind, and server answers with point batches (records in an attachment, in a ring
+// slot, columns). Run by hand when the protocol changes: make_fuzz_corpus DIR.
 #include <fstream>
 #include <string>
 
@@ -71,5 +72,28 @@ int main(int argc, char** argv) {
   c->set_fps(30);
   wire::ToWire(CameraInfo{}, c->add_cameras());
   write("create", r);
+  r.Clear();
+  r.set_id(7);
+  r.mutable_release()->add_slots(2);
+  write("release", r);
+  // The client's side: responses with batches.
+  wire::Response resp;
+  resp.set_id(2);
+  auto* b = resp.mutable_batch();
+  b->set_encoding(wire::RECORDS);
+  b->set_record_count(3);
+  std::string recs(3 * kPointRecordSize, '\0');
+  EncodePoints(pts, reinterpret_cast<uint8_t*>(recs.data()));
+  wire::Response done;
+  done.set_id(2);
+  done.mutable_done()->set_points(3);
+  std::ofstream(dir + "/response_records", std::ios::binary)
+      << wire::FrameHead(resp, static_cast<uint32_t>(recs.size())) << recs << wire::Frame(done);
+  b->set_shm_slot(1);
+  std::ofstream(dir + "/response_shm", std::ios::binary) << wire::Frame(resp) << wire::Frame(done);
+  b->Clear();
+  b->set_encoding(wire::COLUMNS);
+  wire::EncodeColumns(pts, b->mutable_columns());
+  std::ofstream(dir + "/response_columns", std::ios::binary) << wire::Frame(resp);
   return 0;
 }
