@@ -113,7 +113,7 @@ struct Connection::Impl {
   // Exactly n bytes into dst: first what is buffered, then large remainders straight into dst.
   Status ReadExact(char* dst, size_t n, std::chrono::steady_clock::time_point deadline) {
     size_t have = std::min(n, rbuf.size() - rpos);
-    std::memcpy(dst, rbuf.data() + rpos, have);
+    if (have > 0) std::memcpy(dst, rbuf.data() + rpos, have);
     rpos += have;
     dst += have;
     n -= have;

@@ -144,7 +144,7 @@ void Session::Pump(std::shared_ptr<Op> op, Grant g) {
     Batch batch;
     if (i < g.bufs.size()) batch.points = std::move(g.bufs[i]);
     size_t in_slot = 0;
-    Result<bool> more = Status::OK();
+    Result<bool> more = false;
     if (op->cancelled) {
       more = Status::Cancelled("query cancelled");
     } else if (slot >= 0) {

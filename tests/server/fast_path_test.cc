@@ -12,6 +12,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <fstream>
 #include <random>
 #include <thread>
 
@@ -497,6 +498,76 @@ TEST_F(FastPathTest, ClientsKilledWhileHoldingSlotsLeakNothing) {
   long after = fx_.server_->RssKib();
   EXPECT_LT(after - before, 32 * 1024) << "before " << before << " KiB, after " << after;
   EXPECT_EQ(All(*local, "s", testing::EverythingWindow()).size(), 400000u);
+}
+
+TEST_F(FastPathTest, EveryRequestKindOverTheUnixSocket) {
+  auto c = fx_.Connect(Transport::kUnixShm);
+  ASSERT_NE(c, nullptr);
+  ASSERT_TRUE(c->Ping().ok());
+  DatasetInfo info;
+  info.name = "u";
+  info.fps = kFps;
+  ASSERT_TRUE(c->CreateDataset(info).ok());
+  auto names = c->ListDatasets();
+  ASSERT_TRUE(names.ok());
+  EXPECT_EQ(names->size(), 2u);
+  std::mt19937_64 rng(23);
+  ASSERT_EQ(*c->Ingest("u", 0, RandomPoints(rng, 30000, 0)), 30000u);
+  EXPECT_EQ(c->Describe("u")->point_count, 30000u);
+  Window half = testing::EverythingWindow();
+  half.hi[0] = 0;
+  Transaction t;
+  Selection sel;
+  sel.region = half;
+  t.DeleteSelection(sel);
+  auto commit = c->Commit("u", t);
+  ASSERT_TRUE(commit.ok()) << commit.status().ToString();
+  EXPECT_EQ(All(*c, "u", testing::EverythingWindow()).size(), 30000u - commit->removed);
+  ASSERT_TRUE(c->Revert("u", commit->lsn).ok());
+  EXPECT_EQ(All(*c, "u", testing::EverythingWindow()).size(), 30000u);
+  auto st = c->Stats("u");
+  ASSERT_TRUE(st.ok());
+  EXPECT_NE(st->dataset_json().find("\"points\":30000"), std::string::npos);
+  wire::Render render;
+  render.set_dataset("u");
+  EXPECT_EQ(c->Render(render).status().code(), StatusCode::kInvalidArgument);  // no camera
+  EXPECT_EQ(c->Describe("nope").status().code(), StatusCode::kNotFound);
+  ASSERT_TRUE(c->DropDataset("u").ok());
+}
+
+TEST(ServerUnixSocketTest, TokensAndRolesHoldOnTheUnixSocket) {
+  TempDir dir;
+  const std::string tokens = dir.path() + "/tokens", sock = dir.path() + "/s.sock";
+  {
+    std::ofstream(tokens) << "readonly-0123456789abcdef ro\nreadwrite-0123456789abcdef rw\n";
+  }
+  ServerProcess server(dir.path() + "/data", {"--token-file", tokens, "--listen", "unix:" + sock});
+  ASSERT_TRUE(server.running());
+  client::Options o;
+  o.unix_path = sock;
+  auto none = Connection::Connect(o);
+  ASSERT_FALSE(none.ok());
+  EXPECT_EQ(none.status().code(), StatusCode::kPermissionDenied);
+  o.token = "readwrite-0123456789abcdef";
+  auto rw = Connection::Connect(o);
+  ASSERT_TRUE(rw.ok()) << rw.status().ToString();
+  DatasetInfo info;
+  info.name = "a";
+  ASSERT_TRUE((*rw)->CreateDataset(info).ok());
+  o.token = "readonly-0123456789abcdef";
+  auto ro = Connection::Connect(o);
+  ASSERT_TRUE(ro.ok());
+  EXPECT_EQ((*ro)->transport(), "unix " + sock + " + shared memory");
+  EXPECT_TRUE((*ro)->Describe("a").ok());
+  EXPECT_EQ((*ro)->DropDataset("a").code(), StatusCode::kPermissionDenied);
+  // A loopback TCP client with a token moves to the socket with the same token.
+  client::Options tcp;
+  tcp.port = server.port();
+  tcp.token = "readonly-0123456789abcdef";
+  auto moved = Connection::Connect(tcp);
+  ASSERT_TRUE(moved.ok());
+  EXPECT_EQ((*moved)->transport(), "unix " + sock + " + shared memory");
+  EXPECT_EQ((*moved)->role(), wire::ROLE_READ_ONLY);
 }
 
 TEST(ServerUnixSocketTest, StaleSocketIsReplacedLiveOneIsNot) {
