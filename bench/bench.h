@@ -63,7 +63,8 @@ struct Config {
   // 8. End to end through hvdb-server.
   size_t e2e_points = 2'000'000;
   std::vector<int> e2e_clients = {1, 8, 32};
-  int e2e_queries = 640;  // windows per client count, shared among the clients
+  int e2e_queries = 1280;  // windows per client count and round, shared among the clients
+  int e2e_rounds = 5;      // rounds of every client count on every path, interleaved
 
   static Config Quick();
   bool Runs(int experiment) const { return only.empty() || only.count(experiment) > 0; }

@@ -110,7 +110,9 @@ std::unique_ptr<client::Connection> Connect(const client::Options& o) {
 
 // Runs the query through the server to the end, copying every batch into the caller's
 // Batch (like Cursor::Next embedded), or looking at it in place (`view`); returns (ms, points).
-std::pair<double, uint64_t> RemoteQuery(client::Connection& c, const Region& r, bool view = false) {
+// `reuse`: the caller's batch, kept across queries as a long-lived client keeps its buffer.
+std::pair<double, uint64_t> RemoteQuery(client::Connection& c, const Region& r, bool view = false,
+                                        Batch* reuse = nullptr) {
   Timer t;
   auto q = Check(c.Query("e2e", r), "remote query");
   uint64_t n = 0;
@@ -118,9 +120,19 @@ std::pair<double, uint64_t> RemoteQuery(client::Connection& c, const Region& r, 
     client::BatchView v;
     while (Check(q->NextView(&v), "remote batch")) n += v.points.size();
   } else {
-    Batch b;
+    Batch own;
+    Batch& b = reuse ? *reuse : own;
     while (Check(q->Next(&b), "remote batch")) n += b.points.size();
   }
+  return {t.Ms(), n};
+}
+
+// The same embedded, into the caller's batch.
+std::pair<double, uint64_t> EmbeddedQuery(Dataset& ds, const Region& r, Batch* b) {
+  Timer t;
+  auto cursor = Check(ds.Query(r, QueryOptions()), "query");
+  uint64_t n = 0;
+  while (Check(cursor->Next(b), "query next")) n += b->points.size();
   return {t.Ms(), n};
 }
 
@@ -293,83 +305,101 @@ void RunServer(Ctx& ctx) {
   R.AddTarget("e2e.window.tcp_over_embedded", "<=", 1.5, "issue 13 goal",
               "10k window through TCP at most 1.5x embedded");
 
-  // Concurrent clients: each connects first, then all issue their share of windows back to back.
+  // Concurrent clients: each connects first, then all issue their share of windows back to back,
+  // each into its own batch kept from query to query.
   // "embedded" is the same with threads querying the embedded copy: how the machine itself
-  // scales (caches, memory bandwidth, two cores), the peer for the served paths.
-  for (Path path : {Path::kEmbedded, Path::kLocal, Path::kTcp}) {
+  // scales (caches, memory bandwidth, two cores), the peer for the served paths. Every client
+  // count of every path runs once per round, rounds interleaved, so that the ratios compare
+  // runs taken side by side; figures are medians over the rounds.
+  const std::vector<Path> client_paths = {Path::kEmbedded, Path::kLocal, Path::kTcp};
+  struct Run {
+    std::vector<double> qps, mbps, lat;
+  };
+  std::map<std::pair<Path, int>, Run> runs;
+  for (int round = 0; round < c.e2e_rounds; ++round) {
+    for (Path path : client_paths) {
+      const bool embedded = path == Path::kEmbedded;
+      for (int clients : c.e2e_clients) {
+        const int per = std::max(1, c.e2e_queries / clients);
+        std::vector<std::vector<double>> lat(static_cast<size_t>(clients));
+        std::atomic<uint64_t> points{0};
+        std::vector<std::unique_ptr<client::Connection>> clients_conns;
+        for (int t = 0; t < clients && !embedded; ++t) {
+          clients_conns.push_back(Connect(PathOptions(path, server.port(), sock)));
+        }
+        std::mutex mu;
+        std::condition_variable cv;
+        bool go = false;
+        std::vector<std::thread> threads;
+        for (int t = 0; t < clients; ++t) {
+          threads.emplace_back([&, t] {
+            {
+              std::unique_lock<std::mutex> l(mu);
+              cv.wait(l, [&] { return go; });
+            }
+            Rng crng(c.seed + 8100 + static_cast<uint64_t>(t) + 1000u * static_cast<uint64_t>(round));
+            Batch batch;
+            for (int q = 0; q < per; ++q) {
+              const Window& w = windows[crng.Next() % windows.size()];
+              auto [q_ms, got] =
+                  embedded ? EmbeddedQuery(*emb.ds, w, &batch)
+                           : RemoteQuery(*clients_conns[static_cast<size_t>(t)], w, false, &batch);
+              lat[static_cast<size_t>(t)].push_back(q_ms);
+              points += got;
+            }
+          });
+        }
+        Timer wall;
+        {
+          std::lock_guard<std::mutex> l(mu);
+          go = true;
+        }
+        cv.notify_all();
+        for (auto& th : threads) th.join();
+        const double secs = wall.Ms() / 1000;
+        Run& r = runs[{path, clients}];
+        size_t count = 0;
+        for (const auto& l : lat) {
+          r.lat.insert(r.lat.end(), l.begin(), l.end());
+          count += l.size();
+        }
+        r.qps.push_back(static_cast<double>(count) / secs);
+        r.mbps.push_back(static_cast<double>(points.load()) * kPointRecordSize / 1e6 / secs);
+      }
+    }
+  }
+  for (Path path : client_paths) {
     const std::string p = PathName(path);
-    const bool embedded = path == Path::kEmbedded;
-    Curve qps_c{"server_clients_" + p, kExp, "Windows through hvdb-server (" + p +
-                ") against concurrent clients", "clients", "queries per second", true, false, {}};
+    Curve qps_c{"server_clients_" + p, kExp, "Windows (" + p + ") against concurrent clients",
+                "clients", "queries per second", true, false, {}};
     Series qps_s{"windows/s", {}, {}, "line"};
     for (int clients : c.e2e_clients) {
-      const int per = std::max(1, c.e2e_queries / clients);
-      std::vector<std::vector<double>> lat(static_cast<size_t>(clients));
-      std::atomic<uint64_t> points{0};
-      std::vector<std::unique_ptr<client::Connection>> clients_conns;
-      for (int t = 0; t < clients && !embedded; ++t) {
-        clients_conns.push_back(Connect(PathOptions(path, server.port(), sock)));
-      }
-      std::mutex mu;
-      std::condition_variable cv;
-      bool go = false;
-      std::vector<std::thread> threads;
-      for (int t = 0; t < clients; ++t) {
-        threads.emplace_back([&, t] {
-          {
-            std::unique_lock<std::mutex> l(mu);
-            cv.wait(l, [&] { return go; });
-          }
-          Rng crng(c.seed + 8100 + static_cast<uint64_t>(t));
-          for (int q = 0; q < per; ++q) {
-            const Window& w = windows[crng.Next() % windows.size()];
-            if (embedded) {
-              QueryRun run = RunQuery(*emb.ds, w, QueryOptions());
-              lat[static_cast<size_t>(t)].push_back(run.ms);
-              points += run.points;
-              continue;
-            }
-            auto [q_ms, got] = RemoteQuery(*clients_conns[static_cast<size_t>(t)], w);
-            lat[static_cast<size_t>(t)].push_back(q_ms);
-            points += got;
-          }
-        });
-      }
-      Timer wall;
-      {
-        std::lock_guard<std::mutex> l(mu);
-        go = true;
-      }
-      cv.notify_all();
-      for (auto& th : threads) th.join();
-      const double secs = wall.Ms() / 1000;
-      std::vector<double> all;
-      for (const auto& l : lat) all.insert(all.end(), l.begin(), l.end());
-      std::sort(all.begin(), all.end());
-      auto pct = [&](double q) { return all[std::min(all.size() - 1, static_cast<size_t>(q * all.size()))]; };
+      Run& r = runs[{path, clients}];
+      std::sort(r.lat.begin(), r.lat.end());
+      auto pct = [&](double q) { return r.lat[std::min(r.lat.size() - 1, static_cast<size_t>(q * r.lat.size()))]; };
       const std::string f = "e2e." + p + ".clients" + std::to_string(clients);
-      nlohmann::json params = {{"clients", clients}, {"queries", all.size()}, {"points", n}};
-      R.Add(f + ".qps", kExp, "queries/s", {all.size() / secs}, params, "windows per second, all clients");
-      R.Add(f + ".mbps", kExp, "MB/s", {points.load() * kPointRecordSize / 1e6 / secs}, params,
-            "result bytes per second, all clients");
-      R.Add(f + ".latency", kExp, "ms", all, params,
+      nlohmann::json params = {{"clients", clients}, {"queries", r.lat.size()}, {"points", n},
+                               {"rounds", c.e2e_rounds}};
+      R.Add(f + ".qps", kExp, "queries/s", r.qps, params, "windows per second, all clients (one sample a round)");
+      R.Add(f + ".mbps", kExp, "MB/s", r.mbps, params, "result bytes per second, all clients");
+      R.Add(f + ".latency", kExp, "ms", r.lat, params,
             "window latency seen by a client (median; p95, p99 in params)");
       R.Get(f + ".latency").params["p95_ms"] = pct(0.95);
       R.Get(f + ".latency").params["p99_ms"] = pct(0.99);
       qps_s.x.push_back(clients);
-      qps_s.y.push_back(all.size() / secs);
+      qps_s.y.push_back(Median(r.qps));
       Log("8 server: %s, %d clients: %.0f windows/s, p50 %.2f ms, p95 %.2f ms, p99 %.2f ms",
-          p.c_str(), clients, all.size() / secs, pct(0.5), pct(0.95), pct(0.99));
+          p.c_str(), clients, Median(r.qps), pct(0.5), pct(0.95), pct(0.99));
     }
     qps_c.series.push_back(qps_s);
     R.AddCurve(qps_c);
-    const std::string last = "e2e." + p + ".clients" + std::to_string(c.e2e_clients.back());
     if (c.e2e_clients.size() >= 2) {
+      const std::string last = "e2e." + p + ".clients" + std::to_string(c.e2e_clients.back());
       const std::string prev =
           "e2e." + p + ".clients" + std::to_string(c.e2e_clients[c.e2e_clients.size() - 2]);
       R.Ratio("e2e." + p + ".clients_scaling", kExp, last + ".qps", prev + ".qps",
               "windows/s with the most clients / with the next fewer");
-      if (!embedded) {
+      if (path != Path::kEmbedded) {
         R.AddTarget("e2e." + p + ".clients_scaling", ">=", 1.0, "issue 13 goal",
                     "more clients do not make the server slower in total");
       }

@@ -45,6 +45,7 @@ Config Config::Quick() {
   c.slice_points = 2'000;
   c.e2e_points = 100'000;
   c.e2e_queries = 64;
+  c.e2e_rounds = 1;
   return c;
 }
 
@@ -117,7 +118,8 @@ nlohmann::json ConfigJson(const Config& c) {
           {"slice_spans", c.slice_spans},
           {"e2e_points", c.e2e_points},
           {"e2e_clients", c.e2e_clients},
-          {"e2e_queries", c.e2e_queries}};
+          {"e2e_queries", c.e2e_queries},
+          {"e2e_rounds", c.e2e_rounds}};
 }
 
 int Main(int argc, char** argv) {
@@ -201,8 +203,11 @@ int Main(int argc, char** argv) {
   g8->add_option("--e2e-clients", c.e2e_clients, "concurrent client counts")
       ->delimiter(',')
       ->capture_default_str();
-  g8->add_option("--e2e-queries", c.e2e_queries, "windows per client count (split among clients)")
+  g8->add_option("--e2e-queries", c.e2e_queries,
+                 "windows per client count and round (split among clients)")
       ->capture_default_str();
+  g8->add_option("--e2e-rounds", c.e2e_rounds, "interleaved rounds of every client count")
+      ->capture_default_str()->check(CLI::Range(1, 100));
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

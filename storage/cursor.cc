@@ -107,7 +107,11 @@ class CursorImpl {
       double t = plan_.FrameTime(v.frame);
       plan_.slice->Project(&p, t, temporal_stride_ / plan_.fps);
     }
-    *out_.Grow(1) = p;
+    if (out_.vec) {
+      out_.vec->push_back(p);
+    } else {
+      out_.buf[out_.n++] = p;
+    }
   }
 
   bool Accept(const Point& p, bool inside) const {
