@@ -439,25 +439,34 @@ void Session::SendError(uint64_t id, const Status& st, wire::ErrorCode code) {
 }
 
 void Session::WriteNext() {
-  if (writing_ || out_.empty() || closed_) return;
+  if (writing_ || corked_ || out_.empty() || closed_) return;
   writing_ = true;
   auto self = shared_from_this();
-  const OutFrame& f = out_.front();
-  std::array<asio::const_buffer, 2> bufs = {
-      asio::buffer(f.head), asio::buffer(f.records.data(), f.count * sizeof(Point))};
+  // Every frame queued so far in one gather write (a batch and its QueryDone, a task's
+  // batches): one system call and one completion instead of one per frame.
+  std::vector<asio::const_buffer> bufs;
+  size_t frames = 0;
+  for (const OutFrame& f : out_) {
+    if (frames == kMaxGather) break;
+    bufs.push_back(asio::buffer(f.head));
+    if (f.count > 0) bufs.push_back(asio::buffer(f.records.data(), f.count * sizeof(Point)));
+    ++frames;
+  }
   asio::async_write(socket_, bufs,
-                    asio::bind_executor(strand_, [self](boost::system::error_code ec, size_t n) {
+                    asio::bind_executor(strand_, [self, frames](boost::system::error_code ec, size_t n) {
                       self->writing_ = false;
                       if (ec) return self->CloseOnStrand();
                       self->server_->stats().bytes_out += n;
-                      OutFrame& done = self->out_.front();
-                      self->bytes_queued_ -= done.bytes();
-                      // The records' buffer serves the next batch (a few, so memory stays
-                      // bounded by the flow control's high-water mark).
-                      if (done.records.capacity() != 0 && self->spare_.size() < kMaxSpares) {
-                        self->spare_.push_back(std::move(done.records));
+                      for (size_t k = 0; k < frames; ++k) {
+                        OutFrame& done = self->out_.front();
+                        self->bytes_queued_ -= done.bytes();
+                        // The records' buffer serves the next batch (a few, so memory stays
+                        // bounded by the flow control's high-water mark).
+                        if (done.records.capacity() != 0 && self->spare_.size() < kMaxSpares) {
+                          self->spare_.push_back(std::move(done.records));
+                        }
+                        self->out_.pop_front();
                       }
-                      self->out_.pop_front();
                       // A write finishing is progress too: a slow reader is not idle.
                       self->deadline_ = Clock::now() + std::chrono::seconds(
                                                            self->server_->config().idle_timeout_s);

@@ -116,7 +116,25 @@ class Session : public std::enable_shared_from_this<Session> {
   // On the strand: starts the op's next batches on a worker if the connection has room (queued
   // bytes under the high-water mark, and free ring slots for the fast path); else pauses it.
   void Schedule(std::shared_ptr<Op> op);
-  // On a worker: produces the granted batches, posting each to the strand as it is made.
+  // What a task made: frames to send (with the records or ring slot of each batch), buffers and
+  // slots it did not use, and whether the query ended.
+  struct Made {
+    wire::Response resp;
+    std::vector<Point> records;  // RECORDS over the socket: the first `count`
+    size_t count = 0;
+    int held_slot = -1;          // RECORDS in a ring slot
+  };
+  struct Produced {
+    std::vector<Made> made;
+    std::vector<std::vector<Point>> back;
+    std::vector<int> unused;
+    bool finished = false;
+  };
+  // Makes the granted batches (any thread; touches only the op and the grant).
+  Produced Produce(Op& op, Grant g);
+  // On the strand: sends them, returns what was not used, schedules the next task.
+  void Deliver(std::shared_ptr<Op> op, Produced out);
+  // A task off the strand: Produce, then Deliver on the strand.
   void Pump(std::shared_ptr<Op> op, Grant g);
   void ResumePaused();
   // Ring slots (on the strand): -1 when none is free.
@@ -146,6 +164,8 @@ class Session : public std::enable_shared_from_this<Session> {
   std::deque<OutFrame> out_;
   size_t bytes_queued_ = 0;
   bool writing_ = false;
+  bool corked_ = false;  // frames are being queued together: write once they all are
+  static constexpr size_t kMaxGather = 32;  // frames in one gather write
   std::map<uint64_t, std::shared_ptr<Op>> ops_;
   // The fast path: the ring (shared with workers writing into it, so it outlives a close while
   // a batch is being made) and which slots the client holds.

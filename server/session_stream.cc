@@ -36,33 +36,24 @@ void Session::HandleQuery(std::shared_ptr<Op> op, const wire::Query& q) {
   if (op->encoding != wire::RECORDS) {
     o.batch_points = std::min<size_t>(o.batch_points, wire::kMaxBatchPoints - 2048);
   }
-  // The first batches are made by the same worker task that opens the cursor, with what the
-  // strand grants here (ring slots, record buffers).
+  // The cursor is opened and the first batches made right here on the strand: a small query
+  // (a window, a slice of one frame) is answered without a hand-off between threads. The work
+  // is bounded like every task's (two batches, or the granted ring slots).
   Grant g = MakeGrant(op);
-  auto self = shared_from_this();
-  Server* s = server_;
-  asio::post(server_->io(), [self, op, s, name = q.dataset(), r = *region, o,
-                                  g = std::move(g)]() mutable {
-    auto ds = FindDataset(s, name);
-    Result<std::unique_ptr<Cursor>> cursor =
-        ds.ok() ? (*ds)->Query(r, o) : Result<std::unique_ptr<Cursor>>(ds.status());
-    if (!cursor.ok()) {
-      wire::Response resp = ds.ok() ? ErrorResponse(op->id, cursor.status())
-                                    : DatasetError(op->id, ds.status());
-      asio::post(self->strand_, [self, op, resp, slots = std::move(g.slots)] {
-        for (int slot : slots) self->ReturnSlot(slot);
-        self->Send(resp);
-        self->Finish(op->id);
-      });
-      return;
-    }
-    {
-      std::lock_guard<std::mutex> l(op->mu);
-      op->cursor = std::move(cursor).value();
-      if (op->cancelled) op->cursor->Cancel();
-    }
-    self->Pump(op, std::move(g));
-  });
+  auto ds = FindDataset(server_, q.dataset());
+  Result<std::unique_ptr<Cursor>> cursor =
+      ds.ok() ? (*ds)->Query(*region, o) : Result<std::unique_ptr<Cursor>>(ds.status());
+  if (!cursor.ok()) {
+    for (int slot : g.slots) ReturnSlot(slot);
+    Send(ds.ok() ? ErrorResponse(op->id, cursor.status()) : DatasetError(op->id, ds.status()));
+    return Finish(op->id);
+  }
+  {
+    std::lock_guard<std::mutex> l(op->mu);
+    op->cursor = std::move(cursor).value();
+  }
+  if (g.batches == 0) return Schedule(op);
+  Deliver(op, Produce(*op, std::move(g)));
 }
 
 Session::Grant Session::MakeGrant(const std::shared_ptr<Op>& op) {
@@ -118,25 +109,19 @@ void Session::Schedule(std::shared_ptr<Op> op) {
 }
 
 void Session::Pump(std::shared_ptr<Op> op, Grant g) {
-  // On a worker: up to g.batches batches, handed to the strand in one post at the end (one
-  // wake-up of the network thread per task, not per batch).
+  // On a network thread, off the strand: the batches, then one post to the strand with all of
+  // them (one wake-up per task, not per batch).
   auto self = shared_from_this();
-  if (g.batches == 0) {
-    // The cursor was opened with its slots with the client: wait for a release.
-    asio::post(strand_, [self, op] { self->Schedule(op); });
-    return;
-  }
-  struct Made {
-    wire::Response resp;
-    std::vector<Point> records;  // RECORDS over the socket: the first `count`
-    size_t count = 0;
-    int held_slot = -1;          // RECORDS in a ring slot
-  };
-  std::vector<Made> made;
-  std::vector<std::vector<Point>> back;
-  bool finished = false;
-  std::vector<bool> used(g.slots.size(), false);
-  for (size_t i = 0; i < g.batches && !finished; ++i) {
+  Produced out = Produce(*op, std::move(g));
+  asio::post(strand_, [self, op, out = std::move(out)]() mutable {
+    self->Deliver(op, std::move(out));
+  });
+}
+
+Session::Produced Session::Produce(Op& op_ref, Grant g) {
+  Op* op = &op_ref;
+  Produced out;
+  for (size_t i = 0; i < g.batches && !out.finished; ++i) {
     const int slot = i < g.slots.size() ? g.slots[i] : -1;
     Made m;
     wire::Response& resp = m.resp;
@@ -157,13 +142,13 @@ void Session::Pump(std::shared_ptr<Op> op, Grant g) {
     }
     if (!more.ok()) {
       resp = ErrorResponse(op->id, more.status());
-      finished = true;
+      out.finished = true;
     } else if (!*more) {
       auto* d = resp.mutable_done();
       d->set_points(op->points);
       for (uint32_t f : op->cursor->frames()) d->add_frames(f);
       d->set_clipped(op->cursor->clipped());
-      finished = true;
+      out.finished = true;
     } else {
       auto* b = resp.mutable_batch();
       b->set_level(static_cast<uint32_t>(batch.level));
@@ -175,7 +160,6 @@ void Session::Pump(std::shared_ptr<Op> op, Grant g) {
         b->set_record_count(static_cast<uint32_t>(in_slot));
         b->set_shm_slot(static_cast<uint32_t>(slot) + 1);
         m.held_slot = slot;
-        used[i] = true;
       } else if (op->encoding == wire::RECORDS) {
         op->points += in_slot;
         b->set_record_count(static_cast<uint32_t>(in_slot));
@@ -186,7 +170,7 @@ void Session::Pump(std::shared_ptr<Op> op, Grant g) {
         Status st = wire::EncodeDraco(batch.points, 16, b->mutable_draco());
         if (!st.ok()) {
           resp = ErrorResponse(op->id, st);
-          finished = true;
+          out.finished = true;
         }
       } else {
         op->points += batch.points.size();
@@ -195,36 +179,40 @@ void Session::Pump(std::shared_ptr<Op> op, Grant g) {
     }
     // A record buffer that carried no batch goes back to the session for the next task.
     if (m.records.empty() && batch.points.size() == wire::kMaxBatchPoints) {
-      back.push_back(std::move(batch.points));
+      out.back.push_back(std::move(batch.points));
     }
-    made.push_back(std::move(m));
+    out.made.push_back(std::move(m));
   }
-  for (size_t i = made.size(); i < g.bufs.size(); ++i) back.push_back(std::move(g.bufs[i]));
-  // Slots not filled go back; a query not finished asks for its next grant.
-  std::vector<int> unused;
+  for (size_t i = out.made.size(); i < g.bufs.size(); ++i) out.back.push_back(std::move(g.bufs[i]));
+  // Slots not filled go back.
   for (size_t k = 0; k < g.slots.size(); ++k) {
-    if (!used[k]) unused.push_back(g.slots[k]);
+    if (k >= out.made.size() || out.made[k].held_slot < 0) out.unused.push_back(g.slots[k]);
   }
-  asio::post(strand_, [self, op, made = std::move(made), finished, unused = std::move(unused),
-                       back = std::move(back)]() mutable {
-    for (int slot : unused) self->ReturnSlot(slot);
-    for (auto& b : back) {
-      if (self->spare_.size() < kMaxSpares) self->spare_.push_back(std::move(b));
+  return out;
+}
+
+void Session::Deliver(std::shared_ptr<Op> op, Produced out) {
+  for (int slot : out.unused) ReturnSlot(slot);
+  for (auto& b : out.back) {
+    if (spare_.size() < kMaxSpares) spare_.push_back(std::move(b));
+  }
+  if (closed_) return;
+  corked_ = true;
+  for (Made& m : out.made) {
+    if (m.held_slot >= 0) {
+      slot_held_[static_cast<size_t>(m.held_slot)] = 1;
+      Send(m.resp);
+    } else if (m.resp.has_batch() && m.resp.batch().encoding() == wire::RECORDS) {
+      SendRecords(m.resp, std::move(m.records), m.count);
+    } else {
+      Send(m.resp);
     }
-    if (self->closed_) return;
-    for (Made& m : made) {
-      if (m.held_slot >= 0) {
-        self->slot_held_[static_cast<size_t>(m.held_slot)] = 1;
-        self->Send(m.resp);
-      } else if (m.resp.has_batch() && m.resp.batch().encoding() == wire::RECORDS) {
-        self->SendRecords(m.resp, std::move(m.records), m.count);
-      } else {
-        self->Send(m.resp);
-      }
-    }
-    if (finished) return self->Finish(op->id);
-    self->Schedule(op);
-  });
+  }
+  corked_ = false;
+  WriteNext();
+  // A query not finished asks for its next grant.
+  if (out.finished) return Finish(op->id);
+  Schedule(op);
 }
 
 void Session::ReturnSlot(int slot) {
