@@ -208,9 +208,6 @@ Result<std::unique_ptr<Connection>> Connection::ConnectOnce(const Options& optio
     if (!st.ok()) return Status::IOError(st.message() + " (is hvdb-server running there?)");
     int one = 1;
     ::setsockopt(impl->fd(), IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one));
-    // Room for a few 1 MiB batches: fewer wake-ups per batch received.
-    int rcvbuf = 4 << 20;
-    ::setsockopt(impl->fd(), SOL_SOCKET, SO_RCVBUF, &rcvbuf, sizeof(rcvbuf));
   }
   impl->sock.non_blocking(true, ec);
   if (ec) return Status::IOError("set the socket non-blocking: " + ec.message());

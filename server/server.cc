@@ -199,9 +199,6 @@ void Server::Accept() {
     }
     boost::system::error_code ignored;
     socket.set_option(tcp::no_delay(true), ignored);
-    // Room for a few 1 MiB batches in the kernel: a batch goes out in one or two sends
-    // instead of many wake-ups for small windows of buffer space.
-    socket.set_option(asio::socket_base::send_buffer_size(4 << 20), ignored);
     auto peer = socket.remote_endpoint(ignored);
     const bool loopback = !ignored && peer.address().is_loopback();
     Admit(std::make_shared<Session>(this, StreamSocket(std::move(socket)), false, loopback));
