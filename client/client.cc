@@ -276,7 +276,16 @@ Result<std::unique_ptr<Connection>> Connection::ConnectOnce(const Options& optio
 Result<uint64_t> Connection::Send(wire::Request* req) {
   if (broken_) return Status::IOError("connection to hvdb-server is broken; reconnect");
   req->set_id(next_id_++);
-  Status st = impl_->Write(wire::Frame(*req));
+  // Ring slots waiting to go back travel in the same write as the request.
+  std::string frames;
+  if (!impl_->releases.empty()) {
+    wire::Request rel;
+    for (uint32_t s : impl_->releases) rel.mutable_release()->add_slots(s);
+    impl_->releases.clear();
+    wire::AppendFrame(rel, &frames);
+  }
+  wire::AppendFrame(*req, &frames);
+  Status st = impl_->Write(frames);
   if (!st.ok()) {
     broken_ = true;
     return st;
