@@ -329,7 +329,7 @@ std::string QueryFrame(uint64_t id, const std::string& ds, uint32_t batch_points
   return wire::Frame(q);
 }
 
-class FastPathTest : public ::testing::Test {
+class ServerFastPathTest : public ::testing::Test {
  protected:
   void SetUp() override {
     ASSERT_TRUE(fx_.server_->running());
@@ -346,7 +346,7 @@ class FastPathTest : public ::testing::Test {
   std::unique_ptr<Connection> c_;
 };
 
-TEST_F(FastPathTest, AClientThatNeverReleasesHoldsOnlyItsRing) {
+TEST_F(ServerFastPathTest, AClientThatNeverReleasesHoldsOnlyItsRing) {
   // Warm the block cache first: what grows afterwards is what the connections hold.
   ASSERT_EQ(All(*c_, "s", testing::EverythingWindow()).size(), 400000u);
   long before = fx_.server_->RssKib();
@@ -386,7 +386,7 @@ TEST_F(FastPathTest, AClientThatNeverReleasesHoldsOnlyItsRing) {
   EXPECT_FALSE(hog.Read(&r));
 }
 
-TEST_F(FastPathTest, AQueryReadAfterAnotherDoesNotWaitForItsSlots) {
+TEST_F(ServerFastPathTest, AQueryReadAfterAnotherDoesNotWaitForItsSlots) {
   // Two queries on one connection, the second read to its end before the first is touched:
   // the first's batches take every ring slot (kept aside by the client, unreleased), so the
   // second gets its records through the socket instead of waiting for a slot forever.
@@ -403,7 +403,7 @@ TEST_F(FastPathTest, AQueryReadAfterAnotherDoesNotWaitForItsSlots) {
   EXPECT_EQ(testing::Drain(**first).size(), 400000u);
 }
 
-TEST_F(FastPathTest, ReleasingASlotNotHeldIsMalformed) {
+TEST_F(ServerFastPathTest, ReleasingASlotNotHeldIsMalformed) {
   RawUnixClient c(fx_.sock_);
   ASSERT_TRUE(c.Handshake());
   wire::Request rel;
@@ -417,7 +417,7 @@ TEST_F(FastPathTest, ReleasingASlotNotHeldIsMalformed) {
   EXPECT_TRUE(c_->Ping().ok());
 }
 
-TEST_F(FastPathTest, AttachmentsFromClientsAndOldVersionsAreRefused) {
+TEST_F(ServerFastPathTest, AttachmentsFromClientsAndOldVersionsAreRefused) {
   {
     RawUnixClient c(fx_.sock_);
     wire::Hello h;
@@ -442,7 +442,7 @@ TEST_F(FastPathTest, AttachmentsFromClientsAndOldVersionsAreRefused) {
   EXPECT_TRUE(c_->Ping().ok());
 }
 
-TEST_F(FastPathTest, ClientsKilledWhileHoldingSlotsLeakNothing) {
+TEST_F(ServerFastPathTest, ClientsKilledWhileHoldingSlotsLeakNothing) {
   // Warm up: one full local read, so that what stays resident is measured after it.
   auto local = fx_.Connect(Transport::kUnixShm);
   ASSERT_EQ(All(*local, "s", testing::EverythingWindow()).size(), 400000u);
@@ -477,7 +477,7 @@ TEST_F(FastPathTest, ClientsKilledWhileHoldingSlotsLeakNothing) {
   EXPECT_EQ(All(*local, "s", testing::EverythingWindow()).size(), 400000u);
 }
 
-TEST_F(FastPathTest, EveryRequestKindOverTheUnixSocket) {
+TEST_F(ServerFastPathTest, EveryRequestKindOverTheUnixSocket) {
   auto c = fx_.Connect(Transport::kUnixShm);
   ASSERT_NE(c, nullptr);
   ASSERT_TRUE(c->Ping().ok());
