@@ -154,10 +154,6 @@ std::string Connection::transport() const {
 }
 
 Result<std::unique_ptr<Connection>> Connection::Connect(const Options& options) {
-  return ConnectOnce(options);
-}
-
-Result<std::unique_ptr<Connection>> Connection::ConnectOnce(const Options& options) {
   auto impl = std::make_unique<Impl>();
   impl->opts = options;
   boost::system::error_code ec;
@@ -267,7 +263,7 @@ Result<std::unique_ptr<Connection>> Connection::ConnectOnce(const Options& optio
     // (another mount namespace, permissions), this TCP connection is as good, only slower.
     Options lo = options;
     lo.unix_path = reply.local_socket();
-    auto fast = ConnectOnce(lo);
+    auto fast = Connect(lo);
     if (fast.ok()) return fast;
   }
   return c;

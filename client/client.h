@@ -144,7 +144,6 @@ class Connection {
     int slot = -1;
   };
   explicit Connection(std::unique_ptr<Impl> impl);
-  static Result<std::unique_ptr<Connection>> ConnectOnce(const Options& options);
   Result<wire::Response> Call(wire::Request* req);
   // The next response to `id`; a records attachment for it goes straight into *records
   // (when given) instead of in->records.

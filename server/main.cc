@@ -20,9 +20,9 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--token-file", c.token_file, "access tokens, one 'TOKEN ro|rw' per line");
   app.add_option("--port-file", c.port_file, "write the bound port to this file");
-  app.add_option("--io-threads", c.io_threads, "network threads")->capture_default_str()
+  app.add_option("--io-threads", c.io_threads, "network threads (sockets, and query batches in bounded tasks)")->capture_default_str()
       ->check(CLI::Range(1u, 256u));
-  app.add_option("--workers", c.worker_threads, "query/commit worker threads")
+  app.add_option("--workers", c.worker_threads, "worker threads for commits, edits, ingest and renders")
       ->capture_default_str()->check(CLI::Range(1u, 256u));
   app.add_option("--cache-mb", c.cache_mb, "block cache size in MiB (>= 8)")->capture_default_str()
       ->check(CLI::Range(size_t{8}, size_t{1} << 20));

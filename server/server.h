@@ -1,9 +1,11 @@
 // hvdb-server: the storage engine served over the wire protocol (docs/PROTOCOL.md).
 //
 // Threads: `io_threads` run the Boost.Asio event loop (accept, read, write; every connection
-// has its own strand); `worker_threads` run queries, commits and bulk loads, so a slow query
-// never stalls the network. Results stream batch by batch: a query produces its next batch
-// only while its connection has less than `outbound_high_water` bytes queued (flow control).
+// has its own strand) and make query batches, a bounded task at a time (two batches or four
+// ring slots); `worker_threads` run what can take long (commits, edits, bulk loads, renders),
+// so it never stalls the network. Results stream batch by batch: a query makes its next batches
+// only while its connection has less than `outbound_high_water` bytes queued and, on the local
+// fast path, free ring slots (flow control).
 #ifndef HVDB_SERVER_SERVER_H_
 #define HVDB_SERVER_SERVER_H_
 

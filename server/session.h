@@ -131,7 +131,7 @@ class Session : public std::enable_shared_from_this<Session> {
     bool finished = false;
   };
   // Makes the granted batches (any thread; touches only the op and the grant).
-  Produced Produce(Op& op, Grant g);
+  Produced Produce(Op* op, Grant g);
   // On the strand: sends them, returns what was not used, schedules the next task.
   void Deliver(std::shared_ptr<Op> op, Produced out);
   // A task off the strand: Produce, then Deliver on the strand.

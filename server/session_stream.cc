@@ -39,12 +39,10 @@ void Session::HandleQuery(std::shared_ptr<Op> op, const wire::Query& q) {
   // The cursor is opened and the first batches made right here on the strand: a small query
   // (a window, a slice of one frame) is answered without a hand-off between threads. The work
   // is bounded like every task's (two batches, or the granted ring slots).
-  Grant g = MakeGrant(op);
   auto ds = FindDataset(server_, q.dataset());
   Result<std::unique_ptr<Cursor>> cursor =
       ds.ok() ? (*ds)->Query(*region, o) : Result<std::unique_ptr<Cursor>>(ds.status());
   if (!cursor.ok()) {
-    for (int slot : g.slots) ReturnSlot(slot);
     Send(ds.ok() ? ErrorResponse(op->id, cursor.status()) : DatasetError(op->id, ds.status()));
     return Finish(op->id);
   }
@@ -52,14 +50,15 @@ void Session::HandleQuery(std::shared_ptr<Op> op, const wire::Query& q) {
     std::lock_guard<std::mutex> l(op->mu);
     op->cursor = std::move(cursor).value();
   }
+  Grant g = MakeGrant(op);
   if (g.batches == 0) return Schedule(op);
-  Deliver(op, Produce(*op, std::move(g)));
+  Deliver(op, Produce(op.get(), std::move(g)));
 }
 
 Session::Grant Session::MakeGrant(const std::shared_ptr<Op>& op) {
   Grant g;
   if (op->shm) {
-    // Several slots at once: the worker fills them back to back while the client empties the
+    // Several slots at once: the task fills them back to back while the client empties the
     // ones before (no hop through the strand between batches).
     while (g.slots.size() < kSlotsPerTask) {
       int slot = AcquireSlot();
@@ -112,14 +111,13 @@ void Session::Pump(std::shared_ptr<Op> op, Grant g) {
   // On a network thread, off the strand: the batches, then one post to the strand with all of
   // them (one wake-up per task, not per batch).
   auto self = shared_from_this();
-  Produced out = Produce(*op, std::move(g));
+  Produced out = Produce(op.get(), std::move(g));
   asio::post(strand_, [self, op, out = std::move(out)]() mutable {
     self->Deliver(op, std::move(out));
   });
 }
 
-Session::Produced Session::Produce(Op& op_ref, Grant g) {
-  Op* op = &op_ref;
+Session::Produced Session::Produce(Op* op, Grant g) {
   Produced out;
   for (size_t i = 0; i < g.batches && !out.finished; ++i) {
     const int slot = i < g.slots.size() ? g.slots[i] : -1;
@@ -155,25 +153,22 @@ Session::Produced Session::Produce(Op& op_ref, Grant g) {
       b->set_level_done(batch.level_done);
       b->set_splat_scale(batch.splat_scale);
       b->set_encoding(op->encoding);
+      const bool records = op->encoding == wire::RECORDS;
+      op->points += records ? in_slot : batch.points.size();
+      if (records) b->set_record_count(static_cast<uint32_t>(in_slot));
       if (slot >= 0) {
-        op->points += in_slot;
-        b->set_record_count(static_cast<uint32_t>(in_slot));
         b->set_shm_slot(static_cast<uint32_t>(slot) + 1);
         m.held_slot = slot;
-      } else if (op->encoding == wire::RECORDS) {
-        op->points += in_slot;
-        b->set_record_count(static_cast<uint32_t>(in_slot));
+      } else if (records) {
         m.records = std::move(batch.points);
         m.count = in_slot;
       } else if (op->encoding == wire::DRACO) {
-        op->points += batch.points.size();
         Status st = wire::EncodeDraco(batch.points, 16, b->mutable_draco());
         if (!st.ok()) {
           resp = ErrorResponse(op->id, st);
           out.finished = true;
         }
       } else {
-        op->points += batch.points.size();
         wire::EncodeColumns(batch.points, b->mutable_columns());
       }
     }
@@ -199,13 +194,11 @@ void Session::Deliver(std::shared_ptr<Op> op, Produced out) {
   if (closed_) return;
   corked_ = true;
   for (Made& m : out.made) {
-    if (m.held_slot >= 0) {
-      slot_held_[static_cast<size_t>(m.held_slot)] = 1;
+    if (m.held_slot >= 0) slot_held_[static_cast<size_t>(m.held_slot)] = 1;
+    if (m.records.empty()) {
       Send(m.resp);
-    } else if (m.resp.has_batch() && m.resp.batch().encoding() == wire::RECORDS) {
-      SendRecords(m.resp, std::move(m.records), m.count);
     } else {
-      Send(m.resp);
+      SendRecords(m.resp, std::move(m.records), m.count);
     }
   }
   corked_ = false;

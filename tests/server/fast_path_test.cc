@@ -65,6 +65,13 @@ class FastPathFixture {
     o.shm = t != Transport::kUnixRecords;
     return o;
   }
+  // An empty dataset at kFps.
+  static void CreateDataset(Connection& c, const std::string& name) {
+    DatasetInfo info;
+    info.name = name;
+    info.fps = kFps;
+    ASSERT_TRUE(c.CreateDataset(info).ok());
+  }
   std::unique_ptr<Connection> Connect(Transport t) const {
     auto c = Connection::Connect(Opts(t));
     EXPECT_TRUE(c.ok()) << c.status().ToString();
@@ -88,10 +95,7 @@ class ServerTransportTest : public ::testing::TestWithParam<Transport> {
     ASSERT_TRUE(fx_.server_->running());
     auto c = fx_.Connect(Transport::kTcpColumns);
     ASSERT_NE(c, nullptr);
-    DatasetInfo info;
-    info.name = "v";
-    info.fps = kFps;
-    ASSERT_TRUE(c->CreateDataset(info).ok());
+    FastPathFixture::CreateDataset(*c, "v");
     std::mt19937_64 rng(21);
     for (uint32_t f = 0; f < 3; ++f) {
       auto pts = RandomPoints(rng, 40000, f);
@@ -335,10 +339,7 @@ class ServerFastPathTest : public ::testing::Test {
     ASSERT_TRUE(fx_.server_->running());
     c_ = fx_.Connect(Transport::kTcpRecords);
     ASSERT_NE(c_, nullptr);
-    DatasetInfo info;
-    info.name = "s";
-    info.fps = kFps;
-    ASSERT_TRUE(c_->CreateDataset(info).ok());
+    FastPathFixture::CreateDataset(*c_, "s");
     std::mt19937_64 rng(22);
     for (uint32_t f = 0; f < 4; ++f) ASSERT_TRUE(c_->Ingest("s", f, RandomPoints(rng, 100000, f)).ok());
   }
