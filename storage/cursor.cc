@@ -123,12 +123,22 @@ class CursorImpl {
   Result<bool> RunTask(const Task& t) {
     const FrameVersion& v = *versions_[t.frame_idx];
     if (t.slot < 0) {
-      const std::vector<Point>& t0 = *v.t0;
-      for (; bucket_pos_ < t0.size(); ++bucket_pos_) {
-        const Point& p = t0[bucket_pos_];
-        if (LevelOfId(p.id, max_level()) != t.level || !Accept(p, false)) continue;
-        if (!out_.Room(1)) return false;  // a fixed buffer is full: resume at this point
-        Emit(p, v);
+      // bucket_pos_ counts points of T0 across its chunks.
+      size_t base = 0;
+      for (const auto& chunk : v.t0.chunks()) {
+        const size_t n = chunk->size();
+        if (bucket_pos_ >= base + n) {
+          base += n;
+          continue;
+        }
+        for (size_t j = bucket_pos_ - base; j < n; ++j, ++bucket_pos_) {
+          const Point& p = (*chunk)[j];
+          if (LevelOfId(p.id, max_level()) != t.level || !Accept(p, false)) continue;
+          // A full buffer, or a full batch: resume at this point.
+          if (!out_.Room(1) || out_.size() >= opts_.batch_points) return false;
+          Emit(p, v);
+        }
+        base += n;
       }
       return true;
     }

@@ -1,12 +1,8 @@
-#include <fcntl.h>
-#include <sys/file.h>
-#include <unistd.h>
-
 #include <algorithm>
 
 #include "storage/buffer_pool.h"
 #include "storage/dataset_impl.h"
-#include "storage/file.h"
+#include "storage/env.h"
 
 namespace hvdb {
 
@@ -39,33 +35,41 @@ static Status ValidateOptions(const Options& o) {
     return Status::InvalidArgument("lod_levels must be in 0..8, got " +
                                    std::to_string(o.lod_levels));
   }
+  if (o.t0_points < 64 || o.t0_points > (4u << 20)) {
+    return Status::InvalidArgument("t0_points must be in [64, 4194304], got " +
+                                   std::to_string(o.t0_points));
+  }
   return Status::OK();
 }
 
-Database::Database(std::string dir, Options opts) : dir_(std::move(dir)), opts_(opts) {}
+Database::Database(std::string dir, Options opts)
+    : dir_(std::move(dir)), opts_(opts), env_(opts.env ? opts.env : Env::Default()) {
+  opts_.env = env_;
+}
 
 Database::~Database() {
-  open_.clear();  // datasets checkpoint on close
+  open_.clear();  // datasets stop their mergers and checkpoint on close
   pool_.reset();
-  if (lock_fd_ >= 0) ::close(lock_fd_);
+  lock_.reset();
 }
 
 Result<std::unique_ptr<Database>> Database::Open(const std::string& dir, const Options& opts) {
   HVDB_RETURN_IF_ERROR(ValidateOptions(opts));
-  HVDB_RETURN_IF_ERROR(CreateDirs(dir));
   std::unique_ptr<Database> db(new Database(dir, opts));
+  Env* env = db->env_;
+  HVDB_RETURN_IF_ERROR(env->CreateDirs(dir));
   std::string lock = dir + "/LOCK";
-  db->lock_fd_ = ::open(lock.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
-  if (db->lock_fd_ < 0) return Status::FromErrno("open " + lock, errno);
-  if (::flock(db->lock_fd_, LOCK_EX | LOCK_NB) != 0) {
+  auto locked = env->Lock(lock);
+  if (!locked.ok()) {
     return Status::IOError(dir + " is in use by another hvdb process (" + lock +
                            " is locked); stop it or use its server");
   }
-  HVDB_ASSIGN_OR_RETURN(auto names, ListDir(dir));
+  db->lock_ = std::move(locked).value();
+  HVDB_ASSIGN_OR_RETURN(auto names, env->ListDir(dir));
   for (const std::string& n : names) {
     // Leftovers of a create or drop cut short by a crash.
     if (n.ends_with(".creating") || n.ends_with(".dropping")) {
-      HVDB_RETURN_IF_ERROR(RemoveTree(dir + "/" + n));
+      HVDB_RETURN_IF_ERROR(env->RemoveTree(dir + "/" + n));
     }
   }
   db->pool_ = std::make_unique<BufferPool>(opts.cache_bytes, opts.block_size);
@@ -74,10 +78,10 @@ Result<std::unique_ptr<Database>> Database::Open(const std::string& dir, const O
 
 std::vector<std::string> Database::ListDatasets() const {
   std::vector<std::string> out;
-  auto names = ListDir(dir_);
+  auto names = env_->ListDir(dir_);
   if (!names.ok()) return out;
   for (const std::string& n : *names) {
-    if (ValidateDatasetName(n).ok() && FileExists(dir_ + "/" + n + "/MANIFEST")) out.push_back(n);
+    if (ValidateDatasetName(n).ok() && env_->Exists(dir_ + "/" + n + "/MANIFEST")) out.push_back(n);
   }
   std::sort(out.begin(), out.end());
   return out;
@@ -100,7 +104,7 @@ Result<std::shared_ptr<Dataset>> Database::GetDataset(const std::string& name) {
     if (n == name) return ds;
   }
   std::string path = dir_ + "/" + name;
-  if (!FileExists(path + "/MANIFEST")) {
+  if (!env_->Exists(path + "/MANIFEST")) {
     return Status::NotFound("no dataset '" + name + "' in " + dir_ +
                             " (list them with `hvdb datasets`)");
   }
@@ -114,13 +118,13 @@ Status Database::DropDataset(const std::string& name) {
   HVDB_RETURN_IF_ERROR(ValidateDatasetName(name));
   std::lock_guard<std::mutex> l(mu_);
   std::string path = dir_ + "/" + name;
-  if (!FileExists(path + "/MANIFEST")) return Status::NotFound("no dataset '" + name + "'");
+  if (!env_->Exists(path + "/MANIFEST")) return Status::NotFound("no dataset '" + name + "'");
   std::erase_if(open_, [&](const auto& e) { return e.first == name; });
   // Rename first: the drop is atomic, and a crash mid-delete leaves only a .dropping folder.
   std::string gone = path + ".dropping";
-  if (std::rename(path.c_str(), gone.c_str()) != 0) return Status::FromErrno("rename " + path, errno);
-  HVDB_RETURN_IF_ERROR(SyncDir(dir_));
-  return RemoveTree(gone);
+  HVDB_RETURN_IF_ERROR(env_->Rename(path, gone));
+  HVDB_RETURN_IF_ERROR(env_->SyncDir(dir_));
+  return env_->RemoveTree(gone);
 }
 
 CacheStats Database::Cache() const { return pool_->Stats(); }
@@ -139,5 +143,6 @@ Result<CommitInfo> Dataset::Revert(uint64_t lsn) { return impl_->Revert(lsn); }
 DatasetStats Dataset::Stats() const { return impl_->Stats(); }
 std::vector<std::string> Dataset::Check() const { return impl_->Check(); }
 Status Dataset::Checkpoint() { return impl_->Checkpoint(); }
+Status Dataset::WaitForMerges() { return impl_->WaitForMerges(); }
 
 }  // namespace hvdb

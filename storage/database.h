@@ -4,6 +4,8 @@
 // Thread safety: a Database and its Datasets are safe for concurrent use from many threads.
 // Queries read a snapshot of each frame taken when the query starts and never block writers;
 // commits are serialised per dataset and grouped (one fsync for all commits waiting at once).
+// A commit is durable once its log record is synced; each dataset's merger thread turns the
+// in-memory buffers T0 into trees in the background (logarithmic method, 8.3.2).
 //
 // Errors: functions return Status / Result<T> (storage/status.h) and never throw.
 #ifndef HVDB_STORAGE_DATABASE_H_
@@ -20,6 +22,7 @@
 #include <variant>
 #include <vector>
 
+#include "storage/env.h"
 #include "storage/point.h"
 #include "storage/status.h"
 
@@ -36,6 +39,11 @@ struct Options {
   bool sync = true;                 // fsync the log on every commit (group commit)
   uint32_t max_slice_frames = 64;   // default bound on frames a slice may read
   uint64_t wal_checkpoint_bytes = 64u << 20;  // checkpoint once the log grows past this
+  // Points a frame's in-memory buffer T0 holds before the merger makes a tree of it; slot i
+  // of the forest then holds up to t0_points * 2^i. Commits wait for the merger when a T0
+  // reaches 8x this. In [64, 4 Mi].
+  uint32_t t0_points = 64u << 10;
+  Env* env = nullptr;  // all file I/O (storage/env.h); null: the POSIX Env::Default()
 };
 
 // One camera of the recording rig, for view-dependent rendering.
@@ -169,6 +177,7 @@ struct DatasetStats {
   uint32_t frames_with_data = 0;
   uint64_t points = 0, tombstones = 0, buffered_points = 0;
   uint64_t trees = 0, tree_bytes = 0, wal_bytes = 0;
+  uint64_t merges = 0;  // trees built by the merger since open
   double leaf_utilisation = 0;  // points / (leaf blocks * b) over all trees
 };
 
@@ -199,6 +208,8 @@ class Dataset {
   std::vector<std::string> Check() const;
   // Writes all buffered frame state and starts a new log segment.
   Status Checkpoint();
+  // Waits until the merger has turned every full buffer T0 into a tree (benchmarks, tests).
+  Status WaitForMerges();
 
   DatasetImpl* impl() { return impl_.get(); }
 
@@ -226,7 +237,8 @@ class Database {
   Database(std::string dir, Options opts);
   std::string dir_;
   Options opts_;
-  int lock_fd_ = -1;
+  Env* env_;
+  std::unique_ptr<FileLock> lock_;
   std::unique_ptr<BufferPool> pool_;
   mutable std::mutex mu_;
   std::vector<std::pair<std::string, std::shared_ptr<Dataset>>> open_;

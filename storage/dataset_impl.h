@@ -7,9 +7,12 @@
 //   wal.log             the log since the last checkpoint; wal-<lsn>.log: older segments
 //
 // Concurrency: readers take shared_ptr snapshots of frame versions under mu_. Writers
-// (commits, bulk loads, checkpoints) queue on write_mu_; the writer at the front of the queue
-// (the leader) applies every queued transaction, writes their log records with one fsync
-// (group commit), publishes the new versions, then wakes the others.
+// (commits, bulk loads, checkpoints, the merger's installs) queue on write_mu_; the writer at
+// the front of the queue (the leader) applies every queued transaction, writes their log
+// records with one write and one fsync (group commit), publishes the new versions, then wakes
+// the others. A commit never builds a tree: its points go to T0 (dataset_write.cc). The merger
+// thread (dataset_merge.cc) builds trees from snapshots outside every lock and installs them
+// as a queued writer; frame states are written at checkpoints (the log covers them until then).
 #ifndef HVDB_STORAGE_DATASET_IMPL_H_
 #define HVDB_STORAGE_DATASET_IMPL_H_
 
@@ -18,6 +21,7 @@
 #include <map>
 #include <mutex>
 #include <set>
+#include <thread>
 
 #include "storage/buffer_pool.h"
 #include "storage/database.h"
@@ -26,6 +30,8 @@
 #include "storage/wal.h"
 
 namespace hvdb {
+
+using FrameMap = std::map<uint32_t, std::shared_ptr<const FrameVersion>>;
 
 // A region resolved against a dataset: which frames, and the per-frame tests.
 struct RegionPlan {
@@ -40,6 +46,13 @@ struct RegionPlan {
   Relation Classify(const Box3& box, uint32_t frame) const;
   bool Contains(const Point& p) const;  // p in its own frame
 };
+
+Result<RegionPlan> PlanRegion(const Region& region, int lod, bool temporal_lod,
+                              const FrameMap& frames, const DatasetInfo& info,
+                              const Options& opts);
+// A copy of `old` with `step` applied; each removed point is found by id and position.
+Result<std::shared_ptr<FrameVersion>> ApplyStep(const FrameVersion& old, const FrameEffect& step,
+                                                uint64_t lsn);
 
 class DatasetImpl {
  public:
@@ -58,6 +71,8 @@ class DatasetImpl {
   DatasetStats Stats() const;
   std::vector<std::string> Check() const;
   Status Checkpoint();
+  // Blocks until no frame's T0 is over its capacity (tests and benchmarks).
+  Status WaitForMerges();
 
   // Resolves a region to frames (for queries: temporal LOD and the slice frame bound).
   Result<RegionPlan> Plan(const Region& region, int lod, bool temporal_lod) const;
@@ -67,6 +82,7 @@ class DatasetImpl {
 
  private:
   struct WriteRequest;
+  struct Merge;
   class Working;
 
   DatasetImpl(std::string dir, Options opts, BufferPool* pool, DatasetInfo info);
@@ -74,20 +90,34 @@ class DatasetImpl {
   Status WriteManifest() const;
   Result<CommitInfo> Submit(WriteRequest* w);
   void LeadGroup(std::vector<WriteRequest*>& group);
+  void LeadCommits(std::vector<WriteRequest*>& group);
   // Resolves a request against the working state into a log record (no change yet).
   Status Resolve(const Transaction& txn, Working* ws, TxnRecord* rec, CommitInfo* info);
-  // Turns the frames whose buffer overflowed into trees (logarithmic method).
-  Status Rebuild(FrameVersion* v, std::vector<Point> extra);
-  Status PersistFrame(const FrameVersion& v);
-  Status CheckpointLocked();
   Result<TxnRecord> FindRecord(uint64_t lsn) const;
   std::string TreePath(uint32_t frame, uint64_t seq) const;
 
+  // dataset_merge.cc: the logarithmic method.
+  // Smallest slot that can take T0 plus slots 0..i-1 of `v` (plus `extra` points).
+  size_t TargetSlot(const FrameVersion& v, uint64_t extra) const;
+  // Builds the tree of slot i from v's T0, `extra` and slots 0..i-1 (no lock held).
+  Result<std::shared_ptr<KdTree>> BuildMerged(const FrameVersion& v, size_t i,
+                                              std::vector<Point> extra, bool sync);
+  void MergerLoop();
+  Status MergeOnce(uint32_t frame);
+  Status Install(const Merge& m);  // as leader
+  void Retire(uint32_t frame, const std::shared_ptr<KdTree>& tree);  // as leader
+  Status BulkLocked(uint32_t frame, std::vector<Point>* points);      // as leader
+  Status PersistFrame(const FrameVersion& v);                          // as leader
+  Status CheckpointLocked();                                           // as leader
+  void WakeMerger();
+  bool NeedsMerge(const FrameVersion& v) const { return v.t0.size() > t0_cap_; }
+
   const std::string dir_;
   const Options opts_;
+  Env* const env_;
   BufferPool* const pool_;
-  const uint32_t p_;  // T0 capacity: one block of points
-  DatasetInfo info_;  // static part: name, fps, scale, cameras, declared frame count
+  const uint64_t t0_cap_;  // p: T0's capacity, and slot 0's
+  DatasetInfo info_;       // static part: name, fps, scale, cameras, declared frame count
 
   mutable std::mutex mu_;  // guards frames_, last_lsn_
   std::map<uint32_t, std::shared_ptr<const FrameVersion>> frames_;
@@ -100,8 +130,42 @@ class DatasetImpl {
   std::unique_ptr<WalWriter> wal_;
   uint64_t wal_start_lsn_ = 1;
   std::set<uint32_t> dirty_;  // frames whose state file lags the log
+  // Trees the state files on disk still list but no version does: deleted once the frame's
+  // next state is durable.
+  std::map<uint32_t, std::vector<std::shared_ptr<KdTree>>> retired_;
   std::atomic<uint64_t> next_id_{1};
   std::atomic<uint64_t> next_seq_{1};
+  std::atomic<uint64_t> merges_{0};
+  std::atomic<uint64_t> wal_bytes_{0};
+
+  // The merger: one thread per dataset, woken by commits that overfill a T0 or the log.
+  std::mutex merge_mu_;  // guards the fields below
+  std::condition_variable merge_cv_;   // wakes the merger
+  std::condition_variable merged_cv_;  // wakes writers waiting for a merge
+  bool merge_stop_ = false, merge_wake_ = false, checkpoint_wanted_ = false;
+  Status merge_error_;  // the last failed merge (cleared by a successful one)
+  std::thread merger_;
+};
+
+// One queued writer. Bulk loads, checkpoints and installs are led alone.
+struct DatasetImpl::WriteRequest {
+  enum class Kind { kTxn, kRevert, kBulk, kCheckpoint, kInstall } kind = Kind::kTxn;
+  const Transaction* txn = nullptr;
+  uint64_t revert_lsn = 0;
+  uint32_t frame = 0;
+  std::vector<Point>* points = nullptr;
+  const Merge* merge = nullptr;
+  bool done = false;
+  Status status;
+  CommitInfo info;
+};
+
+// A tree the merger built from `base` (T0 and slots 0..slot-1), to go into slot `slot`.
+struct DatasetImpl::Merge {
+  uint32_t frame = 0;
+  std::shared_ptr<const FrameVersion> base;
+  size_t slot = 0;
+  std::shared_ptr<KdTree> tree;
 };
 
 }  // namespace hvdb

@@ -14,8 +14,49 @@ namespace hvdb {
 static constexpr char kFrameMagic[8] = {'H', 'V', 'D', 'B', 'F', 'S', 'T', '\0'};
 static constexpr uint32_t kFrameVersion = 1;
 
+std::vector<Point> PointBuffer::ToVector() const {
+  std::vector<Point> out;
+  out.reserve(size_);
+  for (const Chunk& c : chunks_) out.insert(out.end(), c->begin(), c->end());
+  return out;
+}
+
+void PointBuffer::Append(std::vector<Point> pts) {
+  if (pts.empty()) return;
+  size_ += pts.size();
+  // Small commits extend a small last chunk (a bounded copy) instead of adding a chunk each.
+  constexpr size_t kSmallChunk = 4096;
+  if (!chunks_.empty() && chunks_.back()->size() < kSmallChunk) {
+    auto merged = std::make_shared<std::vector<Point>>();
+    merged->reserve(chunks_.back()->size() + pts.size());
+    merged->insert(merged->end(), chunks_.back()->begin(), chunks_.back()->end());
+    merged->insert(merged->end(), pts.begin(), pts.end());
+    chunks_.back() = std::move(merged);
+    return;
+  }
+  chunks_.push_back(std::make_shared<const std::vector<Point>>(std::move(pts)));
+}
+
+PointBuffer PointBuffer::Suffix(size_t n) const {
+  PointBuffer out;
+  for (const Chunk& c : chunks_) {
+    if (n >= c->size()) {
+      n -= c->size();
+      continue;
+    }
+    if (n == 0) {
+      out.chunks_.push_back(c);
+    } else {
+      out.chunks_.push_back(std::make_shared<const std::vector<Point>>(c->begin() + n, c->end()));
+      n = 0;
+    }
+    out.size_ += out.chunks_.back()->size();
+  }
+  return out;
+}
+
 uint64_t FrameVersion::PointCount() const {
-  uint64_t n = t0->size();
+  uint64_t n = t0.size();
   for (const TreeSlot& s : slots) n += s.live();
   return n;
 }
@@ -33,13 +74,13 @@ Box3 FrameVersion::Bounds() const {
       b.hi[a] = std::max(b.hi[a], s.tree->header().bbox.hi[a]);
     }
   }
-  for (const Point& p : *t0) {
+  t0.ForEach([&b](const Point& p) {
     const float c[3] = {p.x, p.y, p.z};
     for (int a = 0; a < 3; ++a) {
       b.lo[a] = std::min(b.lo[a], c[a]);
       b.hi[a] = std::max(b.hi[a], c[a]);
     }
-  }
+  });
   return b;
 }
 
@@ -83,9 +124,9 @@ std::string EncodeFrameState(const FrameVersion& v, uint64_t next_id) {
     w.Put<uint32_t>(nd);
     for (uint32_t i = 0; i < nd; ++i) w.Put<uint64_t>((*s.dead)[i]);
   }
-  w.Put<uint32_t>(static_cast<uint32_t>(v.t0->size()));
-  std::string recs(v.t0->size() * kPointRecordSize, '\0');
-  EncodePoints(*v.t0, reinterpret_cast<uint8_t*>(recs.data()));
+  w.Put<uint32_t>(static_cast<uint32_t>(v.t0.size()));
+  std::string recs(v.t0.size() * kPointRecordSize, '\0');
+  EncodePoints(v.t0.ToVector(), reinterpret_cast<uint8_t*>(recs.data()));
   w.PutBytes(recs.data(), recs.size());
   w.Put<uint32_t>(crc32c::Mask(crc32c::Value(w.data().data(), w.data().size())));
   return std::move(w.data());

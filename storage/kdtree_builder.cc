@@ -7,7 +7,6 @@
 
 #include "storage/coding.h"
 #include "storage/crc32c.h"
-#include "storage/file.h"
 #include "storage/kdtree_format.h"
 #include "storage/lod.h"
 
@@ -128,8 +127,8 @@ class NodePacker {
 
 }  // namespace
 
-Status BuildTreeFile(const std::string& path, std::vector<Point>& points,
-                     const TreeBuildParams& params) {
+Status BuildTreeFile(Env* env, const std::string& path, std::vector<Point>& points,
+                     const TreeBuildParams& params, bool sync) {
   const uint32_t bs = params.block_size;
   const uint32_t b = bs / static_cast<uint32_t>(kPointRecordSize);
   const auto levels = static_cast<uint32_t>(params.lod_levels + 1);
@@ -228,7 +227,9 @@ Status BuildTreeFile(const std::string& path, std::vector<Point>& points,
   }
   h.crc_table_crc = crc32c::Mask(crc32c::Value(crc_base, size_t{ncrc} * bs));
   EncodeTreeHeader(h, base);
-  return WriteFileAtomic(path, file);
+  if (sync) return WriteFileAtomic(env, path, file);
+  HVDB_ASSIGN_OR_RETURN(auto f, env->OpenWrite(path, /*truncate=*/true));
+  return f->Append(file);
 }
 
 }  // namespace hvdb

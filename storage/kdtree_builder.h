@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "storage/env.h"
 #include "storage/point.h"
 #include "storage/status.h"
 
@@ -26,10 +27,12 @@ struct TreeBuildParams {
 // Points in the left child of a node holding q points, with bucket capacity c.
 uint64_t LeftChildSize(uint64_t q, uint64_t c);
 
-// Writes the tree to `path` (via path.tmp, fsync, rename). `points` is reordered.
+// Writes the tree to `path`. sync: via path.tmp, sync, rename (durable and all or nothing when
+// it returns); else straight to `path`, unsynced (the caller syncs it before any frame state
+// lists it, and recovery deletes unlisted tree files). `points` is reordered.
 // REQUIRES: !points.empty().
-Status BuildTreeFile(const std::string& path, std::vector<Point>& points,
-                     const TreeBuildParams& params);
+Status BuildTreeFile(Env* env, const std::string& path, std::vector<Point>& points,
+                     const TreeBuildParams& params, bool sync);
 
 }  // namespace hvdb
 

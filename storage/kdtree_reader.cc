@@ -1,7 +1,5 @@
 #include "storage/kdtree_reader.h"
 
-#include <unistd.h>
-
 #include <algorithm>
 #include <cstring>
 
@@ -10,8 +8,9 @@
 
 namespace hvdb {
 
-Result<std::shared_ptr<KdTree>> KdTree::Open(const std::string& path, BufferPool* pool) {
-  HVDB_ASSIGN_OR_RETURN(auto file, RandomAccessFile::Open(path));
+Result<std::shared_ptr<KdTree>> KdTree::Open(Env* env, const std::string& path,
+                                             BufferPool* pool, bool synced) {
+  HVDB_ASSIGN_OR_RETURN(auto file, env->OpenRead(path));
   uint8_t head[kTreeHeaderSize];
   if (file->size() < kTreeHeaderSize) {
     return Status::Corruption(path + ": truncated: " + std::to_string(file->size()) +
@@ -41,17 +40,27 @@ Result<std::shared_ptr<KdTree>> KdTree::Open(const std::string& path, BufferPool
   for (uint32_t i = 0; i < h.total_blocks; ++i) {
     crcs[i] = DecodeLE<uint32_t>(reinterpret_cast<const uint8_t*>(table.data()) + 4 * size_t{i});
   }
-  return std::shared_ptr<KdTree>(new KdTree(std::move(file), pool, h, std::move(crcs)));
+  auto tree = std::shared_ptr<KdTree>(new KdTree(env, std::move(file), pool, h, std::move(crcs)));
+  tree->synced_ = synced;
+  return tree;
 }
 
-KdTree::KdTree(std::shared_ptr<RandomAccessFile> file, BufferPool* pool, TreeHeader h,
+KdTree::KdTree(Env* env, std::shared_ptr<RandomAccessFile> file, BufferPool* pool, TreeHeader h,
                std::vector<uint32_t> crcs)
-    : file_(std::move(file)), pool_(pool), h_(h), crcs_(std::move(crcs)),
+    : env_(env), file_(std::move(file)), pool_(pool), h_(h), crcs_(std::move(crcs)),
       file_id_(pool->NewFileId()) {}
 
 KdTree::~KdTree() {
   pool_->Forget(file_id_);
-  if (obsolete_) ::unlink(file_->path().c_str());
+  if (obsolete_) (void)env_->Remove(file_->path());
+}
+
+Status KdTree::Sync() {
+  if (synced_.load()) return Status::OK();
+  HVDB_ASSIGN_OR_RETURN(auto f, env_->OpenWrite(file_->path(), /*truncate=*/false));
+  HVDB_RETURN_IF_ERROR(f->Sync());
+  synced_ = true;
+  return Status::OK();
 }
 
 Status KdTree::LoadBlock(uint32_t blk, uint8_t* dst) const {

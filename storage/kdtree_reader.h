@@ -13,7 +13,7 @@
 #include <vector>
 
 #include "storage/buffer_pool.h"
-#include "storage/file.h"
+#include "storage/env.h"
 #include "storage/kdtree_format.h"
 #include "storage/point.h"
 
@@ -21,7 +21,9 @@ namespace hvdb {
 
 class KdTree {
  public:
-  static Result<std::shared_ptr<KdTree>> Open(const std::string& path, BufferPool* pool);
+  // `synced`: the file's contents are known durable (else Sync() makes them so).
+  static Result<std::shared_ptr<KdTree>> Open(Env* env, const std::string& path,
+                                              BufferPool* pool, bool synced = true);
   ~KdTree();
   KdTree(const KdTree&) = delete;
   KdTree& operator=(const KdTree&) = delete;
@@ -31,6 +33,12 @@ class KdTree {
   uint64_t file_bytes() const { return file_->size(); }
   // The file is deleted when the last reference goes.
   void MarkObsolete() { obsolete_ = true; }
+  // Makes the file durable (once); a frame state may list the tree only after this.
+  Status Sync();
+  // Listed by the frame state file on disk: the file must outlive every version that drops
+  // it until a newer state is durable.
+  bool durable() const { return durable_.load(); }
+  void MarkDurable() { durable_ = true; }
   void DropCache() const { file_->DropCache(); }
 
   struct BucketHit {
@@ -52,18 +60,20 @@ class KdTree {
   std::vector<std::string> Verify() const;
 
  private:
-  KdTree(std::shared_ptr<RandomAccessFile> file, BufferPool* pool, TreeHeader h,
+  KdTree(Env* env, std::shared_ptr<RandomAccessFile> file, BufferPool* pool, TreeHeader h,
          std::vector<uint32_t> crcs);
   Result<PageRef> Block(uint32_t blk) const;
   Status LoadBlock(uint32_t blk, uint8_t* dst) const;
   Result<DirEntry> Dir(uint32_t bucket) const;
 
+  Env* const env_;
   std::shared_ptr<RandomAccessFile> file_;
   BufferPool* pool_;
   const TreeHeader h_;
   const std::vector<uint32_t> crcs_;  // masked CRC-32C of every block (0: not covered)
   const uint64_t file_id_;
   std::atomic<bool> obsolete_{false};
+  std::atomic<bool> synced_{true}, durable_{false};
 };
 
 }  // namespace hvdb

@@ -61,8 +61,8 @@ Result<TxnRecord> DecodeTxnPayload(const std::string& payload, uint64_t lsn) {
   return t;
 }
 
-Result<WalContents> ReadWal(const std::string& path) {
-  HVDB_ASSIGN_OR_RETURN(std::string data, ReadWholeFile(path));
+Result<WalContents> ReadWal(Env* env, const std::string& path) {
+  HVDB_ASSIGN_OR_RETURN(std::string data, ReadWholeFile(env, path));
   WalContents out;
   const auto* p = reinterpret_cast<const uint8_t*>(data.data());
   if (data.size() < kWalHeaderSize) {
@@ -133,7 +133,7 @@ Result<WalContents> ReadWal(const std::string& path) {
   return out;
 }
 
-Result<std::unique_ptr<WalWriter>> WalWriter::Open(const std::string& path, uint64_t start_lsn,
+Result<std::unique_ptr<WalWriter>> WalWriter::Open(Env* env, const std::string& path, uint64_t start_lsn,
                                                    uint64_t valid_bytes, bool exists) {
   if (!exists || valid_bytes < kWalHeaderSize) {
     Writer h;
@@ -142,11 +142,11 @@ Result<std::unique_ptr<WalWriter>> WalWriter::Open(const std::string& path, uint
     h.Put<uint32_t>(0);
     h.Put<uint64_t>(start_lsn);
     h.Put<uint32_t>(crc32c::Mask(crc32c::Value(h.data().data(), h.data().size())));
-    HVDB_RETURN_IF_ERROR(WriteFileAtomic(path, h.data()));
-    HVDB_ASSIGN_OR_RETURN(auto f, AppendFile::Open(path, /*truncate=*/false));
+    HVDB_RETURN_IF_ERROR(WriteFileAtomic(env, path, h.data()));
+    HVDB_ASSIGN_OR_RETURN(auto f, env->OpenWrite(path, /*truncate=*/false));
     return std::unique_ptr<WalWriter>(new WalWriter(std::move(f)));
   }
-  HVDB_ASSIGN_OR_RETURN(auto f, AppendFile::Open(path, /*truncate=*/false));
+  HVDB_ASSIGN_OR_RETURN(auto f, env->OpenWrite(path, /*truncate=*/false));
   if (f->size() != valid_bytes) {
     HVDB_RETURN_IF_ERROR(f->Truncate(valid_bytes));
     HVDB_RETURN_IF_ERROR(f->Sync());
@@ -154,22 +154,28 @@ Result<std::unique_ptr<WalWriter>> WalWriter::Open(const std::string& path, uint
   return std::unique_ptr<WalWriter>(new WalWriter(std::move(f)));
 }
 
-Status WalWriter::Append(const TxnRecord& t) {
-  std::string payload = EncodeTxnPayload(t);
-  if (payload.size() > kMaxRecord) {
-    return Status::LimitExceeded("transaction too large for one log record (" +
-                                 std::to_string(payload.size()) + " bytes, limit 1 GiB)");
+Status WalWriter::Append(const std::vector<TxnRecord>& records) {
+  // One write for a whole commit group: the records, back to back.
+  std::string out;
+  for (const TxnRecord& t : records) {
+    std::string payload = EncodeTxnPayload(t);
+    if (payload.size() > kMaxRecord) {
+      return Status::LimitExceeded("transaction too large for one log record (" +
+                                   std::to_string(payload.size()) + " bytes, limit 1 GiB)");
+    }
+    Writer w;
+    w.Put<uint32_t>(0);  // header checksum, patched below
+    w.Put<uint32_t>(static_cast<uint32_t>(payload.size()));
+    w.Put<uint64_t>(t.lsn);
+    w.Put<uint8_t>(kTypeTxn);
+    w.Put<uint32_t>(crc32c::Mask(crc32c::Value(payload.data(), payload.size())));
+    std::string& rec = w.data();
+    EncodeLE(reinterpret_cast<uint8_t*>(rec.data()),
+             crc32c::Mask(crc32c::Value(rec.data() + 4, 17)));
+    out += rec;
+    out += payload;
   }
-  Writer w;
-  w.Put<uint32_t>(0);  // header checksum, patched below
-  w.Put<uint32_t>(static_cast<uint32_t>(payload.size()));
-  w.Put<uint64_t>(t.lsn);
-  w.Put<uint8_t>(kTypeTxn);
-  w.Put<uint32_t>(crc32c::Mask(crc32c::Value(payload.data(), payload.size())));
-  std::string& rec = w.data();
-  EncodeLE(reinterpret_cast<uint8_t*>(rec.data()), crc32c::Mask(crc32c::Value(rec.data() + 4, 17)));
-  rec += payload;
-  return file_->Append(rec);
+  return file_->Append(out);
 }
 
 }  // namespace hvdb

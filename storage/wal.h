@@ -9,7 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "storage/file.h"
+#include "storage/env.h"
 #include "storage/point.h"
 
 namespace hvdb {
@@ -38,21 +38,23 @@ struct WalContents {
 
 // Reads a log file. A torn last record (a crash mid-append) ends the log; a bad record with
 // valid data after it is Corruption.
-Result<WalContents> ReadWal(const std::string& path);
+Result<WalContents> ReadWal(Env* env, const std::string& path);
 
 class WalWriter {
  public:
   // Opens `path` for appending after `valid_bytes` (truncating a torn tail), or creates it
   // with the given start_lsn when it does not exist.
-  static Result<std::unique_ptr<WalWriter>> Open(const std::string& path, uint64_t start_lsn,
+  static Result<std::unique_ptr<WalWriter>> Open(Env* env, const std::string& path,
+                                                 uint64_t start_lsn,
                                                  uint64_t valid_bytes, bool exists);
-  Status Append(const TxnRecord& t);
+  // Appends the records in one write; on failure none of them stays in the file.
+  Status Append(const std::vector<TxnRecord>& records);
   Status Sync() { return file_->Sync(); }
   uint64_t size() const { return file_->size(); }
 
  private:
-  explicit WalWriter(std::unique_ptr<AppendFile> f) : file_(std::move(f)) {}
-  std::unique_ptr<AppendFile> file_;
+  explicit WalWriter(std::unique_ptr<WritableFile> f) : file_(std::move(f)) {}
+  std::unique_ptr<WritableFile> file_;
 };
 
 inline constexpr size_t kWalHeaderSize = 28;

@@ -74,7 +74,8 @@ class TempDir {
 Options CrashOptions(bool sync, bool small_log) {
   Options o;
   o.cache_bytes = 8u << 20;
-  o.block_size = 4096;  // T0 holds 64 points: rebuilds are frequent
+  o.block_size = 4096;
+  o.t0_points = 64;  // merges are frequent
   o.sync = sync;
   if (small_log) o.wal_checkpoint_bytes = 128u << 10;  // checkpoints and log segments too
   return o;

@@ -54,7 +54,8 @@ class DatasetTest : public ::testing::Test {
     ds_.reset();
     db_.reset();
     o.cache_bytes = 8u << 20;
-    o.block_size = 4096;  // T0 = 64 points: rebuilds are frequent
+    o.block_size = 4096;
+    o.t0_points = 64;  // merges are frequent
     o.max_slice_frames = 1000;
     auto db = Database::Open(dir_.path(), o);
     ASSERT_TRUE(db.ok()) << db.status().ToString();

@@ -23,8 +23,8 @@ std::shared_ptr<KdTree> Build(const std::string& path, std::vector<Point> pts, B
   params.lod_levels = levels;
   params.frame = 0;
   params.tree_seq = 1;
-  EXPECT_TRUE(BuildTreeFile(path, pts, params).ok());
-  auto t = KdTree::Open(path, pool);
+  EXPECT_TRUE(BuildTreeFile(Env::Default(), path, pts, params, /*sync=*/true).ok());
+  auto t = KdTree::Open(Env::Default(), path, pool);
   EXPECT_TRUE(t.ok()) << t.status().ToString();
   return t.ok() ? *t : nullptr;
 }

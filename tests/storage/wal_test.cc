@@ -26,10 +26,10 @@ class WalTest : public ::testing::Test {
  protected:
   std::string Write(int n) {
     std::string path = dir_.path() + "/wal.log";
-    auto w = WalWriter::Open(path, 1, 0, false);
+    auto w = WalWriter::Open(Env::Default(), path, 1, 0, false);
     EXPECT_TRUE(w.ok());
     std::mt19937_64 rng(1);
-    for (int i = 1; i <= n; ++i) EXPECT_TRUE((*w)->Append(MakeRecord(i, rng)).ok());
+    for (int i = 1; i <= n; ++i) EXPECT_TRUE((*w)->Append({MakeRecord(i, rng)}).ok());
     EXPECT_TRUE((*w)->Sync().ok());
     return path;
   }
@@ -38,7 +38,7 @@ class WalTest : public ::testing::Test {
 
 TEST_F(WalTest, RoundTrip) {
   std::string path = Write(20);
-  auto c = ReadWal(path);
+  auto c = ReadWal(Env::Default(), path);
   ASSERT_TRUE(c.ok()) << c.status().ToString();
   ASSERT_EQ(c->records.size(), 20u);
   EXPECT_FALSE(c->torn_tail);
@@ -57,15 +57,15 @@ TEST_F(WalTest, TornTailIsDroppedAndRepaired) {
   std::string path = Write(10);
   auto size = std::filesystem::file_size(path);
   std::filesystem::resize_file(path, size - 30);  // cut into the last record
-  auto c = ReadWal(path);
+  auto c = ReadWal(Env::Default(), path);
   ASSERT_TRUE(c.ok());
   EXPECT_TRUE(c->torn_tail);
   EXPECT_EQ(c->records.size(), 9u);
-  auto w = WalWriter::Open(path, 1, c->valid_bytes, true);
+  auto w = WalWriter::Open(Env::Default(), path, 1, c->valid_bytes, true);
   ASSERT_TRUE(w.ok());
   std::mt19937_64 rng(2);
-  ASSERT_TRUE((*w)->Append(MakeRecord(10, rng)).ok());
-  auto again = ReadWal(path);
+  ASSERT_TRUE((*w)->Append({MakeRecord(10, rng)}).ok());
+  auto again = ReadWal(Env::Default(), path);
   ASSERT_TRUE(again.ok());
   EXPECT_EQ(again->records.size(), 10u);
   EXPECT_FALSE(again->torn_tail);
@@ -75,7 +75,7 @@ TEST_F(WalTest, ZeroTailIsTorn) {
   // Some file systems show zeros where a crash cut an append short.
   std::string path = Write(3);
   std::ofstream(path, std::ios::app) << std::string(100, '\0');
-  auto c = ReadWal(path);
+  auto c = ReadWal(Env::Default(), path);
   ASSERT_TRUE(c.ok());
   EXPECT_TRUE(c->torn_tail);
   EXPECT_EQ(c->records.size(), 3u);
@@ -85,7 +85,7 @@ TEST_F(WalTest, GarbageAfterTheLastRecordIsCorruption) {
   // Not the signature of a crash (which leaves a prefix of a real record): refuse it.
   std::string path = Write(3);
   std::ofstream(path, std::ios::app) << "xxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxx";
-  auto c = ReadWal(path);
+  auto c = ReadWal(Env::Default(), path);
   ASSERT_FALSE(c.ok());
   EXPECT_TRUE(c.status().IsCorruption());
 }
@@ -96,7 +96,7 @@ TEST_F(WalTest, CorruptionInTheMiddleIsAnError) {
   f.seekp(kWalHeaderSize + 40);
   f.put('\x5a');
   f.close();
-  auto c = ReadWal(path);
+  auto c = ReadWal(Env::Default(), path);
   ASSERT_FALSE(c.ok());
   EXPECT_TRUE(c.status().IsCorruption());
   EXPECT_NE(c.status().message().find("wal.log"), std::string::npos);

@@ -1,0 +1,302 @@
+// The logarithmic method (8.3.2) off the commit path: a merger thread per dataset turns a full
+// buffer T0, together with the smaller trees before the first free slot, into one tree.
+//
+// The merger builds from a snapshot with no lock held and installs the tree as a queued writer
+// (so it never races a commit); what changed in the frame meanwhile is carried over: points
+// that left T0 or the merged trees become the new tree's dead ids, points that arrived stay in
+// T0. A built tree is not synced: its points are still in the log, and recovery deletes tree
+// files no frame state lists. Checkpoints (also run by the merger once the log is large) sync
+// the trees a frame lists, then write its state; trees the old state listed are deleted after.
+#include <algorithm>
+#include <cstdio>
+
+#include "storage/dataset_impl.h"
+#include "storage/kdtree_builder.h"
+
+namespace hvdb {
+
+size_t DatasetImpl::TargetSlot(const FrameVersion& v, uint64_t extra) const {
+  uint64_t total = v.t0.size() + extra;
+  size_t i = 0;
+  while (i < v.slots.size() && (v.slots[i].tree || total > (t0_cap_ << i))) {
+    total += v.slots[i].live();
+    ++i;
+  }
+  while (total > (t0_cap_ << i)) ++i;  // past the last slot every slot is free
+  return i;
+}
+
+Result<std::shared_ptr<KdTree>> DatasetImpl::BuildMerged(const FrameVersion& v, size_t i,
+                                                         std::vector<Point> extra, bool sync) {
+  std::vector<Point> pts = std::move(extra);
+  uint64_t want = pts.size() + v.t0.size();
+  for (size_t j = 0; j < i && j < v.slots.size(); ++j) want += v.slots[j].live();
+  pts.reserve(want);
+  v.t0.ForEach([&pts](const Point& p) { pts.push_back(p); });
+  for (size_t j = 0; j < i && j < v.slots.size(); ++j) {
+    const TreeSlot& s = v.slots[j];
+    if (!s.tree) continue;
+    size_t at = pts.size();
+    HVDB_RETURN_IF_ERROR(s.tree->ReadAll(&pts));
+    if (s.dead) {
+      auto first = pts.begin() + static_cast<std::ptrdiff_t>(at);
+      pts.erase(std::remove_if(first, pts.end(), [&s](const Point& p) { return s.IsDead(p.id); }),
+                pts.end());
+    }
+  }
+  if (pts.empty()) return std::shared_ptr<KdTree>();  // everything was deleted
+  TreeBuildParams params;
+  params.block_size = opts_.block_size;
+  params.lod_levels = opts_.lod_levels;
+  params.frame = v.frame;
+  params.tree_seq = next_seq_++;
+  std::string path = TreePath(v.frame, params.tree_seq);
+  Status st = BuildTreeFile(env_, path, pts, params, sync);
+  if (!st.ok()) {
+    (void)env_->Remove(path);
+    return st;
+  }
+  auto opened = KdTree::Open(env_, path, pool_, /*synced=*/sync);
+  if (!opened.ok()) (void)env_->Remove(path);
+  return opened;
+}
+
+void DatasetImpl::WakeMerger() {
+  std::lock_guard<std::mutex> l(merge_mu_);
+  merge_wake_ = true;
+  merge_cv_.notify_one();
+}
+
+void DatasetImpl::MergerLoop() {
+  std::unique_lock<std::mutex> l(merge_mu_);
+  for (;;) {
+    merge_cv_.wait(l, [&] { return merge_stop_ || merge_wake_; });
+    if (merge_stop_) return;
+    merge_wake_ = false;
+    const bool checkpoint = checkpoint_wanted_;
+    checkpoint_wanted_ = false;
+    l.unlock();
+    Status err;
+    for (;;) {  // the fullest T0 first, until none is over capacity
+      uint32_t frame = 0;
+      size_t most = 0;
+      {
+        std::lock_guard<std::mutex> fl(mu_);
+        for (const auto& [f, v] : frames_) {
+          if (NeedsMerge(*v) && v->t0.size() > most) {
+            most = v->t0.size();
+            frame = f;
+          }
+        }
+      }
+      if (most == 0) break;
+      {
+        std::lock_guard<std::mutex> sl(merge_mu_);
+        if (merge_stop_) break;
+      }
+      err = MergeOnce(frame);
+      if (!err.ok()) break;
+    }
+    if (checkpoint && err.ok()) {
+      WriteRequest w;
+      w.kind = WriteRequest::Kind::kCheckpoint;
+      err = Submit(&w).status();
+    }
+    l.lock();
+    merge_error_ = err;
+    merged_cv_.notify_all();
+    if (!err.ok()) {
+      std::fprintf(stderr, "hvdb: %s: merge deferred: %s\n", info_.name.c_str(),
+                   err.ToString().c_str());
+      // Retry later (a full disk may be freed); commits go on into T0 up to its bound.
+      merge_cv_.wait_for(l, std::chrono::seconds(1), [&] { return merge_stop_; });
+      merge_wake_ = true;
+      checkpoint_wanted_ = checkpoint_wanted_ || checkpoint;
+    }
+  }
+}
+
+Status DatasetImpl::MergeOnce(uint32_t frame) {
+  auto v = Snapshot(frame);
+  if (!v || !NeedsMerge(*v)) return Status::OK();
+  Merge m;
+  m.frame = frame;
+  m.base = v;
+  m.slot = TargetSlot(*v, 0);
+  HVDB_ASSIGN_OR_RETURN(m.tree, BuildMerged(*v, m.slot, {}, /*sync=*/false));
+  WriteRequest w;
+  w.kind = WriteRequest::Kind::kInstall;
+  w.merge = &m;
+  Status st = Submit(&w).status();
+  if (!st.ok() && m.tree) m.tree->MarkObsolete();
+  return st;
+}
+
+Status DatasetImpl::Install(const Merge& m) {
+  auto cur = Snapshot(m.frame);
+  const FrameVersion& base = *m.base;
+  // A bulk load may have replaced the trees since the snapshot: then the work is stale.
+  bool fresh = cur != nullptr && (m.slot >= cur->slots.size() || !cur->slots[m.slot].tree);
+  for (size_t j = 0; fresh && j < m.slot && j < base.slots.size(); ++j) {
+    fresh = j < cur->slots.size() && cur->slots[j].tree == base.slots[j].tree;
+  }
+  if (!fresh) {
+    if (m.tree) m.tree->MarkObsolete();
+    return Status::OK();
+  }
+  // T0 now = the snapshot's T0 less the points removed since, then the points added since:
+  // walk both in order; snapshot points not found in turn were removed (so are dead ids).
+  std::vector<uint64_t> dead;
+  const auto& chunks = cur->t0.chunks();
+  size_t ci = 0, pi = 0, kept = 0;
+  base.t0.ForEach([&](const Point& p) {
+    while (ci < chunks.size() && pi >= chunks[ci]->size()) {
+      ++ci;
+      pi = 0;
+    }
+    if (ci < chunks.size() && (*chunks[ci])[pi] == p) {
+      ++pi;
+      ++kept;
+    } else {
+      dead.push_back(p.id);
+    }
+  });
+  auto nv = std::make_shared<FrameVersion>(*cur);
+  std::vector<std::shared_ptr<KdTree>> merged;
+  for (size_t j = 0; j < m.slot && j < base.slots.size(); ++j) {
+    const TreeSlot& was = base.slots[j];
+    if (!was.tree) continue;
+    // Deleted from the merged tree since the snapshot.
+    if (cur->slots[j].dead) {
+      std::vector<uint64_t> before = was.dead ? *was.dead : std::vector<uint64_t>{};
+      std::set_difference(cur->slots[j].dead->begin(), cur->slots[j].dead->end(), before.begin(),
+                          before.end(), std::back_inserter(dead));
+    }
+    merged.push_back(was.tree);
+    nv->slots[j] = TreeSlot{};
+  }
+  while (nv->slots.size() <= m.slot) nv->slots.emplace_back();
+  std::sort(dead.begin(), dead.end());
+  TreeSlot out;
+  out.tree = m.tree;
+  if (m.tree && !dead.empty()) {
+    out.dead = std::make_shared<const std::vector<uint64_t>>(std::move(dead));
+  }
+  nv->slots[m.slot] = std::move(out);
+  nv->t0 = cur->t0.Suffix(kept);
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    frames_[m.frame] = nv;
+  }
+  dirty_.insert(m.frame);
+  for (auto& t : merged) Retire(m.frame, t);
+  ++merges_;
+  return Status::OK();
+}
+
+void DatasetImpl::Retire(uint32_t frame, const std::shared_ptr<KdTree>& tree) {
+  if (tree->durable()) {
+    retired_[frame].push_back(tree);  // the state on disk lists it: keep it until replaced
+  } else {
+    tree->MarkObsolete();  // deleted when the last reader lets go
+  }
+}
+
+Status DatasetImpl::BulkLocked(uint32_t frame, std::vector<Point>* points) {
+  auto cur = Snapshot(frame);
+  FrameVersion v;
+  if (cur) v = *cur;
+  v.frame = frame;
+  for (Point& p : *points) {
+    if (p.id == 0) p.id = next_id_++;
+  }
+  const size_t i = TargetSlot(v, points->size());
+  HVDB_ASSIGN_OR_RETURN(auto tree, BuildMerged(v, i, std::move(*points), /*sync=*/true));
+  FrameVersion nv = v;
+  std::vector<std::shared_ptr<KdTree>> merged;
+  for (size_t j = 0; j < i && j < nv.slots.size(); ++j) {
+    if (nv.slots[j].tree) merged.push_back(nv.slots[j].tree);
+    nv.slots[j] = TreeSlot{};
+  }
+  while (nv.slots.size() <= i) nv.slots.emplace_back();
+  nv.slots[i] = TreeSlot{tree, nullptr};
+  nv.t0 = PointBuffer();
+  // Not logged: durable once the state listing the tree is.
+  Status st = PersistFrame(nv);
+  if (!st.ok()) {
+    if (tree) tree->MarkObsolete();
+    return st;
+  }
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    frames_[frame] = std::make_shared<const FrameVersion>(std::move(nv));
+  }
+  for (auto& t : merged) t->MarkObsolete();  // the durable state no longer lists them
+  return Status::OK();
+}
+
+Status DatasetImpl::PersistFrame(const FrameVersion& v) {
+  bool synced_any = false;
+  for (const TreeSlot& s : v.slots) {
+    if (s.tree && !s.tree->durable()) {
+      HVDB_RETURN_IF_ERROR(s.tree->Sync());
+      synced_any = true;
+    }
+  }
+  if (synced_any) HVDB_RETURN_IF_ERROR(env_->SyncDir(dir_ + "/trees"));
+  HVDB_RETURN_IF_ERROR(WriteFileAtomic(env_, dir_ + "/frames/" + FrameStateFileName(v.frame),
+                                       EncodeFrameState(v, next_id_.load())));
+  for (const TreeSlot& s : v.slots) {
+    if (s.tree) s.tree->MarkDurable();
+  }
+  auto it = retired_.find(v.frame);
+  if (it != retired_.end()) {
+    for (auto& t : it->second) t->MarkObsolete();
+    retired_.erase(it);
+  }
+  dirty_.erase(v.frame);
+  return Status::OK();
+}
+
+Status DatasetImpl::CheckpointLocked() {
+  std::vector<uint32_t> dirty(dirty_.begin(), dirty_.end());
+  for (uint32_t f : dirty) {
+    auto v = Snapshot(f);
+    if (v) HVDB_RETURN_IF_ERROR(PersistFrame(*v));
+  }
+  if (wal_->size() <= kWalHeaderSize) return Status::OK();
+  // Keep the old segment for Revert; the frames no longer need it for recovery.
+  char name[64];
+  std::snprintf(name, sizeof(name), "/wal-%016llx.log",
+                static_cast<unsigned long long>(wal_start_lsn_));
+  std::string from = dir_ + "/wal.log", to = dir_ + name;
+  HVDB_RETURN_IF_ERROR(env_->Rename(from, to));
+  uint64_t start;
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    start = last_lsn_ + 1;
+  }
+  wal_start_lsn_ = start;
+  HVDB_ASSIGN_OR_RETURN(wal_, WalWriter::Open(env_, from, start, 0, false));
+  wal_bytes_ = wal_->size();
+  return Status::OK();
+}
+
+Status DatasetImpl::WaitForMerges() {
+  for (;;) {
+    bool pending = false;
+    {
+      std::lock_guard<std::mutex> l(mu_);
+      for (const auto& [f, v] : frames_) pending = pending || NeedsMerge(*v);
+    }
+    std::unique_lock<std::mutex> l(merge_mu_);
+    if (!pending) return Status::OK();
+    if (!merge_error_.ok()) return merge_error_;
+    if (merge_stop_) return Status::Cancelled("dataset closing");
+    merge_wake_ = true;
+    merge_cv_.notify_one();
+    merged_cv_.wait_for(l, std::chrono::milliseconds(50));
+  }
+}
+
+}  // namespace hvdb

@@ -1,0 +1,571 @@
+// The write path: commits and reverts resolved against the published versions, logged with
+// one write and one fsync per group, published; bulk loads and checkpoints led alone.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <unordered_map>
+#include <unordered_set>
+
+#include "storage/affine.h"
+#include "storage/coding.h"
+#include "storage/dataset_impl.h"
+#include "storage/lod.h"
+
+namespace hvdb {
+
+namespace {
+
+constexpr uint32_t kMaxFrame = 100'000'000;  // ~38 days at 30 fps
+
+Status ValidatePoint(const Point& p) {
+  if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) {
+    return Status::InvalidArgument("point " + std::to_string(p.id) +
+                                   " has a NaN or infinite coordinate");
+  }
+  for (float c : p.cov) {
+    if (!std::isfinite(c)) {
+      return Status::InvalidArgument("point " + std::to_string(p.id) + " has a non-finite covariance");
+    }
+  }
+  if (p.frame >= kMaxFrame) {
+    return Status::InvalidArgument("frame " + std::to_string(p.frame) + " out of range (max " +
+                                   std::to_string(kMaxFrame - 1) + ")");
+  }
+  return Status::OK();
+}
+
+bool SamePoint(const Point& a, const Point& b) {
+  return a.id == b.id && a.x == b.x && a.y == b.y && a.z == b.z;
+}
+
+// Where a point lives in a frame version: -1 = T0, >= 0 = tree slot, -2 = nowhere.
+struct Holder {
+  int slot = -2;
+  Point stored;
+};
+
+Result<Holder> Locate(const FrameVersion& v, const Point& target,
+                      const std::vector<std::vector<uint64_t>>* pending_dead = nullptr) {
+  for (const auto& chunk : v.t0.chunks()) {
+    for (const Point& p : *chunk) {
+      if (SamePoint(p, target)) return Holder{-1, p};
+    }
+  }
+  const Box3 probe{{target.x, target.y, target.z}, {target.x, target.y, target.z}};
+  BoxTest test = [&probe](const Box3& b) {
+    for (int a = 0; a < 3; ++a) {
+      if (probe.lo[a] < b.lo[a] || probe.lo[a] > b.hi[a]) return Relation::kOutside;
+    }
+    return Relation::kCrosses;
+  };
+  for (size_t s = 0; s < v.slots.size(); ++s) {
+    const TreeSlot& slot = v.slots[s];
+    if (!slot.tree || slot.IsDead(target.id)) continue;
+    if (pending_dead != nullptr && s < pending_dead->size() &&
+        std::find((*pending_dead)[s].begin(), (*pending_dead)[s].end(), target.id) !=
+            (*pending_dead)[s].end()) {
+      continue;
+    }
+    std::vector<KdTree::BucketHit> hits;
+    HVDB_RETURN_IF_ERROR(slot.tree->FindBuckets(test, &hits));
+    for (const auto& hit : hits) {
+      std::optional<Point> found;
+      for (uint32_t k = 0; k < slot.tree->header().levels && !found; ++k) {
+        HVDB_RETURN_IF_ERROR(slot.tree->ReadRange(
+            static_cast<int>(k), hit.entry.start[k], hit.entry.count[k],
+            [&](const uint8_t* rec, size_t n) {
+              for (size_t j = 0; j < n && !found; ++j) {
+                if (DecodeLE<uint64_t>(rec + j * kPointRecordSize) != target.id) continue;
+                Point p = DecodePoint(rec + j * kPointRecordSize);
+                if (SamePoint(p, target)) found = p;
+              }
+            }));
+      }
+      if (found) return Holder{static_cast<int>(s), *found};
+    }
+  }
+  return Holder{};
+}
+
+}  // namespace
+
+Result<std::shared_ptr<FrameVersion>> ApplyStep(const FrameVersion& old, const FrameEffect& step,
+                                                uint64_t lsn) {
+  auto v = std::make_shared<FrameVersion>(old);
+  v->frame = step.frame;
+  v->applied_lsn = std::max(v->applied_lsn, lsn);
+  // Removals from T0 in one pass over it (T0 holds tens of thousands of points): each removed
+  // point matches the first T0 point with its id and position.
+  std::vector<bool> in_t0(step.removed.size(), false);
+  if (!step.removed.empty() && !v->t0.empty()) {
+    std::unordered_multimap<uint64_t, size_t> wanted;
+    for (size_t i = 0; i < step.removed.size(); ++i) wanted.emplace(step.removed[i].id, i);
+    v->t0.RemoveIf([&](const Point& p) {
+      auto [lo, hi] = wanted.equal_range(p.id);
+      for (auto it = lo; it != hi; ++it) {
+        if (!in_t0[it->second] && SamePoint(p, step.removed[it->second])) {
+          in_t0[it->second] = true;
+          return true;
+        }
+      }
+      return false;
+    });
+  }
+  std::vector<std::vector<uint64_t>> new_dead(v->slots.size());
+  FrameVersion probe;  // the trees only: T0 was searched above
+  probe.slots = v->slots;
+  for (size_t i = 0; i < step.removed.size(); ++i) {
+    if (in_t0[i]) continue;
+    const Point& target = step.removed[i];
+    HVDB_ASSIGN_OR_RETURN(Holder h, Locate(probe, target, &new_dead));
+    if (h.slot < 0) {
+      return Status::NotFound("point " + std::to_string(target.id) + " at (" +
+                              std::to_string(target.x) + ", " + std::to_string(target.y) + ", " +
+                              std::to_string(target.z) + ") not found in frame " +
+                              std::to_string(step.frame));
+    }
+    new_dead[static_cast<size_t>(h.slot)].push_back(target.id);
+  }
+  for (size_t s = 0; s < new_dead.size(); ++s) {
+    if (new_dead[s].empty()) continue;
+    std::vector<uint64_t> dead = v->slots[s].dead ? *v->slots[s].dead : std::vector<uint64_t>{};
+    dead.insert(dead.end(), new_dead[s].begin(), new_dead[s].end());
+    std::sort(dead.begin(), dead.end());
+    v->slots[s].dead = std::make_shared<const std::vector<uint64_t>>(std::move(dead));
+  }
+  v->t0.Append(step.added);
+  return v;
+}
+
+namespace {
+
+// Calls fn(point) for every live point of `v` in the region (nullptr: all), label-filtered.
+Status ScanVersion(const FrameVersion& v, const RegionPlan* plan, uint32_t label_mask,
+                   const std::function<void(const Point&)>& fn) {
+  auto accept = [&](const Point& p) {
+    if (label_mask != 0 && (p.label & label_mask) == 0) return false;
+    return plan == nullptr || plan->Contains(p);
+  };
+  v.t0.ForEach([&](const Point& p) {
+    if (accept(p)) fn(p);
+  });
+  for (const TreeSlot& slot : v.slots) {
+    if (!slot.tree) continue;
+    BoxTest test = [&](const Box3& b) {
+      return plan == nullptr ? Relation::kInside : plan->Classify(b, v.frame);
+    };
+    std::vector<KdTree::BucketHit> hits;
+    HVDB_RETURN_IF_ERROR(slot.tree->FindBuckets(test, &hits));
+    for (const auto& hit : hits) {
+      for (uint32_t k = 0; k < slot.tree->header().levels; ++k) {
+        HVDB_RETURN_IF_ERROR(slot.tree->ReadRange(
+            static_cast<int>(k), hit.entry.start[k], hit.entry.count[k],
+            [&](const uint8_t* rec, size_t n) {
+              for (size_t j = 0; j < n; ++j) {
+                Point p = DecodePoint(rec + j * kPointRecordSize);
+                if (slot.IsDead(p.id)) continue;
+                if (label_mask != 0 && (p.label & label_mask) == 0) continue;
+                if (!hit.inside && plan != nullptr && !plan->Contains(p)) continue;
+                fn(p);
+              }
+            }));
+      }
+    }
+  }
+  return Status::OK();
+}
+
+}  // namespace
+
+// The leader's view while applying a group: published versions overlaid with new ones.
+class DatasetImpl::Working {
+ public:
+  explicit Working(FrameMap base) : map_(std::move(base)) {}
+  std::shared_ptr<const FrameVersion> Get(uint32_t f) const {
+    auto it = map_.find(f);
+    return it == map_.end() ? nullptr : it->second;
+  }
+  void Set(uint32_t f, std::shared_ptr<const FrameVersion> v) {
+    map_[f] = std::move(v);
+    changed_.insert(f);
+  }
+  const FrameMap& map() const { return map_; }
+  const std::set<uint32_t>& changed() const { return changed_; }
+
+ private:
+  FrameMap map_;
+  std::set<uint32_t> changed_;
+};
+
+
+// ---------------------------------------------------------------------------------------------
+// Writing
+
+Result<CommitInfo> DatasetImpl::Commit(const Transaction& txn) {
+  WriteRequest w;
+  w.kind = WriteRequest::Kind::kTxn;
+  w.txn = &txn;
+  return Submit(&w);
+}
+
+Result<CommitInfo> DatasetImpl::Revert(uint64_t lsn) {
+  WriteRequest w;
+  w.kind = WriteRequest::Kind::kRevert;
+  w.revert_lsn = lsn;
+  return Submit(&w);
+}
+
+Result<uint64_t> DatasetImpl::BulkLoad(uint32_t frame, std::vector<Point> points) {
+  if (frame >= kMaxFrame) {
+    return Status::InvalidArgument("frame " + std::to_string(frame) + " out of range");
+  }
+  for (Point& p : points) {
+    p.frame = frame;
+    HVDB_RETURN_IF_ERROR(ValidatePoint(p));
+  }
+  WriteRequest w;
+  w.kind = WriteRequest::Kind::kBulk;
+  w.frame = frame;
+  w.points = &points;
+  HVDB_ASSIGN_OR_RETURN(CommitInfo info, Submit(&w));
+  return info.inserted;
+}
+
+Status DatasetImpl::Checkpoint() {
+  WriteRequest w;
+  w.kind = WriteRequest::Kind::kCheckpoint;
+  return Submit(&w).status();
+}
+
+Result<CommitInfo> DatasetImpl::Submit(WriteRequest* w) {
+  using Kind = WriteRequest::Kind;
+  if (w->kind == Kind::kTxn || w->kind == Kind::kRevert) {
+    // Back-pressure: while some T0 holds 8x its capacity the merger is behind; wait for it
+    // rather than let memory grow without bound. A merger that keeps failing fails the commit.
+    std::unique_lock<std::mutex> ml(merge_mu_);
+    for (;;) {
+      bool over = false;
+      {
+        std::lock_guard<std::mutex> l(mu_);
+        for (const auto& [f, v] : frames_) {
+          if (v->t0.size() > 8 * t0_cap_) {
+            over = true;
+            break;
+          }
+        }
+      }
+      if (!over || merge_stop_) break;
+      if (!merge_error_.ok()) {
+        return Status::IOError("commit refused: the buffers are full and merging them fails (" +
+                               merge_error_.ToString() + "); free disk space and retry");
+      }
+      merge_wake_ = true;
+      merge_cv_.notify_one();
+      merged_cv_.wait_for(ml, std::chrono::milliseconds(100));
+    }
+  }
+  std::unique_lock<std::mutex> l(write_mu_);
+  writers_.push_back(w);
+  write_cv_.wait(l, [&] { return w->done || writers_.front() == w; });
+  if (w->done) {
+    if (!w->status.ok()) return w->status;
+    return w->info;
+  }
+  // Leader: take every transaction queued now (the other kinds go alone).
+  std::vector<WriteRequest*> group{w};
+  if (w->kind == Kind::kTxn || w->kind == Kind::kRevert) {
+    for (size_t i = 1; i < writers_.size(); ++i) {
+      auto k = writers_[i]->kind;
+      if (k != Kind::kTxn && k != Kind::kRevert) break;
+      group.push_back(writers_[i]);
+    }
+  }
+  l.unlock();
+  LeadGroup(group);
+  l.lock();
+  for (size_t i = 0; i < group.size(); ++i) {
+    writers_.front()->done = true;
+    writers_.pop_front();
+  }
+  write_cv_.notify_all();
+  if (!w->status.ok()) return w->status;
+  return w->info;
+}
+
+namespace {
+
+struct Selected {
+  std::map<uint32_t, std::vector<Point>> by_frame;
+};
+
+}  // namespace
+
+Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
+                            CommitInfo* info) {
+  auto apply = [&](const FrameEffect& step) -> Status {
+    auto base = ws->Get(step.frame);
+    FrameVersion empty;
+    empty.frame = step.frame;
+    HVDB_ASSIGN_OR_RETURN(auto v, ApplyStep(base ? *base : empty, step, rec->lsn));
+    ws->Set(step.frame, std::move(v));
+    rec->frames.push_back(step);
+    return Status::OK();
+  };
+  auto select = [&](const Selection& sel) -> Result<Selected> {
+    Selected out;
+    std::set<std::pair<uint32_t, uint64_t>> seen;
+    auto add = [&](const Point& p) {
+      if (seen.insert({p.frame, p.id}).second) out.by_frame[p.frame].push_back(p);
+    };
+    if (sel.region) {
+      HVDB_ASSIGN_OR_RETURN(RegionPlan plan,
+                            PlanRegion(*sel.region, 0, false, ws->map(), info_, opts_));
+      for (uint32_t f : plan.frames) {
+        HVDB_RETURN_IF_ERROR(ScanVersion(*ws->Get(f), &plan, sel.label_mask, add));
+      }
+    } else if (sel.ids.empty()) {
+      for (const auto& [f, v] : ws->map()) {
+        HVDB_RETURN_IF_ERROR(ScanVersion(*v, nullptr, sel.label_mask, add));
+      }
+    }
+    std::map<uint32_t, std::unordered_set<uint64_t>> wanted;
+    for (auto [f, id] : sel.ids) wanted[f].insert(id);
+    for (const auto& entry : wanted) {
+      const uint32_t f = entry.first;
+      const std::unordered_set<uint64_t>& ids = entry.second;  // (clang 14: no lambda capture
+                                                                 // of structured bindings)
+      auto v = ws->Get(f);
+      if (!v) return Status::NotFound("frame " + std::to_string(f) + " has no points");
+      size_t found = 0;
+      HVDB_RETURN_IF_ERROR(ScanVersion(*v, nullptr, sel.label_mask, [&](const Point& p) {
+        if (ids.count(p.id)) {
+          add(p);
+          ++found;
+        }
+      }));
+      if (found < ids.size()) {
+        return Status::NotFound(std::to_string(ids.size() - found) + " selected id(s) not found in frame " +
+                                std::to_string(f));
+      }
+    }
+    return out;
+  };
+
+  for (const Transaction::Op& op : txn.ops()) {
+    if (const auto* ins = std::get_if<Transaction::InsertOp>(&op)) {
+      std::map<uint32_t, FrameEffect> steps;
+      for (Point p : ins->points) {
+        HVDB_RETURN_IF_ERROR(ValidatePoint(p));
+        if (p.id == 0) {
+          p.id = next_id_++;
+          info->assigned_ids.push_back(p.id);
+        }
+        steps[p.frame].frame = p.frame;
+        steps[p.frame].added.push_back(p);
+      }
+      for (auto& [f, step] : steps) {
+        info->inserted += step.added.size();
+        HVDB_RETURN_IF_ERROR(apply(step));
+      }
+    } else if (const auto* del = std::get_if<Transaction::DeleteOp>(&op)) {
+      auto v = ws->Get(del->frame);
+      Point target;
+      target.id = del->id;
+      target.x = del->pos[0];
+      target.y = del->pos[1];
+      target.z = del->pos[2];
+      Holder h;
+      if (v) {
+        HVDB_ASSIGN_OR_RETURN(h, Locate(*v, target));
+      }
+      if (h.slot == -2) {
+        return Status::NotFound("delete: point " + std::to_string(del->id) + " not found in frame " +
+                                std::to_string(del->frame) + " at the given position");
+      }
+      FrameEffect step;
+      step.frame = del->frame;
+      step.removed.push_back(h.stored);
+      ++info->removed;
+      HVDB_RETURN_IF_ERROR(apply(step));
+    } else if (const auto* ds = std::get_if<Transaction::DeleteSelOp>(&op)) {
+      HVDB_ASSIGN_OR_RETURN(Selected sel, select(ds->sel));
+      for (auto& [f, pts] : sel.by_frame) {
+        FrameEffect step;
+        step.frame = f;
+        step.removed = std::move(pts);
+        info->removed += step.removed.size();
+        HVDB_RETURN_IF_ERROR(apply(step));
+      }
+    } else if (const auto* lab = std::get_if<Transaction::LabelOp>(&op)) {
+      HVDB_ASSIGN_OR_RETURN(Selected sel, select(lab->sel));
+      for (auto& [f, pts] : sel.by_frame) {
+        FrameEffect step;
+        step.frame = f;
+        for (const Point& p : pts) {
+          Point q = p;
+          q.label = lab->set ? (p.label | lab->bits) : (p.label & ~lab->bits);
+          if (q.label == p.label) continue;
+          step.removed.push_back(p);
+          step.added.push_back(q);
+        }
+        if (step.removed.empty()) continue;
+        info->removed += step.removed.size();
+        info->inserted += step.added.size();
+        HVDB_RETURN_IF_ERROR(apply(step));
+      }
+    } else if (const auto* tr = std::get_if<Transaction::TransformOp>(&op)) {
+      HVDB_ASSIGN_OR_RETURN(AffineMap map, AffineMap::Make(tr->map, info_.fps));
+      HVDB_ASSIGN_OR_RETURN(Selected sel, select(tr->sel));
+      std::map<uint32_t, FrameEffect> removes, adds;
+      for (auto& [f, pts] : sel.by_frame) {
+        for (const Point& p : pts) {
+          HVDB_ASSIGN_OR_RETURN(Point q, map.Apply(p));
+          HVDB_RETURN_IF_ERROR(ValidatePoint(q));
+          removes[p.frame].frame = p.frame;
+          removes[p.frame].removed.push_back(p);
+          adds[q.frame].frame = q.frame;
+          adds[q.frame].added.push_back(q);
+        }
+      }
+      for (auto& [f, step] : removes) {
+        info->removed += step.removed.size();
+        HVDB_RETURN_IF_ERROR(apply(step));
+      }
+      for (auto& [f, step] : adds) {
+        info->inserted += step.added.size();
+        HVDB_RETURN_IF_ERROR(apply(step));
+      }
+    }
+  }
+  return Status::OK();
+}
+
+Result<TxnRecord> DatasetImpl::FindRecord(uint64_t lsn) const {
+  HVDB_ASSIGN_OR_RETURN(auto names, env_->ListDir(dir_));
+  std::vector<std::string> logs;
+  for (const std::string& n : names) {
+    if (n == "wal.log" || (n.starts_with("wal-") && n.ends_with(".log"))) logs.push_back(n);
+  }
+  for (const std::string& n : logs) {
+    HVDB_ASSIGN_OR_RETURN(WalContents c, ReadWal(env_, dir_ + "/" + n));
+    for (TxnRecord& r : c.records) {
+      if (r.lsn == lsn) return std::move(r);
+    }
+  }
+  return Status::NotFound("transaction " + std::to_string(lsn) +
+                          " is not in the log (bulk loads are not transactions and cannot be "
+                          "reverted)");
+}
+
+void DatasetImpl::LeadGroup(std::vector<WriteRequest*>& group) {
+  using Kind = WriteRequest::Kind;
+  WriteRequest* first = group.front();
+  switch (first->kind) {
+    case Kind::kCheckpoint: first->status = CheckpointLocked(); return;
+    case Kind::kInstall: first->status = Install(*first->merge); return;
+    case Kind::kBulk:
+      first->info.inserted = first->points->size();
+      first->status = BulkLocked(first->frame, first->points);
+      return;
+    default: LeadCommits(group);
+  }
+}
+
+void DatasetImpl::LeadCommits(std::vector<WriteRequest*>& group) {
+  using Kind = WriteRequest::Kind;
+  FrameMap base;
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    base = frames_;
+  }
+  Working ws(base);
+  std::vector<TxnRecord> records;
+  std::vector<WriteRequest*> committed;
+  uint64_t lsn = last_lsn_;
+  for (WriteRequest* w : group) {
+    Working attempt = ws;
+    TxnRecord rec;
+    rec.lsn = lsn + 1;
+    CommitInfo info;
+    Status st;
+    if (w->kind == Kind::kRevert) {
+      auto orig = FindRecord(w->revert_lsn);
+      if (!orig.ok()) {
+        st = orig.status();
+      } else {
+        rec.reverts = w->revert_lsn;
+        // The inverse: steps in reverse order, removed and added swapped.
+        for (auto it = orig->frames.rbegin(); it != orig->frames.rend() && st.ok(); ++it) {
+          FrameEffect inv{it->frame, it->added, it->removed};
+          auto basev = attempt.Get(inv.frame);
+          FrameVersion empty;
+          empty.frame = inv.frame;
+          auto applied = ApplyStep(basev ? *basev : empty, inv, rec.lsn);
+          if (!applied.ok()) {
+            st = Status::InvalidArgument(
+                "cannot revert transaction " + std::to_string(w->revert_lsn) +
+                ": a later transaction changed its points (" + applied.status().message() +
+                "); revert the later one first");
+            break;
+          }
+          attempt.Set(inv.frame, std::move(applied).value());
+          info.inserted += inv.added.size();
+          info.removed += inv.removed.size();
+          rec.frames.push_back(std::move(inv));
+        }
+      }
+    } else {
+      st = Resolve(*w->txn, &attempt, &rec, &info);
+    }
+    if (!st.ok()) {
+      w->status = st;
+      continue;
+    }
+    if (rec.frames.empty() && w->kind == Kind::kTxn && w->txn->empty()) {
+      w->status = Status::InvalidArgument("empty transaction");
+      continue;
+    }
+    ++lsn;
+    info.lsn = lsn;
+    w->info = std::move(info);
+    records.push_back(std::move(rec));
+    committed.push_back(w);
+    ws = std::move(attempt);
+  }
+  if (records.empty()) return;
+  // One log write and one fsync for the whole group.
+  uint64_t before = wal_->size();
+  Status st = wal_->Append(records);
+  if (st.ok() && opts_.sync) st = wal_->Sync();
+  if (!st.ok()) {
+    // Nothing of the group may survive: cut the log back to where it was.
+    auto reopened = WalWriter::Open(env_, dir_ + "/wal.log", wal_start_lsn_, before, true);
+    if (reopened.ok()) wal_ = std::move(reopened).value();
+    for (WriteRequest* w : committed) {
+      w->status = st;
+      w->info = {};
+    }
+    return;
+  }
+  wal_bytes_ = wal_->size();
+  bool merge = wal_->size() > opts_.wal_checkpoint_bytes;
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    for (uint32_t f : ws.changed()) {
+      frames_[f] = ws.Get(f);
+      merge = merge || NeedsMerge(*frames_[f]);
+    }
+    last_lsn_ = lsn;
+  }
+  for (uint32_t f : ws.changed()) dirty_.insert(f);
+  // Trees are the merger's work (logarithmic method), and so are checkpoints: a commit is
+  // durable now, with its points in T0 and its record in the log.
+  if (merge) {
+    std::lock_guard<std::mutex> l(merge_mu_);
+    checkpoint_wanted_ = checkpoint_wanted_ || wal_->size() > opts_.wal_checkpoint_bytes;
+    merge_wake_ = true;
+    merge_cv_.notify_one();
+  }
+}
+
+}  // namespace hvdb

@@ -1,0 +1,88 @@
+// Env: the one seam between storage/ and the file system, after LevelDB's Env. Every open,
+// read, write, sync, rename, remove and listing of storage/ goes through an Env, so that
+//   - tests can inject faults (failed writes and syncs, short reads, ENOSPC, EIO, power loss)
+//     with a wrapping Env (tests/storage/fault_env.h), and
+//   - a second store (a distributed object store) can replace the POSIX one.
+// Env::Default() is POSIX. Every errno becomes a Status here; callers never see errno.
+//
+// Paths are plain strings joined with '/'. Directories are namespaces: SyncDir makes the
+// creations, renames and removals of names in `dir` durable (POSIX semantics; an object store
+// may make it a no-op). File contents are durable once WritableFile::Sync returns.
+#ifndef HVDB_STORAGE_ENV_H_
+#define HVDB_STORAGE_ENV_H_
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "storage/status.h"
+
+namespace hvdb {
+
+// A read-only file; Read is safe for concurrent callers.
+class RandomAccessFile {
+ public:
+  virtual ~RandomAccessFile() = default;
+  // Reads exactly n bytes at offset; a short read is Corruption ("truncated").
+  virtual Status Read(uint64_t offset, size_t n, void* dst) const = 0;
+  // Tells the store that [offset, offset + n) will be read soon, so it can start fetching it
+  // in the background (many hints in a row are served in parallel). Only a hint.
+  virtual void Prefetch(uint64_t offset, uint64_t n) const = 0;
+  // Drops the file's cached pages (for cold benchmarks). Only a hint.
+  virtual void DropCache() const = 0;
+  virtual uint64_t size() const = 0;
+  virtual const std::string& path() const = 0;
+};
+
+// A file written by appending, plus positional writes for builders that fill in a header last.
+class WritableFile {
+ public:
+  virtual ~WritableFile() = default;
+  // On failure nothing of `data` stays: the file ends where it ended before.
+  virtual Status Append(std::string_view data) = 0;
+  // Writes at `offset` (which may lie past the end: the gap reads as zeros).
+  virtual Status WriteAt(uint64_t offset, std::string_view data) = 0;
+  virtual Status Sync() = 0;  // contents durable (fdatasync)
+  virtual Status Truncate(uint64_t size) = 0;
+  virtual uint64_t size() const = 0;
+  virtual const std::string& path() const = 0;
+};
+
+// Held while a directory is in use by this process; released on destruction.
+class FileLock {
+ public:
+  virtual ~FileLock() = default;
+};
+
+class Env {
+ public:
+  virtual ~Env() = default;
+  // The process-wide POSIX Env; never deleted.
+  static Env* Default();
+
+  virtual Result<std::shared_ptr<RandomAccessFile>> OpenRead(const std::string& path) = 0;
+  // Opens for writing at the end, creating it if absent (truncate: start empty).
+  virtual Result<std::unique_ptr<WritableFile>> OpenWrite(const std::string& path,
+                                                          bool truncate) = 0;
+  // Replaces `to` if it exists.
+  virtual Status Rename(const std::string& from, const std::string& to) = 0;
+  virtual Status Remove(const std::string& path) = 0;  // an absent file is not an error
+  virtual Status SyncDir(const std::string& dir) = 0;
+  virtual Status CreateDirs(const std::string& dir) = 0;
+  virtual Result<std::vector<std::string>> ListDir(const std::string& dir) = 0;  // no . / ..
+  virtual Status RemoveTree(const std::string& dir) = 0;
+  virtual bool Exists(const std::string& path) = 0;
+  // An exclusive lock on `path` (created if absent); fails if another process holds it.
+  virtual Result<std::unique_ptr<FileLock>> Lock(const std::string& path) = 0;
+};
+
+// Writes `data` to path via path.tmp + sync + rename + sync(dir): all or nothing.
+Status WriteFileAtomic(Env* env, const std::string& path, std::string_view data);
+Result<std::string> ReadWholeFile(Env* env, const std::string& path);
+std::string ParentDir(const std::string& path);  // "." when there is no '/'
+
+}  // namespace hvdb
+
+#endif  // HVDB_STORAGE_ENV_H_
