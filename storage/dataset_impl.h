@@ -71,7 +71,8 @@ class DatasetImpl {
   DatasetStats Stats() const;
   std::vector<std::string> Check() const;
   Status Checkpoint();
-  // Blocks until no frame's T0 is over its capacity (tests and benchmarks).
+  // Blocks until no frame's T0 is over its capacity (tests and benchmarks); after a failed
+  // merge, until a retry fails too.
   Status WaitForMerges();
 
   // Resolves a region to frames (for queries: temporal LOD and the slice frame bound).
@@ -144,6 +145,7 @@ class DatasetImpl {
   std::condition_variable merged_cv_;  // wakes writers waiting for a merge
   bool merge_stop_ = false, merge_wake_ = false, checkpoint_wanted_ = false;
   Status merge_error_;  // the last failed merge (cleared by a successful one)
+  uint64_t merge_rounds_ = 0;  // merger passes finished
   std::thread merger_;
 };
 

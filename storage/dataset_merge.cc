@@ -104,12 +104,13 @@ void DatasetImpl::MergerLoop() {
     }
     l.lock();
     merge_error_ = err;
+    ++merge_rounds_;
     merged_cv_.notify_all();
     if (!err.ok()) {
       std::fprintf(stderr, "hvdb: %s: merge deferred: %s\n", info_.name.c_str(),
                    err.ToString().c_str());
       // Retry later (a full disk may be freed); commits go on into T0 up to its bound.
-      merge_cv_.wait_for(l, std::chrono::seconds(1), [&] { return merge_stop_; });
+      merge_cv_.wait_for(l, std::chrono::seconds(1), [&] { return merge_stop_ || merge_wake_; });
       merge_wake_ = true;
       checkpoint_wanted_ = checkpoint_wanted_ || checkpoint;
     }
@@ -203,6 +204,9 @@ void DatasetImpl::Retire(uint32_t frame, const std::shared_ptr<KdTree>& tree) {
 }
 
 Status DatasetImpl::BulkLocked(uint32_t frame, std::vector<Point>* points) {
+  // Unsynced commits (Options::sync off) become durable first, so that a power loss keeps a
+  // prefix of what was acknowledged.
+  if (!opts_.sync) HVDB_RETURN_IF_ERROR(wal_->Sync());
   auto cur = Snapshot(frame);
   FrameVersion v;
   if (cur) v = *cur;
@@ -259,6 +263,7 @@ Status DatasetImpl::PersistFrame(const FrameVersion& v) {
 }
 
 Status DatasetImpl::CheckpointLocked() {
+  if (!opts_.sync) HVDB_RETURN_IF_ERROR(wal_->Sync());  // a prefix survives, as in BulkLocked
   std::vector<uint32_t> dirty(dirty_.begin(), dirty_.end());
   for (uint32_t f : dirty) {
     auto v = Snapshot(f);
@@ -283,6 +288,8 @@ Status DatasetImpl::CheckpointLocked() {
 }
 
 Status DatasetImpl::WaitForMerges() {
+  // A failed merge is retried once on our behalf before its error is returned.
+  uint64_t retry_after = UINT64_MAX;
   for (;;) {
     bool pending = false;
     {
@@ -291,8 +298,14 @@ Status DatasetImpl::WaitForMerges() {
     }
     std::unique_lock<std::mutex> l(merge_mu_);
     if (!pending) return Status::OK();
-    if (!merge_error_.ok()) return merge_error_;
     if (merge_stop_) return Status::Cancelled("dataset closing");
+    if (!merge_error_.ok()) {
+      if (retry_after == UINT64_MAX) {
+        retry_after = merge_rounds_;
+      } else if (merge_rounds_ > retry_after) {
+        return merge_error_;
+      }
+    }
     merge_wake_ = true;
     merge_cv_.notify_one();
     merged_cv_.wait_for(l, std::chrono::milliseconds(50));
