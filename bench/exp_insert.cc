@@ -40,6 +40,7 @@ void RunInserts(Ctx& ctx) {
     const std::vector<Point> pts = UniformPoints(total, c.seed + 300 + durable);
     std::vector<double> ms, x, avg;
     double sum = 0;
+    Timer run;
     for (size_t at = 0; at < total; at += c.ins_set) {
       const size_t n = std::min(c.ins_set, total - at);
       Transaction txn;
@@ -57,8 +58,17 @@ void RunInserts(Ctx& ctx) {
             avg.back());
       }
     }
+    // Sustained means the merges are done too: the merger builds trees in the background,
+    // so the run ends when it has caught up (wall time from the first commit).
+    Timer drain;
+    Check(db.ds->WaitForMerges(), "wait for merges");
+    const double drain_ms = drain.Ms();
+    const double wall_ms = run.Ms();
     DatasetStats st = db.ds->Stats();
     nlohmann::json p = {{"set_points", c.ins_set},
+                        {"merges", st.merges},
+                        {"drain_ms", drain_ms},
+                        {"wall_ms", wall_ms},
                         {"total_points", total},
                         {"sets", ms.size()},
                         {"sync", durable != 0},
@@ -73,8 +83,9 @@ void RunInserts(Ctx& ctx) {
     const auto [mn, mx] = std::minmax_element(ms.begin(), ms.end());
     mean.fixed = Figure::Stats{sum / static_cast<double>(ms.size()), *mn, *mx, ms.size()};
     Figure& rate = R.Add(f + ".rate", kExp, "Mpoints/s", {}, p,
-                         "sustained insert rate: points / total commit time");
-    const double r = static_cast<double>(total) / sum / 1e3;
+                         "sustained insert rate: points / wall time of the run, from the "
+                         "first commit until the merger has built every tree");
+    const double r = static_cast<double>(total) / wall_ms / 1e3;
     rate.fixed = Figure::Stats{r, r, r, 1};
     db.Close();
     RemoveAll(dir);

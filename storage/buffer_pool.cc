@@ -59,6 +59,13 @@ int64_t BufferPool::FindVictimLocked() {
   return -1;
 }
 
+std::vector<bool> BufferPool::Resident(uint64_t file_id, uint32_t first, uint32_t n) const {
+  std::vector<bool> out(n);
+  std::lock_guard<std::mutex> l(mu_);
+  for (uint32_t i = 0; i < n; ++i) out[i] = index_.count(Key{file_id, first + i}) != 0;
+  return out;
+}
+
 Result<PageRef> BufferPool::Fetch(uint64_t file_id, uint32_t block, const Loader& load) {
   Key key{file_id, block};
   std::unique_lock<std::mutex> l(mu_);

@@ -62,6 +62,9 @@ class BufferPool {
   // Returns the block pinned, loading it with `load` on a miss. Fails with the loader's error
   // (the block is then not cached) or LimitExceeded when every block is pinned.
   Result<PageRef> Fetch(uint64_t file_id, uint32_t block, const Loader& load);
+  // Which of blocks [first, first + n) of the file are resident (loaded or loading); for
+  // planning reads, so it takes the lock once.
+  std::vector<bool> Resident(uint64_t file_id, uint32_t first, uint32_t n) const;
   // Forgets every unpinned block of the file (when a tree file is deleted).
   void Forget(uint64_t file_id);
 

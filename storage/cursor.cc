@@ -1,7 +1,9 @@
 // CursorImpl: a query's state machine over (level, frame, tree, bucket), holding its snapshot.
 #include <cmath>
+#include <cstring>
 
 #include "storage/dataset_impl.h"
+#include "storage/coding.h"
 #include "storage/lod.h"
 
 namespace hvdb {
@@ -150,7 +152,14 @@ class CursorImpl {
       const uint32_t frame = v.frame;
       HVDB_RETURN_IF_ERROR(slot.tree->FindBuckets(
           [&](const Box3& b) { return plan_.Classify(b, frame); }, &hits));
+      // Every block this task and the slot's later levels will read, requested at once; a
+      // progressive query asks for this level and the next finer one (read while the caller
+      // consumes this one), and for each further level when it starts.
+      slot.tree->Prefetch(hits, opts_.progressive ? std::max(opts_.lod, t.level - 1) : opts_.lod,
+                          t.level);
       it = buckets_.emplace(key, std::move(hits)).first;
+    } else if (opts_.progressive && bucket_pos_ == 0 && t.level - 1 >= opts_.lod) {
+      slot.tree->Prefetch(it->second, t.level - 1, t.level - 1);
     }
     const auto& hits = it->second;
     const size_t limit = opts_.batch_points;
@@ -168,6 +177,26 @@ class CursorImpl {
         HVDB_RETURN_IF_ERROR(slot.tree->ReadRange(
             t.level, hit.entry.start[k], hit.entry.count[k], [&](const uint8_t* rec, size_t n) {
               DecodePoints(rec, n, out_.Grow(n));
+            }));
+        continue;
+      }
+      if (plan_.window && opts_.label_mask == 0) {
+        // A window crossing the bucket: test the stored coordinates in place (offsets 8, 12,
+        // 16 of a record) and copy out only the hits, instead of decoding every record.
+        const Window& w = *plan_.window;
+        HVDB_RETURN_IF_ERROR(slot.tree->ReadRange(
+            t.level, hit.entry.start[k], hit.entry.count[k], [&](const uint8_t* rec, size_t n) {
+              for (size_t j = 0; j < n; ++j) {
+                const uint8_t* r = rec + j * kPointRecordSize;
+                float c[3];
+                std::memcpy(c, r + 8, sizeof c);
+                if (!(c[0] >= w.lo[0] && c[0] <= w.hi[0] && c[1] >= w.lo[1] && c[1] <= w.hi[1] &&
+                      c[2] >= w.lo[2] && c[2] <= w.hi[2])) {
+                  continue;
+                }
+                if (slot.dead && slot.IsDead(DecodeLE<uint64_t>(r))) continue;
+                DecodePoints(r, 1, out_.Grow(1));
+              }
             }));
         continue;
       }

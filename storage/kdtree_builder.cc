@@ -4,6 +4,8 @@
 #include <bit>
 #include <cstring>
 #include <limits>
+#include <memory>
+#include <thread>
 
 #include "storage/coding.h"
 #include "storage/crc32c.h"
@@ -22,21 +24,38 @@ uint64_t LeftChildSize(uint64_t q, uint64_t c) {
 
 namespace {
 
-float Coord(const Point& p, int axis) { return axis == 0 ? p.x : axis == 1 ? p.y : p.z; }
+// The build moves 16-byte (x, y, z, index) records, not 64-byte points: the partitioning
+// passes of the kd-tree and of the in-bucket order touch a quarter of the memory, and each point
+// is copied once, straight to its final place in the file (bench/README.md, "Targets missed").
+struct Rec {
+  float c[3];
+  uint32_t idx;
+};
 
-Box3 BoundsOf(std::span<const Point> pts) {
+template <typename T>
+Box3 BoundsOfT(std::span<const T> pts, float (*coord)(const T&, int)) {
   Box3 b;
   b.lo = {std::numeric_limits<float>::max(), std::numeric_limits<float>::max(),
           std::numeric_limits<float>::max()};
   b.hi = {std::numeric_limits<float>::lowest(), std::numeric_limits<float>::lowest(),
           std::numeric_limits<float>::lowest()};
-  for (const Point& p : pts) {
+  for (const T& p : pts) {
     for (int a = 0; a < 3; ++a) {
-      b.lo[a] = std::min(b.lo[a], Coord(p, a));
-      b.hi[a] = std::max(b.hi[a], Coord(p, a));
+      b.lo[a] = std::min(b.lo[a], coord(p, a));
+      b.hi[a] = std::max(b.hi[a], coord(p, a));
     }
   }
   return b;
+}
+float RecCoord(const Rec& r, int a) { return r.c[a]; }
+Box3 BoundsOf(std::span<const Rec> pts) { return BoundsOfT<Rec>(pts, RecCoord); }
+
+int WidestAxis(const Box3& box) {
+  int axis = 0;
+  for (int a = 1; a < 3; ++a) {
+    if (box.hi[a] - box.lo[a] > box.hi[axis] - box.lo[axis]) axis = a;
+  }
+  return axis;
 }
 
 struct Ref {
@@ -52,35 +71,70 @@ struct TmpNode {
 
 struct TmpTree {
   std::vector<TmpNode> nodes;
-  std::vector<std::pair<size_t, size_t>> buckets;  // [begin, end) into the points, DFS order
+  std::vector<std::pair<size_t, size_t>> buckets;  // [begin, end) into the records, DFS order
 };
 
-Ref BuildKd(std::vector<Point>& pts, size_t begin, size_t end, uint64_t cap, TmpTree* t) {
-  size_t q = end - begin;
-  if (q <= cap) {
+// Splits recs[begin, end) at its left child's size; returns the split node (not yet linked).
+TmpNode Split(std::vector<Rec>& recs, size_t begin, size_t end, uint64_t cap, size_t* mid) {
+  const size_t left = LeftChildSize(end - begin, cap);
+  const int axis = WidestAxis(BoundsOf(std::span<const Rec>(recs.data() + begin, end - begin)));
+  auto first = recs.begin() + static_cast<std::ptrdiff_t>(begin);
+  auto m = first + static_cast<std::ptrdiff_t>(left);
+  std::nth_element(first, m, recs.begin() + static_cast<std::ptrdiff_t>(end),
+                   [axis](const Rec& a, const Rec& b) { return a.c[axis] < b.c[axis]; });
+  *mid = begin + left;
+  return {static_cast<uint8_t>(axis), m->c[axis], {}, {}};  // left <= split <= right
+}
+
+Ref BuildKd(std::vector<Rec>& recs, size_t begin, size_t end, uint64_t cap, TmpTree* t) {
+  if (end - begin <= cap) {
     t->buckets.emplace_back(begin, end);
     return {ChildType::kBucket, static_cast<uint32_t>(t->buckets.size() - 1)};
   }
-  size_t left = LeftChildSize(q, cap);
-  auto span = std::span<const Point>(pts.data() + begin, q);
-  Box3 box = BoundsOf(span);
-  int axis = 0;
-  for (int a = 1; a < 3; ++a) {
-    if (box.hi[a] - box.lo[a] > box.hi[axis] - box.lo[axis]) axis = a;
-  }
-  auto first = pts.begin() + static_cast<std::ptrdiff_t>(begin);
-  auto mid = first + static_cast<std::ptrdiff_t>(left);
-  std::nth_element(first, mid, pts.begin() + static_cast<std::ptrdiff_t>(end),
-                   [axis](const Point& a, const Point& b) { return Coord(a, axis) < Coord(b, axis); });
-  // Left points are <= split <= right points.
-  float split = Coord(*mid, axis);
+  size_t mid;
+  TmpNode n = Split(recs, begin, end, cap, &mid);
   auto idx = static_cast<uint32_t>(t->nodes.size());
-  t->nodes.push_back({static_cast<uint8_t>(axis), split, {}, {}});
-  Ref l = BuildKd(pts, begin, begin + left, cap, t);
-  Ref r = BuildKd(pts, begin + left, end, cap, t);
+  t->nodes.push_back(n);
+  Ref l = BuildKd(recs, begin, mid, cap, t);
+  Ref r = BuildKd(recs, mid, end, cap, t);
   t->nodes[idx].left = l;
   t->nodes[idx].right = r;
   return {ChildType::kNode, idx};
+}
+
+// The root's two subtrees on two threads (the disjoint halves of `recs`), then joined.
+void BuildKdParallel(std::vector<Rec>& recs, uint64_t cap, TmpTree* t) {
+  if (recs.size() <= cap || recs.size() < (1u << 16)) {
+    BuildKd(recs, 0, recs.size(), cap, t);
+    return;
+  }
+  size_t mid;
+  t->nodes.push_back(Split(recs, 0, recs.size(), cap, &mid));
+  TmpTree lt, rt;
+  Ref l, r;
+  std::thread left([&] { l = BuildKd(recs, 0, mid, cap, &lt); });
+  r = BuildKd(recs, mid, recs.size(), cap, &rt);
+  left.join();
+  auto shift = [](Ref x, uint32_t nodes, uint32_t buckets) {
+    x.idx += x.type == ChildType::kNode ? nodes : buckets;
+    return x;
+  };
+  const auto lnodes = static_cast<uint32_t>(lt.nodes.size());
+  const auto lbuckets = static_cast<uint32_t>(lt.buckets.size());
+  for (TmpNode n : lt.nodes) {
+    n.left = shift(n.left, 1, 0);
+    n.right = shift(n.right, 1, 0);
+    t->nodes.push_back(n);
+  }
+  for (TmpNode n : rt.nodes) {
+    n.left = shift(n.left, 1 + lnodes, lbuckets);
+    n.right = shift(n.right, 1 + lnodes, lbuckets);
+    t->nodes.push_back(n);
+  }
+  t->buckets = std::move(lt.buckets);
+  t->buckets.insert(t->buckets.end(), rt.buckets.begin(), rt.buckets.end());
+  t->nodes[0].left = shift(l, 1, 0);
+  t->nodes[0].right = shift(r, 1 + lnodes, lbuckets);
 }
 
 // Packs inner nodes depth-first into blocks of `cap` nodes (fig. 8.6/8.7).
@@ -125,6 +179,32 @@ class NodePacker {
   std::vector<std::vector<NodeRecord>> blocks_;
 };
 
+// The in-bucket order of lod.h (kd-tree of bucket size 1, left child the largest power of two
+// below n, ties by id) on the records.
+void KdOrderRecords(std::span<Rec> recs, const std::vector<Point>& points) {
+  const size_t n = recs.size();
+  if (n <= 1) return;
+  const size_t left = std::bit_floor(n - 1);
+  const int axis = WidestAxis(BoundsOf(recs));
+  std::nth_element(recs.begin(), recs.begin() + static_cast<std::ptrdiff_t>(left), recs.end(),
+                   [axis, &points](const Rec& a, const Rec& b) {
+                     return a.c[axis] < b.c[axis] ||
+                            (a.c[axis] == b.c[axis] && points[a.idx].id < points[b.idx].id);
+                   });
+  KdOrderRecords(recs.subspan(0, left), points);
+  KdOrderRecords(recs.subspan(left), points);
+}
+
+// Runs fn(i) for i in [0, n) on two threads (the machine's cores; more would only contend).
+template <typename F>
+void ParallelFor(size_t n, F fn) {
+  std::thread other([&] {
+    for (size_t i = 1; i < n; i += 2) fn(i);
+  });
+  for (size_t i = 0; i < n; i += 2) fn(i);
+  other.join();
+}
+
 }  // namespace
 
 Status BuildTreeFile(Env* env, const std::string& path, std::vector<Point>& points,
@@ -132,40 +212,45 @@ Status BuildTreeFile(Env* env, const std::string& path, std::vector<Point>& poin
   const uint32_t bs = params.block_size;
   const uint32_t b = bs / static_cast<uint32_t>(kPointRecordSize);
   const auto levels = static_cast<uint32_t>(params.lod_levels + 1);
-  TmpTree tree;
-  BuildKd(points, 0, points.size(), 2ull * b, &tree);
-
+  const int max_level = params.lod_levels;
+  std::vector<Rec> recs(points.size());
   TreeHeader h;
+  h.min_id = std::numeric_limits<uint64_t>::max();
+  for (size_t i = 0; i < points.size(); ++i) {
+    const Point& p = points[i];
+    recs[i] = {{p.x, p.y, p.z}, static_cast<uint32_t>(i)};
+    h.min_id = std::min(h.min_id, p.id);
+    h.max_id = std::max(h.max_id, p.id);
+  }
+  h.bbox = BoundsOf(recs);
+  TmpTree tree;
+  BuildKdParallel(recs, 2ull * b, &tree);
+  const size_t nb = tree.buckets.size();
+
   h.block_size = bs;
   h.point_count = points.size();
-  h.bucket_count = static_cast<uint32_t>(tree.buckets.size());
+  h.bucket_count = static_cast<uint32_t>(nb);
   h.levels = levels;
   h.points_per_block = b;
   h.frame = params.frame;
   h.tree_seq = params.tree_seq;
-  h.bbox = BoundsOf(points);
-  h.min_id = std::numeric_limits<uint64_t>::max();
-  for (const Point& p : points) {
-    h.min_id = std::min(h.min_id, p.id);
-    h.max_id = std::max(h.max_id, p.id);
-  }
 
-  // Multiresolution sets of every bucket.
-  std::vector<DirEntry> dir(tree.buckets.size());
-  std::vector<std::vector<std::vector<Point>>> bucket_levels(tree.buckets.size());
-  for (size_t i = 0; i < tree.buckets.size(); ++i) {
+  // Each bucket's multiresolution order (lod.h) on the records; a level's size in a bucket
+  // depends only on the bucket's size.
+  std::vector<DirEntry> dir(nb);
+  ParallelFor(nb, [&](size_t i) {
     auto [begin, end] = tree.buckets[i];
-    std::span<Point> span(points.data() + begin, end - begin);
+    std::span<Rec> span(recs.data() + begin, end - begin);
     dir[i].box = BoundsOf(span);
-    bucket_levels[i] = SplitIntoLevels(span, params.lod_levels);
-  }
+    KdOrderRecords(span, points);
+    for (size_t m = 0; m < span.size(); ++m) ++dir[i].count[LevelOfRank(m, max_level)];
+  });
   // Level segments, coarsest first, each starting on a block boundary (fig. 8.11).
   uint32_t block = 1;  // block 0: header
   for (int k = static_cast<int>(levels) - 1; k >= 0; --k) {
     uint32_t n = 0;
-    for (size_t i = 0; i < dir.size(); ++i) {
+    for (size_t i = 0; i < nb; ++i) {
       dir[i].start[k] = n;
-      dir[i].count[k] = static_cast<uint32_t>(bucket_levels[i][k].size());
       n += dir[i].count[k];
     }
     h.level_count[k] = n;
@@ -186,7 +271,7 @@ Status BuildTreeFile(Env* env, const std::string& path, std::vector<Point>& poin
   block += h.node_block_count;
   h.dir_block_start = block;
   uint32_t per_dir = h.DirEntriesPerBlock();
-  h.dir_block_count = static_cast<uint32_t>((dir.size() + per_dir - 1) / per_dir);
+  h.dir_block_count = static_cast<uint32_t>((nb + per_dir - 1) / per_dir);
   block += h.dir_block_count;
   h.crc_block_start = block;
   uint32_t crc_per_block = bs / 4;
@@ -197,36 +282,52 @@ Status BuildTreeFile(Env* env, const std::string& path, std::vector<Point>& poin
   h.crc_block_count = ncrc;
   h.total_blocks = block + ncrc;
 
-  std::string file(size_t{h.total_blocks} * bs, '\0');
-  auto* base = reinterpret_cast<uint8_t*>(file.data());
-  for (int k = static_cast<int>(levels) - 1; k >= 0; --k) {
-    uint8_t* dst = base + size_t{h.level_start_block[k]} * bs;
-    for (size_t i = 0; i < dir.size(); ++i) {
-      const auto& pts = bucket_levels[i][k];
-      EncodePoints(pts, dst);
-      dst += pts.size() * kPointRecordSize;
-    }
+  // The file image, not zero-filled first: every byte is written once below (records, or
+  // zeros for the tails of level segments and the other blocks).
+  const size_t file_bytes = size_t{h.total_blocks} * bs;
+  std::unique_ptr<uint8_t[]> image(new uint8_t[file_bytes]);
+  uint8_t* base = image.get();
+  for (uint32_t k = 0; k < levels; ++k) {
+    const size_t used = size_t{h.level_count[k]} * kPointRecordSize;
+    const size_t seg = size_t{(h.level_count[k] + b - 1) / b} * bs;
+    std::memset(base + size_t{h.level_start_block[k]} * bs + used, 0, seg - used);
   }
-  for (size_t nb = 0; nb < packer.blocks().size(); ++nb) {
-    uint8_t* dst = base + size_t{h.node_block_start + nb} * bs;
-    const auto& nodes = packer.blocks()[nb];
+  std::memset(base, 0, bs);
+  std::memset(base + size_t{h.node_block_start} * bs, 0,
+              size_t{h.total_blocks - h.node_block_start} * bs);
+  // Every point straight to its place: bucket i's rank-m point goes to level k's position
+  // start[k] + (its rank among the bucket's level-k points).
+  ParallelFor(nb, [&](size_t i) {
+    auto [begin, end] = tree.buckets[i];
+    uint32_t next[kMaxLevels] = {};
+    for (size_t m = 0; m < end - begin; ++m) {
+      const int k = LevelOfRank(m, max_level);
+      uint8_t* dst = base + size_t{h.level_start_block[k]} * bs +
+                     size_t{dir[i].start[k] + next[k]++} * kPointRecordSize;
+      EncodePoint(points[recs[begin + m].idx], dst);
+    }
+  });
+  for (size_t nbk = 0; nbk < packer.blocks().size(); ++nbk) {
+    uint8_t* dst = base + size_t{h.node_block_start + nbk} * bs;
+    const auto& nodes = packer.blocks()[nbk];
     EncodeLE(dst, static_cast<uint32_t>(nodes.size()));
     for (size_t j = 0; j < nodes.size(); ++j) {
       EncodeNode(nodes[j], dst + kNodeBlockHeader + j * kNodeRecordSize);
     }
   }
-  for (size_t i = 0; i < dir.size(); ++i) {
+  for (size_t i = 0; i < nb; ++i) {
     uint8_t* dst = base + size_t{h.dir_block_start + i / per_dir} * bs +
                    (i % per_dir) * h.DirEntrySize();
     EncodeDirEntry(dir[i], levels, dst);
   }
   uint8_t* crc_base = base + size_t{h.crc_block_start} * bs;
-  for (uint32_t blk = 1; blk < h.crc_block_start; ++blk) {
-    EncodeLE(crc_base + 4 * size_t{blk},
-             crc32c::Mask(crc32c::Value(base + size_t{blk} * bs, bs)));
-  }
+  ParallelFor(h.crc_block_start, [&](size_t blk) {
+    if (blk == 0) return;
+    EncodeLE(crc_base + 4 * blk, crc32c::Mask(crc32c::Value(base + blk * bs, bs)));
+  });
   h.crc_table_crc = crc32c::Mask(crc32c::Value(crc_base, size_t{ncrc} * bs));
   EncodeTreeHeader(h, base);
+  std::string_view file(reinterpret_cast<const char*>(base), file_bytes);
   if (sync) return WriteFileAtomic(env, path, file);
   HVDB_ASSIGN_OR_RETURN(auto f, env->OpenWrite(path, /*truncate=*/true));
   return f->Append(file);

@@ -89,8 +89,59 @@ Result<DirEntry> KdTree::Dir(uint32_t bucket) const {
   return DecodeDirEntry(page.data() + size_t{bucket % per} * h_.DirEntrySize(), h_.levels);
 }
 
+void KdTree::PrefetchBlocks(const std::vector<uint32_t>& blocks) const {
+  if (blocks.empty()) return;
+  const uint32_t first = blocks.front();
+  std::vector<bool> resident = pool_->Resident(file_id_, first, blocks.back() - first + 1);
+  const uint64_t bs = h_.block_size;
+  uint32_t run_start = 0, run_len = 0;
+  auto flush = [&] {
+    if (run_len > 0) file_->Prefetch(uint64_t{run_start} * bs, uint64_t{run_len} * bs);
+    run_len = 0;
+  };
+  for (uint32_t b : blocks) {
+    if (resident[b - first]) continue;
+    if (run_len > 0 && b == run_start + run_len) {
+      ++run_len;
+      continue;
+    }
+    if (run_len > 0 && b < run_start + run_len) continue;  // a repeat
+    flush();
+    run_start = b;
+    run_len = 1;
+  }
+  flush();
+}
+
+void KdTree::Prefetch(const std::vector<BucketHit>& hits, int lo, int hi) const {
+  const uint32_t b = h_.points_per_block;
+  std::vector<uint32_t> blocks;
+  // Coarse levels first: their segments come first in the file (fig. 8.11).
+  for (int k = std::min<int>(hi, static_cast<int>(h_.levels) - 1); k >= std::max(lo, 0); --k) {
+    for (const BucketHit& hit : hits) {
+      const uint32_t n = hit.entry.count[k];
+      if (n == 0) continue;
+      const uint32_t s = hit.entry.start[k];
+      for (uint32_t blk = s / b; blk <= (s + n - 1) / b; ++blk) {
+        if (blocks.empty() || blocks.back() != h_.level_start_block[k] + blk) {
+          blocks.push_back(h_.level_start_block[k] + blk);
+        }
+      }
+    }
+  }
+  std::sort(blocks.begin(), blocks.end());
+  PrefetchBlocks(blocks);
+}
+
 Status KdTree::FindBuckets(const BoxTest& test, std::vector<BucketHit>* out) const {
   if (test(h_.bbox) == Relation::kOutside) return Status::OK();
+  {
+    // The walk reads node blocks, then directory blocks, one after another: ask for all of
+    // them at once (they are contiguous, and few) unless they are cached.
+    std::vector<uint32_t> meta;
+    for (uint32_t blk = h_.node_block_start; blk < h_.crc_block_start; ++blk) meta.push_back(blk);
+    PrefetchBlocks(meta);
+  }
   auto visit_bucket = [&](uint32_t bucket) -> Status {
     HVDB_ASSIGN_OR_RETURN(DirEntry e, Dir(bucket));
     Relation r = test(e.box);
