@@ -15,7 +15,7 @@ cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=Debug -DHVDB_SANITIZE=ON -D
 cmake --build build-asan --target storage_tests server_tests
 ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
   ctest --test-dir build-asan --output-on-failure -j2 --timeout 900 \
-  -R '^(Crc32c|Point|BufferPool|Lod|KdTree|Hyperslice|Wal|Dataset|Crash|Corruption|Server)' \
+  -R '^(Crc32c|Point|BufferPool|Lod|KdTree|Hyperslice|Wal|Dataset|Crash|Corruption|FaultInjection|Server)' \
   -E 'SlowReaderDoesNotGrowServerMemory|AClientThatNeverReleasesHoldsOnlyItsRing|ClientsKilledWhileHoldingSlotsLeakNothing'
 
 # Fuzz the server's frame and message decoder with clang's libFuzzer for 20 seconds.
