@@ -20,6 +20,7 @@ struct Config {
   uint64_t seed = 2008;
   size_t cache_mib = 1024;  // hvdb's buffer pool (and the R*-tree's buffer, in pages)
   uint32_t block_kib = 64;
+  std::string read_engine = "default";  // default | uring | preadv: the Env's batched reads
   int lod_levels = 5;  // l: levels 0..5, the thesis's 6 levels
   double fps = 30;
   int warm_reps = 10;

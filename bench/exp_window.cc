@@ -4,6 +4,7 @@
 // (the upper bound without durability) and PCL's out-of-core octree (build, box query, and its
 // level-of-detail query).
 #include <algorithm>
+#include <filesystem>
 #include <cinttypes>
 #include <cmath>
 
@@ -43,6 +44,20 @@ Window ToWindow(const Box& b, uint32_t frame, double fps) {
 }
 
 std::string N(size_t n) { return "win.n" + std::to_string(n); }
+
+// The dataset's largest tree file (one frame, bulk loaded: its only one).
+std::string TreeFileOf(const std::string& dataset_dir) {
+  std::string best;
+  uintmax_t size = 0;
+  std::error_code ec;
+  for (const auto& e : std::filesystem::directory_iterator(dataset_dir + "/trees", ec)) {
+    if (e.path().extension() == ".kdt" && e.file_size() > size) {
+      size = e.file_size();
+      best = e.path().string();
+    }
+  }
+  return best;
+}
 
 // Median of counts as a double.
 double MedianCount(const std::vector<uint64_t>& v) {
@@ -139,6 +154,20 @@ void RunWindows(Ctx& ctx) {
       std::string name = N(n) + ".hvdb.l" + std::to_string(lod) + ".cold";
       R.Add(name, kExp, "ms", ms, p, "window query, cold (evicted files, new buffer pool)");
       R.AttachLimit(name, limits, bytes, true);
+      // The device's own limit for that many scattered blocks, all in flight at once (the
+      // sequential limit above reads the result's bytes in one run, which a window cannot).
+      const std::string tree = TreeFileOf(db.DatasetDir());
+      if (!tree.empty()) {
+        std::vector<double> lim = RandomBlocksMs(
+            tree, static_cast<size_t>(Median(blocks)), c.block_kib * 1024, c.win_cold,
+            c.seed + 77);
+        const std::string ln = N(n) + ".limit.blocks.l" + std::to_string(lod) + ".cold";
+        R.Add(ln, kExp, "ms", lim, {{"blocks", Median(blocks)}, {"block_bytes", c.block_kib * 1024}},
+              "as many random blocks of the tree file as the cold window read, evicted, all "
+              "submitted at once with io_uring");
+        R.Ratio(name + ".x_blocks", kExp, name, ln,
+                "cold window / reading its number of blocks at the device's queue depth");
+      }
       (lod == 0 ? h0c : hLc).push_back(Median(ms));
     }
 

@@ -55,6 +55,8 @@ Options Config::DbOptions(bool sync) const {
   o.block_size = block_kib << 10;
   o.lod_levels = lod_levels;
   o.sync = sync;
+  if (read_engine == "uring") o.env = Env::Posix(Env::ReadEngine::kIoUring);
+  if (read_engine == "preadv") o.env = Env::Posix(Env::ReadEngine::kPreadv);
   return o;
 }
 
@@ -157,6 +159,11 @@ int Main(int argc, char** argv) {
   app.add_option("--cache-mib", c.cache_mib, "hvdb buffer pool (and R*-tree buffer) in MiB")
       ->capture_default_str();
   app.add_option("--block-kib", c.block_kib, "hvdb block size in KiB")->capture_default_str();
+  app.add_option("--read-engine", c.read_engine,
+                 "how hvdb's batched cold reads reach the device: default (io_uring where the "
+                 "kernel allows it), uring, or preadv (one request after another per loader)")
+      ->check(CLI::IsMember({"default", "uring", "preadv"}))
+      ->capture_default_str();
   app.add_option("--lod-levels", c.lod_levels, "coarsest level l (levels 0..l)")->capture_default_str();
   app.add_option("--warm-reps", c.warm_reps, "timed repetitions of warm figures")->capture_default_str();
   app.add_option("--cold-reps", c.cold_reps, "timed repetitions of cold figures")->capture_default_str();

@@ -1,6 +1,7 @@
 #include "bench/util.h"
 
 #include <fcntl.h>
+#include <liburing.h>
 #include <sys/mman.h>
 #include <sys/stat.h>
 #include <sys/statfs.h>
@@ -232,6 +233,47 @@ const std::vector<double>& Limits::Warm(uint64_t bytes) {
   }
   (void)sink;
   return warm_[bytes] = t;
+}
+
+std::vector<double> RandomBlocksMs(const std::string& file, size_t blocks, size_t block_bytes,
+                                   int reps, uint64_t seed) {
+  std::vector<double> out;
+  int fd = ::open(file.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) Die("open " + file + ": " + std::strerror(errno));
+  const uint64_t nblocks = static_cast<uint64_t>(::lseek(fd, 0, SEEK_END)) / block_bytes;
+  blocks = std::min<size_t>(blocks, nblocks);
+  std::vector<uint8_t> buf(blocks * block_bytes);
+  io_uring ring;
+  if (io_uring_queue_init(static_cast<unsigned>(std::max<size_t>(blocks, 1)), &ring, 0) != 0) {
+    Die("io_uring_queue_init failed");
+  }
+  Rng rng(seed);
+  for (int r = 0; r < reps; ++r) {
+    std::vector<uint64_t> pick;
+    while (pick.size() < blocks) {
+      uint64_t b = rng.Next() % nblocks;
+      if (std::find(pick.begin(), pick.end(), b) == pick.end()) pick.push_back(b);
+    }
+    std::sort(pick.begin(), pick.end());
+    Evict(file);
+    Timer tm;
+    for (size_t i = 0; i < blocks; ++i) {
+      io_uring_sqe* sqe = io_uring_get_sqe(&ring);
+      io_uring_prep_read(sqe, fd, buf.data() + i * block_bytes, static_cast<unsigned>(block_bytes),
+                         pick[i] * block_bytes);
+    }
+    io_uring_submit(&ring);
+    for (size_t i = 0; i < blocks; ++i) {
+      io_uring_cqe* cqe = nullptr;
+      if (io_uring_wait_cqe(&ring, &cqe) != 0) Die("io_uring wait failed");
+      if (cqe->res < 0) Die("read " + file + ": " + std::strerror(-cqe->res));
+      io_uring_cqe_seen(&ring, cqe);
+    }
+    out.push_back(tm.Ms());
+  }
+  io_uring_queue_exit(&ring);
+  ::close(fd);
+  return out;
 }
 
 const Limits::Cold& Limits::ColdRead(uint64_t bytes) {

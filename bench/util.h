@@ -126,6 +126,11 @@ double AppendSyncMs(const std::string& scratch_dir, uint64_t bytes, int reps);
 // fdatasync it. ms per rep.
 std::vector<double> WriteSyncMs(const std::string& scratch_dir, uint64_t bytes, int reps);
 
+// The device's limit for a query's scattered block reads: `blocks` distinct random blocks of
+// `file` (sorted), evicted first, all submitted at once with io_uring and waited for. ms per rep.
+std::vector<double> RandomBlocksMs(const std::string& file, size_t blocks, size_t block_bytes,
+                                   int reps, uint64_t seed);
+
 // --- hvdb ------------------------------------------------------------------------------------
 // A database with one dataset open. Reopen(cold=true) is the cold protocol: close everything
 // (the buffer pool goes), evict the dataset's files, reopen, evict again (the open read the

@@ -13,7 +13,7 @@ PACKAGES=(
   libprotobuf-dev protobuf-compiler
   nlohmann-json3-dev libcli11-dev
   libspatialindex-dev libnanoflann-dev libpcl-dev python3-matplotlib
-  clang libclang-rt-14-dev
+  clang libclang-rt-14-dev liburing-dev
 )
 
 missing=()

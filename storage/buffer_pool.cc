@@ -30,9 +30,80 @@ BufferPool::BufferPool(size_t capacity_bytes, uint32_t block_size)
       slots_(nslots_) {
   assert(nslots_ >= 2);
   index_.reserve(nslots_);
+  // Four loaders: batches in flight together keep the device's queue full (bench/README.md
+  // has the figures). They spend their time waiting for the device, not on a core.
+  for (int i = 0; i < 4; ++i) loaders_.emplace_back([this] { LoaderLoop(); });
 }
 
-BufferPool::~BufferPool() = default;
+BufferPool::~BufferPool() {
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    stop_ = true;  // the loaders finish the queued jobs first: claimed slots are never left
+  }
+  job_cv_.notify_all();
+  for (auto& t : loaders_) t.join();
+}
+
+void BufferPool::LoaderLoop() {
+  std::unique_lock<std::mutex> l(mu_);
+  for (;;) {
+    job_cv_.wait(l, [&] { return stop_ || !jobs_.empty(); });
+    if (jobs_.empty()) return;  // stopping, nothing left
+    Job job = std::move(jobs_.front());
+    jobs_.pop_front();
+    l.unlock();
+    job.load(job.loads);
+    l.lock();
+    for (const BlockLoad& b : job.loads) {
+      Slot& s = slots_[b.slot];
+      if (b.ok) {
+        s.state = SlotState::kReady;
+      } else {
+        // A failed read is not cached: a Fetch waiting for it loads it itself and reports why.
+        index_.erase(s.key);
+        s.state = SlotState::kFree;
+      }
+      --loading_;
+    }
+    loaded_.notify_all();
+  }
+}
+
+size_t BufferPool::Prefetch(uint64_t file_id, std::span<const uint32_t> blocks, size_t batch,
+                            BatchLoader load) {
+  std::vector<BlockLoad> claimed;
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    const uint32_t budget = nslots_ / 4;
+    for (uint32_t blk : blocks) {
+      if (loading_ >= budget) break;
+      Key key{file_id, blk};
+      if (index_.count(key)) continue;
+      int64_t victim = FindVictimLocked();
+      if (victim < 0) break;
+      auto slot = static_cast<uint32_t>(victim);
+      Slot& s = slots_[slot];
+      s.key = key;
+      s.state = SlotState::kLoading;
+      s.pins = 0;
+      s.referenced = true;  // a second chance before its query reads it
+      index_[key] = slot;
+      ++loading_;
+      ++prefetched_;
+      ++misses_;  // read from the file, ahead of its Fetch
+      claimed.push_back({blk, memory_.get() + size_t{slot} * block_size_, false, slot});
+    }
+    for (size_t i = 0; i < claimed.size(); i += batch) {
+      Job job;
+      job.loads.assign(claimed.begin() + static_cast<std::ptrdiff_t>(i),
+                       claimed.begin() + static_cast<std::ptrdiff_t>(std::min(i + batch, claimed.size())));
+      job.load = load;
+      jobs_.push_back(std::move(job));
+    }
+  }
+  if (!claimed.empty()) job_cv_.notify_all();
+  return claimed.size();
+}
 
 uint64_t BufferPool::NewFileId() {
   std::lock_guard<std::mutex> l(mu_);
@@ -57,13 +128,6 @@ int64_t BufferPool::FindVictimLocked() {
     return i;
   }
   return -1;
-}
-
-std::vector<bool> BufferPool::Resident(uint64_t file_id, uint32_t first, uint32_t n) const {
-  std::vector<bool> out(n);
-  std::lock_guard<std::mutex> l(mu_);
-  for (uint32_t i = 0; i < n; ++i) out[i] = index_.count(Key{file_id, first + i}) != 0;
-  return out;
 }
 
 Result<PageRef> BufferPool::Fetch(uint64_t file_id, uint32_t block, const Loader& load) {
@@ -135,6 +199,7 @@ CacheStats BufferPool::Stats() const {
   c.hits = hits_;
   c.misses = misses_;
   c.evictions = evictions_;
+  c.prefetched = prefetched_;
   for (const Slot& s : slots_) {
     if (s.state == SlotState::kReady) ++c.resident_blocks;
     if (s.pins > 0) ++c.pinned_blocks;

@@ -7,14 +7,22 @@
 //
 // Thread safety: all methods are safe for concurrent use. Loads run outside the lock; a
 // second thread asking for a block being loaded waits for that load instead of repeating it.
+//
+// Loads come one block at a time (Fetch, on a miss) or in batches (Prefetch): a query that knows
+// which blocks it will read claims their slots, and one of the pool's loader threads reads them
+// all in one batch (the device serves them in parallel) while the query goes on; its Fetch of a
+// block still in flight waits for that block.
 #ifndef HVDB_STORAGE_BUFFER_POOL_H_
 #define HVDB_STORAGE_BUFFER_POOL_H_
 
 #include <condition_variable>
 #include <cstdint>
+#include <deque>
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <span>
+#include <thread>
 #include <unordered_map>
 #include <vector>
 
@@ -50,6 +58,14 @@ class BufferPool {
  public:
   // Fills `dst` (block_size bytes) with block `block` of the file, verifying its checksum.
   using Loader = std::function<Status(uint8_t* dst)>;
+  // One block of a batch load: the loader fills `dst` and sets `ok` once it is verified.
+  struct BlockLoad {
+    uint32_t block = 0;
+    uint8_t* dst = nullptr;
+    bool ok = false;
+    uint32_t slot = 0;  // the pool's
+  };
+  using BatchLoader = std::function<void(std::span<BlockLoad> loads)>;
 
   // REQUIRES: capacity_bytes >= 2 * block_size.
   BufferPool(size_t capacity_bytes, uint32_t block_size);
@@ -62,9 +78,11 @@ class BufferPool {
   // Returns the block pinned, loading it with `load` on a miss. Fails with the loader's error
   // (the block is then not cached) or LimitExceeded when every block is pinned.
   Result<PageRef> Fetch(uint64_t file_id, uint32_t block, const Loader& load);
-  // Which of blocks [first, first + n) of the file are resident (loaded or loading); for
-  // planning reads, so it takes the lock once.
-  std::vector<bool> Resident(uint64_t file_id, uint32_t first, uint32_t n) const;
+  // Loads the blocks (ascending) of the file that are not resident in the background, in
+  // batches of at most `batch` blocks, each one call of `load` on a loader thread. Claims at
+  // most a quarter of the pool; blocks beyond are left to Fetch. Returns the blocks claimed.
+  size_t Prefetch(uint64_t file_id, std::span<const uint32_t> blocks, size_t batch,
+                  BatchLoader load);
   // Forgets every unpinned block of the file (when a tree file is deleted).
   void Forget(uint64_t file_id);
 
@@ -91,6 +109,7 @@ class BufferPool {
     uint32_t pins = 0;
   };
   void Unpin(uint32_t slot);
+  void LoaderLoop();
   // REQUIRES: mu_ held. Returns a free or evicted slot, or -1 when all are pinned.
   int64_t FindVictimLocked();
 
@@ -103,7 +122,17 @@ class BufferPool {
   std::unordered_map<Key, uint32_t, KeyHash> index_;
   uint32_t hand_ = 0;
   uint64_t next_file_id_ = 1;
-  uint64_t hits_ = 0, misses_ = 0, evictions_ = 0;
+  uint64_t hits_ = 0, misses_ = 0, evictions_ = 0, prefetched_ = 0;
+  uint32_t loading_ = 0;  // slots claimed by Prefetch and not yet loaded
+  // Batch loads waiting for a loader thread.
+  struct Job {
+    std::vector<BlockLoad> loads;
+    BatchLoader load;
+  };
+  std::deque<Job> jobs_;
+  std::condition_variable job_cv_;
+  bool stop_ = false;
+  std::vector<std::thread> loaders_;
 };
 
 }  // namespace hvdb

@@ -184,6 +184,7 @@ struct DatasetStats {
 struct CacheStats {
   uint64_t capacity_bytes = 0, block_size = 0, hits = 0, misses = 0, evictions = 0;
   uint64_t resident_blocks = 0, pinned_blocks = 0;
+  uint64_t prefetched = 0;  // of the misses, blocks loaded ahead of their query in batches
 };
 
 // One dataset. Obtain from Database::Open/CreateDataset; shared by all users.

@@ -3,21 +3,85 @@
 
 #include <dirent.h>
 #include <fcntl.h>
+#include <liburing.h>
 #include <sys/file.h>
 #include <sys/stat.h>
+#include <sys/uio.h>
 #include <unistd.h>
 
 #include <cerrno>
+#include <cstdio>
+#include <cstring>
 #include <filesystem>
 
 namespace hvdb {
 
 namespace {
 
+// Reads the rest of a request after `done` bytes with preadv, to the end or an error.
+Status FinishRead(int fd, const std::string& path, uint64_t file_size, ReadRequest* r,
+                  size_t done) {
+  size_t total = 0;
+  for (auto b : r->buffers) total += b.size();
+  while (done < total) {
+    iovec iov[64];
+    int n = 0;
+    size_t skip = done;
+    for (auto b : r->buffers) {
+      if (skip >= b.size()) {
+        skip -= b.size();
+        continue;
+      }
+      if (n == 64) break;
+      iov[n++] = {b.data() + skip, b.size() - skip};
+      skip = 0;
+    }
+    ssize_t got = ::preadv(fd, iov, n, static_cast<off_t>(r->offset + done));
+    if (got < 0) {
+      if (errno == EINTR) continue;
+      return Status::FromErrno("read " + path, errno);
+    }
+    if (got == 0) {
+      return Status::Corruption(path + ": truncated: wanted " + std::to_string(total) +
+                                " bytes at offset " + std::to_string(r->offset) +
+                                ", file has " + std::to_string(file_size));
+    }
+    done += static_cast<size_t>(got);
+  }
+  return Status::OK();
+}
+
+// One io_uring per thread that reads batches (the buffer pool's loader threads, mostly).
+class Ring {
+ public:
+  static constexpr unsigned kDepth = 64;
+  Ring() { ok_ = io_uring_queue_init(kDepth, &ring_, 0) == 0; }
+  ~Ring() {
+    if (ok_) io_uring_queue_exit(&ring_);
+  }
+  bool ok() const { return ok_; }
+  io_uring* get() { return &ring_; }
+
+ private:
+  io_uring ring_{};
+  bool ok_ = false;
+};
+
+bool UringAvailable() {
+  static const bool ok = [] {
+    Ring probe;
+    if (!probe.ok()) {
+      std::fprintf(stderr, "hvdb: io_uring is not available here; batched reads use preadv\n");
+    }
+    return probe.ok();
+  }();
+  return ok;
+}
+
 class PosixRandomAccessFile final : public RandomAccessFile {
  public:
-  PosixRandomAccessFile(std::string path, int fd, uint64_t size)
-      : path_(std::move(path)), fd_(fd), size_(size) {}
+  PosixRandomAccessFile(std::string path, int fd, uint64_t size, Env::ReadEngine engine)
+      : path_(std::move(path)), fd_(fd), size_(size), engine_(engine) {}
   ~PosixRandomAccessFile() override { ::close(fd_); }
 
   Status Read(uint64_t offset, size_t n, void* dst) const override {
@@ -38,6 +102,10 @@ class PosixRandomAccessFile final : public RandomAccessFile {
     }
     return Status::OK();
   }
+  void ReadBatch(std::span<ReadRequest> reqs) const override {
+    if (engine_ == Env::ReadEngine::kIoUring && UringBatch(reqs)) return;
+    for (ReadRequest& r : reqs) r.status = FinishRead(fd_, path_, size_, &r, 0);
+  }
   // WILLNEED queues the reads in the kernel and returns: several hints in a row keep the
   // device's queue full, which is what a cold query needs (bench/README.md, experiment 3).
   void Prefetch(uint64_t offset, uint64_t n) const override {
@@ -48,9 +116,60 @@ class PosixRandomAccessFile final : public RandomAccessFile {
   const std::string& path() const override { return path_; }
 
  private:
+  // All requests in flight at once (up to the ring's depth); a short completion is finished
+  // with preadv. False if this thread has no ring.
+  bool UringBatch(std::span<ReadRequest> reqs) const {
+    thread_local Ring ring;
+    if (!ring.ok()) return false;
+    std::vector<std::vector<iovec>> iovs(reqs.size());
+    for (size_t i = 0; i < reqs.size(); ++i) {
+      for (auto b : reqs[i].buffers) iovs[i].push_back({b.data(), b.size()});
+    }
+    for (size_t first = 0; first < reqs.size(); first += Ring::kDepth) {
+      const size_t n = std::min<size_t>(Ring::kDepth, reqs.size() - first);
+      for (size_t i = first; i < first + n; ++i) {
+        io_uring_sqe* sqe = io_uring_get_sqe(ring.get());
+        io_uring_prep_readv(sqe, fd_, iovs[i].data(), static_cast<unsigned>(iovs[i].size()),
+                            reqs[i].offset);
+        io_uring_sqe_set_data64(sqe, i);
+      }
+      int submitted = io_uring_submit(ring.get());
+      if (submitted < 0) {
+        for (size_t i = first; i < reqs.size(); ++i) {
+          reqs[i].status = FinishRead(fd_, path_, size_, &reqs[i], 0);
+        }
+        return true;
+      }
+      for (size_t k = 0; k < n; ++k) {
+        io_uring_cqe* cqe = nullptr;
+        int rc = io_uring_wait_cqe(ring.get(), &cqe);
+        if (rc < 0) {  // cannot happen with requests in flight, but never leave one unread
+          if (rc == -EINTR) {
+            --k;
+            continue;
+          }
+          for (size_t i = first; i < first + n; ++i) {
+            reqs[i].status = Status::FromErrno("io_uring wait " + path_, -rc);
+          }
+          break;
+        }
+        const size_t i = io_uring_cqe_get_data64(cqe);
+        const int res = cqe->res;
+        io_uring_cqe_seen(ring.get(), cqe);
+        if (res < 0) {
+          reqs[i].status = Status::FromErrno("read " + path_, -res);
+        } else {
+          reqs[i].status = FinishRead(fd_, path_, size_, &reqs[i], static_cast<size_t>(res));
+        }
+      }
+    }
+    return true;
+  }
+
   std::string path_;
   int fd_;
   uint64_t size_;
+  Env::ReadEngine engine_;
 };
 
 class PosixWritableFile final : public WritableFile {
@@ -112,6 +231,7 @@ class PosixFileLock final : public FileLock {
 
 class PosixEnv final : public Env {
  public:
+  explicit PosixEnv(ReadEngine engine) : engine_(engine) {}
   Result<std::shared_ptr<RandomAccessFile>> OpenRead(const std::string& path) override {
     int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
     if (fd < 0) return Status::FromErrno("open " + path, errno);
@@ -122,7 +242,7 @@ class PosixEnv final : public Env {
       return Status::FromErrno("stat " + path, err);
     }
     return std::shared_ptr<RandomAccessFile>(
-        new PosixRandomAccessFile(path, fd, static_cast<uint64_t>(st.st_size)));
+        new PosixRandomAccessFile(path, fd, static_cast<uint64_t>(st.st_size), engine_));
   }
 
   Result<std::unique_ptr<WritableFile>> OpenWrite(const std::string& path,
@@ -199,12 +319,22 @@ class PosixEnv final : public Env {
     }
     return std::unique_ptr<FileLock>(new PosixFileLock(fd));
   }
+
+ private:
+  const ReadEngine engine_;
 };
 
 }  // namespace
 
+Env* Env::Posix(ReadEngine engine) {
+  // Never destroyed: datasets may outlive static teardown.
+  static Env* uring = new PosixEnv(ReadEngine::kIoUring);
+  static Env* preadv = new PosixEnv(ReadEngine::kPreadv);
+  return engine == ReadEngine::kIoUring ? uring : preadv;
+}
+
 Env* Env::Default() {
-  static Env* env = new PosixEnv();  // never destroyed: datasets may outlive static teardown
+  static Env* env = Posix(UringAvailable() ? ReadEngine::kIoUring : ReadEngine::kPreadv);
   return env;
 }
 

@@ -13,6 +13,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <span>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -21,12 +22,22 @@
 
 namespace hvdb {
 
-// A read-only file; Read is safe for concurrent callers.
+// One read of a batch: the bytes from `offset` on, scattered over `buffers` in order.
+struct ReadRequest {
+  uint64_t offset = 0;
+  std::vector<std::span<uint8_t>> buffers;
+  Status status;  // set by ReadBatch
+};
+
+// A read-only file; Read and ReadBatch are safe for concurrent callers.
 class RandomAccessFile {
  public:
   virtual ~RandomAccessFile() = default;
   // Reads exactly n bytes at offset; a short read is Corruption ("truncated").
   virtual Status Read(uint64_t offset, size_t n, void* dst) const = 0;
+  // Reads every request, all issued before any is waited for (the device serves them in
+  // parallel), and returns when all are done; each gets its own status, as Read's.
+  virtual void ReadBatch(std::span<ReadRequest> requests) const = 0;
   // Tells the store that [offset, offset + n) will be read soon, so it can start fetching it
   // in the background (many hints in a row are served in parallel). Only a hint.
   virtual void Prefetch(uint64_t offset, uint64_t n) const = 0;
@@ -59,8 +70,13 @@ class FileLock {
 class Env {
  public:
   virtual ~Env() = default;
-  // The process-wide POSIX Env; never deleted.
+  // How the POSIX Env serves ReadBatch: io_uring (Debian's liburing; all requests in one
+  // submission) or one preadv after another (bench/README.md compares them).
+  enum class ReadEngine { kIoUring, kPreadv };
+  // The process-wide POSIX Env: io_uring where the kernel allows it (else preadv, said once on
+  // stderr). Never deleted.
   static Env* Default();
+  static Env* Posix(ReadEngine engine);
 
   virtual Result<std::shared_ptr<RandomAccessFile>> OpenRead(const std::string& path) = 0;
   // Opens for writing at the end, creating it if absent (truncate: start empty).

@@ -47,7 +47,8 @@ Result<std::shared_ptr<KdTree>> KdTree::Open(Env* env, const std::string& path,
 
 KdTree::KdTree(Env* env, std::shared_ptr<RandomAccessFile> file, BufferPool* pool, TreeHeader h,
                std::vector<uint32_t> crcs)
-    : env_(env), file_(std::move(file)), pool_(pool), h_(h), crcs_(std::move(crcs)),
+    : env_(env), file_(std::move(file)), pool_(pool), h_(h),
+      crcs_(std::make_shared<const std::vector<uint32_t>>(std::move(crcs))),
       file_id_(pool->NewFileId()) {}
 
 KdTree::~KdTree() {
@@ -69,7 +70,7 @@ Status KdTree::LoadBlock(uint32_t blk, uint8_t* dst) const {
                               " outside the data blocks");
   }
   HVDB_RETURN_IF_ERROR(file_->Read(uint64_t{blk} * h_.block_size, h_.block_size, dst));
-  if (crc32c::Unmask(crcs_[blk]) != crc32c::Value(dst, h_.block_size)) {
+  if (crc32c::Unmask((*crcs_)[blk]) != crc32c::Value(dst, h_.block_size)) {
     return Status::Corruption(path() + ": block " + std::to_string(blk) +
                               ": checksum mismatch");
   }
@@ -91,26 +92,38 @@ Result<DirEntry> KdTree::Dir(uint32_t bucket) const {
 
 void KdTree::PrefetchBlocks(const std::vector<uint32_t>& blocks) const {
   if (blocks.empty()) return;
-  const uint32_t first = blocks.front();
-  std::vector<bool> resident = pool_->Resident(file_id_, first, blocks.back() - first + 1);
-  const uint64_t bs = h_.block_size;
-  uint32_t run_start = 0, run_len = 0;
-  auto flush = [&] {
-    if (run_len > 0) file_->Prefetch(uint64_t{run_start} * bs, uint64_t{run_len} * bs);
-    run_len = 0;
-  };
-  for (uint32_t b : blocks) {
-    if (resident[b - first]) continue;
-    if (run_len > 0 && b == run_start + run_len) {
-      ++run_len;
-      continue;
+  // Batches of up to 1 MiB: the query starts on the first while the next are in flight (on
+  // this project's test machine, larger batches made a cold full frame slower, smaller ones
+  // add requests: bench/README.md).
+  const size_t batch = std::max<size_t>(1, (1u << 20) / h_.block_size);
+  const uint32_t bs = h_.block_size, data_end = h_.crc_block_start;
+  pool_->Prefetch(file_id_, blocks, batch,
+                  [file = file_, crcs = crcs_, bs, data_end](std::span<BufferPool::BlockLoad> loads) {
+    // Adjacent blocks become one request (up to 1 MiB), scattered into their pool slots;
+    // every request of the batch is issued at once. Checksums are verified here, on the
+    // loader thread, while the query consumes earlier blocks.
+    std::vector<ReadRequest> reqs;
+    std::vector<std::pair<size_t, size_t>> span_of;  // loads [first, last) of each request
+    const size_t max_run = std::max<size_t>(1, (1u << 20) / bs);
+    for (size_t i = 0; i < loads.size();) {
+      size_t j = i + 1;
+      while (j < loads.size() && j - i < max_run && loads[j].block == loads[j - 1].block + 1) ++j;
+      ReadRequest r;
+      r.offset = uint64_t{loads[i].block} * bs;
+      for (size_t k = i; k < j; ++k) r.buffers.push_back({loads[k].dst, bs});
+      reqs.push_back(std::move(r));
+      span_of.push_back({i, j});
+      i = j;
     }
-    if (run_len > 0 && b < run_start + run_len) continue;  // a repeat
-    flush();
-    run_start = b;
-    run_len = 1;
-  }
-  flush();
+    file->ReadBatch(reqs);
+    for (size_t r = 0; r < reqs.size(); ++r) {
+      for (size_t k = span_of[r].first; k < span_of[r].second; ++k) {
+        const uint32_t blk = loads[k].block;
+        loads[k].ok = reqs[r].status.ok() && blk != 0 && blk < data_end &&
+                      crc32c::Unmask((*crcs)[blk]) == crc32c::Value(loads[k].dst, bs);
+      }
+    }
+  });
 }
 
 void KdTree::Prefetch(const std::vector<BucketHit>& hits, int lo, int hi) const {

@@ -69,14 +69,15 @@ class KdTree {
   Result<PageRef> Block(uint32_t blk) const;
   Status LoadBlock(uint32_t blk, uint8_t* dst) const;
   Result<DirEntry> Dir(uint32_t bucket) const;
-  // Prefetches the missing blocks among the sorted block numbers, in merged runs.
+  // Loads the blocks (ascending) into the pool in the background, in merged runs.
   void PrefetchBlocks(const std::vector<uint32_t>& blocks) const;
 
   Env* const env_;
   std::shared_ptr<RandomAccessFile> file_;
   BufferPool* pool_;
   const TreeHeader h_;
-  const std::vector<uint32_t> crcs_;  // masked CRC-32C of every block (0: not covered)
+  // Masked CRC-32C of every block (0: not covered); shared with batch loads in flight.
+  const std::shared_ptr<const std::vector<uint32_t>> crcs_;
   const uint64_t file_id_;
   std::atomic<bool> obsolete_{false};
   std::atomic<bool> synced_{true}, durable_{false};

@@ -52,6 +52,22 @@ class FaultRandomAccessFile final : public RandomAccessFile {
     return Status::Corruption(path() + ": truncated: wanted " + std::to_string(n) +
                               " bytes at offset " + std::to_string(offset) + " (injected)");
   }
+  void ReadBatch(std::span<ReadRequest> reqs) const override {
+    std::vector<ReadRequest*> pass;
+    for (ReadRequest& r : reqs) {
+      bool short_read = false;
+      r.status = env_->BeforeRead(path(), &short_read);
+      if (r.status.ok() && short_read) {
+        r.status = Status::Corruption(path() + ": truncated: wanted more bytes at offset " +
+                                      std::to_string(r.offset) + " (injected)");
+      }
+      if (r.status.ok()) pass.push_back(&r);
+    }
+    std::vector<ReadRequest> batch;
+    for (ReadRequest* r : pass) batch.push_back(*r);
+    base_->ReadBatch(batch);
+    for (size_t i = 0; i < pass.size(); ++i) pass[i]->status = batch[i].status;
+  }
   void Prefetch(uint64_t offset, uint64_t n) const override { base_->Prefetch(offset, n); }
   void DropCache() const override { base_->DropCache(); }
   uint64_t size() const override { return base_->size(); }
@@ -83,14 +99,16 @@ void FaultEnv::FailSync(uint64_t nth, Status error) {
   fail_sync_at_ = nth ? syncs_ + nth : 0;
   sync_error_ = std::move(error);
 }
-void FaultEnv::FailRead(uint64_t nth, Status error) {
+void FaultEnv::FailRead(uint64_t nth, Status error, uint64_t count) {
   std::lock_guard<std::mutex> l(mu_);
   fail_read_at_ = nth ? reads_ + nth : 0;
+  fail_read_left_ = count;
   read_error_ = std::move(error);
 }
-void FaultEnv::ShortRead(uint64_t nth) {
+void FaultEnv::ShortRead(uint64_t nth, uint64_t count) {
   std::lock_guard<std::mutex> l(mu_);
   short_read_at_ = nth ? reads_ + nth : 0;
+  short_read_left_ = count;
 }
 void FaultEnv::CrashAfter(uint64_t calls) {
   std::lock_guard<std::mutex> l(mu_);
@@ -115,6 +133,7 @@ uint64_t FaultEnv::faults_fired() const {
 void FaultEnv::Reset() {
   std::lock_guard<std::mutex> l(mu_);
   fail_write_at_ = fail_sync_at_ = fail_read_at_ = short_read_at_ = crash_after_ = 0;
+  fail_read_left_ = short_read_left_ = 0;
   crashed_ = false;
 }
 
@@ -150,13 +169,18 @@ Status FaultEnv::BeforeSync(const std::string& path) {
 
 Status FaultEnv::BeforeRead(const std::string&, bool* short_read) {
   std::lock_guard<std::mutex> l(mu_);
-  Status s = Fire(&reads_, &fail_read_at_, &read_error_);
-  if (s.ok() && short_read_at_ != 0 && reads_ == short_read_at_) {
-    short_read_at_ = 0;
+  ++reads_;
+  if (fail_read_at_ != 0 && reads_ >= fail_read_at_ && fail_read_left_ > 0) {
+    --fail_read_left_;
+    ++fired_;
+    return read_error_;
+  }
+  if (short_read_at_ != 0 && reads_ >= short_read_at_ && short_read_left_ > 0) {
+    --short_read_left_;
     ++fired_;
     *short_read = true;
   }
-  return s;
+  return Status::OK();
 }
 
 void FaultEnv::Synced(const std::string& path, uint64_t size) {

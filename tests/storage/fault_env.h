@@ -32,8 +32,9 @@ class FaultEnv : public Env {
   // 1-based counts from now; 0 disables. Each fault fires once.
   void FailWrite(uint64_t nth, Status error);
   void FailSync(uint64_t nth, Status error);
-  void FailRead(uint64_t nth, Status error);
-  void ShortRead(uint64_t nth);
+  // The n-th read and the `count` - 1 after it (a device that keeps failing).
+  void FailRead(uint64_t nth, Status error, uint64_t count = 1);
+  void ShortRead(uint64_t nth, uint64_t count = 1);
   void CrashAfter(uint64_t mutating_calls);
   void CrashNow();
   bool crashed() const;
@@ -78,6 +79,7 @@ class FaultEnv : public Env {
   mutable std::mutex mu_;
   uint64_t writes_ = 0, syncs_ = 0, reads_ = 0, mutations_ = 0, fired_ = 0, aside_seq_ = 0;
   uint64_t fail_write_at_ = 0, fail_sync_at_ = 0, fail_read_at_ = 0, short_read_at_ = 0;
+  uint64_t fail_read_left_ = 0, short_read_left_ = 0;
   uint64_t crash_after_ = 0;
   bool crashed_ = false;
   Status write_error_, sync_error_, read_error_;
