@@ -177,7 +177,8 @@ struct DatasetStats {
   uint32_t frames_with_data = 0;
   uint64_t points = 0, tombstones = 0, buffered_points = 0;
   uint64_t trees = 0, tree_bytes = 0, wal_bytes = 0;
-  uint64_t merges = 0;  // trees built by the merger since open
+  uint64_t merges = 0;       // trees built by the merger since open
+  uint64_t checkpoints = 0;  // log segments closed since open
   double leaf_utilisation = 0;  // points / (leaf blocks * b) over all trees
 };
 

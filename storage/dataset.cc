@@ -407,6 +407,7 @@ DatasetStats DatasetImpl::Stats() const {
   }
   s.wal_bytes = wal_bytes_.load();
   s.merges = merges_.load();
+  s.checkpoints = checkpoints_.load();
   s.leaf_utilisation = leaf_blocks ? static_cast<double>(leaf_points) / (leaf_blocks * b) : 0;
   return s;
 }

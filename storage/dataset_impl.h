@@ -136,7 +136,7 @@ class DatasetImpl {
   std::map<uint32_t, std::vector<std::shared_ptr<KdTree>>> retired_;
   std::atomic<uint64_t> next_id_{1};
   std::atomic<uint64_t> next_seq_{1};
-  std::atomic<uint64_t> merges_{0};
+  std::atomic<uint64_t> merges_{0}, checkpoints_{0};
   std::atomic<uint64_t> wal_bytes_{0};
 
   // The merger: one thread per dataset, woken by commits that overfill a T0 or the log.

@@ -284,6 +284,7 @@ Status DatasetImpl::CheckpointLocked() {
   wal_start_lsn_ = start;
   HVDB_ASSIGN_OR_RETURN(wal_, WalWriter::Open(env_, from, start, 0, false));
   wal_bytes_ = wal_->size();
+  ++checkpoints_;
   return Status::OK();
 }
 
