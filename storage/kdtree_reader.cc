@@ -92,10 +92,10 @@ Result<DirEntry> KdTree::Dir(uint32_t bucket) const {
 
 void KdTree::PrefetchBlocks(const std::vector<uint32_t>& blocks) const {
   if (blocks.empty()) return;
-  // Batches of up to 1 MiB: the query starts on the first while the next are in flight (on
-  // this project's test machine, larger batches made a cold full frame slower, smaller ones
-  // add requests: bench/README.md).
-  const size_t batch = std::max<size_t>(1, (1u << 20) / h_.block_size);
+  // Batches of up to 512 KiB: the query starts on the first while the next are in flight (on
+  // the test machine, 1-8 MiB batches made a cold full frame slower, 256 KiB no faster:
+  // bench/README.md).
+  const size_t batch = std::max<size_t>(1, (512u << 10) / h_.block_size);
   const uint32_t bs = h_.block_size, data_end = h_.crc_block_start;
   pool_->Prefetch(file_id_, blocks, batch,
                   [file = file_, crcs = crcs_, bs, data_end](std::span<BufferPool::BlockLoad> loads) {
