@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <filesystem>
 #include <map>
 #include <random>
 #include <set>
@@ -449,6 +450,56 @@ TEST_F(DatasetTest, SnapshotIsolation) {
     n += b.points.size();
   }
   EXPECT_EQ(n, 5000u);
+}
+
+// The merger swaps trees in while a query holds the versions it started on: the query sees
+// exactly its snapshot, the merged-away tree files live until it lets go, and then go.
+TEST_F(DatasetTest, MergesSwapTreesUnderAnOpenQuery) {
+  Open();
+  std::mt19937_64 rng(13);
+  for (int i = 0; i < 10; ++i) InsertRandom(rng, 50);
+  ASSERT_TRUE(ds_->WaitForMerges().ok());
+  auto want = Keys(ModelPoints([](const Point&) { return true; }));
+  QueryOptions o;
+  o.batch_points = 64;
+  auto c = ds_->Query(Everything(), o);
+  ASSERT_TRUE(c.ok());
+  Batch b;
+  std::set<std::pair<uint32_t, uint64_t>> got;
+  ASSERT_TRUE((*c)->Next(&b).ok());  // the query has started reading
+  for (const Point& p : b.points) got.insert({p.frame, p.id});
+  const uint64_t merges_before = ds_->Stats().merges;
+  for (int i = 0; i < 30; ++i) InsertRandom(rng, 100);
+  Transaction del;  // and deletes from the trees being merged
+  Selection sel;
+  Window w = Everything();
+  w.hi[0] = 3;
+  sel.region = w;
+  del.DeleteSelection(sel);
+  Commit(del);
+  for (auto& [f, m] : model_) std::erase_if(m, [](const auto& e) { return e.second.x <= 3; });
+  ASSERT_TRUE(ds_->WaitForMerges().ok());
+  EXPECT_GT(ds_->Stats().merges, merges_before);
+  for (;;) {
+    auto more = (*c)->Next(&b);
+    ASSERT_TRUE(more.ok()) << more.status().ToString();
+    for (const Point& p : b.points) EXPECT_TRUE(got.insert({p.frame, p.id}).second);
+    if (!*more) break;
+  }
+  EXPECT_EQ(got, want) << "the open query saw the merges";
+  c->reset();
+  ASSERT_TRUE(ds_->Checkpoint().ok());  // the state on disk no longer lists the old trees
+  EXPECT_EQ(Keys(RunQuery(*ds_, Everything())), Keys(ModelPoints([](const Point&) { return true; })));
+  EXPECT_TRUE(ds_->Check().empty());
+  // Only the trees the frames list are left.
+  std::set<std::string> files;
+  for (const auto& e : std::filesystem::directory_iterator(dir_.path() + "/video/trees")) {
+    files.insert(e.path().filename().string());
+  }
+  EXPECT_EQ(files.size(), ds_->Stats().trees);
+  // Reopened, the dataset is the same.
+  Open();
+  EXPECT_EQ(Keys(RunQuery(*ds_, Everything())), Keys(ModelPoints([](const Point&) { return true; })));
 }
 
 TEST_F(DatasetTest, SliceFrameBound) {

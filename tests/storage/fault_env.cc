@@ -126,6 +126,10 @@ uint64_t FaultEnv::mutating_calls() const {
   std::lock_guard<std::mutex> l(mu_);
   return mutations_;
 }
+uint64_t FaultEnv::syncs() const {
+  std::lock_guard<std::mutex> l(mu_);
+  return syncs_;
+}
 uint64_t FaultEnv::faults_fired() const {
   std::lock_guard<std::mutex> l(mu_);
   return fired_;

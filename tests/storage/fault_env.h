@@ -40,6 +40,7 @@ class FaultEnv : public Env {
   bool crashed() const;
   uint64_t mutating_calls() const;
   uint64_t faults_fired() const;
+  uint64_t syncs() const;  // file and directory syncs so far
   // Drops unsynced data and directory changes (see above); then the env works normally again.
   void PowerLoss();
   void Reset();  // clears all pending faults (not the sync tracking)

@@ -10,8 +10,10 @@
 // load visible) may have taken effect, as docs/ARCHITECTURE.md says.
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <cstdlib>
 #include <map>
+#include <thread>
 #include <random>
 #include <set>
 
@@ -366,6 +368,37 @@ TEST_F(FaultInjectionTest, ReadErrorsAndShortReadsFailTheQueryNotTheDatabase) {
   // Nothing bad was cached: the next query reads everything, right.
   EXPECT_EQ(Diff(Read(**ds), model), "");
   EXPECT_GE(env_->faults_fired(), 3u);
+}
+
+// Group commit: writers committing at once share log writes and syncs.
+TEST_F(FaultInjectionTest, ConcurrentCommitsShareSyncs) {
+  Create(true);
+  auto db = Database::Open(Dir(), FaultOptions(env_.get(), true));
+  ASSERT_TRUE(db.ok());
+  auto ds = (*db)->GetDataset(kName);
+  ASSERT_TRUE(ds.ok());
+  ASSERT_TRUE((*ds)->WaitForMerges().ok());
+  constexpr int kThreads = 8, kEach = 25;
+  const uint64_t before = env_->syncs();
+  std::vector<std::thread> threads;
+  std::atomic<int> failures{0};
+  for (int t = 0; t < kThreads; ++t) {
+    threads.emplace_back([&, t] {
+      std::mt19937_64 rng(500 + static_cast<uint64_t>(t));
+      for (int i = 0; i < kEach; ++i) {
+        Transaction txn;
+        txn.Insert({RandomPoint(rng, 9)});  // (checkpoints sync too, and are counted)
+        if (!(*ds)->Commit(txn).ok()) ++failures;
+      }
+    });
+  }
+  for (auto& th : threads) th.join();
+  const uint64_t syncs = env_->syncs() - before;
+  EXPECT_EQ(failures.load(), 0);
+  EXPECT_EQ((*ds)->Info().last_lsn, uint64_t{kThreads * kEach});
+  std::printf("[ fault ] %d concurrent commits, %llu syncs\n", kThreads * kEach,
+              static_cast<unsigned long long>(syncs));
+  EXPECT_LT(syncs, uint64_t{kThreads * kEach}) << "no two commits shared a sync";
 }
 
 // Without sync, commits may be lost to a power loss, but only a suffix of them: the state is
