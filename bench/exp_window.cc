@@ -280,6 +280,8 @@ void RunWindows(Ctx& ctx) {
               "10k-point window on a 2M-point frame, warm, <= 0.3 ms");
   R.AddTarget(top + ".l0.cold", "<=", 2, "issue 7 goal",
               "10k-point window on a 2M-point frame, cold, <= 2 ms");
+  R.AddTarget(top + ".l0.cold", "<=", 2, "issue 14 goal", "10k-point window on a 2M frame, cold");
+  R.AddTarget(top + ".l0.warm", "<=", 0.3, "issue 14 goal", "10k-point window on a 2M frame, warm");
   R.AddTarget(top + ".l" + std::to_string(L) + ".cold", "<=", 100, "thesis 2008, Figure 8.13",
               "coarse 10k window under 100 ms");
   R.AddTarget(top + ".l0.cold", "<=", 100, "thesis 2008, Figure 8.13",
@@ -296,6 +298,8 @@ void RunWindows(Ctx& ctx) {
               "PCL out-of-core box query / hvdb window, warm (speed-up of hvdb)");
       R.Ratio(pp + ".cold.x_hvdb", kExpPeers, pp + ".cold", hp + ".l0.cold",
               "PCL out-of-core box query / hvdb window, cold");
+      R.AddTarget(pp + ".cold.x_hvdb", ">=", 1, "issue 14 goal",
+                  "a cold window faster than PCL's out-of-core box query");
       R.Ratio(N(pcl_max) + ".pcl_lod.warm.x_hvdb", kExpPeers, N(pcl_max) + ".pcl_lod.warm",
               hp + ".l" + std::to_string(L) + ".warm",
               "PCL level-of-detail query / hvdb coarsest level, warm");

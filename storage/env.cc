@@ -11,6 +11,7 @@
 
 #include <cerrno>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 
@@ -310,6 +311,36 @@ class PosixEnv final : public Env {
 
   bool Exists(const std::string& path) override { return ::access(path.c_str(), F_OK) == 0; }
 
+  Status WriteNewFile(const std::string& path, std::string_view data, bool sync) override {
+    const bool aligned = reinterpret_cast<uintptr_t>(data.data()) % 4096 == 0 &&
+                         data.size() % 4096 == 0;
+    if (!sync || !aligned) return Env::WriteNewFile(path, data, sync);
+    const std::string tmp = path + ".tmp";
+    int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC | O_DIRECT, 0644);
+    // File systems without direct I/O (tmpfs) refuse the flag: write through the cache there.
+    if (fd < 0 && errno == EINVAL) return Env::WriteNewFile(path, data, sync);
+    if (fd < 0) return Status::FromErrno("open " + tmp, errno);
+    Status st;
+    for (size_t done = 0; done < data.size() && st.ok();) {
+      const size_t n = std::min<size_t>(data.size() - done, 64u << 20);
+      ssize_t w = ::pwrite(fd, data.data() + done, n, static_cast<off_t>(done));
+      if (w < 0 && errno == EINTR) continue;
+      if (w <= 0) {
+        st = Status::FromErrno("write " + tmp, w < 0 ? errno : EIO);
+        break;
+      }
+      done += static_cast<size_t>(w);
+    }
+    if (st.ok() && ::fdatasync(fd) != 0) st = Status::FromErrno("fsync " + tmp, errno);
+    ::close(fd);
+    if (st.ok()) st = Rename(tmp, path);
+    if (!st.ok()) {
+      (void)Remove(tmp);
+      return st;
+    }
+    return SyncDir(ParentDir(path));
+  }
+
   Result<std::unique_ptr<FileLock>> Lock(const std::string& path) override {
     int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
     if (fd < 0) return Status::FromErrno("open " + path, errno);
@@ -343,6 +374,12 @@ std::string ParentDir(const std::string& path) {
   if (slash == std::string::npos) return ".";
   if (slash == 0) return "/";
   return path.substr(0, slash);
+}
+
+Status Env::WriteNewFile(const std::string& path, std::string_view data, bool sync) {
+  if (sync) return WriteFileAtomic(this, path, data);
+  HVDB_ASSIGN_OR_RETURN(auto f, OpenWrite(path, /*truncate=*/true));
+  return f->Append(data);
 }
 
 Status WriteFileAtomic(Env* env, const std::string& path, std::string_view data) {

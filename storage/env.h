@@ -92,6 +92,11 @@ class Env {
   virtual bool Exists(const std::string& path) = 0;
   // An exclusive lock on `path` (created if absent); fails if another process holds it.
   virtual Result<std::unique_ptr<FileLock>> Lock(const std::string& path) = 0;
+  // Writes a whole new immutable file (a tree). sync: all or nothing and durable when it
+  // returns (path.tmp, sync, rename, sync of the directory); else straight to `path`, unsynced.
+  // The default does it with the calls above; the POSIX Env bypasses the page cache (O_DIRECT)
+  // for a durable file whose data is 4 KiB-aligned, as the bytes must reach the device anyway.
+  virtual Status WriteNewFile(const std::string& path, std::string_view data, bool sync);
 };
 
 // Writes `data` to path via path.tmp + sync + rename + sync(dir): all or nothing.

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <bit>
+#include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <memory>
@@ -287,7 +288,11 @@ Status BuildTreeFile(Env* env, const std::string& path, std::vector<Point>& poin
   // The file image, not zero-filled first: every byte is written once below (records, or
   // zeros for the tails of level segments and the other blocks).
   const size_t file_bytes = size_t{h.total_blocks} * bs;
-  std::unique_ptr<uint8_t[]> image(new uint8_t[file_bytes]);
+  // 4 KiB-aligned, so that a durable write can go straight to the device (Env::WriteNewFile).
+  std::unique_ptr<uint8_t, decltype(&std::free)> image(
+      static_cast<uint8_t*>(std::aligned_alloc(4096, (file_bytes + 4095) / 4096 * 4096)),
+      &std::free);
+  if (!image) return Status::IOError("out of memory for a " + std::to_string(file_bytes) + "-byte tree");
   uint8_t* base = image.get();
   for (uint32_t k = 0; k < levels; ++k) {
     const size_t used = size_t{h.level_count[k]} * kPointRecordSize;
@@ -331,10 +336,8 @@ Status BuildTreeFile(Env* env, const std::string& path, std::vector<Point>& poin
   });
   h.crc_table_crc = crc32c::Mask(crc32c::Value(crc_base, size_t{ncrc} * bs));
   EncodeTreeHeader(h, base);
-  std::string_view file(reinterpret_cast<const char*>(base), file_bytes);
-  if (sync) return WriteFileAtomic(env, path, file);
-  HVDB_ASSIGN_OR_RETURN(auto f, env->OpenWrite(path, /*truncate=*/true));
-  return f->Append(file);
+  return env->WriteNewFile(path, std::string_view(reinterpret_cast<const char*>(base), file_bytes),
+                          sync);
 }
 
 }  // namespace hvdb
