@@ -103,12 +103,12 @@ void RunInserts(Ctx& ctx) {
   R.AddTarget("ins.nosync.rate", ">=", 2.0, "issue 7 goal", ">= 2 million points/s sustained");
   R.AddTarget("ins.durable.set", "<=", 0.5, "issue 7 goal",
               "a durable 1000-point commit within 0.5 ms including the fsync (median commit)");
-  R.AddTarget("ins.durable.set.x_fdatasync", "<=", 1.5, "issue 14 goal",
-              "a durable commit within 1.5x a bare append + fdatasync of its bytes (medians)");
   R.AddTarget("ins.nosync.rate", ">=", 2.0, "issue 14 goal",
               ">= 2 million points/s sustained, the merger's work included");
   R.Ratio("ins.durable.set.x_fdatasync", kExp, "ins.durable.set", "ins.limit.append_fdatasync",
           "durable commit (median) / raw append + fdatasync of the same bytes");
+  R.AddTarget("ins.durable.set.x_fdatasync", "<=", 1.5, "issue 14 goal",
+              "a durable commit within 1.5x a bare append + fdatasync of its bytes (medians)");
   curve.series.push_back({"thesis 2008 bound", {0, static_cast<double>(c.ins_total)}, {110, 110},
                           "dashed"});
   R.AddCurve(curve);

@@ -302,13 +302,13 @@ struct Selected {
 
 Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
                             CommitInfo* info) {
-  auto apply = [&](const FrameEffect& step) -> Status {
+  auto apply = [&](FrameEffect&& step) -> Status {
     auto base = ws->Get(step.frame);
     FrameVersion empty;
     empty.frame = step.frame;
     HVDB_ASSIGN_OR_RETURN(auto v, ApplyStep(base ? *base : empty, step, rec->lsn));
     ws->Set(step.frame, std::move(v));
-    rec->frames.push_back(step);
+    rec->frames.push_back(std::move(step));
     return Status::OK();
   };
   auto select = [&](const Selection& sel) -> Result<Selected> {
@@ -354,18 +354,22 @@ Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
   for (const Transaction::Op& op : txn.ops()) {
     if (const auto* ins = std::get_if<Transaction::InsertOp>(&op)) {
       std::map<uint32_t, FrameEffect> steps;
+      FrameEffect* last = nullptr;  // runs of one frame skip the map lookup
       for (Point p : ins->points) {
         HVDB_RETURN_IF_ERROR(ValidatePoint(p));
         if (p.id == 0) {
           p.id = next_id_++;
           info->assigned_ids.push_back(p.id);
         }
-        steps[p.frame].frame = p.frame;
-        steps[p.frame].added.push_back(p);
+        if (last == nullptr || last->frame != p.frame) {
+          last = &steps[p.frame];
+          last->frame = p.frame;
+        }
+        last->added.push_back(p);
       }
       for (auto& [f, step] : steps) {
         info->inserted += step.added.size();
-        HVDB_RETURN_IF_ERROR(apply(step));
+        HVDB_RETURN_IF_ERROR(apply(std::move(step)));
       }
     } else if (const auto* del = std::get_if<Transaction::DeleteOp>(&op)) {
       auto v = ws->Get(del->frame);
@@ -386,7 +390,7 @@ Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
       step.frame = del->frame;
       step.removed.push_back(h.stored);
       ++info->removed;
-      HVDB_RETURN_IF_ERROR(apply(step));
+      HVDB_RETURN_IF_ERROR(apply(std::move(step)));
     } else if (const auto* ds = std::get_if<Transaction::DeleteSelOp>(&op)) {
       HVDB_ASSIGN_OR_RETURN(Selected sel, select(ds->sel));
       for (auto& [f, pts] : sel.by_frame) {
@@ -394,7 +398,7 @@ Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
         step.frame = f;
         step.removed = std::move(pts);
         info->removed += step.removed.size();
-        HVDB_RETURN_IF_ERROR(apply(step));
+        HVDB_RETURN_IF_ERROR(apply(std::move(step)));
       }
     } else if (const auto* lab = std::get_if<Transaction::LabelOp>(&op)) {
       HVDB_ASSIGN_OR_RETURN(Selected sel, select(lab->sel));
@@ -411,7 +415,7 @@ Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
         if (step.removed.empty()) continue;
         info->removed += step.removed.size();
         info->inserted += step.added.size();
-        HVDB_RETURN_IF_ERROR(apply(step));
+        HVDB_RETURN_IF_ERROR(apply(std::move(step)));
       }
     } else if (const auto* tr = std::get_if<Transaction::TransformOp>(&op)) {
       HVDB_ASSIGN_OR_RETURN(AffineMap map, AffineMap::Make(tr->map, info_.fps));
@@ -429,11 +433,11 @@ Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
       }
       for (auto& [f, step] : removes) {
         info->removed += step.removed.size();
-        HVDB_RETURN_IF_ERROR(apply(step));
+        HVDB_RETURN_IF_ERROR(apply(std::move(step)));
       }
       for (auto& [f, step] : adds) {
         info->inserted += step.added.size();
-        HVDB_RETURN_IF_ERROR(apply(step));
+        HVDB_RETURN_IF_ERROR(apply(std::move(step)));
       }
     }
   }

@@ -25,7 +25,7 @@ void PointBuffer::Append(std::vector<Point> pts) {
   if (pts.empty()) return;
   size_ += pts.size();
   // Small commits extend a small last chunk (a bounded copy) instead of adding a chunk each.
-  constexpr size_t kSmallChunk = 4096;
+  constexpr size_t kSmallChunk = 1024;
   if (!chunks_.empty() && chunks_.back()->size() < kSmallChunk) {
     auto merged = std::make_shared<std::vector<Point>>();
     merged->reserve(chunks_.back()->size() + pts.size());

@@ -14,9 +14,11 @@ static constexpr uint32_t kMaxRecord = 1u << 30;
 
 static void PutPoints(Writer* w, const std::vector<Point>& pts) {
   w->Put<uint32_t>(static_cast<uint32_t>(pts.size()));
-  std::string recs(pts.size() * kPointRecordSize, '\0');
-  EncodePoints(pts, reinterpret_cast<uint8_t*>(recs.data()));
-  w->PutBytes(recs.data(), recs.size());
+  // Encoded in place at the end of the buffer: a commit's points are copied once here.
+  std::string& buf = w->data();
+  const size_t at = buf.size();
+  buf.resize(at + pts.size() * kPointRecordSize);
+  EncodePoints(pts, reinterpret_cast<uint8_t*>(buf.data() + at));
 }
 
 static bool GetPoints(Reader* r, std::vector<Point>* pts) {
@@ -30,6 +32,11 @@ static bool GetPoints(Reader* r, std::vector<Point>* pts) {
 
 std::string EncodeTxnPayload(const TxnRecord& t) {
   Writer w;
+  size_t bytes = 12;
+  for (const FrameEffect& f : t.frames) {
+    bytes += 12 + (f.removed.size() + f.added.size()) * kPointRecordSize;
+  }
+  w.data().reserve(bytes);
   w.Put<uint64_t>(t.reverts);
   w.Put<uint32_t>(static_cast<uint32_t>(t.frames.size()));
   for (const FrameEffect& f : t.frames) {
@@ -157,8 +164,16 @@ Result<std::unique_ptr<WalWriter>> WalWriter::Open(Env* env, const std::string& 
 Status WalWriter::Append(const std::vector<TxnRecord>& records) {
   // One write for a whole commit group: the records, back to back.
   std::string out;
+  std::vector<std::string> payloads;
+  size_t bytes = 0;
   for (const TxnRecord& t : records) {
-    std::string payload = EncodeTxnPayload(t);
+    payloads.push_back(EncodeTxnPayload(t));
+    bytes += kWalRecordHeaderSize + payloads.back().size();
+  }
+  out.reserve(bytes);
+  for (size_t r = 0; r < records.size(); ++r) {
+    const TxnRecord& t = records[r];
+    const std::string& payload = payloads[r];
     if (payload.size() > kMaxRecord) {
       return Status::LimitExceeded("transaction too large for one log record (" +
                                    std::to_string(payload.size()) + " bytes, limit 1 GiB)");
