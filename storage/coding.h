@@ -46,6 +46,8 @@ inline T DecodeLE(const uint8_t* src) {
 // Append-style writer and bounds-checked reader over byte strings, for manifests and log records.
 class Writer {
  public:
+  // Appends to `buf` (moved in; take it back with data()).
+  explicit Writer(std::string buf = {}) : buf_(std::move(buf)) {}
   template <typename T>
   void Put(T v) {
     uint8_t b[sizeof(T)];

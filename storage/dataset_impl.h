@@ -112,6 +112,8 @@ class DatasetImpl {
   Status CheckpointLocked();                                           // as leader
   void WakeMerger();
   bool NeedsMerge(const FrameVersion& v) const { return v.t0.size() > t0_cap_; }
+  // So far behind that commits wait for the merger (back-pressure).
+  bool Backlogged(const FrameVersion& v) const { return v.t0.size() > 8 * t0_cap_; }
 
   const std::string dir_;
   const Options opts_;
@@ -138,6 +140,9 @@ class DatasetImpl {
   std::atomic<uint64_t> next_seq_{1};
   std::atomic<uint64_t> merges_{0}, checkpoints_{0};
   std::atomic<uint64_t> wal_bytes_{0};
+  // Set by a commit that leaves some T0 above 8x its capacity, cleared by the first writer that
+  // finds none: commits look at the frames only while it is set.
+  std::atomic<bool> backlog_{false};
 
   // The merger: one thread per dataset, woken by commits that overfill a T0 or the log.
   std::mutex merge_mu_;  // guards the fields below

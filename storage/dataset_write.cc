@@ -239,7 +239,7 @@ Status DatasetImpl::Checkpoint() {
 
 Result<CommitInfo> DatasetImpl::Submit(WriteRequest* w) {
   using Kind = WriteRequest::Kind;
-  if (w->kind == Kind::kTxn || w->kind == Kind::kRevert) {
+  if ((w->kind == Kind::kTxn || w->kind == Kind::kRevert) && backlog_.load()) {
     // Back-pressure: while some T0 holds 8x its capacity the merger is behind; wait for it
     // rather than let memory grow without bound. A merger that keeps failing fails the commit.
     std::unique_lock<std::mutex> ml(merge_mu_);
@@ -248,12 +248,13 @@ Result<CommitInfo> DatasetImpl::Submit(WriteRequest* w) {
       {
         std::lock_guard<std::mutex> l(mu_);
         for (const auto& [f, v] : frames_) {
-          if (v->t0.size() > 8 * t0_cap_) {
+          if (Backlogged(*v)) {
             over = true;
             break;
           }
         }
       }
+      if (!over) backlog_ = false;
       if (!over || merge_stop_) break;
       if (!merge_error_.ok()) {
         return Status::IOError("commit refused: the buffers are full and merging them fails (" +
@@ -558,6 +559,7 @@ void DatasetImpl::LeadCommits(std::vector<WriteRequest*>& group) {
     for (uint32_t f : ws.changed()) {
       frames_[f] = ws.Get(f);
       merge = merge || NeedsMerge(*frames_[f]);
+      if (Backlogged(*frames_[f])) backlog_ = true;  // the next commits wait
     }
     last_lsn_ = lsn;
   }

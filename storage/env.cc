@@ -107,11 +107,6 @@ class PosixRandomAccessFile final : public RandomAccessFile {
     if (engine_ == Env::ReadEngine::kIoUring && UringBatch(reqs)) return;
     for (ReadRequest& r : reqs) r.status = FinishRead(fd_, path_, size_, &r, 0);
   }
-  // WILLNEED queues the reads in the kernel and returns: several hints in a row keep the
-  // device's queue full, which is what a cold query needs (bench/README.md, experiment 3).
-  void Prefetch(uint64_t offset, uint64_t n) const override {
-    ::posix_fadvise(fd_, static_cast<off_t>(offset), static_cast<off_t>(n), POSIX_FADV_WILLNEED);
-  }
   void DropCache() const override { ::posix_fadvise(fd_, 0, 0, POSIX_FADV_DONTNEED); }
   uint64_t size() const override { return size_; }
   const std::string& path() const override { return path_; }

@@ -38,9 +38,6 @@ class RandomAccessFile {
   // Reads every request, all issued before any is waited for (the device serves them in
   // parallel), and returns when all are done; each gets its own status, as Read's.
   virtual void ReadBatch(std::span<ReadRequest> requests) const = 0;
-  // Tells the store that [offset, offset + n) will be read soon, so it can start fetching it
-  // in the background (many hints in a row are served in parallel). Only a hint.
-  virtual void Prefetch(uint64_t offset, uint64_t n) const = 0;
   // Drops the file's cached pages (for cold benchmarks). Only a hint.
   virtual void DropCache() const = 0;
   virtual uint64_t size() const = 0;

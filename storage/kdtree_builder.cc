@@ -25,31 +25,25 @@ uint64_t LeftChildSize(uint64_t q, uint64_t c) {
 
 namespace {
 
-// The build moves 16-byte (x, y, z, index) records, not 64-byte points: the partitioning
-// passes of the kd-tree and of the in-bucket order touch a quarter of the memory, and each point
-// is copied once, straight to its final place in the file (bench/README.md, "Targets missed").
-struct Rec {
-  float c[3];
-  uint32_t idx;
-};
+// The build moves 16-byte (x, y, z, index) records (lod.h's OrderRec), not 64-byte points:
+// the partitioning passes of the kd-tree and of the in-bucket order touch a quarter of the
+// memory, and each point is copied once, straight to its final place in the file.
+using Rec = OrderRec;
 
-template <typename T>
-Box3 BoundsOfT(std::span<const T> pts, float (*coord)(const T&, int)) {
+Box3 BoundsOf(std::span<const Rec> recs) {
   Box3 b;
   b.lo = {std::numeric_limits<float>::max(), std::numeric_limits<float>::max(),
           std::numeric_limits<float>::max()};
   b.hi = {std::numeric_limits<float>::lowest(), std::numeric_limits<float>::lowest(),
           std::numeric_limits<float>::lowest()};
-  for (const T& p : pts) {
+  for (const Rec& r : recs) {
     for (int a = 0; a < 3; ++a) {
-      b.lo[a] = std::min(b.lo[a], coord(p, a));
-      b.hi[a] = std::max(b.hi[a], coord(p, a));
+      b.lo[a] = std::min(b.lo[a], r.c[a]);
+      b.hi[a] = std::max(b.hi[a], r.c[a]);
     }
   }
   return b;
 }
-float RecCoord(const Rec& r, int a) { return r.c[a]; }
-Box3 BoundsOf(std::span<const Rec> pts) { return BoundsOfT<Rec>(pts, RecCoord); }
 
 int WidestAxis(const Box3& box) {
   int axis = 0;
@@ -180,24 +174,6 @@ class NodePacker {
   std::vector<std::vector<NodeRecord>> blocks_;
 };
 
-// The in-bucket order of lod.h (kd-tree of bucket size 1, left child the largest power of two
-// below n, ties by id) on the records.
-void KdOrderRecords(std::span<Rec> recs, const std::vector<Point>& points) {
-  const size_t n = recs.size();
-  // A pair's order only picks which of two neighbours goes one level up (lod.h): either is
-  // right, so pairs stay as they are (half of all the calls, and most of the time).
-  if (n <= 2) return;
-  const size_t left = std::bit_floor(n - 1);
-  const int axis = WidestAxis(BoundsOf(recs));
-  std::nth_element(recs.begin(), recs.begin() + static_cast<std::ptrdiff_t>(left), recs.end(),
-                   [axis, &points](const Rec& a, const Rec& b) {
-                     return a.c[axis] < b.c[axis] ||
-                            (a.c[axis] == b.c[axis] && points[a.idx].id < points[b.idx].id);
-                   });
-  KdOrderRecords(recs.subspan(0, left), points);
-  KdOrderRecords(recs.subspan(left), points);
-}
-
 // Runs fn(i) for i in [0, n) on two threads (the machine's cores; more would only contend).
 template <typename F>
 void ParallelFor(size_t n, F fn) {
@@ -245,7 +221,7 @@ Status BuildTreeFile(Env* env, const std::string& path, std::vector<Point>& poin
     auto [begin, end] = tree.buckets[i];
     std::span<Rec> span(recs.data() + begin, end - begin);
     dir[i].box = BoundsOf(span);
-    KdOrderRecords(span, points);
+    KdOrder(span, points);
     for (size_t m = 0; m < span.size(); ++m) ++dir[i].count[LevelOfRank(m, max_level)];
   });
   // Level segments, coarsest first, each starting on a block boundary (fig. 8.11).

@@ -49,9 +49,9 @@ class KdTree {
   // Walks the inner nodes and returns the buckets whose boxes are not outside `test`,
   // in depth-first (= storage) order.
   Status FindBuckets(const BoxTest& test, std::vector<BucketHit>* out) const;
-  // Plans the block reads of the hits' records at levels [lo, hi] and asks the file for the
-  // ones not in the cache, adjacent blocks merged into one request, all before the first is
-  // read: the device then serves them in parallel instead of one 64 KiB read at a time.
+  // Has the buffer pool load, in the background, the blocks of the hits' records at levels
+  // [lo, hi] that it lacks: batches of merged requests issued at once, so the device serves
+  // them in parallel instead of one 64 KiB read at a time (BufferPool::Prefetch).
   void Prefetch(const std::vector<BucketHit>& hits, int lo, int hi) const;
   // Calls fn(records, n) for consecutive runs of the 64-byte records of level `level`,
   // positions [start, start + count) of that level's segment.

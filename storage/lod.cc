@@ -15,15 +15,12 @@ int LevelOfId(uint64_t id, int max_level) {
 
 namespace {
 
-float Coord(const Point& p, int axis) { return axis == 0 ? p.x : axis == 1 ? p.y : p.z; }
-
-int WidestAxis(std::span<Point> pts) {
-  float lo[3] = {pts[0].x, pts[0].y, pts[0].z}, hi[3] = {lo[0], lo[1], lo[2]};
-  for (const Point& p : pts) {
+int WidestAxis(std::span<const OrderRec> recs) {
+  float lo[3] = {recs[0].c[0], recs[0].c[1], recs[0].c[2]}, hi[3] = {lo[0], lo[1], lo[2]};
+  for (const OrderRec& r : recs) {
     for (int a = 0; a < 3; ++a) {
-      float v = Coord(p, a);
-      lo[a] = std::min(lo[a], v);
-      hi[a] = std::max(hi[a], v);
+      lo[a] = std::min(lo[a], r.c[a]);
+      hi[a] = std::max(hi[a], r.c[a]);
     }
   }
   int best = 0;
@@ -33,25 +30,34 @@ int WidestAxis(std::span<Point> pts) {
   return best;
 }
 
-// kd-tree of bucket size 1, left child = largest power of two below n, in place.
-void KdOrder(std::span<Point> pts) {
-  size_t n = pts.size();
-  if (n <= 1) return;
-  size_t left = std::bit_floor(n - 1);
-  int axis = WidestAxis(pts);
-  std::nth_element(pts.begin(), pts.begin() + static_cast<std::ptrdiff_t>(left), pts.end(),
-                   [axis](const Point& a, const Point& b) {
-                     float ca = Coord(a, axis), cb = Coord(b, axis);
-                     return ca < cb || (ca == cb && a.id < b.id);
-                   });
-  KdOrder(pts.subspan(0, left));
-  KdOrder(pts.subspan(left));
-}
-
 }  // namespace
 
+void KdOrder(std::span<OrderRec> recs, std::span<const Point> points) {
+  const size_t n = recs.size();
+  // A pair's order only picks which of two neighbours goes one level up: either is right, so
+  // pairs stay as they are (half of all the calls).
+  if (n <= 2) return;
+  // Left child: the largest power of two below n.
+  const size_t left = std::bit_floor(n - 1);
+  const int axis = WidestAxis(recs);
+  std::nth_element(recs.begin(), recs.begin() + static_cast<std::ptrdiff_t>(left), recs.end(),
+                   [axis, points](const OrderRec& a, const OrderRec& b) {
+                     return a.c[axis] < b.c[axis] ||
+                            (a.c[axis] == b.c[axis] && points[a.idx].id < points[b.idx].id);
+                   });
+  KdOrder(recs.subspan(0, left), points);
+  KdOrder(recs.subspan(left), points);
+}
+
 std::vector<std::vector<Point>> SplitIntoLevels(std::span<Point> pts, int max_level) {
-  KdOrder(pts);
+  std::vector<OrderRec> recs(pts.size());
+  for (size_t i = 0; i < pts.size(); ++i) {
+    recs[i] = {{pts[i].x, pts[i].y, pts[i].z}, static_cast<uint32_t>(i)};
+  }
+  KdOrder(recs, pts);
+  std::vector<Point> ordered(pts.size());
+  for (size_t m = 0; m < recs.size(); ++m) ordered[m] = pts[recs[m].idx];
+  std::copy(ordered.begin(), ordered.end(), pts.begin());
   std::vector<std::vector<Point>> levels(static_cast<size_t>(max_level) + 1);
   for (size_t m = 0; m < pts.size(); ++m) {
     levels[static_cast<size_t>(LevelOfRank(m, max_level))].push_back(pts[m]);

@@ -29,8 +29,20 @@ inline int LevelOfRank(uint64_t m, int max_level) {
 // in for its rank, which gives the same level proportions.
 int LevelOfId(uint64_t id, int max_level);
 
-// Reorders `pts` by the bucket-size-1 kd-tree and returns, for each level 0..max_level, the
-// points of that level (in kd order). Deterministic.
+// A point's position and its index into the caller's points: the in-bucket order moves these
+// 16-byte records, not 64-byte points (the tree builder gathers the points once, at the end).
+struct OrderRec {
+  float c[3];
+  uint32_t idx;
+};
+
+// Reorders `recs` by the bucket-size-1 kd-tree (split on the widest extent, ties by the id of
+// points[idx]); a pair's order is left as it is (either point may go one level up). After it,
+// the record at position m belongs to level LevelOfRank(m, l). Deterministic.
+void KdOrder(std::span<OrderRec> recs, std::span<const Point> points);
+
+// Orders `pts` with KdOrder and returns, for each level 0..max_level, the points of that level
+// (in kd order).
 std::vector<std::vector<Point>> SplitIntoLevels(std::span<Point> pts, int max_level);
 
 }  // namespace hvdb

@@ -30,13 +30,14 @@ static bool GetPoints(Reader* r, std::vector<Point>* pts) {
   return true;
 }
 
-std::string EncodeTxnPayload(const TxnRecord& t) {
-  Writer w;
+// Appends the payload of `t` to *out (the log's writer encodes it in place after its header).
+static void AppendTxnPayload(const TxnRecord& t, std::string* out) {
   size_t bytes = 12;
   for (const FrameEffect& f : t.frames) {
     bytes += 12 + (f.removed.size() + f.added.size()) * kPointRecordSize;
   }
-  w.data().reserve(bytes);
+  out->reserve(out->size() + bytes);
+  Writer w(std::move(*out));
   w.Put<uint64_t>(t.reverts);
   w.Put<uint32_t>(static_cast<uint32_t>(t.frames.size()));
   for (const FrameEffect& f : t.frames) {
@@ -44,7 +45,7 @@ std::string EncodeTxnPayload(const TxnRecord& t) {
     PutPoints(&w, f.removed);
     PutPoints(&w, f.added);
   }
-  return std::move(w.data());
+  *out = std::move(w.data());
 }
 
 Result<TxnRecord> DecodeTxnPayload(const std::string& payload, uint64_t lsn) {
@@ -162,33 +163,24 @@ Result<std::unique_ptr<WalWriter>> WalWriter::Open(Env* env, const std::string& 
 }
 
 Status WalWriter::Append(const std::vector<TxnRecord>& records) {
-  // One write for a whole commit group: the records, back to back.
+  // One write for a whole commit group: the records, back to back, each payload encoded in
+  // place after a header that is filled in once its length and checksum are known.
   std::string out;
-  std::vector<std::string> payloads;
-  size_t bytes = 0;
   for (const TxnRecord& t : records) {
-    payloads.push_back(EncodeTxnPayload(t));
-    bytes += kWalRecordHeaderSize + payloads.back().size();
-  }
-  out.reserve(bytes);
-  for (size_t r = 0; r < records.size(); ++r) {
-    const TxnRecord& t = records[r];
-    const std::string& payload = payloads[r];
-    if (payload.size() > kMaxRecord) {
+    const size_t at = out.size();
+    out.resize(at + kWalRecordHeaderSize);
+    AppendTxnPayload(t, &out);
+    const size_t len = out.size() - at - kWalRecordHeaderSize;
+    if (len > kMaxRecord) {
       return Status::LimitExceeded("transaction too large for one log record (" +
-                                   std::to_string(payload.size()) + " bytes, limit 1 GiB)");
+                                   std::to_string(len) + " bytes, limit 1 GiB)");
     }
-    Writer w;
-    w.Put<uint32_t>(0);  // header checksum, patched below
-    w.Put<uint32_t>(static_cast<uint32_t>(payload.size()));
-    w.Put<uint64_t>(t.lsn);
-    w.Put<uint8_t>(kTypeTxn);
-    w.Put<uint32_t>(crc32c::Mask(crc32c::Value(payload.data(), payload.size())));
-    std::string& rec = w.data();
-    EncodeLE(reinterpret_cast<uint8_t*>(rec.data()),
-             crc32c::Mask(crc32c::Value(rec.data() + 4, 17)));
-    out += rec;
-    out += payload;
+    auto* h = reinterpret_cast<uint8_t*>(out.data() + at);
+    EncodeLE(h + 4, static_cast<uint32_t>(len));
+    EncodeLE(h + 8, t.lsn);
+    h[16] = kTypeTxn;
+    EncodeLE(h + 17, crc32c::Mask(crc32c::Value(h + kWalRecordHeaderSize, len)));
+    EncodeLE(h, crc32c::Mask(crc32c::Value(h + 4, 17)));
   }
   return file_->Append(out);
 }

@@ -26,7 +26,6 @@ struct TxnRecord {
   std::vector<FrameEffect> frames;
 };
 
-std::string EncodeTxnPayload(const TxnRecord& t);
 Result<TxnRecord> DecodeTxnPayload(const std::string& payload, uint64_t lsn);
 
 struct WalContents {

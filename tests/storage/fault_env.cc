@@ -68,7 +68,6 @@ class FaultRandomAccessFile final : public RandomAccessFile {
     base_->ReadBatch(batch);
     for (size_t i = 0; i < pass.size(); ++i) pass[i]->status = batch[i].status;
   }
-  void Prefetch(uint64_t offset, uint64_t n) const override { base_->Prefetch(offset, n); }
   void DropCache() const override { base_->DropCache(); }
   uint64_t size() const override { return base_->size(); }
   const std::string& path() const override { return base_->path(); }
