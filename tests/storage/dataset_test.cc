@@ -551,6 +551,21 @@ TEST_F(DatasetTest, InvalidParameters) {
   EXPECT_TRUE(db_->GetDataset("nope").status().IsNotFound());
 }
 
+TEST_F(DatasetTest, T0CapacityOutOfRangeIsRefused) {
+  for (uint32_t bad : {0u, 63u, (4u << 20) + 1}) {
+    Options o;
+    o.t0_points = bad;
+    auto db = Database::Open(dir_.path(), o);
+    ASSERT_FALSE(db.ok()) << bad;
+    EXPECT_TRUE(db.status().IsInvalidArgument());
+    EXPECT_NE(db.status().message().find("t0_points must be in [64, 4194304]"), std::string::npos)
+        << db.status().ToString();
+  }
+  // Nothing was created or locked: a valid open works right after.
+  Open();
+  EXPECT_EQ(db_->ListDatasets(), std::vector<std::string>{"video"});
+}
+
 TEST_F(DatasetTest, ConcurrentCommitsAndQueries) {
   Open();
   std::mt19937_64 seed_rng(12);
