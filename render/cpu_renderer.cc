@@ -1,29 +1,193 @@
-// The CPU reference renderer: the same algorithm as the EGL renderer, evaluated with the same
-// float operations, multi-threaded over bands of image rows.
+// The CPU renderer: the same algorithm as the EGL renderer, evaluated with the same float
+// operations up to rounding, tiled for the caches and for every core.
 //
-// Splats are projected in parallel (in input order), sorted front to back for the
-// probabilistic mode, and binned into bands of kBandRows rows, keeping their order; each band
-// is then rasterised by one thread, so no two threads write a pixel and every pixel sees its
-// fragments in the order the GPU blends them (primitive order).
+//  1. Project, in parallel over chunks of points: one Splat per point (culled ones marked
+//     empty); each chunk counts the screen tiles (kTile x kTile pixels) its splats touch.
+//  2. Bin: a counting sort of splat indices by tile, chunk by chunk, so that every tile lists
+//     its splats in input order (the GPU's primitive order) whatever the thread count.
+//  3. Rasterise the tiles in parallel, each in buffers of its own (30 KB: they stay in L1/L2),
+//     the kernel evaluated eight pixels at a time (simd.h). Visibility: the depth pass, then
+//     the blend pass over the tile's list; probabilistic: the tile's list sorted front to back
+//     (depth, then index: a global stable sort's order restricted to the tile), one pass.
+//  4. Resolve each tile straight into the image; tiles no splat touches get the background.
+// The former band renderer, scalar and one std::exp per fragment, is kept as the reference
+// this one is tested against (tests/render/reference_renderer.h).
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cstring>
 #include <limits>
+#include <memory>
 #include <mutex>
 #include <thread>
 
 #include "render/renderer.h"
+#include "render/simd.h"
 #include "render/splat.h"
 
 namespace hvdb::render {
 
 namespace {
 
+using internal::F8;
+using internal::I8;
 using internal::ParallelFor;
 using internal::Splat;
 using internal::View;
 
-constexpr uint32_t kBandRows = 16;
+constexpr int kTile = 32;
+// Row stride of the tile buffers: an 8-lane vector that starts in a tile's last column stays
+// inside its row (lanes past the tile are masked off or land in the padding).
+constexpr int kStride = kTile + 8;
+constexpr int kTileFloats = kTile * kStride;
+constexpr size_t kMinChunk = 32768;  // points per projection task
+constexpr size_t kMaxChunks = 64;    // bounds the per-chunk tile counters
+
+struct alignas(64) TileBuffers {
+  float zmin[kTileFloats];
+  float r[kTileFloats], g[kTileFloats], b[kTileFloats];
+  float w[kTileFloats];  // visibility: sum of w*a over fragments that pass; probabilistic: A
+  float a[kTileFloats];  // visibility: sum of a over all fragments
+  // Probabilistic: the tile's splat indices front to back, and SortByDepth's scratch.
+  std::vector<uint32_t> order, keys, tmp_order, tmp_keys;
+};
+
+// The pixels of splat s in row y of the tile at column tx0, as a column range [xa, xb]; false
+// when the row misses the cutoff ellipse. Wide splats get the row's span of the ellipse,
+// ca dx^2 + 2 cb dy dx + cc dy^2 = r_C^2, widened by a pixel against rounding (the per-pixel
+// test still decides, as the shader's does); narrow ones just their box: one vector either way.
+HVDB_SIMD_INLINE bool RowRange(const Splat& s, float dy, float cutoff2, int tx0, int* xa,
+                               int* xb) {
+  int lo = std::max<int>(s.x0, tx0), hi = std::min<int>(s.x1, tx0 + kTile - 1);
+  if (hi - lo >= 8) {
+    float b = s.cb * dy, c = s.cc * dy * dy - cutoff2;
+    float disc = b * b - s.ca * c;
+    if (!(disc >= 0)) return false;
+    float root = std::sqrt(disc);
+    lo = std::max(lo, static_cast<int>(std::floor(s.u + (-b - root) / s.ca)) - 1);
+    hi = std::min(hi, static_cast<int>(std::ceil(s.u + (-b + root) / s.ca)) + 1);
+  }
+  *xa = lo;
+  *xb = hi;
+  return lo <= hi;
+}
+
+// The per-lane quantities of one 8-pixel run of a splat's row starting at column x.
+struct Lanes {
+  F8 q;     // kernel exponent, d^T Sigma'^-1 d
+  F8 z;     // fragment depth
+  I8 mask;  // inside the cutoff and within [x, xb]
+};
+HVDB_SIMD_INLINE Lanes Evaluate(const Splat& s, int x, int xb, float dy, float cutoff2) {
+  F8 px = internal::Broadcast(static_cast<float>(x)) + internal::kLanes;
+  F8 dx = px - s.u;
+  Lanes l;
+  l.q = s.ca * dx * dx + (2.0f * s.cb * dy) * dx + s.cc * dy * dy;
+  l.z = internal::Max(s.z + s.dzdx * dx + s.dzdy * dy, internal::Broadcast(0.0f));
+  l.mask = (l.q <= cutoff2) & (px <= static_cast<float>(xb));
+  return l;
+}
+
+// Calls body(offset of the run in the tile buffers, lanes) for every 8-pixel run of splat s
+// inside the tile at (tx0, ty0).
+template <typename Body>
+HVDB_SIMD_INLINE void ForEachRun(const Splat& s, int tx0, int ty0, float cutoff2, Body&& body) {
+  int y0 = std::max<int>(s.y0, ty0), y1 = std::min<int>(s.y1, ty0 + kTile - 1);
+  for (int y = y0; y <= y1; ++y) {
+    float dy = static_cast<float>(y) - s.v;
+    int xa, xb;
+    if (!RowRange(s, dy, cutoff2, tx0, &xa, &xb)) continue;
+    int row = (y - ty0) * kStride - tx0;
+    for (int x = xa; x <= xb; x += 8) body(row + x, Evaluate(s, x, xb, dy, cutoff2));
+  }
+}
+
+// Fig. 5.2 as the two-pass GPU method: pass 1 finds the nearest depth at each pixel, pass 2
+// blends every fragment within dz of it (the fuzzy depth test) additively; the resolve
+// normalises by the accumulated weight. Coverage is the sum of all kernels at the pixel
+// (occluded ones too), clamped to one: silhouettes against the background stay antialiased.
+HVDB_RENDER_CLONES void RasteriseVisibility(const Splat* list, size_t n, const View& view,
+                                            int tx0, int ty0, TileBuffers* t) {
+  const float c2 = view.cutoff2, dz = view.depth_threshold;
+  for (size_t k = 0; k < n; ++k) {
+    ForEachRun(list[k], tx0, ty0, c2, [&](int at, const Lanes& l) HVDB_SIMD_LAMBDA {
+      F8 zmin = internal::Load(t->zmin + at);
+      internal::Store(t->zmin + at, internal::Select(l.mask, internal::Min(zmin, l.z), zmin));
+    });
+  }
+  const F8 zero = internal::Broadcast(0.0f);
+  for (size_t k = 0; k < n; ++k) {
+    const Splat& s = list[k];
+    ForEachRun(s, tx0, ty0, c2, [&](int at, const Lanes& l) HVDB_SIMD_LAMBDA {
+      F8 a = internal::Select(l.mask, internal::Exp(-0.5f * l.q), zero);
+      internal::Store(t->a + at, internal::Load(t->a + at) + a);
+      I8 pass = l.mask & (l.z - dz <= internal::Load(t->zmin + at));  // the fuzzy depth test
+      F8 wa = internal::Select(pass, s.w * a, zero);
+      internal::Store(t->r + at, internal::Load(t->r + at) + s.r * wa);
+      internal::Store(t->g + at, internal::Load(t->g + at) + s.g * wa);
+      internal::Store(t->b + at, internal::Load(t->b + at) + s.b * wa);
+      internal::Store(t->w + at, internal::Load(t->w + at) + wa);
+    });
+  }
+}
+
+// 5.4.1: front to back, each fragment adds min(a, 1 - A) of its colour (GL_SRC_ALPHA_SATURATE)
+// until the accumulated alpha A reaches one.
+// `order` holds the indices into `list` in that order.
+HVDB_RENDER_CLONES void RasteriseProbabilistic(const Splat* list, const uint32_t* order,
+                                               size_t n, const View& view, int tx0, int ty0,
+                                               TileBuffers* t) {
+  const float c2 = view.cutoff2;
+  const F8 one = internal::Broadcast(1.0f), zero = internal::Broadcast(0.0f);
+  for (size_t k = 0; k < n; ++k) {
+    const Splat& s = list[order[k]];
+    ForEachRun(s, tx0, ty0, c2, [&](int at, const Lanes& l) HVDB_SIMD_LAMBDA {
+      F8 zmin = internal::Load(t->zmin + at);
+      internal::Store(t->zmin + at, internal::Select(l.mask, internal::Min(zmin, l.z), zmin));
+      F8 acc = internal::Load(t->w + at);
+      I8 live = l.mask & (acc < one);  // saturated rays have stopped
+      if (!internal::Any(live)) return;
+      F8 a = internal::Min(one, s.w * internal::Exp(-0.5f * l.q));
+      F8 f = internal::Select(live, internal::Min(a, one - acc), zero);
+      internal::Store(t->r + at, internal::Load(t->r + at) + s.r * f);
+      internal::Store(t->g + at, internal::Load(t->g + at) + s.g * f);
+      internal::Store(t->b + at, internal::Load(t->b + at) + s.b * f);
+      internal::Store(t->w + at, internal::Select(live, internal::Min(one, acc + a), acc));
+    });
+  }
+}
+
+// The indices of list[0, n) in the order of a stable sort by depth, into t->order: an LSD radix
+// sort on the depths' bits (z > 0, so they order as the floats do), 8 bits a pass, skipping
+// bytes all depths share (usually the top one: a tile sees a narrow range of depths).
+void SortByDepth(const Splat* list, size_t n, TileBuffers* t) {
+  t->order.resize(n);
+  t->keys.resize(n);
+  t->tmp_order.resize(n);
+  t->tmp_keys.resize(n);
+  uint32_t all_and = ~0u, all_or = 0;
+  for (size_t k = 0; k < n; ++k) {
+    uint32_t bits;
+    std::memcpy(&bits, &list[k].z, 4);
+    t->keys[k] = bits;
+    t->order[k] = static_cast<uint32_t>(k);
+    all_and &= bits;
+    all_or |= bits;
+  }
+  for (int shift = 0; shift < 32; shift += 8) {
+    if ((((all_and ^ all_or) >> shift) & 0xffu) == 0) continue;  // the same byte everywhere
+    uint32_t count[257] = {};
+    for (size_t k = 0; k < n; ++k) ++count[((t->keys[k] >> shift) & 0xffu) + 1];
+    for (int i = 0; i < 256; ++i) count[i + 1] += count[i];
+    for (size_t k = 0; k < n; ++k) {
+      uint32_t at = count[(t->keys[k] >> shift) & 0xffu]++;
+      t->tmp_keys[at] = t->keys[k];
+      t->tmp_order[at] = t->order[k];
+    }
+    t->keys.swap(t->tmp_keys);
+    t->order.swap(t->tmp_order);
+  }
+}
 
 class CpuRenderer final : public Renderer {
  public:
@@ -46,23 +210,19 @@ class CpuRenderer final : public Renderer {
     HVDB_ASSIGN_OR_RETURN(View view, internal::PrepareView(camera, options));
     Camera cam = options.width != 0 ? camera.Resized(options.width, options.height) : camera;
     std::vector<float> weights = internal::ViewWeightTable(cam, options);
-    std::vector<Splat> splats = Project(points, view, weights);
-    if (options.mode == Mode::kProbabilistic) {
-      // 5.4.1: presorted by depth so that the splats arrive front to back.
-      std::vector<float> keys(splats.size());
-      for (size_t i = 0; i < splats.size(); ++i) keys[i] = splats[i].z;
-      std::vector<uint32_t> order = internal::StableOrder(keys);
-      std::vector<Splat> sorted(splats.size());
-      for (size_t i = 0; i < order.size(); ++i) sorted[i] = splats[order[i]];
-      splats.swap(sorted);
-    }
+    tiles_x_ = (view.width + kTile - 1) / kTile;
+    tiles_y_ = (view.height + kTile - 1) / kTile;
+    ProjectAndBin(points, view, weights);
     Image img;
     img.width = view.width;
     img.height = view.height;
     img.rgba.resize(img.pixels() * 4);
     img.coverage.resize(img.pixels());
     img.depth.resize(img.pixels());
-    Rasterise(splats, view, options, &img);
+    const bool probabilistic = options.mode == Mode::kProbabilistic;
+    ParallelFor(size_t{tiles_x_} * tiles_y_, threads_, [&](size_t tile) {
+      RenderTile(tile, view, options, probabilistic, &img);
+    });
     stats_.points = points.size();
     stats_.milliseconds =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
@@ -70,172 +230,132 @@ class CpuRenderer final : public Renderer {
   }
 
  private:
-  std::vector<Splat> Project(std::span<const Point> points, const View& view,
-                             const std::vector<float>& weights) const {
-    const size_t chunk = 65536;
-    size_t chunks = (points.size() + chunk - 1) / chunk;
-    std::vector<std::vector<Splat>> parts(chunks);
-    ParallelFor(chunks, threads_, [&](size_t c) {
-      size_t lo = c * chunk, hi = std::min(points.size(), lo + chunk);
-      auto& out = parts[c];
-      out.reserve(hi - lo);
-      Splat s;
-      for (size_t i = lo; i < hi; ++i) {
-        if (internal::ProjectSplat(points[i], view, weights, &s)) out.push_back(s);
-      }
-    });
-    size_t total = 0;
-    for (const auto& p : parts) total += p.size();
-    std::vector<Splat> all;
-    all.reserve(total);
-    for (const auto& p : parts) all.insert(all.end(), p.begin(), p.end());
-    return all;
-  }
-
-  void Rasterise(const std::vector<Splat>& splats, const View& view, const RenderOptions& o,
-                 Image* img) const {
-    const uint32_t w = view.width, h = view.height;
-    const size_t bands = (h + kBandRows - 1) / kBandRows;
-    // Bin splat indices by band, keeping splat order within a band (a counting sort).
-    std::vector<size_t> start(bands + 1, 0);
-    for (const Splat& s : splats) {
-      for (size_t b = s.y0 / kBandRows; b <= s.y1 / kBandRows; ++b) ++start[b + 1];
+  // Steps 1 and 2: fills splats_ (one per point; culled ones have x1 < x0) and the tile lists
+  // bin_start_ / bin_.
+  void ProjectAndBin(std::span<const Point> points, const View& view,
+                     const std::vector<float>& weights) {
+    const size_t n = points.size();
+    const size_t tiles = size_t{tiles_x_} * tiles_y_;
+    if (n > splat_capacity_) {
+      splats_.reset(new Splat[n]);  // default-initialised: every entry is written below
+      splat_capacity_ = n;
     }
-    for (size_t b = 0; b < bands; ++b) start[b + 1] += start[b];
-    std::vector<uint32_t> bin(start[bands]);
-    {
-      std::vector<size_t> at(start.begin(), start.end() - 1);
-      for (size_t i = 0; i < splats.size(); ++i) {
-        const Splat& s = splats[i];
-        for (size_t b = s.y0 / kBandRows; b <= s.y1 / kBandRows; ++b) {
-          bin[at[b]++] = static_cast<uint32_t>(i);
+    const size_t chunk = std::max(kMinChunk, (n + kMaxChunks - 1) / kMaxChunks);
+    const size_t chunks = (n + chunk - 1) / chunk;
+    // counts[c * tiles + t]: splats of chunk c in tile t, then where chunk c writes in tile t.
+    std::vector<uint32_t> counts(chunks * tiles, 0);
+    Splat* splats = splats_.get();
+    ParallelFor(chunks, threads_, [&](size_t c) {
+      uint32_t* count = counts.data() + c * tiles;
+      for (size_t i = c * chunk, end = std::min(n, i + chunk); i < end; ++i) {
+        Splat& s = splats[i];
+        if (!internal::ProjectSplat(points[i], view, weights, &s)) {
+          s.x0 = 1;
+          s.x1 = 0;
+          continue;
+        }
+        for (int ty = s.y0 / kTile; ty <= s.y1 / kTile; ++ty) {
+          for (int tx = s.x0 / kTile; tx <= s.x1 / kTile; ++tx) ++count[ty * tiles_x_ + tx];
         }
       }
+    });
+    // From here counts[c * tiles + t] is where chunk c writes next in tile t's list, relative
+    // to the list's start.
+    bin_start_.assign(tiles + 1, 0);
+    for (size_t t = 0; t < tiles; ++t) {
+      uint32_t at = 0;
+      for (size_t c = 0; c < chunks; ++c) {
+        uint32_t k = counts[c * tiles + t];
+        counts[c * tiles + t] = at;
+        at += k;
+      }
+      bin_start_[t + 1] = bin_start_[t] + at;
     }
-    const bool probabilistic = o.mode == Mode::kProbabilistic;
-    ParallelFor(bands, threads_, [&](size_t band) {
-      const int row0 = static_cast<int>(band * kBandRows);
-      const int row1 = std::min<int>(row0 + kBandRows, static_cast<int>(h)) - 1;
-      const size_t n = size_t{w} * static_cast<size_t>(row1 - row0 + 1);
-      std::span<const uint32_t> list(bin.data() + start[band], start[band + 1] - start[band]);
-      if (probabilistic) {
-        RasteriseProbabilistic(splats, list, view, o, row0, row1, n, img);
-      } else {
-        RasteriseVisibility(splats, list, view, o, row0, row1, n, img);
+    if (bin_start_[tiles] > bin_capacity_) {
+      bin_capacity_ = bin_start_[tiles] + bin_start_[tiles] / 4;
+      bin_.reset(new Splat[bin_capacity_]);
+    }
+    ParallelFor(chunks, threads_, [&](size_t c) {
+      uint32_t* next = counts.data() + c * tiles;
+      for (size_t i = c * chunk, end = std::min(n, i + chunk); i < end; ++i) {
+        const Splat& s = splats[i];
+        if (s.x1 < s.x0) continue;
+        for (int ty = s.y0 / kTile; ty <= s.y1 / kTile; ++ty) {
+          for (int tx = s.x0 / kTile; tx <= s.x1 / kTile; ++tx) {
+            size_t t = static_cast<size_t>(ty) * tiles_x_ + static_cast<size_t>(tx);
+            bin_[bin_start_[t] + next[t]++] = s;
+          }
+        }
       }
     });
   }
 
-  // Calls fn(pixel index within the band, q, fragment depth) for every pixel of splat s in rows
-  // row0..row1 that passes the cutoff.
-  template <typename Fn>
-  static void ForEachFragment(const Splat& s, const View& view, int row0, int row1, uint32_t width,
-                              const Fn& fn) {
-    int y0 = std::max<int>(s.y0, row0), y1 = std::min<int>(s.y1, row1);
-    for (int y = y0; y <= y1; ++y) {
-      float dy = static_cast<float>(y) - s.v;
-      size_t rowbase = static_cast<size_t>(y - row0) * width;
-      // The row's span of the cutoff ellipse, ca dx^2 + 2 cb dy dx + cc dy^2 = r_C^2, widened
-      // by a pixel against rounding: the per-pixel test below still decides, as the shader's.
-      float b = s.cb * dy, c = s.cc * dy * dy - view.cutoff2;
-      float disc = b * b - s.ca * c;
-      if (!(disc >= 0)) continue;
-      float root = std::sqrt(disc);
-      int xa = std::max<int>(s.x0, static_cast<int>(std::floor(s.u + (-b - root) / s.ca)) - 1);
-      int xb = std::min<int>(s.x1, static_cast<int>(std::ceil(s.u + (-b + root) / s.ca)) + 1);
-      for (int x = xa; x <= xb; ++x) {
-        float dx = static_cast<float>(x) - s.u;
-        float q = internal::KernelQ(s, dx, dy);
-        if (q > view.cutoff2) continue;
-        fn(rowbase + static_cast<size_t>(x), q, internal::FragmentDepth(s, dx, dy));
+  // Steps 3 and 4 for one tile.
+  void RenderTile(size_t tile, const View& view, const RenderOptions& o, bool probabilistic,
+                  Image* img) const {
+    const int tx0 = static_cast<int>(tile % tiles_x_) * kTile;
+    const int ty0 = static_cast<int>(tile / tiles_x_) * kTile;
+    const int cols = std::min<int>(kTile, static_cast<int>(view.width) - tx0);
+    const int rows = std::min<int>(kTile, static_cast<int>(view.height) - ty0);
+    const Splat* list = bin_.get() + bin_start_[tile];
+    const size_t n = bin_start_[tile + 1] - bin_start_[tile];
+    const internal::Resolved empty = internal::Composite(0, 0, 0, 0, o.background);
+    if (n == 0) {
+      for (int y = 0; y < rows; ++y) {
+        size_t at = (static_cast<size_t>(ty0 + y)) * view.width + static_cast<size_t>(tx0);
+        for (int x = 0; x < cols; ++x) std::memcpy(&img->rgba[(at + x) * 4], empty.rgba, 16);
+        std::fill_n(&img->coverage[at], cols, 0.0f);
+        std::fill_n(&img->depth[at], cols, std::numeric_limits<float>::infinity());
+      }
+      return;
+    }
+    thread_local std::unique_ptr<TileBuffers> buffers;
+    if (!buffers) buffers = std::make_unique<TileBuffers>();
+    TileBuffers* t = buffers.get();
+    std::fill_n(t->zmin, kTileFloats, std::numeric_limits<float>::infinity());
+    for (float* f : {t->r, t->g, t->b, t->w, t->a}) std::fill_n(f, kTileFloats, 0.0f);
+    if (probabilistic) {
+      SortByDepth(list, n, t);
+      RasteriseProbabilistic(list, t->order.data(), n, view, tx0, ty0, t);
+    } else {
+      RasteriseVisibility(list, n, view, tx0, ty0, t);
+    }
+    for (int y = 0; y < rows; ++y) {
+      size_t at = (static_cast<size_t>(ty0 + y)) * view.width + static_cast<size_t>(tx0);
+      for (int x = 0; x < cols; ++x) {
+        int i = y * kStride + x;
+        internal::Resolved r = empty;
+        if (probabilistic) {
+          float acc = t->w[i];
+          if (acc > 0) {
+            r = internal::Composite(t->r[i] / acc, t->g[i] / acc, t->b[i] / acc, acc,
+                                    o.background);
+          }
+        } else if (t->a[i] > 0) {
+          // The nearest fragment always passes, so the weight is > 0 wherever a is.
+          float wsum = t->w[i];
+          r = internal::Composite(t->r[i] / wsum, t->g[i] / wsum, t->b[i] / wsum,
+                                  std::min(1.0f, t->a[i]), o.background);
+        }
+        std::memcpy(&img->rgba[(at + x) * 4], r.rgba, 16);
+        img->coverage[at + x] = r.coverage;
+        img->depth[at + x] = t->zmin[i];
       }
     }
-  }
-
-  // Fig. 5.2 as the two-pass GPU method: pass 1 finds the nearest depth at each pixel, pass 2
-  // blends every fragment within dz of it (the fuzzy depth test) additively; normalisation
-  // divides the colour by the accumulated weight. Unlike fig. 5.2, which sets alpha to one,
-  // coverage is the sum of all kernels at the pixel (occluded ones too), clamped to one: the
-  // silhouette against the background stays antialiased, and an occluding edge does not let
-  // the background through.
-  static void RasteriseVisibility(const std::vector<Splat>& splats, std::span<const uint32_t> list,
-                                  const View& view, const RenderOptions& o, int row0, int row1,
-                                  size_t n, Image* img) {
-    const uint32_t w = view.width;
-    std::vector<float> zmin(n, std::numeric_limits<float>::infinity());
-    for (uint32_t i : list) {
-      ForEachFragment(splats[i], view, row0, row1, w,
-                      [&](size_t p, float, float z) { zmin[p] = std::min(zmin[p], z); });
-    }
-    // Sum of w*a*c (rgb) and of w*a over the fragments that pass; sum of a over all.
-    std::vector<float> acc(n * 5, 0.0f);
-    for (uint32_t i : list) {
-      const Splat& s = splats[i];
-      ForEachFragment(s, view, row0, row1, w, [&](size_t p, float q, float z) {
-        float a = std::exp(-0.5f * q);
-        float* c = &acc[p * 5];
-        c[4] += a;
-        if (!(z - view.depth_threshold <= zmin[p])) return;  // the fuzzy depth test
-        float wa = s.w * a;
-        c[0] += s.r * wa;
-        c[1] += s.g * wa;
-        c[2] += s.b * wa;
-        c[3] += wa;
-      });
-    }
-    const size_t base = static_cast<size_t>(row0) * w;
-    for (size_t p = 0; p < n; ++p) {
-      const float* c = &acc[p * 5];
-      // The nearest fragment always passes, so c[3] > 0 wherever c[4] > 0.
-      internal::Resolved r = c[4] > 0 ? internal::Composite(c[0] / c[3], c[1] / c[3], c[2] / c[3],
-                                                            std::min(1.0f, c[4]), o.background)
-                                      : internal::Composite(0, 0, 0, 0, o.background);
-      Store(r, zmin[p], base + p, img);
-    }
-  }
-
-  // 5.4.1: front to back, each fragment adds min(a, 1 - A) of its colour (GL_SRC_ALPHA_SATURATE)
-  // until the accumulated alpha A reaches one.
-  static void RasteriseProbabilistic(const std::vector<Splat>& splats,
-                                     std::span<const uint32_t> list, const View& view,
-                                     const RenderOptions& o, int row0, int row1, size_t n,
-                                     Image* img) {
-    const uint32_t w = view.width;
-    std::vector<float> acc(n * 4, 0.0f);  // C (rgb), A
-    std::vector<float> zmin(n, std::numeric_limits<float>::infinity());
-    for (uint32_t i : list) {
-      const Splat& s = splats[i];
-      ForEachFragment(s, view, row0, row1, w, [&](size_t p, float q, float z) {
-        zmin[p] = std::min(zmin[p], z);
-        float* c = &acc[p * 4];
-        if (c[3] >= 1.0f) return;  // saturated: this ray has stopped
-        float a = std::min(1.0f, s.w * std::exp(-0.5f * q));
-        float f = std::min(a, 1.0f - c[3]);
-        c[0] += s.r * f;
-        c[1] += s.g * f;
-        c[2] += s.b * f;
-        c[3] = std::min(1.0f, c[3] + a);
-      });
-    }
-    const size_t base = static_cast<size_t>(row0) * w;
-    for (size_t p = 0; p < n; ++p) {
-      const float* c = &acc[p * 4];
-      internal::Resolved r =
-          c[3] > 0 ? internal::Composite(c[0] / c[3], c[1] / c[3], c[2] / c[3], c[3], o.background)
-                   : internal::Composite(0, 0, 0, 0, o.background);
-      Store(r, zmin[p], base + p, img);
-    }
-  }
-
-  static void Store(const internal::Resolved& r, float depth, size_t at, Image* img) {
-    for (int k = 0; k < 4; ++k) img->rgba[at * 4 + k] = r.rgba[k];
-    img->coverage[at] = r.coverage;
-    img->depth[at] = depth;
   }
 
   unsigned threads_;
   mutable std::mutex mu_;
   RenderStats stats_;
+  // Kept between renders (a sequence reuses them): splats, one per point, and the tile lists.
+  std::unique_ptr<Splat[]> splats_;
+  size_t splat_capacity_ = 0;
+  uint32_t tiles_x_ = 0, tiles_y_ = 0;
+  std::vector<size_t> bin_start_;
+  // The splats of each tile, copied in: the rasteriser then reads one contiguous run per tile
+  // instead of chasing indices across all splats (which made it wait on memory).
+  std::unique_ptr<Splat[]> bin_;
+  size_t bin_capacity_ = 0;
 };
 
 }  // namespace
