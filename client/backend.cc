@@ -164,13 +164,16 @@ class EmbeddedBackend final : public Backend {
     // server's pool: the request is checked before a renderer (an EGL context) is made.
     HVDB_ASSIGN_OR_RETURN(std::unique_ptr<render::RenderJob> job,
                           render::RenderJob::Create(std::move(ds), request));
+    std::string why;
     HVDB_ASSIGN_OR_RETURN(std::unique_ptr<render::Renderer> renderer,
-                          render::MakeRenderer(job->renderer_kind()));
+                          render::MakeRenderer(job->renderer_kind(), &why));
+    // "fallback" keeps its meaning: auto found no EGL context (not: auto chose the CPU).
     const bool fallback = job->renderer_kind() == render::RendererKind::kAuto &&
-                          renderer->kind() != render::RendererKind::kEgl;
+                          why.rfind("no EGL context", 0) == 0;
     for (size_t i = 0; i < job->size(); ++i) {
       HVDB_ASSIGN_OR_RETURN(wire::RenderReply reply, job->Render(i, *renderer));
       reply.set_fallback(fallback);
+      reply.set_renderer_choice(why);
       HVDB_RETURN_IF_ERROR(on_image(reply));
     }
     return Status::OK();

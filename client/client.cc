@@ -603,9 +603,9 @@ Result<wire::StatsReply> Connection::Stats(const std::string& dataset) {
 }
 
 Result<wire::RenderReply> Connection::Render(const wire::Render& render) {
-  if (render.path_size() > 1) {
-    return Status::InvalidArgument("render: a request with a path is a sequence; use "
-                                   "RenderSequence");
+  if (render.path_size() > 1 || render.progressive()) {
+    return Status::InvalidArgument("render: a request with a path or progressive gets several "
+                                   "replies; use RenderSequence");
   }
   wire::Request req;
   *req.mutable_render() = render;

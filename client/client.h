@@ -118,8 +118,8 @@ class Connection {
   Result<CommitInfo> Composite(const wire::CompositeRequest& req);
   // Rendering (docs/PROTOCOL.md, "Rendering"): the image of a single-view request.
   Result<wire::RenderReply> Render(const wire::Render& req);
-  // A sequence (a request with a path; a single view works too): on_image gets every reply
-  // as it arrives, in order. A non-OK status from on_image cancels the rest and is returned.
+  // A sequence (a request with a path, or a progressive one: preview then image; a single
+  // view works too): on_image gets every reply as it arrives, in order. A non-OK status from on_image cancels the rest and is returned.
   Status RenderSequence(const wire::Render& req,
                         const std::function<Status(const wire::RenderReply&)>& on_image);
 

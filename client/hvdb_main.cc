@@ -2020,13 +2020,15 @@ int Cli::CmdRender() {
   }
 
   // The render library's warnings (the CPU fallback of --renderer auto) in our own voice.
-  render::SetLogHandler(
-      [](const std::string& msg) { std::fprintf(stderr, "hvdb: warning: %s\n", msg.c_str()); });
+  render::SetLogHandler([](const std::string& msg) {
+    bool note = msg.rfind("note: ", 0) == 0;
+    std::fprintf(stderr, "hvdb: %s%s\n", note ? "" : "warning: ", msg.c_str());
+  });
   const Clock::time_point start = Clock::now();
   json images = json::array();
   uint64_t total_points = 0;
   double total_ms = 0;
-  std::string renderer;
+  std::string renderer, choice;
   bool fallback = false;
   bool made_dir = false;
   Status st = db().Render(req, [&](const wire::RenderReply& r) -> Status {
@@ -2047,6 +2049,7 @@ int Cli::CmdRender() {
     HVDB_RETURN_IF_ERROR(WriteFileBytes(file, format == wire::IMAGE_EXR ? r.exr() : r.png()));
     if (images.empty()) {
       renderer = r.renderer_used();
+      choice = r.renderer_choice();
       fallback = r.fallback();
       if (fallback && db().remote()) {
         std::fprintf(stderr,
@@ -2090,6 +2093,7 @@ int Cli::CmdRender() {
   if (a.json) {
     PrintJson({{"dataset", a.name},
                {"renderer", renderer},
+               {"renderer_choice", choice},
                {"fallback", fallback},
                {"images", images},
                {"points", total_points},

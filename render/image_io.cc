@@ -10,6 +10,7 @@
 #include <cmath>
 #include <cstring>
 #include <fstream>
+#include <limits>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
@@ -23,6 +24,46 @@ namespace {
 uint8_t ToByte(float v) {
   float c = std::clamp(v, 0.0f, 1.0f);
   return static_cast<uint8_t>(std::lround(c * 255.0f));
+}
+
+// ToByte(LinearToSrgb(v)) without a pow per channel (which made encoding a 1080p frame cost
+// more than rendering it): the byte is the number of thresholds SrgbToLinear((k - 0.5) / 255),
+// k = 1..255, at or below v; a table indexed by v's upper bits gives the count at the start of
+// v's bucket, and at most a step or two more are checked.
+class SrgbEncoder {
+ public:
+  SrgbEncoder() {
+    for (int k = 1; k <= 255; ++k) thr_[k] = SrgbToLinear((static_cast<float>(k) - 0.5f) / 255.0f);
+    thr_[256] = std::numeric_limits<float>::infinity();
+    uint32_t byte = 0;
+    for (uint32_t bucket = 0; bucket < kBuckets; ++bucket) {
+      float lo;
+      uint32_t bits = bucket << kShift;
+      std::memcpy(&lo, &bits, 4);
+      while (byte < 255 && lo >= thr_[byte + 1]) ++byte;
+      table_[bucket] = static_cast<uint8_t>(byte);
+    }
+  }
+  uint8_t operator()(float v) const {
+    if (!(v > 0)) return 0;  // NaN too
+    if (v >= 1) return 255;
+    uint32_t bits;
+    std::memcpy(&bits, &v, 4);
+    uint32_t b = table_[bits >> kShift];
+    while (v >= thr_[b + 1]) ++b;
+    return static_cast<uint8_t>(b);
+  }
+
+ private:
+  static constexpr int kShift = 15;
+  static constexpr uint32_t kBuckets = (0x3f800000u >> kShift) + 1;  // floats in [0, 1]
+  float thr_[257];
+  uint8_t table_[kBuckets];
+};
+
+const SrgbEncoder& Encoder() {
+  static const SrgbEncoder* encoder = new SrgbEncoder();
+  return *encoder;
 }
 
 // OpenEXR writes through an OStream; this one appends to a string.
@@ -78,6 +119,7 @@ Srgb8Image ToSrgb8(const Image& img) {
     }
   }
   out.data.resize(img.pixels() * out.channels);
+  const SrgbEncoder& srgb = Encoder();
   for (size_t i = 0; i < img.pixels(); ++i) {
     const float* p = &img.rgba[i * 4];
     float a = p[3];
@@ -85,7 +127,7 @@ Srgb8Image ToSrgb8(const Image& img) {
     float inv = a > 0 ? 1.0f / a : 0.0f;
     for (int c = 0; c < 3; ++c) {
       float straight = out.channels == 4 ? p[c] * inv : p[c];
-      out.data[i * out.channels + c] = ToByte(LinearToSrgb(straight));
+      out.data[i * out.channels + c] = srgb(straight);
     }
     if (out.channels == 4) out.data[i * 4 + 3] = ToByte(a);
   }

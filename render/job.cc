@@ -114,9 +114,12 @@ Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> da
     return Invalid("render.lod", std::to_string(r.lod()) + " is out of range (0.." +
                                      std::to_string(kMaxRenderLod) + ")");
   }
-  // At level i the sampling density falls by 2^i, so splats grow by 2^(i/2) (thesis 8.4).
-  o.splat_scale = static_cast<float>(std::pow(2.0, r.lod() / 2.0));
   job->query_.lod = static_cast<int>(r.lod());
+  if (r.lod() > static_cast<uint32_t>(job->dataset_->lod_levels())) {
+    return Invalid("render.lod", std::to_string(r.lod()) + " is coarser than dataset '" +
+                                     info.name + "' has (0.." +
+                                     std::to_string(job->dataset_->lod_levels()) + ")");
+  }
   job->query_.temporal_lod = !r.no_temporal_lod();
   job->query_.label_mask = r.label_mask();
   if (r.background_size() == 4) {
@@ -191,38 +194,79 @@ Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> da
     HVDB_ASSIGN_OR_RETURN(Region region, wire::FromWire(r.region()));
     job->regions_.push_back(region);
   }
+  // Replies.
+  if (r.progressive()) {
+    if (r.path_size() > 0) {
+      return Invalid("render.progressive", "is for a single view, not a sequence (path)");
+    }
+    // About 1/16 of the points: levels hold 2^-i of the samples (thesis 8.4).
+    int preview = std::min(job->query_.lod + 4, job->dataset_->lod_levels());
+    if (preview > job->query_.lod) job->steps_.push_back({0, 0, preview, true});
+  }
+  for (size_t i = 0; i < job->views_.size(); ++i) {
+    job->steps_.push_back({i, job->regions_.size() == 1 ? 0 : i, job->query_.lod, false});
+  }
   return job;
 }
 
-Status RenderJob::Load(size_t region_index, const std::atomic<bool>* cancelled) {
-  if (loaded_ == region_index) return Status::OK();
-  points_.clear();
-  loaded_ = SIZE_MAX;
-  HVDB_ASSIGN_OR_RETURN(auto cursor, dataset_->Query(regions_[region_index], query_));
+RenderJob::~RenderJob() {
+  if (prefetch_.valid()) prefetch_.wait();
+}
+
+Status RenderJob::Query(const Step& step, const std::atomic<bool>* cancelled,
+                        Points* out) const {
+  out->points.clear();
+  out->region = SIZE_MAX;
+  QueryOptions q = query_;
+  q.lod = step.lod;
+  HVDB_ASSIGN_OR_RETURN(auto cursor, dataset_->Query(regions_[step.region], q));
   Batch batch;
   for (;;) {
     if (cancelled != nullptr && *cancelled) return Status::Cancelled("render cancelled");
     HVDB_ASSIGN_OR_RETURN(bool more, cursor->Next(&batch));
     if (!more) break;
-    if (points_.size() + batch.points.size() > limits_.max_points) {
-      points_.clear();
+    if (out->points.size() + batch.points.size() > limits_.max_points) {
+      out->points.clear();
       return Status::LimitExceeded("render: the region holds more than " +
                                    std::to_string(limits_.max_points) +
                                    " points, the limit per image; use a coarser lod "
                                    "or a smaller region");
     }
-    points_.insert(points_.end(), batch.points.begin(), batch.points.end());
+    out->points.insert(out->points.end(), batch.points.begin(), batch.points.end());
   }
-  loaded_ = region_index;
+  out->region = step.region;
+  out->lod = step.lod;
+  return Status::OK();
+}
+
+Status RenderJob::Load(size_t i, const std::atomic<bool>* cancelled) {
+  const Step& step = steps_[i];
+  if (!current_.Holds(step) && prefetch_.valid()) {
+    Status st = prefetch_.get();
+    if (next_.Holds(step) || !st.ok()) {
+      HVDB_RETURN_IF_ERROR(st);
+      std::swap(current_, next_);
+    }
+  }
+  if (!current_.Holds(step)) HVDB_RETURN_IF_ERROR(Query(step, cancelled, &current_));
+  // The pipeline: the next image's points are queried while this one is drawn and encoded.
+  if (i + 1 < steps_.size() && !current_.Holds(steps_[i + 1]) && !prefetch_.valid()) {
+    const Step next = steps_[i + 1];
+    prefetch_ = std::async(std::launch::async,
+                           [this, next, cancelled] { return Query(next, cancelled, &next_); });
+  }
   return Status::OK();
 }
 
 Result<Image> RenderJob::RenderImage(size_t i, Renderer& renderer,
                                      const std::atomic<bool>* cancelled) {
-  if (i >= views_.size()) return Status::InvalidArgument("render: no image " + std::to_string(i));
-  HVDB_RETURN_IF_ERROR(Load(regions_.size() == 1 ? 0 : i, cancelled));
+  if (i >= steps_.size()) return Status::InvalidArgument("render: no image " + std::to_string(i));
+  HVDB_RETURN_IF_ERROR(Load(i, cancelled));
   if (cancelled != nullptr && *cancelled) return Status::Cancelled("render cancelled");
-  return renderer.Render(points_, views_[i], options_);
+  RenderOptions o = options_;
+  // At level i the sampling density falls by 2^i, so splats grow by 2^(i/2) (thesis 8.4).
+  o.splat_scale = static_cast<float>(std::pow(2.0, steps_[i].lod / 2.0));
+  return renderer.Render(current_.points, views_[steps_[i].view], o);
 }
 
 Result<wire::RenderReply> RenderJob::Render(size_t i, Renderer& renderer,
@@ -245,10 +289,12 @@ Result<wire::RenderReply> RenderJob::Render(size_t i, Renderer& renderer,
   reply.set_width(img.width);
   reply.set_height(img.height);
   reply.set_renderer_used(renderer.name());
-  reply.set_points(points_.size());
+  reply.set_points(current_.points.size());
   reply.set_render_ms(renderer.last_stats().milliseconds);
-  reply.set_index(static_cast<uint32_t>(i));
-  reply.set_last(i + 1 == views_.size());
+  reply.set_index(static_cast<uint32_t>(steps_[i].view));
+  reply.set_preview(steps_[i].preview);
+  reply.set_lod(static_cast<uint32_t>(steps_[i].lod));
+  reply.set_last(i + 1 == steps_.size());
   return reply;
 }
 

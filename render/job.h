@@ -2,7 +2,9 @@
 //
 // RenderJob validates the request once (views, dataset cameras, options), then renders its
 // images one at a time, each from the points of its region, queried at the request's level of
-// detail with splats grown by 2^(lod/2) (thesis 8.4). Two callers drive it: hvdb-server's
+// detail with splats grown by 2^(lod/2) (thesis 8.4). It is a pipeline: while image i is drawn
+// and encoded, the points of image i + 1 are queried on a thread of their own. A progressive
+// request gets a preview from a coarser level first. Two callers drive it: hvdb-server's
 // sessions, from the worker pool with a renderer from the server's RendererPool, and the
 // embedded `hvdb render` (client/backend.cc, --data DIR) with MakeRenderer(). Both therefore
 // give the same images and the same errors for the same request.
@@ -14,6 +16,7 @@
 #define HVDB_RENDER_JOB_H_
 
 #include <atomic>
+#include <future>
 #include <memory>
 #include <string>
 #include <vector>
@@ -36,22 +39,45 @@ class RenderJob {
   static Result<std::unique_ptr<RenderJob>> Create(std::shared_ptr<Dataset> dataset,
                                                    const wire::Render& request,
                                                    const RenderLimits& limits = {});
-  // Images the request asks for: path size for a sequence, else 1.
-  size_t size() const { return views_.size(); }
+  // Waits for a query in flight.
+  ~RenderJob();
+  // Replies the request asks for: path size for a sequence, 2 for a progressive single view
+  // (preview, then the image), else 1.
+  size_t size() const { return steps_.size(); }
   RendererKind renderer_kind() const { return kind_; }
   wire::ImageFormat format() const { return format_; }
 
   // Renders image i (0 <= i < size()) with `renderer`. The points of the previous image are
-  // reused when its region is the same. `cancelled`, when given, is checked between batches.
+  // reused when its region and level are the same; those of image i + 1 are queried while
+  // image i is drawn. `cancelled`, when given, is checked between batches; it must outlive
+  // the job (the next image's query may still read it).
   Result<Image> RenderImage(size_t i, Renderer& renderer,
                             const std::atomic<bool>* cancelled = nullptr);
-  // The same, encoded as the request's format into a reply (index, last, timings filled in).
+  // The same, encoded as the request's format into a reply (index, last, preview, lod,
+  // timings filled in).
   Result<wire::RenderReply> Render(size_t i, Renderer& renderer,
                                    const std::atomic<bool>* cancelled = nullptr);
 
  private:
+  // One reply: which view, which region, at which level.
+  struct Step {
+    size_t view = 0, region = 0;
+    int lod = 0;
+    bool preview = false;
+  };
+  // The points of one (region, level).
+  struct Points {
+    size_t region = SIZE_MAX;
+    int lod = -1;
+    std::vector<Point> points;
+    bool Holds(const Step& s) const { return region == s.region && lod == s.lod; }
+  };
+
   RenderJob() = default;
-  Status Load(size_t region_index, const std::atomic<bool>* cancelled);
+  // Makes current_ hold step i's points: kept, taken from the prefetch, or queried now.
+  Status Load(size_t i, const std::atomic<bool>* cancelled);
+  // Queries step i's points into `out` (run on the prefetch thread or the caller's).
+  Status Query(const Step& step, const std::atomic<bool>* cancelled, Points* out) const;
 
   std::shared_ptr<Dataset> dataset_;
   RenderLimits limits_;
@@ -61,8 +87,11 @@ class RenderJob {
   QueryOptions query_;
   std::vector<Camera> views_;
   std::vector<Region> regions_;  // one, or one per image
-  std::vector<Point> points_;
-  size_t loaded_ = SIZE_MAX;  // which region points_ holds
+  std::vector<Step> steps_;
+  Points current_;
+  // The next step's points, filled by prefetch_'s thread; read only after prefetch_.get().
+  Points next_;
+  std::future<Status> prefetch_;
 };
 
 // A camera of the dataset (storage's CameraInfo) as a render camera: the same fields.

@@ -125,6 +125,8 @@ class Renderer {
                                const RenderOptions& options) = 0;
   // What the last successful Render did.
   virtual RenderStats last_stats() const = 0;
+  // True when it draws on a GPU (not on a software OpenGL driver such as Mesa's llvmpipe).
+  virtual bool hardware() const { return false; }
 };
 
 // The checks Render does on its arguments, without rendering: InvalidArgument naming the bad
@@ -138,12 +140,20 @@ std::unique_ptr<Renderer> MakeCpuRenderer(unsigned threads = 0);
 // be made; the message says why. The environment variable HVDB_RENDER_NO_EGL=1 disables it
 // (Unsupported), which makes kAuto use the CPU renderer.
 Result<std::unique_ptr<Renderer>> MakeEglRenderer();
-// kCpu: the CPU renderer. kEgl: the EGL renderer or its error. kAuto: the EGL renderer where
-// a context can be made, else the CPU renderer after a warning through the log handler; ask
+// kCpu: the CPU renderer. kEgl: the EGL renderer or its error. kAuto: the faster of the two
+// here: the EGL renderer on a GPU (hardware()); the CPU renderer where EGL runs on a software
+// rasteriser (llvmpipe: the CPU renderer is many times faster on the same cores) or where no
+// context can be made (after a warning through the log handler). `why`, when given, gets one
+// line saying which and why (logged for kAuto; replies and `hvdb render --json` show it); ask
 // the result's kind() which one you got.
-Result<std::unique_ptr<Renderer>> MakeRenderer(RendererKind kind);
+Result<std::unique_ptr<Renderer>> MakeRenderer(RendererKind kind, std::string* why = nullptr);
+// kAuto's choice given a working EGL renderer: it, or a CPU renderer; `why` as above.
+std::unique_ptr<Renderer> ChooseAuto(std::unique_ptr<Renderer> egl, std::string* why);
+// True for the GL_RENDERER strings of software OpenGL drivers (llvmpipe, softpipe, swrast).
+bool IsSoftwareRasteriser(const std::string& gl_renderer);
 
-// Where the render library reports warnings (such as the CPU fallback). Default: stderr.
+// Where the render library reports warnings (such as the CPU fallback) and notes (such as
+// kAuto's choice, prefixed "note: "). Default: stderr.
 void SetLogHandler(std::function<void(const std::string&)> handler);
 
 // ---- Output ----

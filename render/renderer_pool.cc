@@ -23,9 +23,59 @@ Result<RendererPool::Lease> RendererPool::TryAcquire(RendererKind kind) {
   return Lease(this, kind);
 }
 
-Result<std::unique_ptr<Renderer>> RendererPool::Take(RendererKind kind, bool* fallback) {
+Result<std::unique_ptr<Renderer>> RendererPool::Take(RendererKind kind, bool* fallback,
+                                                     std::string* why) {
   *fallback = false;
-  if (kind != RendererKind::kCpu) {
+  if (kind == RendererKind::kAuto) {
+    // Decided once per pool, with the first EGL renderer: on a GPU auto means EGL; on a
+    // software rasteriser or without a context, the CPU renderer.
+    std::optional<bool> use_egl;
+    {
+      std::lock_guard<std::mutex> l(mu_);
+      use_egl = auto_egl_;
+    }
+    if (!use_egl) {
+      auto egl = Take(RendererKind::kEgl, fallback, why);
+      std::lock_guard<std::mutex> l(mu_);
+      if (!auto_egl_) {
+        if (!egl.ok()) {
+          auto_egl_ = false;
+          auto_reason_ =
+              "render service: no EGL context (" + egl.status().message() + "): the CPU renderer";
+          internal::LogWarning("render service: using the CPU renderer: " +
+                               egl.status().message());
+        } else {
+          std::string reason;
+          bool hardware = (*egl)->hardware();
+          std::unique_ptr<Renderer> chosen = ChooseAuto(std::move(egl).value(), &reason);
+          auto_egl_ = hardware;
+          auto_reason_ = "render service: " + reason;
+          if (hardware) {
+            *why = auto_reason_;
+            return chosen;
+          }
+          idle_cpu_.push_back(std::move(chosen));
+          // The EGL renderer ChooseAuto passed over is not kept: its context would hold
+          // memory for requests that name egl, which make their own.
+        }
+      }
+      use_egl = auto_egl_;
+    }
+    {
+      std::lock_guard<std::mutex> l(mu_);
+      *why = auto_reason_;
+      *fallback = !*use_egl && egl_error_.has_value();
+    }
+    if (*use_egl) {
+      bool unused;
+      std::string ignored;
+      return Take(RendererKind::kEgl, &unused, &ignored);
+    }
+    kind = RendererKind::kCpu;
+  } else {
+    *why = kind == RendererKind::kEgl ? "asked for the EGL renderer" : "asked for the CPU renderer";
+  }
+  if (kind == RendererKind::kEgl) {
     std::optional<Status> known_error;
     {
       std::lock_guard<std::mutex> l(mu_);
@@ -36,21 +86,13 @@ Result<std::unique_ptr<Renderer>> RendererPool::Take(RendererKind kind, bool* fa
       }
       known_error = egl_error_;
     }
-    if (!known_error) {
-      // Made outside the lock: creating a context takes tens of milliseconds or more.
-      auto r = MakeEglRenderer();
-      if (r.ok()) return r;
-      std::lock_guard<std::mutex> l(mu_);
-      if (!egl_error_) {
-        egl_error_ = r.status();
-        if (kind == RendererKind::kAuto) {
-          internal::LogWarning("render service: using the CPU renderer: " + r.status().message());
-        }
-      }
-      known_error = egl_error_;
-    }
-    if (kind == RendererKind::kEgl) return *known_error;
-    *fallback = true;
+    if (known_error) return *known_error;
+    // Made outside the lock: creating a context takes tens of milliseconds or more.
+    auto r = MakeEglRenderer();
+    if (r.ok()) return r;
+    std::lock_guard<std::mutex> l(mu_);
+    if (!egl_error_) egl_error_ = r.status();
+    return *egl_error_;
   }
   {
     std::lock_guard<std::mutex> l(mu_);
@@ -73,7 +115,8 @@ RendererPool::Lease::Lease(Lease&& other) noexcept
     : pool_(other.pool_),
       kind_(other.kind_),
       renderer_(std::move(other.renderer_)),
-      fallback_(other.fallback_) {
+      fallback_(other.fallback_),
+      why_(std::move(other.why_)) {
   other.pool_ = nullptr;
 }
 
@@ -84,6 +127,7 @@ RendererPool::Lease& RendererPool::Lease::operator=(Lease&& other) noexcept {
     kind_ = other.kind_;
     renderer_ = std::move(other.renderer_);
     fallback_ = other.fallback_;
+    why_ = std::move(other.why_);
     other.pool_ = nullptr;
   }
   return *this;
@@ -100,7 +144,7 @@ void RendererPool::Lease::Release() {
 Result<Renderer*> RendererPool::Lease::Get() {
   if (pool_ == nullptr) return Status::Internal("render: the lease was given back");
   if (!renderer_) {
-    HVDB_ASSIGN_OR_RETURN(renderer_, pool_->Take(kind_, &fallback_));
+    HVDB_ASSIGN_OR_RETURN(renderer_, pool_->Take(kind_, &fallback_, &why_));
   }
   return renderer_.get();
 }

@@ -10,6 +10,7 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <string>
 #include <vector>
 
 #include "render/renderer.h"
@@ -30,10 +31,13 @@ class RendererPool {
     Lease& operator=(Lease&& other) noexcept;
     ~Lease();
     // The renderer (made on the first call, which may take a while: call it on a worker).
-    // kAuto without a usable EGL context gives the CPU renderer, after one warning per pool.
+    // kAuto chooses as MakeRenderer does, once per pool: EGL on a GPU, else the CPU renderer
+    // (a missing EGL context is warned about once per pool).
     Result<Renderer*> Get();
-    // True when kAuto fell back to the CPU renderer.
+    // True when kAuto found no EGL context and used the CPU renderer.
     bool fallback() const { return fallback_; }
+    // After Get(): which renderer and why (kAuto's reason, or "asked for ...").
+    const std::string& why() const { return why_; }
 
    private:
     friend class RendererPool;
@@ -43,6 +47,7 @@ class RendererPool {
     RendererKind kind_;
     std::unique_ptr<Renderer> renderer_;
     bool fallback_ = false;
+    std::string why_;
   };
 
   // A slot for a render of `kind`, or Overloaded when `capacity` renders are in flight.
@@ -51,7 +56,7 @@ class RendererPool {
   size_t in_use() const;
 
  private:
-  Result<std::unique_ptr<Renderer>> Take(RendererKind kind, bool* fallback);
+  Result<std::unique_ptr<Renderer>> Take(RendererKind kind, bool* fallback, std::string* why);
   void Give(std::unique_ptr<Renderer> r);
 
   const size_t capacity_;
@@ -61,6 +66,9 @@ class RendererPool {
   // Why no EGL renderer could be made, once that has happened (not retried: each attempt
   // costs a driver initialisation).
   std::optional<Status> egl_error_;
+  // kAuto's choice once made: EGL (a GPU) or not, and why.
+  std::optional<bool> auto_egl_;
+  std::string auto_reason_;
 };
 
 }  // namespace hvdb::render

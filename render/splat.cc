@@ -164,6 +164,15 @@ void LogWarning(const std::string& message) {
   }
 }
 
+void LogNote(const std::string& message) {
+  std::lock_guard<std::mutex> l(g_log_mu);
+  if (g_log_handler) {
+    g_log_handler("note: " + message);
+  } else {
+    std::fprintf(stderr, "hvdb render: %s\n", message.c_str());
+  }
+}
+
 Result<View> PrepareView(const Camera& camera_in, const RenderOptions& o) {
   if ((o.width == 0) != (o.height == 0)) {
     return Status::InvalidArgument("render size: give both width and height, or neither");

@@ -134,8 +134,9 @@ void ParallelFor(size_t tasks, unsigned threads, const Fn& fn) {
 // A stable order of `keys` (ascending), by LSD radix sort.
 std::vector<uint32_t> StableOrder(std::span<const float> keys);
 
-// Warnings to the handler set by SetLogHandler.
+// Warnings to the handler set by SetLogHandler; notes too, prefixed "note: ".
 void LogWarning(const std::string& message);
+void LogNote(const std::string& message);
 
 }  // namespace hvdb::render::internal
 

@@ -317,6 +317,7 @@ void Session::RenderNext(std::shared_ptr<Op> op) {
     if (reply.ok()) {
       last = reply->last();
       reply->set_fallback(op->render_lease->fallback());
+      reply->set_renderer_choice(op->render_lease->why());
       *resp.mutable_render() = std::move(reply).value();
     } else {
       resp = ErrorResponse(op->id, reply.status());

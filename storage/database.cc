@@ -132,6 +132,7 @@ CacheStats Database::Cache() const { return pool_->Stats(); }
 Dataset::Dataset(std::unique_ptr<DatasetImpl> impl) : impl_(std::move(impl)) {}
 Dataset::~Dataset() = default;
 DatasetInfo Dataset::Info() const { return impl_->Info(); }
+int Dataset::lod_levels() const { return impl_->levels(); }
 Result<std::unique_ptr<Cursor>> Dataset::Query(const Region& region, const QueryOptions& opts) {
   return impl_->Query(region, opts);
 }

@@ -197,6 +197,8 @@ class Dataset {
   Dataset& operator=(const Dataset&) = delete;
 
   DatasetInfo Info() const;
+  // The coarsest level of detail a query may ask for (Options::lod_levels when created).
+  int lod_levels() const;
   Result<std::unique_ptr<Cursor>> Query(const Region& region, const QueryOptions& opts = {});
   // Adds the points to `frame` with the bulk loader (not logged: durable when it returns, and
   // atomic per frame). Ids of 0 are assigned. Points' frame field is overwritten.

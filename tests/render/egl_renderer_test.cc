@@ -148,5 +148,68 @@ TEST(RendererFactoryTest, FallsBackToCpuWithAWarning) {
   EXPECT_EQ((*cpu)->kind(), RendererKind::kCpu);
 }
 
+// A renderer that only says what it is: ChooseAuto's input where no GPU is at hand.
+class FakeRenderer final : public Renderer {
+ public:
+  explicit FakeRenderer(bool hardware) : hardware_(hardware) {}
+  RendererKind kind() const override { return RendererKind::kEgl; }
+  std::string name() const override { return hardware_ ? "egl: NVIDIA H100" : "egl: llvmpipe"; }
+  Result<Image> Render(std::span<const Point>, const Camera&, const RenderOptions&) override {
+    return Status::Unsupported("fake");
+  }
+  RenderStats last_stats() const override { return {}; }
+  bool hardware() const override { return hardware_; }
+
+ private:
+  bool hardware_;
+};
+
+TEST(RendererFactoryTest, AutoTakesAGpuAndPassesOverASoftwareRasteriser) {
+  std::vector<std::string> notes;
+  SetLogHandler([&](const std::string& m) { notes.push_back(m); });
+  std::string why;
+  auto gpu = std::make_unique<FakeRenderer>(true);
+  Renderer* gpu_ptr = gpu.get();
+  auto chosen = ChooseAuto(std::move(gpu), &why);
+  EXPECT_EQ(chosen.get(), gpu_ptr);
+  EXPECT_NE(why.find("GPU"), std::string::npos) << why;
+  auto soft = ChooseAuto(std::make_unique<FakeRenderer>(false), &why);
+  SetLogHandler(nullptr);
+  EXPECT_EQ(soft->kind(), RendererKind::kCpu);
+  EXPECT_NE(why.find("software rasteriser"), std::string::npos) << why;
+  EXPECT_NE(why.find("llvmpipe"), std::string::npos) << why;
+  ASSERT_EQ(notes.size(), 1u);  // the choice is logged
+  EXPECT_EQ(notes[0].rfind("note: ", 0), 0u) << notes[0];
+
+  EXPECT_TRUE(IsSoftwareRasteriser("llvmpipe (LLVM 15.0.6, 256 bits)"));
+  EXPECT_TRUE(IsSoftwareRasteriser("softpipe"));
+  EXPECT_TRUE(IsSoftwareRasteriser("Software Rasterizer"));
+  EXPECT_FALSE(IsSoftwareRasteriser("NVIDIA H100 80GB HBM3/PCIe/SSE2"));
+  EXPECT_FALSE(IsSoftwareRasteriser("Mesa Intel(R) UHD Graphics 620 (KBL GT2)"));
+  EXPECT_FALSE(IsSoftwareRasteriser("AMD Radeon RX 6800 (navi21, LLVM 15.0.6, DRM 3.49)"));
+}
+
+TEST(RendererFactoryTest, AutoOnThisMachineSaysWhichAndWhy) {
+  // Whatever this machine has, auto's choice follows it and says why: a GPU gives EGL, a
+  // software rasteriser (Mesa's llvmpipe on CI) or no EGL at all gives the CPU renderer.
+  auto egl = MakeEglRenderer();
+  SetLogHandler([](const std::string&) {});
+  std::string why;
+  auto r = MakeRenderer(RendererKind::kAuto, &why);
+  SetLogHandler(nullptr);
+  ASSERT_TRUE(r.ok());
+  if (!egl.ok()) {
+    EXPECT_EQ((*r)->kind(), RendererKind::kCpu);
+    EXPECT_EQ(why.rfind("no EGL context", 0), 0u) << why;
+  } else if ((*egl)->hardware()) {
+    EXPECT_EQ((*r)->kind(), RendererKind::kEgl);
+    EXPECT_NE(why.find("GPU"), std::string::npos) << why;
+  } else {
+    EXPECT_EQ((*r)->kind(), RendererKind::kCpu);
+    EXPECT_NE(why.find("software rasteriser"), std::string::npos) << why;
+  }
+  std::printf("auto: %s -> %s\n", why.c_str(), (*r)->name().c_str());
+}
+
 }  // namespace
 }  // namespace hvdb::render

@@ -98,5 +98,42 @@ TEST(ImageIoTest, ExrHoldsFloatColourAlphaAndDepth) {
   EXPECT_EQ(static_cast<uint8_t>((*bytes)[1]), 0x2f);
 }
 
+TEST(ImageIoTest, SrgbBytesAreTheTransferFunctionRounded) {
+  // ToSrgb8's table-driven encoder against the formula on every value around each of the 256
+  // levels' boundaries and a sweep of [0, 1]: equal, except by one level on a boundary itself,
+  // where float rounding of either side decides.
+  std::vector<float> values = {0.0f, 1.0f, -0.5f, 2.0f, std::nanf(""), 1e-30f, 1e-7f}, edges;
+  for (int i = 0; i <= 100000; ++i) values.push_back(static_cast<float>(i) / 100000.0f);
+  for (int k = 0; k <= 255; ++k) {
+    float edge = SrgbToLinear((static_cast<float>(k) + 0.5f) / 255.0f);
+    for (float f : {0.999f, 0.99999f, 1.00001f, 1.001f}) values.push_back(edge * f);
+    edges.push_back(edge);
+  }
+  const size_t first_edge = values.size();
+  values.insert(values.end(), edges.begin(), edges.end());
+  Image img;
+  img.width = static_cast<uint32_t>(values.size());
+  img.height = 1;
+  img.rgba.assign(img.pixels() * 4, 1.0f);
+  for (size_t i = 0; i < values.size(); ++i) img.rgba[i * 4] = values[i];
+  img.coverage.assign(img.pixels(), 1);
+  img.depth.assign(img.pixels(), 1);
+  Srgb8Image s = ToSrgb8(img);
+  ASSERT_EQ(s.channels, 3u);
+  for (size_t i = 0; i < values.size(); ++i) {
+    float v = values[i];
+    float c = std::isnan(v) ? 0.0f : std::clamp(LinearToSrgb(std::clamp(v, 0.0f, 1.0f)), 0.0f, 1.0f);
+    int want = static_cast<int>(std::lround(c * 255.0f));
+    int got = s.data[i * 3];
+    float level = c * 255.0f;
+    bool on_edge = std::abs(level - std::floor(level) - 0.5f) < 1e-4f;
+    if (i >= first_edge || on_edge) {
+      ASSERT_LE(std::abs(got - want), 1) << "value " << v;
+    } else {
+      ASSERT_EQ(got, want) << "value " << v;
+    }
+  }
+}
+
 }  // namespace
 }  // namespace hvdb::render

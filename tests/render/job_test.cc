@@ -200,6 +200,95 @@ TEST_F(RenderJobTest, RejectsBadRequestsNamingTheField) {
   EXPECT_EQ((*job2)->RenderImage(0, *cpu, &cancelled).status().code(), StatusCode::kCancelled);
 }
 
+TEST_F(RenderJobTest, ProgressiveGivesACoarsePreviewFirst) {
+  wire::Render req;
+  req.set_dataset("scene");
+  *req.mutable_region() = FrameRegion(1);
+  SetLookAt(req.mutable_view());
+  req.set_progressive(true);
+  auto job = RenderJob::Create(ds_, req);
+  ASSERT_TRUE(job.ok()) << job.status().ToString();
+  ASSERT_EQ((*job)->size(), 2u);
+  auto cpu = render::MakeCpuRenderer();
+  auto preview = (*job)->Render(0, *cpu);
+  auto full = (*job)->Render(1, *cpu);
+  ASSERT_TRUE(preview.ok() && full.ok());
+  EXPECT_TRUE(preview->preview());
+  EXPECT_FALSE(preview->last());
+  EXPECT_EQ(preview->lod(), 4u);  // lod + 4 (the dataset has 5 levels)
+  EXPECT_FALSE(full->preview());
+  EXPECT_TRUE(full->last());
+  EXPECT_EQ(full->lod(), 0u);
+  EXPECT_EQ(full->points(), 3000u);
+  EXPECT_LT(preview->points(), full->points() / 8);
+  EXPECT_GT(preview->points(), 0u);
+  EXPECT_EQ(preview->index(), 0u);
+  EXPECT_EQ(full->index(), 0u);
+  // The preview's grown splats still close the surface: it looks like the final image.
+  auto a = (*job)->RenderImage(0, *cpu);
+  auto b = (*job)->RenderImage(1, *cpu);
+  ASSERT_TRUE(a.ok() && b.ok());
+  EXPECT_GE(render::Psnr(render::ToSrgb8(*a), render::ToSrgb8(*b)), 18);
+  // Near the coarsest level the preview is the coarsest level; at it, there is none.
+  req.set_lod(3);
+  auto near = RenderJob::Create(ds_, req);
+  ASSERT_TRUE(near.ok());
+  ASSERT_EQ((*near)->size(), 2u);
+  EXPECT_EQ((*near)->Render(0, *cpu)->lod(), 5u);
+  req.set_lod(5);
+  auto coarsest = RenderJob::Create(ds_, req);
+  ASSERT_TRUE(coarsest.ok());
+  EXPECT_EQ((*coarsest)->size(), 1u);
+  // Not for sequences; and no level beyond the dataset's.
+  req.set_lod(6);
+  EXPECT_EQ(RenderJob::Create(ds_, req).status().message().rfind("render.lod:", 0), 0u);
+  req.set_lod(0);
+  req.clear_view();
+  SetLookAt(req.add_path());
+  req.add_frames(0);
+  EXPECT_EQ(RenderJob::Create(ds_, req).status().message().rfind("render.progressive:", 0), 0u);
+}
+
+TEST_F(RenderJobTest, ThePipelinedSequenceDrawsWhatEachFrameHolds) {
+  // Image i + 1's points are queried while image i is drawn: repeated, alternating and
+  // skipped frames must each show their own points.
+  const std::vector<uint32_t> frames = {0, 1, 1, 2, 0, 2, 2, 1};
+  wire::Render req;
+  req.set_dataset("scene");
+  for (uint32_t f : frames) {
+    SetLookAt(req.add_path());
+    req.add_frames(f);
+  }
+  auto job = RenderJob::Create(ds_, req);
+  ASSERT_TRUE(job.ok());
+  auto cpu = render::MakeCpuRenderer();
+  for (size_t i = 0; i < frames.size(); ++i) {
+    auto img = (*job)->RenderImage(i, *cpu);
+    ASSERT_TRUE(img.ok()) << img.status().ToString();
+    auto direct = cpu->Render(FramePoints(frames[i]), TheLookAt(), {});
+    ASSERT_TRUE(direct.ok());
+    EXPECT_GE(render::Psnr(render::ToSrgb8(*img), render::ToSrgb8(*direct)), 50) << "image " << i;
+  }
+  // Cancelled mid-sequence: the next image says so (its query may already have run).
+  std::atomic<bool> cancelled{false};
+  auto job2 = RenderJob::Create(ds_, req);
+  ASSERT_TRUE(job2.ok());
+  ASSERT_TRUE((*job2)->RenderImage(0, *cpu, &cancelled).ok());
+  cancelled = true;
+  EXPECT_EQ((*job2)->RenderImage(1, *cpu, &cancelled).status().code(), StatusCode::kCancelled);
+  // A failing query in the pipeline fails its own image, not the one before.
+  render::RenderLimits few;
+  few.max_points = 3000;
+  wire::Render mixed = req;
+  auto job3 = RenderJob::Create(ds_, mixed, few);
+  ASSERT_TRUE(job3.ok());
+  EXPECT_TRUE((*job3)->RenderImage(0, *cpu).ok());
+  few.max_points = 2999;
+  auto job4 = RenderJob::Create(ds_, mixed, few);
+  ASSERT_TRUE(job4.ok());
+  EXPECT_EQ((*job4)->RenderImage(0, *cpu).status().code(), StatusCode::kLimitExceeded);
+}
+
 TEST(CameraPathTest, ParsesTheThreeViewKinds) {
   wire::Render req;
   Status st = render::ParseCameraPath(R"({"cameras": [
@@ -320,6 +409,23 @@ TEST_F(RenderServerTest, StreamsASequence) {
   });
   ASSERT_TRUE(st.ok()) << st.ToString();
   EXPECT_EQ(seen, (std::vector<uint32_t>{0, 1, 2}));
+  // Progressive: a preview, then the image; the choice of renderer is explained.
+  wire::Render single;
+  single.set_dataset("scene");
+  *single.mutable_region() = FrameRegion(1);
+  SetLookAt(single.mutable_view());
+  single.set_progressive(true);
+  EXPECT_TRUE(conn_->Render(single).status().IsInvalidArgument());
+  std::vector<bool> previews;
+  st = conn_->RenderSequence(single, [&](const wire::RenderReply& r) {
+    previews.push_back(r.preview());
+    EXPECT_EQ(r.last(), !r.preview());
+    EXPECT_NE(r.renderer_choice().find("render service: "), std::string::npos)
+        << r.renderer_choice();
+    return Status::OK();
+  });
+  ASSERT_TRUE(st.ok()) << st.ToString();
+  EXPECT_EQ(previews, (std::vector<bool>{true, false}));
   // Stopping early cancels the rest.
   int calls = 0;
   st = conn_->RenderSequence(req, [&](const wire::RenderReply&) {

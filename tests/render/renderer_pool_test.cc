@@ -52,5 +52,26 @@ TEST(RendererPoolTest, AutoFallsBackOnceEglFails) {
   EXPECT_EQ(warnings.size(), 1u);  // said once, not per request
 }
 
+TEST(RendererPoolTest, AutoChoosesOncePerPoolAndSaysWhy) {
+  auto egl = MakeEglRenderer();
+  const bool gpu = egl.ok() && (*egl)->hardware();
+  egl = Status::Unsupported("released");
+  SetLogHandler([](const std::string&) {});
+  RendererPool pool(1);
+  for (int i = 0; i < 2; ++i) {
+    auto lease = pool.TryAcquire(RendererKind::kAuto);
+    ASSERT_TRUE(lease.ok());
+    auto r = lease->Get();
+    ASSERT_TRUE(r.ok());
+    EXPECT_EQ((*r)->kind(), gpu ? RendererKind::kEgl : RendererKind::kCpu);
+    EXPECT_EQ(lease->why().rfind("render service: ", 0), 0u) << lease->why();
+  }
+  auto cpu = pool.TryAcquire(RendererKind::kCpu);
+  ASSERT_TRUE(cpu.ok());
+  ASSERT_TRUE(cpu->Get().ok());
+  EXPECT_EQ(cpu->why(), "asked for the CPU renderer");
+  SetLogHandler(nullptr);
+}
+
 }  // namespace
 }  // namespace hvdb::render
