@@ -266,7 +266,15 @@ Result<Image> RenderJob::RenderImage(size_t i, Renderer& renderer,
   RenderOptions o = options_;
   // At level i the sampling density falls by 2^i, so splats grow by 2^(i/2) (thesis 8.4).
   o.splat_scale = static_cast<float>(std::pow(2.0, steps_[i].lod / 2.0));
-  return renderer.Render(current_.points, views_[steps_[i].view], o);
+  const Camera& view = views_[steps_[i].view];
+  if (steps_[i].preview) {
+    // At half the size: a level 4 finer grows splats 4x, so at full size the preview would
+    // cost as many fragments as the final image; the client scales it up meanwhile.
+    uint32_t w = o.width != 0 ? o.width : view.width, h = o.height != 0 ? o.height : view.height;
+    o.width = std::max(1u, w / 2);
+    o.height = std::max(1u, h / 2);
+  }
+  return renderer.Render(current_.points, view, o);
 }
 
 Result<wire::RenderReply> RenderJob::Render(size_t i, Renderer& renderer,

@@ -19,58 +19,87 @@ namespace hvdb::render::internal {
 typedef float F8 __attribute__((vector_size(32)));
 typedef int32_t I8 __attribute__((vector_size(32)));
 
+template <typename F>
+struct VecTraits;
+template <>
+struct VecTraits<F8> {
+  using I = I8;
+  static constexpr int kLanes = 8;
+  static constexpr F8 kIota = {0, 1, 2, 3, 4, 5, 6, 7};
+};
+
 #define HVDB_SIMD_INLINE inline __attribute__((always_inline))
 // For lambdas called in the hot loops: inlined into the caller's clone (see below).
 #define HVDB_SIMD_LAMBDA __attribute__((always_inline))
 
-// The hot functions are built twice, for AVX2+FMA and for the x86-64 baseline, and the loader
-// picks one for the CPU it runs on (GNU ifunc): packages run on any x86-64 and still use AVX2.
+// The hot functions are built three times, for AVX-512, for AVX2+FMA and for the x86-64
+// baseline, and the loader picks one for the CPU it runs on (GNU ifunc): packages run on any
+// x86-64 and still use the wide units where there are some.
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__OPTIMIZE__) && \
     !defined(__SANITIZE_ADDRESS__)
-#define HVDB_RENDER_CLONES __attribute__((target_clones("arch=x86-64-v3", "default")))
+#define HVDB_RENDER_CLONES \
+  __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
 #else
 #define HVDB_RENDER_CLONES
 #endif
 
-HVDB_SIMD_INLINE F8 Broadcast(float v) { return F8{v, v, v, v, v, v, v, v}; }
-HVDB_SIMD_INLINE F8 Load(const float* p) {
-  F8 v;
+template <typename F>
+HVDB_SIMD_INLINE F Broadcast(float v) {
+  return F{} + v;
+}
+template <typename F>
+HVDB_SIMD_INLINE F Load(const float* p) {
+  F v;
   std::memcpy(&v, p, sizeof v);
   return v;
 }
-HVDB_SIMD_INLINE void Store(float* p, F8 v) { std::memcpy(p, &v, sizeof v); }
-HVDB_SIMD_INLINE F8 Min(F8 a, F8 b) { return a < b ? a : b; }
-HVDB_SIMD_INLINE F8 Max(F8 a, F8 b) { return a > b ? a : b; }
-HVDB_SIMD_INLINE F8 Select(I8 mask, F8 a, F8 b) { return mask ? a : b; }
-HVDB_SIMD_INLINE bool Any(I8 mask) {
-  I8 z{};
+template <typename F>
+HVDB_SIMD_INLINE void Store(float* p, F v) {
+  std::memcpy(p, &v, sizeof v);
+}
+template <typename F>
+HVDB_SIMD_INLINE F Min(F a, F b) {
+  return a < b ? a : b;
+}
+template <typename F>
+HVDB_SIMD_INLINE F Max(F a, F b) {
+  return a > b ? a : b;
+}
+template <typename F, typename I>
+HVDB_SIMD_INLINE F Select(I mask, F a, F b) {
+  return mask ? a : b;
+}
+template <typename I>
+HVDB_SIMD_INLINE bool Any(I mask) {
+  I z{};
   return std::memcmp(&mask, &z, sizeof mask) != 0;
 }
-inline constexpr F8 kLanes = {0, 1, 2, 3, 4, 5, 6, 7};
 
 // e^x for x <= 0 (the kernel exp(-q/2)), lane by lane: Cephes' expf (range reduction by
 // ln 2 in two parts, degree-5 polynomial), relative error below 2e-7 — std::exp's result to
 // within a unit or two of the last place, so images match the scalar renderer. Arguments
 // below -87 give e^-87 (the kernel is cut off long before that).
-HVDB_SIMD_INLINE F8 Exp(F8 x) {
-  x = Max(x, Broadcast(-87.0f));
-  F8 fx = x * 1.44269504088896341f + 0.5f;
-  I8 n = __builtin_convertvector(fx, I8);  // truncates towards zero
-  F8 fn = __builtin_convertvector(n, F8);
+template <typename F>
+HVDB_SIMD_INLINE F Exp(F x) {
+  using I = typename VecTraits<F>::I;
+  x = Max(x, Broadcast<F>(-87.0f));
+  F fx = x * 1.44269504088896341f + 0.5f;
+  I n = __builtin_convertvector(fx, I);  // truncates towards zero
+  F fn = __builtin_convertvector(n, F);
   fn = Select(fn > fx, fn - 1.0f, fn);  // floor
-  n = __builtin_convertvector(fn, I8);
+  n = __builtin_convertvector(fn, I);
   x = x - fn * 0.693359375f;
   x = x - fn * -2.12194440e-4f;
-  F8 z = x * x;
-  F8 y = Broadcast(1.9875691500e-4f);
+  F z = x * x;
+  F y = Broadcast<F>(1.9875691500e-4f);
   y = y * x + 1.3981999507e-3f;
   y = y * x + 8.3334519073e-3f;
   y = y * x + 4.1665795894e-2f;
   y = y * x + 1.6666665459e-1f;
   y = y * x + 5.0000001201e-1f;
   y = y * z + x + 1.0f;
-  I8 bits = (n + 127) << 23;  // 2^n
-  F8 scale;
+  I bits = (n + 127) << 23;  // 2^n
+  F scale;
   std::memcpy(&scale, &bits, sizeof scale);
   return y * scale;
 }

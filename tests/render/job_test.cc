@@ -224,9 +224,16 @@ TEST_F(RenderJobTest, ProgressiveGivesACoarsePreviewFirst) {
   EXPECT_GT(preview->points(), 0u);
   EXPECT_EQ(preview->index(), 0u);
   EXPECT_EQ(full->index(), 0u);
-  // The preview's grown splats still close the surface: it looks like the final image.
+  EXPECT_EQ(preview->width(), 80u);  // half the size
+  EXPECT_EQ(preview->height(), 60u);
+  EXPECT_EQ(full->width(), 160u);
+  // The preview's grown splats still close the surface: it looks like the final image
+  // rendered at its size.
   auto a = (*job)->RenderImage(0, *cpu);
-  auto b = (*job)->RenderImage(1, *cpu);
+  render::RenderOptions half;
+  half.width = 80;
+  half.height = 60;
+  auto b = cpu->Render(FramePoints(1), TheLookAt(), half);
   ASSERT_TRUE(a.ok() && b.ok());
   EXPECT_GE(render::Psnr(render::ToSrgb8(*a), render::ToSrgb8(*b)), 18);
   // Near the coarsest level the preview is the coarsest level; at it, there is none.
