@@ -59,7 +59,7 @@ template <int kRun>
 HVDB_SIMD_INLINE bool RowRange(const Splat& s, float dy, float cutoff2, int tx0, int* xa,
                                int* xb) {
   int lo = std::max<int>(s.x0, tx0), hi = std::min<int>(s.x1, tx0 + kTile - 1);
-  if (hi - lo >= kRun) {
+  if (hi - lo >= 2 * kRun) {
     float b = s.cb * dy, c = s.cc * dy * dy - cutoff2;
     float disc = b * b - s.ca * c;
     if (!(disc >= 0)) return false;
@@ -222,6 +222,13 @@ class CpuRenderer final : public Renderer {
 
   Result<Image> Render(std::span<const Point> points, const Camera& camera,
                        const RenderOptions& options) override {
+    Image img;
+    HVDB_RETURN_IF_ERROR(RenderInto(points, camera, options, &img));
+    return img;
+  }
+
+  Status RenderInto(std::span<const Point> points, const Camera& camera,
+                    const RenderOptions& options, Image* img) override {
     std::lock_guard<std::mutex> l(mu_);
     auto start = std::chrono::steady_clock::now();
     HVDB_ASSIGN_OR_RETURN(View view, internal::PrepareView(camera, options));
@@ -230,20 +237,20 @@ class CpuRenderer final : public Renderer {
     tiles_x_ = (view.width + kTile - 1) / kTile;
     tiles_y_ = (view.height + kTile - 1) / kTile;
     ProjectAndBin(points, view, weights);
-    Image img;
-    img.width = view.width;
-    img.height = view.height;
-    img.rgba.resize(img.pixels() * 4);
-    img.coverage.resize(img.pixels());
-    img.depth.resize(img.pixels());
+    // Every pixel is written below: buffers of the right size are kept as they are.
+    img->width = view.width;
+    img->height = view.height;
+    img->rgba.resize(img->pixels() * 4);
+    img->coverage.resize(img->pixels());
+    img->depth.resize(img->pixels());
     const bool probabilistic = options.mode == Mode::kProbabilistic;
     ParallelFor(size_t{tiles_x_} * tiles_y_, threads_, [&](size_t tile) {
-      RenderTile(tile, view, options, probabilistic, &img);
+      RenderTile(tile, view, options, probabilistic, img);
     });
     stats_.points = points.size();
     stats_.milliseconds =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-    return img;
+    return Status::OK();
   }
 
  private:
@@ -317,11 +324,13 @@ class CpuRenderer final : public Renderer {
     const Splat* list = bin_.get() + bin_start_[tile];
     const size_t n = bin_start_[tile + 1] - bin_start_[tile];
     const internal::Resolved empty = internal::Composite(0, 0, 0, 0, o.background);
-    if (n == 0) {
+    if (n == 0) {  // the background, a row at a time
+      float pattern[kTile * 4];
+      for (int x = 0; x < kTile; ++x) std::memcpy(pattern + 4 * x, empty.rgba, 16);
       for (int y = 0; y < rows; ++y) {
         size_t at = (static_cast<size_t>(ty0 + y)) * view.width + static_cast<size_t>(tx0);
-        for (int x = 0; x < cols; ++x) std::memcpy(&img->rgba[(at + x) * 4], empty.rgba, 16);
-        std::fill_n(&img->coverage[at], cols, 0.0f);
+        std::memcpy(&img->rgba[at * 4], pattern, sizeof(float) * 4 * static_cast<size_t>(cols));
+        std::memset(&img->coverage[at], 0, sizeof(float) * static_cast<size_t>(cols));
         std::fill_n(&img->depth[at], cols, std::numeric_limits<float>::infinity());
       }
       return;

@@ -260,6 +260,11 @@ Status RenderJob::Load(size_t i, const std::atomic<bool>* cancelled) {
 
 Result<Image> RenderJob::RenderImage(size_t i, Renderer& renderer,
                                      const std::atomic<bool>* cancelled) {
+  HVDB_RETURN_IF_ERROR(Draw(i, renderer, cancelled));
+  return image_;
+}
+
+Status RenderJob::Draw(size_t i, Renderer& renderer, const std::atomic<bool>* cancelled) {
   if (i >= steps_.size()) return Status::InvalidArgument("render: no image " + std::to_string(i));
   HVDB_RETURN_IF_ERROR(Load(i, cancelled));
   if (cancelled != nullptr && *cancelled) return Status::Cancelled("render cancelled");
@@ -274,12 +279,13 @@ Result<Image> RenderJob::RenderImage(size_t i, Renderer& renderer,
     o.width = std::max(1u, w / 2);
     o.height = std::max(1u, h / 2);
   }
-  return renderer.Render(current_.points, view, o);
+  return renderer.RenderInto(current_.points, view, o, &image_);
 }
 
 Result<wire::RenderReply> RenderJob::Render(size_t i, Renderer& renderer,
                                             const std::atomic<bool>* cancelled) {
-  HVDB_ASSIGN_OR_RETURN(Image img, RenderImage(i, renderer, cancelled));
+  HVDB_RETURN_IF_ERROR(Draw(i, renderer, cancelled));
+  const Image& img = image_;
   wire::RenderReply reply;
   HVDB_ASSIGN_OR_RETURN(std::string bytes,
                         format_ == wire::IMAGE_EXR ? EncodeExr(img) : EncodePng(img));

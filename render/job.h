@@ -78,6 +78,8 @@ class RenderJob {
   Status Load(size_t i, const std::atomic<bool>* cancelled);
   // Queries step i's points into `out` (run on the prefetch thread or the caller's).
   Status Query(const Step& step, const std::atomic<bool>* cancelled, Points* out) const;
+  // Draws image i into image_.
+  Status Draw(size_t i, Renderer& renderer, const std::atomic<bool>* cancelled);
 
   std::shared_ptr<Dataset> dataset_;
   RenderLimits limits_;
@@ -89,6 +91,7 @@ class RenderJob {
   std::vector<Region> regions_;  // one, or one per image
   std::vector<Step> steps_;
   Points current_;
+  Image image_;  // the last image drawn; its buffers are reused by the next
   // The next step's points, filled by prefetch_'s thread; read only after prefetch_.get().
   Points next_;
   std::future<Status> prefetch_;

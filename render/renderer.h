@@ -123,6 +123,11 @@ class Renderer {
   // Internal for driver failures.
   virtual Result<Image> Render(std::span<const Point> points, const Camera& camera,
                                const RenderOptions& options) = 0;
+  // The same into `image`, reusing its buffers where they have the size already: a viewer or
+  // a sequence that keeps its Image saves allocating, zeroing and faulting in 24 bytes a pixel
+  // each frame (~4 ms at 1080p). On error `image` is left unspecified.
+  virtual Status RenderInto(std::span<const Point> points, const Camera& camera,
+                            const RenderOptions& options, Image* image);
   // What the last successful Render did.
   virtual RenderStats last_stats() const = 0;
   // True when it draws on a GPU (not on a software OpenGL driver such as Mesa's llvmpipe).

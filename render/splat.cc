@@ -149,6 +149,12 @@ float LinearToSrgb(float v) {
   return v <= 0.0031308f ? 12.92f * v : 1.055f * std::pow(v, 1.0f / 2.4f) - 0.055f;
 }
 
+Status Renderer::RenderInto(std::span<const Point> points, const Camera& camera,
+                            const RenderOptions& options, Image* image) {
+  HVDB_ASSIGN_OR_RETURN(*image, Render(points, camera, options));
+  return Status::OK();
+}
+
 Status CheckRenderArguments(const Camera& camera, const RenderOptions& options) {
   return internal::PrepareView(camera, options).status();
 }
