@@ -3,6 +3,7 @@
 #include <ImfFrameBuffer.h>
 #include <ImfHeader.h>
 #include <ImfIO.h>
+#include <ImfInputFile.h>
 #include <ImfOutputFile.h>
 
 #include <algorithm>
@@ -11,6 +12,7 @@
 #include <cstring>
 #include <fstream>
 #include <limits>
+#include <stdexcept>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
@@ -80,6 +82,26 @@ class StringOStream : public Imf::OStream {
 
  private:
   std::string* out_;
+  uint64_t pos_ = 0;
+};
+
+// And this one reads from bytes in memory.
+class StringIStream : public Imf::IStream {
+ public:
+  explicit StringIStream(const std::string& in) : Imf::IStream("memory"), in_(in) {}
+  bool read(char c[], int n) override {
+    if (n < 0 || pos_ + static_cast<uint64_t>(n) > in_.size()) {
+      throw std::runtime_error("the EXR data ends early");
+    }
+    std::memcpy(c, in_.data() + pos_, static_cast<size_t>(n));
+    pos_ += static_cast<uint64_t>(n);
+    return pos_ < in_.size();
+  }
+  uint64_t tellg() override { return pos_; }
+  void seekg(uint64_t pos) override { pos_ = pos; }
+
+ private:
+  const std::string& in_;
   uint64_t pos_ = 0;
 };
 
@@ -183,6 +205,44 @@ Result<std::string> EncodeExr(const Image& img) {
     return Status::Internal(std::string("OpenEXR encoding failed: ") + e.what());
   }
   return out;
+}
+
+Result<Image> DecodeExr(const std::string& bytes) {
+  Image img;
+  try {
+    StringIStream stream(bytes);
+    Imf::InputFile file(stream);
+    Imath::Box2i dw = file.header().dataWindow();
+    int64_t w = int64_t{dw.max.x} - dw.min.x + 1, h = int64_t{dw.max.y} - dw.min.y + 1;
+    if (w < 1 || h < 1 || w > kMaxImageSize || h > kMaxImageSize) {
+      return Status::InvalidArgument("EXR: image size " + std::to_string(w) + "x" +
+                                     std::to_string(h) + " is outside 1..4096 per side");
+    }
+    img.width = static_cast<uint32_t>(w);
+    img.height = static_cast<uint32_t>(h);
+    img.rgba.assign(img.pixels() * 4, 0.0f);
+    img.depth.assign(img.pixels(), INFINITY);
+    Imf::FrameBuffer fb;
+    const size_t px = 4 * sizeof(float);
+    // The data window may not start at 0: shift the base so that (min.x, min.y) is pixel 0.
+    const ptrdiff_t origin = (static_cast<ptrdiff_t>(dw.min.y) * w + dw.min.x);
+    char* base = reinterpret_cast<char*>(img.rgba.data()) - origin * static_cast<ptrdiff_t>(px);
+    const char* names[] = {"R", "G", "B", "A"};
+    for (int c = 0; c < 4; ++c) {
+      fb.insert(names[c], Imf::Slice(Imf::FLOAT, base + c * sizeof(float), px, px * w, 1, 1,
+                                     c == 3 ? 1.0 : 0.0));
+    }
+    char* zbase = reinterpret_cast<char*>(img.depth.data()) -
+                  origin * static_cast<ptrdiff_t>(sizeof(float));
+    fb.insert("Z", Imf::Slice(Imf::FLOAT, zbase, sizeof(float), sizeof(float) * w, 1, 1, INFINITY));
+    file.setFrameBuffer(fb);
+    file.readPixels(dw.min.y, dw.max.y);
+  } catch (const std::exception& e) {
+    return Status::InvalidArgument(std::string("EXR: ") + e.what());
+  }
+  img.coverage.resize(img.pixels());
+  for (size_t i = 0; i < img.pixels(); ++i) img.coverage[i] = img.rgba[i * 4 + 3];
+  return img;
 }
 
 Status WriteExr(const Image& img, const std::string& path) {

@@ -168,6 +168,9 @@ Status WritePng(const Image& image, const std::string& path);
 // OpenEXR with float channels R G B A (linear, premultiplied) and Z (depth, +inf where empty).
 Result<std::string> EncodeExr(const Image& image);
 Status WriteExr(const Image& image, const std::string& path);
+// Reads what EncodeExr writes (R G B A, and Z where present); coverage is A. InvalidArgument
+// for bytes that are not such an EXR.
+Result<Image> DecodeExr(const std::string& bytes);
 // By extension: ".png" or ".exr".
 Status WriteImage(const Image& image, const std::string& path);
 

@@ -14,6 +14,7 @@ PACKAGES=(
   nlohmann-json3-dev libcli11-dev
   libspatialindex-dev libnanoflann-dev libpcl-dev python3-matplotlib
   clang libclang-rt-14-dev liburing-dev
+  python3 python3-numpy pybind11-dev python3-pytest python3-open3d
 )
 
 missing=()
@@ -35,3 +36,10 @@ BUILD_DIR=${HVDB_BUILD_DIR:-build}
 cmake -S . -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=Release -DHVDB_WERROR=ON -DHVDB_BUILD_TESTS=ON >/dev/null
 cmake --build "$BUILD_DIR"
 echo "setup: built into $BUILD_DIR/"
+# The Python package, so that Debian's python3 finds it anywhere ('import hvdb').
+if [ "$(id -u)" -eq 0 ]; then
+  cmake --install "$BUILD_DIR" --component python >/dev/null
+  echo "setup: installed the Python package hvdb ($(/usr/bin/python3 -c 'import hvdb, os; print(os.path.dirname(hvdb.__file__))'))"
+else
+  echo "setup: not root, so the Python package is not installed; use PYTHONPATH=$BUILD_DIR/python"
+fi

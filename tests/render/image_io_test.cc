@@ -135,5 +135,21 @@ TEST(ImageIoTest, SrgbBytesAreTheTransferFunctionRounded) {
   }
 }
 
+TEST(ImageIoTest, ExrDecodesWhatItEncodes) {
+  Image img = Gradient(true);
+  auto bytes = EncodeExr(img);
+  ASSERT_TRUE(bytes.ok());
+  auto back = DecodeExr(*bytes);
+  ASSERT_TRUE(back.ok()) << back.status().ToString();
+  EXPECT_EQ(back->width, img.width);
+  EXPECT_EQ(back->height, img.height);
+  EXPECT_EQ(back->rgba, img.rgba);
+  EXPECT_EQ(back->depth, img.depth);
+  // Garbage, and a truncated file, are refused without crashing.
+  EXPECT_TRUE(DecodeExr("not an exr").status().IsInvalidArgument());
+  EXPECT_TRUE(DecodeExr(bytes->substr(0, bytes->size() / 2)).status().IsInvalidArgument());
+  EXPECT_TRUE(DecodeExr("").status().IsInvalidArgument());
+}
+
 }  // namespace
 }  // namespace hvdb::render

@@ -1,0 +1,579 @@
+// hvdb._hvdb: the C++ half of the Python module (python/hvdb/__init__.py is the other).
+//
+// A thin layer over client::Backend (client/backend.h), so the embedded and the remote mode
+// behave as the `hvdb` command line does in each. Results come back as numpy structured arrays
+// whose records are storage's 64-byte Point (the dtype is POINT_DTYPE in __init__.py, built
+// from the offsets exported here): a query's batches are appended to one std::vector<Point>,
+// which numpy then owns without a copy. The GIL is released whenever the library waits on
+// disk or network; between batches pending signals are checked, so Ctrl-C stops a long query.
+// Errors are Status values turned into the exception classes of __init__.py by code.
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <cmath>
+#include <cstddef>
+#include <mutex>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "client/backend.h"
+#include "client/ply.h"
+#include "protocol/wire.h"
+#include "render/renderer.h"
+#include "storage/point.h"
+
+namespace py = pybind11;
+using namespace pybind11::literals;
+
+namespace hvdb::python {
+namespace {
+
+// A Status on its way to Python: __init__.py maps `code` to an exception class.
+struct StatusError : std::exception {
+  StatusCode code;
+  std::string message;
+  StatusError(StatusCode c, std::string m) : code(c), message(std::move(m)) {}
+  const char* what() const noexcept override { return message.c_str(); }
+};
+
+[[noreturn]] void Throw(const Status& st) { throw StatusError(st.code(), st.message()); }
+void Check(const Status& st) {
+  if (!st.ok()) Throw(st);
+}
+template <typename T>
+T Take(Result<T> r) {
+  if (!r.ok()) Throw(r.status());
+  return std::move(r).value();
+}
+
+py::object& PointDtype() {
+  static py::object* dtype = nullptr;
+  if (dtype == nullptr) {
+    dtype = new py::object(py::module_::import("hvdb").attr("POINT_DTYPE"));
+  }
+  return *dtype;
+}
+
+// Takes ownership of the points: numpy frees them with the array.
+py::array ToArray(std::vector<Point> points) {
+  auto* owned = new std::vector<Point>(std::move(points));
+  py::capsule free(owned, [](void* p) { delete static_cast<std::vector<Point>*>(p); });
+  return py::array(py::dtype::from_args(PointDtype()),
+                   {static_cast<py::ssize_t>(owned->size())},
+                   {static_cast<py::ssize_t>(sizeof(Point))}, owned->data(), free);
+}
+
+// A structured array of POINT_DTYPE (checked in __init__.py) as Points.
+std::vector<Point> FromArray(const py::array& a) {
+  if (a.ndim() != 1 || a.itemsize() != static_cast<py::ssize_t>(sizeof(Point)) ||
+      !(a.flags() & py::array::c_style)) {
+    Throw(Status::InvalidArgument(
+        "points: expected a 1-D C-contiguous array of hvdb.POINT_DTYPE (64-byte records)"));
+  }
+  std::vector<Point> out(static_cast<size_t>(a.shape(0)));
+  if (!out.empty()) std::memcpy(static_cast<void*>(out.data()), a.data(), out.size() * sizeof(Point));
+  for (Point& p : out) p.reserved = 0;
+  return out;
+}
+
+Window ToWindow(const std::array<double, 4>& lo, const std::array<double, 4>& hi) {
+  Window w;
+  w.lo = lo;
+  w.hi = hi;
+  return w;
+}
+
+// A region from Python: ("window", lo[4], hi[4]) or ("slice", normal[4], offset, thickness,
+// clip_lo or None, clip_hi or None, max_frames).
+Region ToRegion(const py::tuple& r) {
+  std::string kind = py::cast<std::string>(r[0]);
+  if (kind == "window") {
+    return ToWindow(py::cast<std::array<double, 4>>(r[1]), py::cast<std::array<double, 4>>(r[2]));
+  }
+  Slice s;
+  s.normal = py::cast<std::array<double, 4>>(r[1]);
+  s.offset = py::cast<double>(r[2]);
+  s.thickness = py::cast<double>(r[3]);
+  if (!r[4].is_none()) {
+    s.clip = ToWindow(py::cast<std::array<double, 4>>(r[4]), py::cast<std::array<double, 4>>(r[5]));
+  }
+  s.max_frames = py::cast<uint32_t>(r[6]);
+  return s;
+}
+
+std::optional<Region> ToOptionalRegion(const py::object& r) {
+  if (r.is_none()) return std::nullopt;
+  return ToRegion(py::cast<py::tuple>(r));
+}
+
+py::dict InfoDict(const DatasetInfo& i) {
+  py::list cams;
+  for (const CameraInfo& c : i.cameras) {
+    cams.append(py::dict("id"_a = c.id, "name"_a = c.name, "width"_a = c.width,
+                         "height"_a = c.height, "fx"_a = c.fx, "fy"_a = c.fy, "cx"_a = c.cx,
+                         "cy"_a = c.cy, "distortion"_a = c.distortion,
+                         "world_from_camera"_a = c.world_from_camera));
+  }
+  return py::dict("name"_a = i.name, "fps"_a = i.fps, "space_time_scale"_a = i.space_time_scale,
+                  "frame_count"_a = i.frame_count, "bounds_min"_a = i.bounds_min,
+                  "bounds_max"_a = i.bounds_max, "point_count"_a = i.point_count,
+                  "last_lsn"_a = i.last_lsn, "cameras"_a = cams);
+}
+
+py::dict CommitDict(const CommitInfo& c) {
+  return py::dict("lsn"_a = c.lsn, "inserted"_a = c.inserted, "removed"_a = c.removed);
+}
+
+Selection ToSelection(const py::object& region, uint32_t label_mask) {
+  Selection s;
+  s.region = ToOptionalRegion(region);
+  s.label_mask = label_mask;
+  return s;
+}
+
+// One query's batches. next() returns the next batch (or None at the end) with its level.
+class Query {
+ public:
+  Query(std::unique_ptr<client::QueryResults> r, std::shared_ptr<std::mutex> mu)
+      : results_(std::move(r)), mu_(std::move(mu)) {}
+
+  ~Query() {
+    if (results_) {
+      std::lock_guard<std::mutex> l(*mu_);
+      results_.reset();
+    }
+  }
+  Query(Query&&) = default;
+
+  // (array, level) or None.
+  py::object Next() {
+    if (!results_) return py::none();
+    Batch batch;
+    Result<bool> more(false);
+    {
+      py::gil_scoped_release release;
+      std::lock_guard<std::mutex> l(*mu_);
+      more = results_->Next(&batch);
+    }
+    if (!more.ok()) {
+      results_.reset();
+      Throw(more.status());
+    }
+    if (!*more) {
+      frames_ = results_->frames();
+      clipped_ = results_->clipped();
+      results_.reset();
+      return py::none();
+    }
+    return py::make_tuple(ToArray(std::move(batch.points)), batch.level);
+  }
+
+  // Everything left, as one array (one copy: batch -> the array's own buffer).
+  py::array All() {
+    std::vector<Point> all;
+    while (results_) {
+      Batch batch;
+      Result<bool> more(false);
+      {
+        py::gil_scoped_release release;
+        std::lock_guard<std::mutex> l(*mu_);
+        more = results_->Next(&batch);
+        if (more.ok() && *more) all.insert(all.end(), batch.points.begin(), batch.points.end());
+      }
+      if (!more.ok()) {
+        results_.reset();
+        Throw(more.status());
+      }
+      if (!*more) {
+        frames_ = results_->frames();
+        clipped_ = results_->clipped();
+        results_.reset();
+      }
+      if (PyErr_CheckSignals() != 0) {  // Ctrl-C: drop the query (remote: it is cancelled)
+        results_.reset();
+        throw py::error_already_set();
+      }
+    }
+    return ToArray(std::move(all));
+  }
+
+  // Stops the query (remote: cancels it on the server; the connection stays usable).
+  void Close() {
+    py::gil_scoped_release release;
+    std::lock_guard<std::mutex> l(*mu_);
+    results_.reset();
+  }
+  const std::vector<uint32_t>& frames() const { return frames_; }
+  bool clipped() const { return clipped_; }
+
+ private:
+  std::unique_ptr<client::QueryResults> results_;
+  std::shared_ptr<std::mutex> mu_;  // the database's: one call on its backend at a time
+  std::vector<uint32_t> frames_;
+  bool clipped_ = false;
+};
+
+class Database {
+ public:
+  explicit Database(std::unique_ptr<client::Backend> b)
+      : b_(std::move(b)), mu_(std::make_shared<std::mutex>()) {}
+
+  // Runs fn(backend) without the GIL, one call at a time: neither backend may be used by
+  // two threads at once (the remote one is one connection), so Python threads take turns
+  // while the others run Python code.
+  template <typename Fn>
+  auto Call(Fn&& fn) {
+    if (!b_) Throw(Status::InvalidArgument("the database is closed"));
+    py::gil_scoped_release release;
+    std::lock_guard<std::mutex> l(*mu_);
+    return fn(*b_);
+  }
+
+
+  static Database Open(const std::string& dir, size_t cache_mb) {
+    if (cache_mb < 8) Throw(Status::InvalidArgument("cache_mb: must be >= 8"));
+    return Database(client::MakeEmbeddedBackend(dir, cache_mb << 20));
+  }
+  static Database Connect(const std::string& address, const std::string& token) {
+    client::RemoteOptions o;
+    o.address = address;
+    o.token = token;
+    Database db(Take(client::MakeRemoteBackend(o)));
+    // Connects now, so that a wrong address fails here and not at the first query.
+    Take(db.Call([](client::Backend& b) { return b.ListDatasets(); }));
+    return db;
+  }
+
+  bool remote() const { return b_->remote(); }
+  std::string where() const { return b_->where(); }
+  void Close() {
+    py::gil_scoped_release release;
+    std::lock_guard<std::mutex> l(*mu_);
+    b_.reset();
+  }
+
+  std::vector<std::string> Datasets() {
+    return Take(Call([](client::Backend& b) { return b.ListDatasets(); }));
+  }
+  py::dict Create(const std::string& name, double fps, double space_time_scale) {
+    DatasetInfo info;
+    info.name = name;
+    info.fps = fps;
+    info.space_time_scale = space_time_scale;
+    return InfoDict(Take(Call([&](client::Backend& b) { return b.CreateDataset(info); })));
+  }
+  void Drop(const std::string& name) {
+    Check(Call([&](client::Backend& b) { return b.DropDataset(name); }));
+  }
+  py::dict Describe(const std::string& name) {
+    return InfoDict(Take(Call([&](client::Backend& b) { return b.Describe(name); })));
+  }
+  py::dict Stats(const std::string& name) {
+    client::StatsReport r = Take(Call([&](client::Backend& b) { return b.Stats(name); }));
+    py::list datasets;
+    for (const auto& e : r.datasets) {
+      const DatasetStats& s = e.stats;
+      datasets.append(py::dict("name"_a = e.name, "last_lsn"_a = e.last_lsn,
+                               "frames_with_data"_a = s.frames_with_data, "points"_a = s.points,
+                               "tombstones"_a = s.tombstones,
+                               "buffered_points"_a = s.buffered_points));
+    }
+    py::dict out("datasets"_a = datasets);
+    if (r.cache) {
+      out["cache"] = py::dict("capacity_bytes"_a = r.cache->capacity_bytes,
+                              "resident_blocks"_a = r.cache->resident_blocks,
+                              "hits"_a = r.cache->hits, "misses"_a = r.cache->misses,
+                              "prefetched"_a = r.cache->prefetched);
+    }
+    if (r.server) {
+      py::list reqs;
+      for (const auto& l : r.server->requests) {
+        reqs.append(py::dict("kind"_a = l.kind, "count"_a = l.count, "p50_ms"_a = l.p50_ms,
+                             "p95_ms"_a = l.p95_ms, "p99_ms"_a = l.p99_ms));
+      }
+      out["server"] = py::dict("connections_open"_a = r.server->connections_open,
+                               "connections_total"_a = r.server->connections_total,
+                               "bytes_in"_a = r.server->bytes_in,
+                               "bytes_out"_a = r.server->bytes_out,
+                               "cache_hit_rate"_a = r.server->cache_hit_rate, "requests"_a = reqs);
+    }
+    return out;
+  }
+
+  Query Start(const std::string& name, const py::tuple& region, int lod, bool progressive,
+              bool temporal_lod, uint32_t label_mask) {
+    QueryOptions o;
+    o.lod = lod;
+    o.progressive = progressive;
+    o.temporal_lod = temporal_lod;
+    o.label_mask = label_mask;
+    Region r = ToRegion(region);
+    return Query(Take(Call([&](client::Backend& b) { return b.Query(name, r, o); })), mu_);
+  }
+
+  uint64_t BulkLoad(const std::string& name, uint32_t frame, const py::array& points) {
+    std::vector<Point> pts = FromArray(points);
+    return Take(Call([&](client::Backend& b) { return b.BulkLoad(name, frame, std::move(pts)); }));
+  }
+
+  // ops: a list of tuples, applied in order as one transaction:
+  //   ("insert", array)  ("delete", region|None, label_mask)
+  //   ("transform", region|None, label_mask, a[16], c[4])  ("label", region|None, mask, bits, set)
+  py::dict Commit(const std::string& name, const py::list& ops) {
+    Transaction txn;
+    for (const py::handle& h : ops) {
+      py::tuple op = py::cast<py::tuple>(h);
+      std::string kind = py::cast<std::string>(op[0]);
+      if (kind == "insert") {
+        txn.Insert(FromArray(py::cast<py::array>(op[1])));
+      } else if (kind == "delete") {
+        txn.DeleteSelection(ToSelection(op[1], py::cast<uint32_t>(op[2])));
+      } else if (kind == "transform") {
+        Affine4 map;
+        map.a = py::cast<std::array<double, 16>>(op[3]);
+        map.c = py::cast<std::array<double, 4>>(op[4]);
+        txn.Transform(ToSelection(op[1], py::cast<uint32_t>(op[2])), map);
+      } else if (kind == "label") {
+        txn.SetLabel(ToSelection(op[1], py::cast<uint32_t>(op[2])), py::cast<uint32_t>(op[3]),
+                     py::cast<bool>(op[4]));
+      } else {
+        Throw(Status::InvalidArgument("transaction: unknown operation '" + kind + "'"));
+      }
+    }
+    return CommitDict(Take(Call([&](client::Backend& b) { return b.Commit(name, txn); })));
+  }
+
+  py::dict Revert(const std::string& name, uint64_t lsn) {
+    return CommitDict(Take(Call([&](client::Backend& b) { return b.Revert(name, lsn); })));
+  }
+
+  py::dict Select(const std::string& name, const py::tuple& region, int bit,
+                  const std::string& mode) {
+    edit::SelectRequest req;
+    req.region = ToRegion(region);
+    req.bit = bit;
+    if (mode == "replace") {
+      req.mode = edit::SelectMode::kReplace;
+    } else if (mode == "add") {
+      req.mode = edit::SelectMode::kAdd;
+    } else if (mode == "subtract") {
+      req.mode = edit::SelectMode::kSubtract;
+    } else if (mode == "intersect") {
+      req.mode = edit::SelectMode::kIntersect;
+    } else {
+      Throw(Status::InvalidArgument("mode: '" + mode +
+                                    "' is not one of replace, add, subtract, intersect"));
+    }
+    edit::SelectResult r = Take(Call([&](client::Backend& b) { return b.Select(name, req); }));
+    return py::dict("matched"_a = r.matched, "selected"_a = r.selected, "lsn"_a = r.lsn);
+  }
+
+  py::dict GraphCut(const std::string& name, const py::tuple& roi, int foreground_bit,
+                    int background_bit, int out_bit) {
+    edit::GraphCutRequest req;
+    req.roi = ToRegion(roi);
+    req.foreground_bit = foreground_bit;
+    req.background_bit = background_bit;
+    req.out_bit = out_bit;
+    edit::GraphCutReply r = Take(Call([&](client::Backend& b) { return b.GraphCut(name, req); }));
+    return py::dict("roi_points"_a = r.roi_points, "selected"_a = r.selected, "lsn"_a = r.lsn);
+  }
+
+  py::dict Copy(const std::string& name, int bit, const py::object& region,
+                const std::string& clipboard, bool cut) {
+    std::optional<Region> r = ToOptionalRegion(region);
+    edit::CopyResult c =
+        Take(Call([&](client::Backend& b) { return b.Copy(name, bit, r, clipboard, cut); }));
+    return py::dict("points"_a = c.points, "lsn"_a = c.lsn);
+  }
+
+  py::dict Paste(const std::string& name, const std::string& clipboard,
+                 const std::array<double, 16>& a, const std::array<double, 4>& c) {
+    Affine4 map;
+    map.a = a;
+    map.c = c;
+    return CommitDict(Take(Call([&](client::Backend& b) { return b.Paste(name, clipboard, map); })));
+  }
+
+  // A single view's image (docs/PROTOCOL.md, "Rendering"): the look-at camera of
+  // `hvdb render`, the region's points at `lod`. Returns the reply's facts and either the PNG
+  // decoded to H x W x 3 (or 4) uint8, or (exr=true) the EXR's linear RGBA and depth as
+  // H x W x 4 and H x W float32.
+  py::dict Render(const std::string& name, const py::tuple& region,
+                  const std::array<double, 3>& eye, const std::array<double, 3>& target,
+                  const std::array<double, 3>& up, double fov, uint32_t width, uint32_t height,
+                  const std::string& mode, uint32_t lod, const std::string& renderer, bool exr,
+                  bool view_dependent) {
+    wire::Render req;
+    req.set_dataset(name);
+    wire::ToWire(ToRegion(region), req.mutable_region());
+    wire::LookAt* l = req.mutable_view()->mutable_look_at();
+    for (double v : eye) l->add_eye(v);
+    for (double v : target) l->add_target(v);
+    for (double v : up) l->add_up(v);
+    l->set_fov_y_deg(fov);
+    l->set_width(width);
+    l->set_height(height);
+    if (mode != "visibility" && mode != "probabilistic") {
+      Throw(Status::InvalidArgument("mode: '" + mode + "' is not visibility or probabilistic"));
+    }
+    req.set_mode(mode == "visibility" ? wire::RENDER_VISIBILITY : wire::RENDER_PROBABILISTIC);
+    req.set_lod(lod);
+    req.set_view_dependent(view_dependent);
+    if (renderer == "auto") {
+      req.set_renderer(wire::RENDERER_AUTO);
+    } else if (renderer == "egl") {
+      req.set_renderer(wire::RENDERER_EGL);
+    } else if (renderer == "cpu") {
+      req.set_renderer(wire::RENDERER_CPU);
+    } else {
+      Throw(Status::InvalidArgument("renderer: '" + renderer + "' is not auto, egl or cpu"));
+    }
+    req.set_format(exr ? wire::IMAGE_EXR : wire::IMAGE_PNG);
+    wire::RenderReply reply;
+    Check(Call([&](client::Backend& b) {
+      return b.Render(req, [&](const wire::RenderReply& r) {
+        reply = r;
+        return Status::OK();
+      });
+    }));
+    py::dict d("width"_a = reply.width(), "height"_a = reply.height(),
+               "renderer"_a = reply.renderer_used(), "renderer_choice"_a = reply.renderer_choice(),
+               "points"_a = reply.points(), "render_ms"_a = reply.render_ms());
+    if (exr) {
+      render::Image img = Take(render::DecodeExr(reply.exr()));
+      py::array_t<float> rgba({img.height, img.width, 4u});
+      py::array_t<float> depth({img.height, img.width});
+      std::memcpy(rgba.mutable_data(), img.rgba.data(), img.rgba.size() * sizeof(float));
+      std::memcpy(depth.mutable_data(), img.depth.data(), img.depth.size() * sizeof(float));
+      d["rgba"] = rgba;
+      d["depth"] = depth;
+      return d;
+    }
+    std::vector<uchar> bytes(reply.png().begin(), reply.png().end());
+    cv::Mat m = cv::imdecode(bytes, cv::IMREAD_UNCHANGED);
+    if (m.empty()) Throw(Status::Internal("render: the PNG does not decode"));
+    int ch = m.channels();
+    cv::cvtColor(m, m, ch == 4 ? cv::COLOR_BGRA2RGBA : cv::COLOR_BGR2RGB);
+    py::array_t<uint8_t> img({m.rows, m.cols, ch});
+    for (int y = 0; y < m.rows; ++y) {
+      std::memcpy(img.mutable_data(y), m.ptr(y), static_cast<size_t>(m.cols) * ch);
+    }
+    d["image"] = img;
+    return d;
+  }
+
+ private:
+  std::unique_ptr<client::Backend> b_;
+  std::shared_ptr<std::mutex> mu_;
+};
+
+py::array ReadPly(const std::string& path, double scale) {
+  ply::ReadOptions o;
+  o.scale = scale;
+  std::vector<Point> pts;
+  {
+    py::gil_scoped_release release;
+    auto r = ply::ReadPly(path, o);
+    if (!r.ok()) {
+      py::gil_scoped_acquire acquire;
+      Throw(r.status());
+    }
+    pts = std::move(r).value();
+  }
+  return ToArray(std::move(pts));
+}
+
+void WritePly(const std::string& path, const py::array& points, bool ascii) {
+  std::vector<Point> pts = FromArray(points);
+  py::gil_scoped_release release;
+  Status st = ply::WritePly(path, pts, ascii);
+  py::gil_scoped_acquire acquire;
+  Check(st);
+}
+
+}  // namespace
+}  // namespace hvdb::python
+
+PYBIND11_MODULE(_hvdb, m) {
+  using namespace hvdb::python;
+  m.doc() = "hvdb's C++ half; use the hvdb package";
+  // The Point record's layout, for POINT_DTYPE (docs/FORMAT.md "Point record").
+  m.attr("POINT_SIZE") = sizeof(hvdb::Point);
+  m.attr("POINT_OFFSETS") = py::dict(
+      "id"_a = offsetof(hvdb::Point, id), "position"_a = offsetof(hvdb::Point, x),
+      "frame"_a = offsetof(hvdb::Point, frame), "cov"_a = offsetof(hvdb::Point, cov),
+      "normal_oct"_a = offsetof(hvdb::Point, normal_oct), "label"_a = offsetof(hvdb::Point, label),
+      "color"_a = offsetof(hvdb::Point, r), "flags"_a = offsetof(hvdb::Point, flags),
+      "camera"_a = offsetof(hvdb::Point, camera), "reserved"_a = offsetof(hvdb::Point, reserved));
+
+  static py::object status_hook;  // __init__.py's raise_status(code_name, message)
+  m.def("_set_status_hook", [](py::object hook) { status_hook = std::move(hook); });
+  py::register_exception_translator([](std::exception_ptr p) {
+    try {
+      if (p) std::rethrow_exception(p);
+    } catch (const StatusError& e) {
+      // The hook raises the exception class of the code; its error is the one set here.
+      try {
+        status_hook(hvdb::StatusCodeName(e.code), e.message);
+      } catch (py::error_already_set& err) {
+        err.restore();
+      }
+    }
+  });
+
+  py::class_<Query>(m, "_Query")
+      .def("next", &Query::Next)
+      .def("all", &Query::All)
+      .def("close", &Query::Close)
+      .def_property_readonly("frames", &Query::frames)
+      .def_property_readonly("clipped", &Query::clipped);
+
+  py::class_<Database>(m, "_Database")
+      .def_static("open", &Database::Open, "dir"_a, "cache_mb"_a)
+      .def_static("connect", &Database::Connect, "address"_a, "token"_a)
+      .def_property_readonly("remote", &Database::remote)
+      .def_property_readonly("where", &Database::where)
+      .def("close", &Database::Close)
+      .def("datasets", &Database::Datasets)
+      .def("create", &Database::Create)
+      .def("drop", &Database::Drop)
+      .def("describe", &Database::Describe)
+      .def("stats", &Database::Stats)
+      .def("query", &Database::Start)
+      .def("bulk_load", &Database::BulkLoad)
+      .def("commit", &Database::Commit)
+      .def("revert", &Database::Revert)
+      .def("select", &Database::Select)
+      .def("graphcut", &Database::GraphCut)
+      .def("copy", &Database::Copy)
+      .def("paste", &Database::Paste)
+      .def("render", &Database::Render);
+
+  m.def("read_ply", &ReadPly, "path"_a, "scale"_a = 1.0);
+  m.def("write_ply", &WritePly, "path"_a, "points"_a, "ascii"_a = false);
+  m.def("encode_normals", [](const py::array_t<float, py::array::c_style | py::array::forcecast>& n) {
+    if (n.ndim() != 2 || n.shape(1) != 3) {
+      Throw(hvdb::Status::InvalidArgument("normals: expected an N x 3 array"));
+    }
+    py::array_t<int16_t> out({n.shape(0), py::ssize_t{2}});
+    for (py::ssize_t i = 0; i < n.shape(0); ++i) {
+      auto e = hvdb::EncodeNormal(n.at(i, 0), n.at(i, 1), n.at(i, 2));
+      out.mutable_at(i, 0) = e[0];
+      out.mutable_at(i, 1) = e[1];
+    }
+    return out;
+  });
+  m.def("decode_normals", [](const py::array_t<int16_t, py::array::c_style | py::array::forcecast>& o) {
+    if (o.ndim() != 2 || o.shape(1) != 2) {
+      Throw(hvdb::Status::InvalidArgument("normal_oct: expected an N x 2 array"));
+    }
+    py::array_t<float> out({o.shape(0), py::ssize_t{3}});
+    for (py::ssize_t i = 0; i < o.shape(0); ++i) {
+      auto d = hvdb::DecodeNormal({o.at(i, 0), o.at(i, 1)});
+      for (int k = 0; k < 3; ++k) out.mutable_at(i, k) = d[k];
+    }
+    return out;
+  });
+}

@@ -1,0 +1,248 @@
+"""The Python client against the `hvdb` command line and the engine's rules, in both modes
+(embedded and through a real hvdb-server), on the real Panoptic sequence."""
+import csv
+import threading
+
+import numpy as np
+import pytest
+
+import hvdb
+from conftest import DATASET
+
+FPS = 30.0
+
+
+def read_csv(path):
+    """`hvdb window --out X.csv` as a dict of columns, rows sorted by id."""
+    with open(path) as f:
+        names = next(csv.reader(f))
+    # Two passes: integers exactly (ids are 64-bit), floats as float32 as they were printed.
+    ints = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2,
+                      usecols=[names.index(k) for k in ("id", "frame")], dtype=np.uint64)
+    vals = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=np.float64)
+    order = np.argsort(ints[:, 0], kind="stable")
+    cols = {k: vals[order, i] for i, k in enumerate(names)}
+    cols["id"] = ints[order, 0]
+    cols["frame"] = ints[order, 1]
+    return cols
+
+
+def assert_same_points(pts, cols):
+    """Field by field: the array against the CLI's CSV of the same query."""
+    pts = np.sort(pts, order="id")
+    assert len(pts) == len(cols["id"])
+    assert (pts["id"] == cols["id"].astype(np.uint64)).all()
+    assert (pts["frame"] == cols["frame"].astype(np.uint32)).all()
+    for i, axis in enumerate("xyz"):
+        np.testing.assert_allclose(pts["position"][:, i], cols[axis].astype(np.float32),
+                                   rtol=1e-6, atol=1e-7)
+    for i, c in enumerate(("red", "green", "blue")):
+        assert (pts["color"][:, i] == cols[c].astype(np.uint8)).all()
+    assert (pts["label"] == cols["label"].astype(np.uint32)).all()
+    assert (pts["camera"] == cols["camera"].astype(np.uint16)).all()
+    assert (pts["flags"] == cols["flags"].astype(np.uint8)).all()
+    for i, k in enumerate(("cov_xx", "cov_xy", "cov_xz", "cov_yy", "cov_yz", "cov_zz")):
+        np.testing.assert_allclose(pts["cov"][:, i], cols[k].astype(np.float32), rtol=1e-6,
+                                   atol=1e-12)
+    n = hvdb.normals(pts)
+    for i, k in enumerate(("nx", "ny", "nz")):
+        np.testing.assert_allclose(n[:, i], cols[k].astype(np.float32), atol=1e-4)
+
+
+def test_datasets_and_info_match_the_cli(env):
+    db = env.db
+    assert db.datasets() == [DATASET]
+    info = db.info(DATASET)
+    assert info["fps"] == FPS
+    assert info["frame_count"] == 16
+    import json
+    described = json.loads(env.cli("describe", DATASET, "--json").stdout)
+    assert info["point_count"] == described["points"] > 16 * 50000
+    stats = env.db.stats(DATASET)
+    assert stats["datasets"][0]["points"] == described["points"]
+    assert ("cache" in stats) == (env.mode == "embedded")
+    assert ("server" in stats) == (env.mode == "server")
+
+
+@pytest.mark.parametrize("frame,level", [(0, 0), (7, 0), (15, 2)])
+def test_frame_equals_the_cli_field_by_field(env, tmp_path, frame, level):
+    pts = env.db.frame(DATASET, frame=frame, level=level)
+    assert pts.dtype == hvdb.POINT_DTYPE and pts.flags["C_CONTIGUOUS"]
+    assert (pts["frame"] == frame).all()
+    t = frame / FPS
+    out = str(tmp_path / "w.csv")
+    env.cli("window", DATASET, "--box", "-1e9", "1e9", "-1e9", "1e9", "-1e9", "1e9", str(t),
+            str(t), "--lod", str(level), "--out", out)
+    assert_same_points(pts, read_csv(out))
+    # By time, the same frame.
+    by_t = env.db.frame(DATASET, t=t, level=level)
+    assert np.array_equal(np.sort(by_t, order="id"), np.sort(pts, order="id"))
+
+
+def test_window_and_hyperslice_equal_the_cli(env, tmp_path):
+    box = dict(x=(-0.5, -0.2), y=(-1.8, -0.5), z=(-0.3, 0.5), t=(0.1, 0.2))
+    pts = env.db.window(DATASET, **box)
+    out = str(tmp_path / "w.csv")
+    env.cli("window", DATASET, "--box", "-0.5", "-0.2", "-1.8", "-0.5", "-0.3", "0.5", "0.1",
+            "0.2", "--out", out)
+    cols = read_csv(out)
+    assert len(pts) > 1000
+    assert_same_points(pts, cols)
+    p = pts["position"]
+    assert (p[:, 0] >= -0.5).all() and (p[:, 0] <= -0.2).all()
+    assert set(np.unique(pts["frame"])) == {3, 4, 5, 6}
+    # A tilted hyperslice through space and time: projected positions and covariances.
+    sl = env.db.hyperslice(DATASET, normal=(0.2, 0, 0, 1), offset=0.2, thickness=0.05)
+    out = str(tmp_path / "s.csv")
+    env.cli("slice", DATASET, "--normal", "0.2", "0", "0", "1", "--offset", "0.2",
+            "--thickness", "0.05", "--out", out)
+    assert len(sl) > 0
+    assert_same_points(sl, read_csv(out))
+
+
+def test_stream_goes_coarse_to_fine_and_stops_cleanly(env):
+    full = env.db.frame(DATASET, frame=3)
+    levels, parts = [], []
+    for batch, level in env.db.stream(DATASET, t=(0.1, 0.1), progressive=True):
+        levels.append(level)
+        parts.append(batch)
+    assert levels == sorted(levels, reverse=True) and levels[0] > 0 and levels[-1] == 0
+    got = np.concatenate(parts)
+    assert np.array_equal(np.sort(got, order="id"), np.sort(full, order="id"))
+    # Stopping after one batch leaves the database (the connection) usable.
+    for batch, level in env.db.stream(DATASET, progressive=True):
+        break
+    again = env.db.frame(DATASET, frame=3)
+    assert len(again) == len(full)
+
+
+def test_a_transaction_commits_atomically_or_leaves_no_trace(env):
+    db = env.db
+    before = db.info(DATASET)
+    new = hvdb.points(np.array([[5.0, 5.0, 5.0], [5.1, 5.0, 5.0]]),
+                      color=np.array([[255, 0, 0], [0, 255, 0]], dtype=np.uint8), frame=2)
+    with pytest.raises(RuntimeError, match="changed my mind"):
+        with db.transaction(DATASET) as tx:
+            tx.insert(new)
+            tx.delete(t=(0.0, 0.0))
+            raise RuntimeError("changed my mind")
+    after = db.info(DATASET)
+    assert after["point_count"] == before["point_count"]
+    assert after["last_lsn"] == before["last_lsn"]
+    frame0 = len(db.frame(DATASET, frame=0))
+    with db.transaction(DATASET) as tx:
+        tx.insert(new)
+        tx.delete(t=(0.0, 0.0))
+        tx.set_label(0b100, x=(4.9, 5.2), t=(2 / FPS, 2 / FPS))
+    assert tx.lsn > before["last_lsn"]
+    # (a label change re-inserts the points it changes: they count on both sides)
+    assert tx.result["inserted"] >= 2 and tx.result["removed"] >= frame0
+    assert len(db.frame(DATASET, frame=0)) == 0
+    marked = db.window(DATASET, x=(4.9, 5.2), label_mask=0b100)
+    assert len(marked) == 2 and set(marked["color"][:, 0]) == {255, 0}
+    # It survives a restart of the server (or a reopening of the directory).
+    db = env.reopen()
+    assert len(db.frame(DATASET, frame=0)) == 0
+    assert len(db.window(DATASET, x=(4.9, 5.2))) == 2
+    # Undo and redo.
+    undo = db.undo(DATASET, tx.lsn)
+    assert len(db.frame(DATASET, frame=0)) == frame0
+    assert len(db.window(DATASET, x=(4.9, 5.2))) == 0
+    db.redo(DATASET, undo["lsn"])
+    assert len(db.frame(DATASET, frame=0)) == 0
+
+
+def test_bad_input_is_refused_and_loses_nothing(env):
+    db = env.db
+    before = db.info(DATASET)
+    bad = hvdb.points(np.zeros((3, 3)))
+    bad["position"][1] = [np.nan, 0, 0]
+    with pytest.raises(hvdb.InvalidArgument, match="point 1 has a non-finite position"):
+        with db.transaction(DATASET) as tx:
+            tx.insert(bad)
+    with pytest.raises(hvdb.InvalidArgument, match="non-finite"):
+        db.load(DATASET, 3, bad)
+    with pytest.raises(hvdb.InvalidArgument, match="POINT_DTYPE"):
+        db.load(DATASET, 3, np.zeros((3, 3), dtype=np.float32))
+    with pytest.raises(hvdb.InvalidArgument, match="position"):
+        hvdb.points(np.array([[0.0, np.inf, 0.0]]))
+    with pytest.raises(hvdb.InvalidArgument, match="level"):
+        db.window(DATASET, level=9)
+    with pytest.raises(hvdb.InvalidArgument, match="x: low"):
+        db.window(DATASET, x=(1, 0))
+    with pytest.raises(hvdb.InvalidArgument, match="x: expected a finite number"):
+        db.window(DATASET, x=(float("nan"), 0))
+    with pytest.raises(hvdb.InvalidArgument, match="thickness"):
+        db.hyperslice(DATASET, normal=(0, 0, 0, 1), offset=0, thickness=-1)
+    with pytest.raises(hvdb.InvalidArgument, match="normal"):
+        db.hyperslice(DATASET, normal=(0, 0, 0, 0), offset=0)
+    with pytest.raises(hvdb.InvalidArgument, match="size"):
+        db.render(DATASET, 0, look_at=(0, -1, -3, 0, -1, 0), size=(0, 10))
+    with pytest.raises(hvdb.InvalidArgument):
+        db.render(DATASET, 0, look_at=(0, -1, -3, 0, -1, 0), mode="cartoon")
+    with pytest.raises(hvdb.InvalidArgument, match="bit"):
+        db.select(DATASET, 32)
+    with pytest.raises(hvdb.NotFound):
+        db.frame("nope", frame=0)
+    with pytest.raises(hvdb.NotFound):
+        db.undo(DATASET, 999999)
+    with pytest.raises(hvdb.AlreadyExists):
+        db.create(DATASET)
+    with pytest.raises(hvdb.LimitExceeded):  # a slice across more frames than allowed
+        db.hyperslice(DATASET, normal=(0, 0, 0, 1), offset=0, thickness=10, max_frames=2)
+    after = db.info(DATASET)
+    assert after["point_count"] == before["point_count"]
+    assert after["last_lsn"] == before["last_lsn"]
+
+
+def test_editing_operators_like_the_cli(env):
+    db = env.db
+    box = dict(x=(-0.5, -0.3), t=(0.0, 0.0))
+    sel = db.select(DATASET, 3, **box)
+    inside = db.window(DATASET, **box)
+    assert sel["selected"] == len(inside) > 0
+    assert len(db.window(DATASET, t=(0.0, 0.0), label_mask=1 << 3)) == len(inside)
+    cut = db.cut(DATASET, 3, "py", t=(0.0, 0.0))
+    assert cut["points"] == len(inside) and cut["lsn"] > 0
+    assert len(db.window(DATASET, **box)) == 0
+    pasted = db.paste(DATASET, "py", translate=(0, 0, 0, 1 / FPS))
+    assert pasted["inserted"] == len(inside)
+    assert len(db.window(DATASET, x=(-0.5, -0.3), t=(1 / FPS, 1 / FPS), label_mask=1 << 3)) \
+        == len(inside)
+
+
+def test_render_equals_the_cli_image(env, tmp_path):
+    import open3d as o3d
+    look = (-0.4, -0.9, -3, -0.4, -0.9, 0)
+    img = env.db.render(DATASET, 5 / FPS, look_at=look, fov=40, size=(160, 120),
+                        renderer="cpu")
+    assert img.shape == (120, 160, 3) and img.dtype == np.uint8
+    assert img.max() > 100  # the person is there
+    rgb, depth = env.db.render(DATASET, 5 / FPS, look_at=look, fov=40, size=(160, 120),
+                               renderer="cpu", depth=True)
+    assert depth.shape == (120, 160) and depth.dtype == np.float32
+    covered = np.isfinite(depth)
+    assert covered.sum() > 500 and (depth[covered] > 2).all() and (depth[covered] < 4).all()
+    assert np.abs(rgb.astype(int) - img.astype(int)).max() <= 1
+    out = str(tmp_path / "cli.png")
+    env.cli("render", DATASET, "--box", "-1e9", "1e9", "-1e9", "1e9", "-1e9", "1e9",
+            str(5 / FPS), str(5 / FPS), "--look-at", *map(str, look), "--fov", "40",
+            "--size", "160", "120", "--renderer", "cpu", "--out", out)
+    cli = np.asarray(o3d.io.read_image(out))
+    assert np.array_equal(cli[:, :, :3], img)
+
+
+def test_queries_run_in_threads(env):
+    # The GIL is released while the library waits: threads see their own results.
+    results = {}
+
+    def fetch(f):
+        results[f] = len(env.db.frame(DATASET, frame=f))
+
+    threads = [threading.Thread(target=fetch, args=(f,)) for f in range(4)]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join()
+    for f in range(4):
+        assert results[f] == len(env.db.frame(DATASET, frame=f)) > 50000
