@@ -579,6 +579,20 @@ PYBIND11_MODULE(_hvdb, m) {
     }
   });
 
+  // The render library's notes and warnings (e.g. which renderer `auto` chose) go to Python's
+  // logging, logger "hvdb", instead of stderr. They are raised by calls a Python thread made
+  // (with the GIL released), so taking the GIL back here is safe.
+  hvdb::render::SetLogHandler([](const std::string& message) {
+    py::gil_scoped_acquire acquire;
+    try {
+      py::object logger = py::module_::import("logging").attr("getLogger")("hvdb");
+      bool note = message.rfind("note: ", 0) == 0;
+      logger.attr(note ? "info" : "warning")(note ? message.substr(6) : message);
+    } catch (py::error_already_set& e) {
+      e.discard_as_unraisable("hvdb render log");
+    }
+  });
+
   py::class_<Query>(m, "_Query")
       .def("next", &Query::Next)
       .def("all", &Query::All)

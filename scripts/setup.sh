@@ -38,8 +38,11 @@ cmake --build "$BUILD_DIR"
 echo "setup: built into $BUILD_DIR/"
 # The Python package, so that Debian's python3 finds it anywhere ('import hvdb').
 if [ "$(id -u)" -eq 0 ]; then
-  cmake --install "$BUILD_DIR" --component python >/dev/null
-  echo "setup: installed the Python package hvdb ($(/usr/bin/python3 -c 'import hvdb, os; print(os.path.dirname(hvdb.__file__))'))"
+  site=$(/usr/bin/python3 -c 'import site; print(site.getsitepackages()[0])')  # /usr/local/lib/python3.11/dist-packages
+  mkdir -p "$site"
+  rm -rf "$site/hvdb"
+  cp -r "$BUILD_DIR/python/hvdb" "$site/hvdb"
+  echo "setup: installed the Python package hvdb into $site"
 else
   echo "setup: not root, so the Python package is not installed; use PYTHONPATH=$BUILD_DIR/python"
 fi
