@@ -694,6 +694,7 @@ Result<CommitInfo> Connection::Composite(const wire::CompositeRequest& q) {
 
 Status Client::EnsureConnected() {
   if (conn_ && !conn_->broken()) return Status::OK();
+  if (conn_) retired_.push_back(std::move(conn_));  // streams may still point at it
   HVDB_ASSIGN_OR_RETURN(conn_, Connection::Connect(options_));
   return Status::OK();
 }

@@ -172,6 +172,9 @@ class Client {
  private:
   Options options_;
   std::unique_ptr<Connection> conn_;
+  // Broken connections replaced by a reconnect: kept (closed, small) until the client goes,
+  // because a QueryStream opened on one still points at it and may yet be destroyed.
+  std::vector<std::unique_ptr<Connection>> retired_;
 };
 
 template <typename T>
@@ -194,7 +197,7 @@ Result<T> Client::Run(bool idempotent, const std::function<Result<T>(Connection&
     Result<T> r = fn(*conn_);
     if (r.ok() || !conn_->broken()) return r;
     last = r.status();
-    conn_.reset();
+    retired_.push_back(std::move(conn_));
     if (!idempotent) return last;  // it may have been applied: the caller must decide
   }
   return last;

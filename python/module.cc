@@ -3,8 +3,8 @@
 // A thin layer over client::Backend (client/backend.h), so the embedded and the remote mode
 // behave as the `hvdb` command line does in each. Results come back as numpy structured arrays
 // whose records are storage's 64-byte Point (the dtype is POINT_DTYPE in __init__.py, built
-// from the offsets exported here): a query's batches are appended to one std::vector<Point>,
-// which numpy then owns without a copy. The GIL is released whenever the library waits on
+// from the offsets exported here): a whole result is copied once, batch by batch, into pages
+// numpy then owns (PageBuffer); a streamed batch becomes an array without a copy. The GIL is released whenever the library waits on
 // disk or network; between batches pending signals are checked, so Ctrl-C stops a long query.
 // Errors are Status values turned into the exception classes of __init__.py by code.
 #include <pybind11/numpy.h>
@@ -135,10 +135,10 @@ Selection ToSelection(const py::object& region, uint32_t label_mask) {
   return s;
 }
 
-// Memory for a query's whole result, written once: anonymous pages from mmap (transparent
-// huge pages asked for: a 128 MiB frame takes 64 page faults instead of 32 768, which were
-// most of the time a fetch took beyond the copy itself), grown by mremap, which moves pages
-// instead of copying them. Pages past what is written are never touched, so never resident.
+// Memory for a query's whole result, written once: anonymous pages from mmap, grown by mremap,
+// which moves pages instead of copying them (a std::vector would copy at every doubling and
+// peak at 1.5-3x). Pages past what is written are never touched, so never resident. (Asking
+// for transparent huge pages made fetches slower here: synchronous compaction.)
 class PageBuffer {
  public:
   PageBuffer() = default;
@@ -171,56 +171,64 @@ class PageBuffer {
   size_t capacity_ = 0;
 };
 
+// A database's backend and the lock every use of it takes. The database and each of its open
+// queries hold it, so a query outlives close() safely: the backend (a connection, or the data
+// directory's lock) goes when the last of them does. Neither backend may serve two threads at
+// once (the remote one is one connection), so Python threads take turns on `mu`.
+// Lock order: `mu` is never taken while holding the GIL (it is released first), because the
+// render library's log handler takes the GIL during a call that holds `mu`.
+struct Shared {
+  std::mutex mu;
+  std::unique_ptr<client::Backend> backend;
+};
+
 // One query's batches. next() returns the next batch (or None at the end) with its level.
 class Query {
  public:
-  Query(std::unique_ptr<client::QueryResults> r, std::shared_ptr<std::mutex> mu)
-      : results_(std::move(r)), mu_(std::move(mu)) {}
-
-  ~Query() {
-    if (results_) {
-      std::lock_guard<std::mutex> l(*mu_);
-      results_.reset();
-    }
-  }
+  Query(std::shared_ptr<Shared> shared, std::unique_ptr<client::QueryResults> r)
+      : shared_(std::move(shared)), results_(std::move(r)) {}
   Query(Query&&) = default;
+  ~Query() { Drop(); }
 
   // (array, level) or None.
   py::object Next() {
-    if (!results_) return py::none();
+    client::QueryResults* r = results_.get();
+    if (r == nullptr) return py::none();
     Batch batch;
     Result<bool> more(false);
     {
       py::gil_scoped_release release;
-      std::lock_guard<std::mutex> l(*mu_);
-      more = results_->Next(&batch);
+      // While we hold mu, a concurrent close() may take results_ but destroys it only after.
+      std::lock_guard<std::mutex> l(shared_->mu);
+      more = r->Next(&batch);
+      if (more.ok() && !*more) Finished(r);
     }
     if (!more.ok()) {
-      results_.reset();
+      Drop();
       Throw(more.status());
     }
     if (!*more) {
-      frames_ = results_->frames();
-      clipped_ = results_->clipped();
-      results_.reset();
+      Drop();
       return py::none();
     }
     return py::make_tuple(ToArray(std::move(batch.points)), batch.level);
   }
 
   // Everything left, as one array, with one copy: each batch (the query reuses one Batch, so
-  // no allocation per batch) is copied into a PageBuffer, which grows without copying and
-  // faults its pages in 2 MiB at a time; the resident peak is the array plus one batch.
+  // no allocation per batch) is copied into a PageBuffer, which grows without copying; the
+  // resident peak is the array plus one batch.
   py::array All() {
     auto buf = std::make_unique<PageBuffer>();
     size_t size = 0;
     Batch batch;
-    while (results_) {
+    for (;;) {
+      client::QueryResults* r = results_.get();
+      if (r == nullptr) break;
       Result<bool> more(false);
       {
         py::gil_scoped_release release;
-        std::lock_guard<std::mutex> l(*mu_);
-        more = results_->Next(&batch);
+        std::lock_guard<std::mutex> l(shared_->mu);
+        more = r->Next(&batch);
         if (more.ok() && *more && !batch.points.empty()) {
           size_t n = batch.points.size();
           Status st = buf->Reserve((size + n) * sizeof(Point));
@@ -232,18 +240,15 @@ class Query {
             more = st;
           }
         }
+        if (more.ok() && !*more) Finished(r);
       }
       if (!more.ok()) {
-        results_.reset();
+        Drop();
         Throw(more.status());
       }
-      if (!*more) {
-        frames_ = results_->frames();
-        clipped_ = results_->clipped();
-        results_.reset();
-      }
+      if (!*more) Drop();
       if (PyErr_CheckSignals() != 0) {  // Ctrl-C: drop the query (remote: it is cancelled)
-        results_.reset();
+        Drop();
         throw py::error_already_set();
       }
     }
@@ -255,17 +260,28 @@ class Query {
   }
 
   // Stops the query (remote: cancels it on the server; the connection stays usable).
-  void Close() {
-    py::gil_scoped_release release;
-    std::lock_guard<std::mutex> l(*mu_);
-    results_.reset();
-  }
+  void Close() { Drop(); }
   const std::vector<uint32_t>& frames() const { return frames_; }
   bool clipped() const { return clipped_; }
 
  private:
+  // Called with mu held, at the end of the results.
+  void Finished(client::QueryResults* r) {
+    frames_ = r->frames();
+    clipped_ = r->clipped();
+  }
+  // Destroys the results (a remote query not at its end is cancelled and drained there) under
+  // mu, without the GIL. Called with the GIL held.
+  void Drop() {
+    if (!results_) return;
+    std::unique_ptr<client::QueryResults> r = std::move(results_);
+    py::gil_scoped_release release;
+    std::lock_guard<std::mutex> l(shared_->mu);
+    r.reset();
+  }
+
+  std::shared_ptr<Shared> shared_;  // declared first: outlives results_
   std::unique_ptr<client::QueryResults> results_;
-  std::shared_ptr<std::mutex> mu_;  // the database's: one call on its backend at a time
   std::vector<uint32_t> frames_;
   bool clipped_ = false;
 };
@@ -273,19 +289,19 @@ class Query {
 class Database {
  public:
   explicit Database(std::unique_ptr<client::Backend> b)
-      : b_(std::move(b)), mu_(std::make_shared<std::mutex>()) {}
-
-  // Runs fn(backend) without the GIL, one call at a time: neither backend may be used by
-  // two threads at once (the remote one is one connection), so Python threads take turns
-  // while the others run Python code.
-  template <typename Fn>
-  auto Call(Fn&& fn) {
-    if (!b_) Throw(Status::InvalidArgument("the database is closed"));
-    py::gil_scoped_release release;
-    std::lock_guard<std::mutex> l(*mu_);
-    return fn(*b_);
+      : shared_(std::make_shared<Shared>()), remote_(b->remote()), where_(b->where()) {
+    shared_->backend = std::move(b);
   }
 
+  // Runs fn(backend) without the GIL, under the backend's lock (Shared).
+  template <typename Fn>
+  auto Call(Fn&& fn) {
+    if (!shared_) Throw(Status::InvalidArgument("the database is closed"));
+    std::shared_ptr<Shared> s = shared_;  // kept alive for the call even if closed meanwhile
+    py::gil_scoped_release release;
+    std::lock_guard<std::mutex> l(s->mu);
+    return fn(*s->backend);
+  }
 
   static Database Open(const std::string& dir, size_t cache_mb) {
     if (cache_mb < 8) Throw(Status::InvalidArgument("cache_mb: must be >= 8"));
@@ -301,12 +317,13 @@ class Database {
     return db;
   }
 
-  bool remote() const { return b_->remote(); }
-  std::string where() const { return b_->where(); }
+  bool remote() const { return remote_; }
+  const std::string& where() const { return where_; }
+  // No new calls; the backend goes once calls in flight and open queries are done.
   void Close() {
+    std::shared_ptr<Shared> s = std::move(shared_);
     py::gil_scoped_release release;
-    std::lock_guard<std::mutex> l(*mu_);
-    b_.reset();
+    s.reset();  // possibly the last reference: closes the backend without the GIL
   }
 
   std::vector<std::string> Datasets() {
@@ -365,7 +382,8 @@ class Database {
     o.temporal_lod = temporal_lod;
     o.label_mask = label_mask;
     Region r = ToRegion(region);
-    return Query(Take(Call([&](client::Backend& b) { return b.Query(name, r, o); })), mu_);
+    auto results = Take(Call([&](client::Backend& b) { return b.Query(name, r, o); }));
+    return Query(shared_, std::move(results));
   }
 
   uint64_t BulkLoad(const std::string& name, uint32_t frame, const py::array& points) {
@@ -521,8 +539,9 @@ class Database {
   }
 
  private:
-  std::unique_ptr<client::Backend> b_;
-  std::shared_ptr<std::mutex> mu_;
+  std::shared_ptr<Shared> shared_;  // null once closed
+  bool remote_;
+  std::string where_;
 };
 
 py::array ReadPly(const std::string& path, double scale) {
@@ -564,15 +583,17 @@ PYBIND11_MODULE(_hvdb, m) {
       "color"_a = offsetof(hvdb::Point, r), "flags"_a = offsetof(hvdb::Point, flags),
       "camera"_a = offsetof(hvdb::Point, camera), "reserved"_a = offsetof(hvdb::Point, reserved));
 
-  static py::object status_hook;  // __init__.py's raise_status(code_name, message)
-  m.def("_set_status_hook", [](py::object hook) { status_hook = std::move(hook); });
+  // __init__.py's raise_status(code_name, message). Never freed: a static py::object would be
+  // released after the interpreter has finalised.
+  static py::object* status_hook = new py::object();
+  m.def("_set_status_hook", [](py::object hook) { *status_hook = std::move(hook); });
   py::register_exception_translator([](std::exception_ptr p) {
     try {
       if (p) std::rethrow_exception(p);
     } catch (const StatusError& e) {
       // The hook raises the exception class of the code; its error is the one set here.
       try {
-        status_hook(hvdb::StatusCodeName(e.code), e.message);
+        (*status_hook)(hvdb::StatusCodeName(e.code), e.message);
       } catch (py::error_already_set& err) {
         err.restore();
       }

@@ -22,6 +22,10 @@
 #include <thread>
 
 #include "render/renderer.h"
+// simd.h's helpers pass 32-byte vectors by value; they are always inlined, so the ABI note
+// GCC gives for them in the non-AVX clone does not apply. (Before the include: GCC judges a
+// template's diagnostics by where it is defined.)
+#pragma GCC diagnostic ignored "-Wpsabi"
 #include "render/simd.h"
 #include "render/splat.h"
 
@@ -41,6 +45,11 @@ constexpr int kStride = kTile + 8;
 constexpr int kTileFloats = kTile * kStride;
 constexpr size_t kMinChunk = 32768;  // points per projection task
 constexpr size_t kMaxChunks = 64;    // bounds the per-chunk tile counters
+// Bounds the per-tile copies of the splats (a splat is copied into every tile it touches).
+constexpr size_t kMaxBinBytes = size_t{4} << 30;
+// Buffers kept between renders above this are given back after the render (a pooled renderer
+// should not keep one huge frame's memory).
+constexpr size_t kKeepBytes = size_t{512} << 20;
 
 struct alignas(64) TileBuffers {
   float zmin[kTileFloats];
@@ -52,9 +61,10 @@ struct alignas(64) TileBuffers {
 };
 
 // The pixels of splat s in row y of the tile at column tx0, as a column range [xa, xb]; false
-// when the row misses the cutoff ellipse. Splats wider than a run get the row's span of the
+// when the row misses the cutoff ellipse. Splats wider than two runs get the row's span of the
 // ellipse, ca dx^2 + 2 cb dy dx + cc dy^2 = r_C^2, widened by a pixel against rounding (the
-// per-pixel test still decides, as the shader's does); narrower ones just their box.
+// per-pixel test still decides, as the shader's does); narrower ones just their box (the span
+// rarely saves a whole run there, and costs a sqrt and two divisions a row).
 template <int kRun>
 HVDB_SIMD_INLINE bool RowRange(const Splat& s, float dy, float cutoff2, int tx0, int* xa,
                                int* xb) {
@@ -236,7 +246,7 @@ class CpuRenderer final : public Renderer {
     std::vector<float> weights = internal::ViewWeightTable(cam, options);
     tiles_x_ = (view.width + kTile - 1) / kTile;
     tiles_y_ = (view.height + kTile - 1) / kTile;
-    ProjectAndBin(points, view, weights);
+    HVDB_RETURN_IF_ERROR(ProjectAndBin(points, view, weights));
     // Every pixel is written below: buffers of the right size are kept as they are.
     img->width = view.width;
     img->height = view.height;
@@ -247,6 +257,14 @@ class CpuRenderer final : public Renderer {
     ParallelFor(size_t{tiles_x_} * tiles_y_, threads_, [&](size_t tile) {
       RenderTile(tile, view, options, probabilistic, img);
     });
+    if (bin_capacity_ * sizeof(Splat) > kKeepBytes) {
+      bin_.reset();
+      bin_capacity_ = 0;
+    }
+    if (splat_capacity_ * sizeof(Splat) > kKeepBytes) {
+      splats_.reset();
+      splat_capacity_ = 0;
+    }
     stats_.points = points.size();
     stats_.milliseconds =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
@@ -256,8 +274,10 @@ class CpuRenderer final : public Renderer {
  private:
   // Steps 1 and 2: fills splats_ (one per point; culled ones have x1 < x0) and the tile lists
   // bin_start_ / bin_.
-  void ProjectAndBin(std::span<const Point> points, const View& view,
-                     const std::vector<float>& weights) {
+  // LimitExceeded when the splats would need more than kMaxBinBytes of tile lists (huge
+  // splats: a camera inside the cloud, or a very coarse level).
+  Status ProjectAndBin(std::span<const Point> points, const View& view,
+                       const std::vector<float>& weights) {
     const size_t n = points.size();
     const size_t tiles = size_t{tiles_x_} * tiles_y_;
     if (n > splat_capacity_) {
@@ -295,6 +315,13 @@ class CpuRenderer final : public Renderer {
       }
       bin_start_[t + 1] = bin_start_[t] + at;
     }
+    if (bin_start_[tiles] > kMaxBinBytes / sizeof(Splat)) {
+      return Status::LimitExceeded(
+          "render: the splats cover " + std::to_string(bin_start_[tiles]) +
+          " screen tiles in all, more than the renderer holds (" +
+          std::to_string(kMaxBinBytes >> 20) +
+          " MiB of tile lists); move the camera back from the points or use a finer level");
+    }
     if (bin_start_[tiles] > bin_capacity_) {
       bin_capacity_ = bin_start_[tiles] + bin_start_[tiles] / 4;
       bin_.reset(new Splat[bin_capacity_]);
@@ -312,6 +339,7 @@ class CpuRenderer final : public Renderer {
         }
       }
     });
+    return Status::OK();
   }
 
   // Steps 3 and 4 for one tile.

@@ -29,6 +29,7 @@
 #include <limits>
 #include <map>
 #include <mutex>
+#include <optional>
 
 #include "render/renderer.h"
 #include "render/splat.h"
@@ -797,10 +798,23 @@ bool IsSoftwareRasteriser(const std::string& gl_renderer) {
   return false;
 }
 
-Result<std::unique_ptr<Renderer>> MakeEglRenderer() {
-  // An operator's (and the tests') switch for the CPU path on machines whose EGL misbehaves.
+namespace {
+
+// An operator's (and the tests') switch for the CPU path on machines whose EGL misbehaves.
+bool EglDisabled() {
   const char* off = std::getenv("HVDB_RENDER_NO_EGL");
-  if (off != nullptr && *off != '\0' && std::strcmp(off, "0") != 0) {
+  return off != nullptr && *off != '\0' && std::strcmp(off, "0") != 0;
+}
+
+// MakeRenderer(kAuto)'s finding that EGL is a software rasteriser here, with its reason; the
+// machine's devices do not change while the process runs.
+std::mutex g_auto_mu;
+std::optional<std::string> g_auto_software;
+
+}  // namespace
+
+Result<std::unique_ptr<Renderer>> MakeEglRenderer() {
+  if (EglDisabled()) {
     return Status::Unsupported("EGL renderer: disabled by HVDB_RENDER_NO_EGL");
   }
   return EglRenderer::Create();
@@ -813,6 +827,15 @@ Result<std::unique_ptr<Renderer>> MakeRenderer(RendererKind kind, std::string* w
     *why = "asked for the CPU renderer";
     return MakeCpuRenderer();
   }
+  if (kind == RendererKind::kAuto && !EglDisabled()) {
+    // Known already: EGL here is a software rasteriser (probing again would make and destroy
+    // a context per render).
+    std::lock_guard<std::mutex> l(g_auto_mu);
+    if (g_auto_software) {
+      *why = *g_auto_software;
+      return MakeCpuRenderer();
+    }
+  }
   auto egl = MakeEglRenderer();
   if (kind == RendererKind::kEgl) {
     *why = "asked for the EGL renderer";
@@ -823,7 +846,12 @@ Result<std::unique_ptr<Renderer>> MakeRenderer(RendererKind kind, std::string* w
     internal::LogWarning("falling back to the CPU renderer: " + egl.status().message());
     return MakeCpuRenderer();
   }
-  return ChooseAuto(std::move(egl).value(), why);
+  std::unique_ptr<Renderer> chosen = ChooseAuto(std::move(egl).value(), why);
+  if (chosen->kind() == RendererKind::kCpu) {
+    std::lock_guard<std::mutex> l(g_auto_mu);
+    g_auto_software = *why;
+  }
+  return chosen;
 }
 
 std::unique_ptr<Renderer> ChooseAuto(std::unique_ptr<Renderer> egl, std::string* why) {

@@ -210,6 +210,7 @@ Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> da
 }
 
 RenderJob::~RenderJob() {
+  stop_ = true;  // a query in flight stops at its next batch
   if (prefetch_.valid()) prefetch_.wait();
 }
 
@@ -222,7 +223,9 @@ Status RenderJob::Query(const Step& step, const std::atomic<bool>* cancelled,
   HVDB_ASSIGN_OR_RETURN(auto cursor, dataset_->Query(regions_[step.region], q));
   Batch batch;
   for (;;) {
-    if (cancelled != nullptr && *cancelled) return Status::Cancelled("render cancelled");
+    if ((cancelled != nullptr && *cancelled) || stop_) {
+      return Status::Cancelled("render cancelled");
+    }
     HVDB_ASSIGN_OR_RETURN(bool more, cursor->Next(&batch));
     if (!more) break;
     if (out->points.size() + batch.points.size() > limits_.max_points) {

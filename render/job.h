@@ -28,7 +28,8 @@
 namespace hvdb::render {
 
 struct RenderLimits {
-  // Points one image may draw (they are held in memory); hvdb-server: --max-render-points.
+  // Points one image may draw (they are held in memory; a sequence holds the next image's
+  // too while it draws one); hvdb-server: --max-render-points.
   uint64_t max_points = 16u << 20;
   uint32_t max_images = 100000;  // images in one sequence
 };
@@ -39,7 +40,7 @@ class RenderJob {
   static Result<std::unique_ptr<RenderJob>> Create(std::shared_ptr<Dataset> dataset,
                                                    const wire::Render& request,
                                                    const RenderLimits& limits = {});
-  // Waits for a query in flight.
+  // Stops and waits for a query in flight.
   ~RenderJob();
   // Replies the request asks for: path size for a sequence, 2 for a progressive single view
   // (preview, then the image), else 1.
@@ -93,8 +94,10 @@ class RenderJob {
   Points current_;
   Image image_;  // the last image drawn; its buffers are reused by the next
   // The next step's points, filled by prefetch_'s thread; read only after prefetch_.get().
+  // With current_, a job may hold two images' points: up to 2x RenderLimits::max_points.
   Points next_;
   std::future<Status> prefetch_;
+  std::atomic<bool> stop_{false};  // set by the destructor: the prefetch gives up
 };
 
 // A camera of the dataset (storage's CameraInfo) as a render camera: the same fields.

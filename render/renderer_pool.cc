@@ -69,7 +69,15 @@ Result<std::unique_ptr<Renderer>> RendererPool::Take(RendererKind kind, bool* fa
     if (*use_egl) {
       bool unused;
       std::string ignored;
-      return Take(RendererKind::kEgl, &unused, &ignored);
+      auto egl = Take(RendererKind::kEgl, &unused, &ignored);
+      if (egl.ok()) return egl;
+      // A GPU that cannot give one more context now (memory, driver limits): this request
+      // falls back rather than fails, as auto promises.
+      internal::LogWarning("render service: using the CPU renderer for this request: " +
+                           egl.status().message());
+      *fallback = true;
+      *why = "render service: the GPU gave no EGL context (" + egl.status().message() +
+             "): the CPU renderer";
     }
     kind = RendererKind::kCpu;
   } else {
@@ -91,8 +99,10 @@ Result<std::unique_ptr<Renderer>> RendererPool::Take(RendererKind kind, bool* fa
     auto r = MakeEglRenderer();
     if (r.ok()) return r;
     std::lock_guard<std::mutex> l(mu_);
-    if (!egl_error_) egl_error_ = r.status();
-    return *egl_error_;
+    // Remembered (not retried: each attempt costs a driver initialisation) unless EGL has
+    // worked here before: then the failure is taken as passing (a GPU out of contexts).
+    if (!egl_error_ && !egl_worked_) egl_error_ = r.status();
+    return r.status();
   }
   {
     std::lock_guard<std::mutex> l(mu_);
@@ -107,6 +117,7 @@ Result<std::unique_ptr<Renderer>> RendererPool::Take(RendererKind kind, bool* fa
 
 void RendererPool::Give(std::unique_ptr<Renderer> r) {
   std::lock_guard<std::mutex> l(mu_);
+  if (r && r->kind() == RendererKind::kEgl) egl_worked_ = true;
   if (r) (r->kind() == RendererKind::kEgl ? idle_egl_ : idle_cpu_).push_back(std::move(r));
   --in_use_;
 }

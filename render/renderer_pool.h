@@ -66,6 +66,7 @@ class RendererPool {
   // Why no EGL renderer could be made, once that has happened (not retried: each attempt
   // costs a driver initialisation).
   std::optional<Status> egl_error_;
+  bool egl_worked_ = false;  // an EGL renderer has been made (and given back) here
   // kAuto's choice once made: EGL (a GPU) or not, and why.
   std::optional<bool> auto_egl_;
   std::string auto_reason_;

@@ -10,10 +10,8 @@
 #include <cstdint>
 #include <cstring>
 
-// The helpers below pass vectors by value; they are always inlined, so the ABI warning GCC
-// gives for 32-byte vectors in the non-AVX clone does not concern them.
-#pragma GCC diagnostic ignored "-Wpsabi"
-
+// The helpers below pass vectors by value; they are always inlined. (Their includer silences
+// GCC's -Wpsabi note about that for the non-AVX clone.)
 namespace hvdb::render::internal {
 
 typedef float F8 __attribute__((vector_size(32)));

@@ -340,6 +340,7 @@ class Database:
 
     def __init__(self, impl):
         self._db = impl
+        self._remote, self._where = impl.remote, impl.where
 
     def __enter__(self):
         return self
@@ -351,13 +352,19 @@ class Database:
     def __repr__(self):
         return f"hvdb.Database({'server' if self.remote else 'embedded'} {self.where})"
 
+    def _drain(self, q):
+        try:
+            return self._results(q.all)
+        finally:
+            q.close()
+
     def _call(self, fn, *args):
         if self._db is None:
             raise InvalidArgument("the database is closed")
         try:
             return getattr(self._db, fn)(*args)
         except IOError as e:
-            if self._db.remote and not isinstance(e, Unavailable):
+            if self._remote and not isinstance(e, Unavailable):
                 raise Unavailable(str(e)) from None
             raise
 
@@ -370,12 +377,12 @@ class Database:
     @property
     def remote(self):
         """True for a server, False for a data directory."""
-        return self._db.remote
+        return self._remote
 
     @property
     def where(self):
         """The data directory, or HOST:PORT of the server."""
-        return self._db.where
+        return self._where
 
     # -- datasets --
     def datasets(self):
@@ -415,7 +422,7 @@ class Database:
         Returns a POINT_DTYPE array."""
         q = self._query(dataset, _window(x, y, z, t), level, temporal_lod=temporal_lod,
                         label_mask=label_mask)
-        return _drain(q)
+        return self._drain(q)
 
     def frame(self, dataset, t=None, frame=None, level=0, label_mask=0):
         """The points of one frame: at time t (seconds) or by index `frame`."""
@@ -434,25 +441,38 @@ class Database:
         projected ones. clip: a dict of window ranges (x=, y=, z=, t=) that bounds it;
         max_frames: the frames it may read (0: the server's default)."""
         region = _slice(normal, offset, thickness, clip, max_frames)
-        return _drain(self._query(dataset, region, level, label_mask=label_mask))
+        return self._drain(self._query(dataset, region, level, label_mask=label_mask))
 
     def stream(self, dataset, x=None, y=None, z=None, t=None, level=0, progressive=True,
                normal=None, offset=0.0, thickness=0.0, label_mask=0):
         """Yields (points, level) batches as they arrive, coarse levels first with
-        progressive. A window by default; a hyperslice when `normal` is given. Stopping the
-        loop (break, Ctrl-C) cancels the query; the database stays usable."""
+        progressive. A window by default; a hyperslice when `normal` is given. Arguments are
+        checked and the query is opened here, before the first batch. Stopping the loop
+        (break, Ctrl-C) cancels the query; the database stays usable."""
         region = (_slice(normal, offset, thickness, None, 0) if normal is not None
                   else _window(x, y, z, t))
         q = self._query(dataset, region, level, progressive=progressive,
                         label_mask=label_mask)
+        return self._batches(q)
+
+    def _batches(self, q):
         try:
             while True:
-                batch = q.next()
+                batch = self._results(q.next)
                 if batch is None:
                     return
                 yield batch
         finally:
             q.close()
+
+    def _results(self, fn):
+        """Runs a query's next()/all() with the same error translation as _call."""
+        try:
+            return fn()
+        except IOError as e:
+            if self.remote and not isinstance(e, Unavailable):
+                raise Unavailable(str(e)) from None
+            raise
 
     # -- writes --
     def load(self, dataset, frame, pts):
@@ -549,11 +569,6 @@ def _to_srgb8(linear):
     return np.rint(s * 255).astype(np.uint8)
 
 
-def _drain(q):
-    try:
-        return q.all()
-    finally:
-        q.close()
 
 
 class Transaction:
@@ -576,8 +591,9 @@ class Transaction:
         return False
 
     def insert(self, pts):
-        """Inserts points (a POINT_DTYPE array; id 0 lets the engine assign one)."""
-        self._ops.append(("insert", _check_points("points", pts)))
+        """Inserts points (a POINT_DTYPE array; id 0 lets the engine assign one). The array
+        is copied: changing it afterwards does not change what is committed."""
+        self._ops.append(("insert", np.array(_check_points("points", pts), copy=True)))
 
     def delete(self, x=None, y=None, z=None, t=None, label_mask=0):
         """Deletes the points of a box (and, with label_mask, carrying those bits)."""

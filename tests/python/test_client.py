@@ -246,3 +246,29 @@ def test_queries_run_in_threads(env):
         th.join()
     for f in range(4):
         assert results[f] == len(env.db.frame(DATASET, frame=f)) > 50000
+
+
+def test_streams_outlive_close_and_check_arguments_at_once(env):
+    db = env.db
+    with pytest.raises(hvdb.InvalidArgument, match="level"):
+        db.stream(DATASET, level=9)  # refused here, not at the first batch
+    with pytest.raises(hvdb.NotFound):
+        db.stream("nope")
+    s = db.stream(DATASET, t=(0.1, 0.1), progressive=True)
+    first = next(s)
+    db.close()  # the open query keeps what it needs until it ends
+    rest = [b for b, _ in s]
+    assert len(first[0]) + sum(len(b) for b in rest) == len(env.reopen().frame(DATASET, frame=3))
+    with pytest.raises(hvdb.InvalidArgument, match="closed"):
+        db.info(DATASET)
+
+
+def test_an_inserted_array_is_copied(env):
+    db = env.db
+    buf = hvdb.points(np.array([[7.0, 7.0, 7.0]]), frame=0)
+    with db.transaction(DATASET) as tx:
+        for f in (1, 2, 3):
+            buf["frame"] = f
+            tx.insert(buf)
+    got = db.window(DATASET, x=(6.9, 7.1))
+    assert sorted(got["frame"].tolist()) == [1, 2, 3]

@@ -148,3 +148,32 @@ TEST(TileRasterTest, ARendererIsReusedAcrossSizesAndScenes) {
 
 }  // namespace
 }  // namespace hvdb::render
+
+namespace hvdb::render {
+namespace {
+
+TEST(TileRasterTest, SplatsThatWouldNeedTooMuchMemoryAreRefusedClearly) {
+  // 6000 splats, each covering all 16384 tiles of a 4096 x 4096 image (a camera inside a
+  // cloud of huge Gaussians): ~98 M tile entries, beyond what the renderer holds. Refused
+  // with LimitExceeded, and the renderer works afterwards.
+  std::vector<Point> pts;
+  const float t1[3] = {1, 0, 0}, t2[3] = {0, 1, 0}, n[3] = {0, 0, 1};
+  for (int i = 0; i < 6000; ++i) {
+    pts.push_back(testing::Surfel(0.001f * static_cast<float>(i % 10), 0, 1, t1, t2, n, 5.0f,
+                                  200, 100, 50));
+  }
+  Camera cam;
+  cam.width = cam.height = 4096;
+  cam.fx = cam.fy = 2000;
+  cam.cx = cam.cy = 2047.5;
+  auto r = MakeCpuRenderer(2);
+  auto img = r->Render(pts, cam, {});
+  ASSERT_FALSE(img.ok());
+  EXPECT_EQ(img.status().code(), StatusCode::kLimitExceeded) << img.status().ToString();
+  EXPECT_NE(img.status().message().find("move the camera back"), std::string::npos);
+  auto small = r->Render(testing::SphereScene(2000), testing::ViewFrom(0, 0, 1, 3, 64, 48), {});
+  EXPECT_TRUE(small.ok());
+}
+
+}  // namespace
+}  // namespace hvdb::render
