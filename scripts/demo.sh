@@ -65,6 +65,7 @@ hvdb-server is running on $LISTEN with the dataset 'panoptic' ($DATA). Try, in a
   $HVDB --server $LISTEN stats panoptic
   $HVDB --server $LISTEN render panoptic --box -10 10 -10 10 -10 10 0.3 0.31 \\
       --look-at 1.5 -0.9 -2.5 -0.4 -0.9 0 --fov 40 --size 640 480 --out side.png
+  python3 examples/frame_stats.py          # the same server from Python (README: From Python)
 Ctrl-C stops the server.
 MSG
 wait $server_pid
