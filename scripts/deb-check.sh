@@ -21,6 +21,7 @@ if [ ! -x "$ROOT/usr/bin/apt-get" ]; then
   debootstrap --variant=minbase bookworm "$ROOT" "$MIRROR" >/dev/null
 fi
 cleanup() {
+  # Best effort on the way out, whatever failed: nothing of it must outlive the script.
   # The server started below (minbase has no pkill; the pattern is unique to this script).
   pkill -f "port-file /tmp/deb-check.port" 2>/dev/null || true
   sleep 0.5
@@ -52,7 +53,7 @@ for _ in $(seq 100); do
   [ -s "$ROOT/tmp/deb-check.port" ] && break
   sleep 0.1
 done
-port=$(cat "$ROOT/tmp/deb-check.port" 2>/dev/null || true)
+port=$(cat "$ROOT/tmp/deb-check.port" 2>/dev/null || true)  # empty is reported just below
 if [ -z "$port" ]; then
   echo "deb-check: hvdb-server did not start:" >&2
   cat "$ROOT/tmp/server.log" >&2
