@@ -15,15 +15,18 @@ cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=Debug -DHVDB_SANITIZE=ON -D
 cmake --build build-asan --target storage_tests server_tests
 ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
   ctest --test-dir build-asan --output-on-failure -j2 --timeout 900 \
-  -R '^(Crc32c|Point|BufferPool|Lod|KdTree|Hyperslice|Wal|Dataset|Crash|Corruption|FaultInjection|Server)' \
+  -R '^(Crc32c|Point|BufferPool|Lod|KdTree|Hyperslice|Wal|Dataset|Crash|Corruption|FaultInjection|Server|HttpServer|WsCodec|WebPath|OriginAllowed)' \
   -E 'SlowReaderDoesNotGrowServerMemory|AClientThatNeverReleasesHoldsOnlyItsRing|ClientsKilledWhileHoldingSlotsLeakNothing'
 
-# Fuzz the server's frame and message decoder with clang's libFuzzer for 20 seconds.
+# Fuzz the server's decoders with clang's libFuzzer, 20 seconds each: the frame and message
+# decoder of the socket protocol, and the WebSocket messages and HTTP paths of the browser's.
 CC=clang CXX=clang++ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DHVDB_FUZZ=ON -DHVDB_BUILD_BENCH=OFF >/dev/null
-cmake --build build-fuzz --target frame_decoder_fuzz
-corpus=$(mktemp -d)
-cp tests/server/fuzz_corpus/* "$corpus"/
-build-fuzz/tests/frame_decoder_fuzz -max_total_time=20 -rss_limit_mb=2048 "$corpus" 2>&1 | tail -n 2
-rm -rf "$corpus"
+cmake --build build-fuzz --target frame_decoder_fuzz ws_message_fuzz
+for target in frame_decoder_fuzz:fuzz_corpus ws_message_fuzz:ws_fuzz_corpus; do
+  corpus=$(mktemp -d)
+  cp "tests/server/${target#*:}"/* "$corpus"/
+  "build-fuzz/tests/${target%%:*}" -max_total_time=20 -rss_limit_mb=2048 "$corpus" 2>&1 | tail -n 2
+  rm -rf "$corpus"
+done
 echo "test: all suites passed"

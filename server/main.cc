@@ -18,6 +18,15 @@ int main(int argc, char** argv) {
                  "non-loopback address needs --token-file) or unix:PATH (the local fast path; "
                  "'unix:' alone is DATA/hvdb.sock). Default: 127.0.0.1:7878 and unix:")
       ->capture_default_str();
+  app.add_option("--http", c.http_listen,
+                 "also serve HTTP on HOST:PORT: the web viewer and its WebSocket at /ws (a "
+                 "non-loopback address needs --token-file)");
+  app.add_option("--web-root", c.web_root,
+                 "folder of the web viewer's files (default: the source tree's web/ when built "
+                 "from one, else the installed share/hvdb/web)");
+  app.add_option("--http-origin", c.http_origins,
+                 "another origin (http://HOST:PORT) whose pages may open the WebSocket; "
+                 "repeatable (default: only the server's own pages)");
   app.add_option("--token-file", c.token_file, "access tokens, one 'TOKEN ro|rw' per line");
   app.add_option("--port-file", c.port_file, "write the bound port to this file");
   app.add_option("--io-threads", c.io_threads, "network threads (sockets, and query batches in bounded tasks)")->capture_default_str()
@@ -63,6 +72,11 @@ int main(int argc, char** argv) {
     std::printf("hvdb-server listening on port %u%s%s\n", (*server)->port(),
                 (*server)->local_socket().empty() ? "" : " and unix:",
                 (*server)->local_socket().c_str());
+    if ((*server)->http_port() != 0) {
+      const std::string& h = c.http_listen;
+      std::printf("hvdb-server web viewer at http://%s:%u/\n", h.substr(0, h.rfind(':')).c_str(),
+                  (*server)->http_port());
+    }
     std::fflush(stdout);
     (*server)->Run(/*handle_signals=*/true);
   } catch (const std::exception& e) {

@@ -11,6 +11,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "server/http.h"
 #include "server/session.h"
 
 namespace hvdb::server {
@@ -45,6 +46,18 @@ Server::~Server() {
   Stop();
   workers_.join();
 }
+
+std::string DefaultWebRoot() {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  if (fs::is_regular_file(fs::path(HVDB_SOURCE_WEB_ROOT) / "index.html", ec)) {
+    return HVDB_SOURCE_WEB_ROOT;
+  }
+  return HVDB_INSTALLED_WEB_ROOT;
+}
+
+uint16_t Server::http_port() const { return http_ ? http_->port() : 0; }
+std::string Server::web_root() const { return http_ ? http_->web_root() : ""; }
 
 static bool ParseHostPort(const std::string& s, std::string* host, uint16_t* port) {
   auto colon = s.rfind(':');
@@ -121,6 +134,21 @@ Result<std::unique_ptr<Server>> Server::Create(const Config& config) {
                                    " is not a loopback address: give --token-file so that "
                                    "clients must authenticate");
   }
+  std::string http_host;
+  uint16_t http_port = 0;
+  if (!config.http_listen.empty()) {
+    if (!ParseHostPort(config.http_listen, &http_host, &http_port)) {
+      return Status::InvalidArgument("--http: expected HOST:PORT, got '" + config.http_listen + "'");
+    }
+    boost::system::error_code ec;
+    auto addr = asio::ip::make_address(http_host, ec);
+    if (ec) return Status::InvalidArgument("--http: '" + http_host + "' is not an IP address");
+    if (!addr.is_loopback() && tokens.empty()) {
+      return Status::InvalidArgument("--http " + config.http_listen +
+                                     " is not a loopback address: give --token-file so that "
+                                     "the WebSocket's clients must authenticate");
+    }
+  }
   Options opts;
   opts.cache_bytes = config.cache_mb << 20;
   opts.sync = config.sync;
@@ -132,6 +160,25 @@ Result<std::unique_ptr<Server>> Server::Create(const Config& config) {
   s->tcp_listen_ = tcp_listen;
   s->local_socket_ = local_socket;
   HVDB_RETURN_IF_ERROR(s->Listen());
+  if (!config.http_listen.empty()) {
+    HVDB_ASSIGN_OR_RETURN(
+        s->http_, HttpFrontend::Create(s.get(), http_host, http_port,
+                                       config.web_root.empty() ? DefaultWebRoot() : config.web_root,
+                                       config.http_origins));
+  }
+  // The bound ports: the protocol's, then, with --http, the web viewer's on a second line.
+  // Written whole, then renamed: a reader never sees half of it.
+  if (!config.port_file.empty()) {
+    const std::string tmp = config.port_file + ".tmp";
+    {
+      std::ofstream out(tmp);
+      out << s->port_ << "\n";
+      if (s->http_) out << s->http_->port() << "\n";
+    }
+    std::error_code fec;
+    std::filesystem::rename(tmp, config.port_file, fec);
+    if (fec) return Status::IOError("--port-file " + config.port_file + ": " + fec.message());
+  }
   return s;
 }
 
@@ -149,9 +196,6 @@ Status Server::Listen() {
     if (!ec) acceptor_.listen(asio::socket_base::max_listen_connections, ec);
     if (ec) return Status::IOError("listen on " + tcp_listen_ + ": " + ec.message());
     port_ = acceptor_.local_endpoint().port();
-  }
-  if (!config_.port_file.empty()) {
-    std::ofstream(config_.port_file) << port_ << "\n";
   }
   return Status::OK();
 }
@@ -188,8 +232,8 @@ Role Server::Authenticate(const std::string& token) const {
 }
 
 void Server::Accept() {
-  acceptor_.async_accept(asio::make_strand(io_), [this](boost::system::error_code ec,
-                                                        tcp::socket socket) {
+  Strand strand = asio::make_strand(io_);
+  acceptor_.async_accept(strand, [this, strand](boost::system::error_code ec, tcp::socket socket) {
     if (ec) {
       if (!stopping_) {
         Log(LogLevel::kWarn, "accept: " + ec.message());
@@ -201,14 +245,18 @@ void Server::Accept() {
     socket.set_option(tcp::no_delay(true), ignored);
     auto peer = socket.remote_endpoint(ignored);
     const bool loopback = !ignored && peer.address().is_loopback();
-    Admit(std::make_shared<Session>(this, StreamSocket(std::move(socket)), false, loopback));
+    Admit(std::make_shared<Session>(
+        this, strand, MakeStreamTransport(StreamSocket(std::move(socket)), strand,
+                                          config_.max_frame_bytes),
+        false, loopback));
     Accept();
   });
 }
 
 void Server::AcceptUnix() {
-  unix_acceptor_.async_accept(asio::make_strand(io_), [this](boost::system::error_code ec,
-                                                             asio::local::stream_protocol::socket socket) {
+  Strand strand = asio::make_strand(io_);
+  unix_acceptor_.async_accept(strand, [this, strand](boost::system::error_code ec,
+                                                     asio::local::stream_protocol::socket socket) {
     if (ec) {
       if (!stopping_) {
         Log(LogLevel::kWarn, "accept on unix:" + local_socket_ + ": " + ec.message());
@@ -216,7 +264,10 @@ void Server::AcceptUnix() {
       }
       return;
     }
-    Admit(std::make_shared<Session>(this, StreamSocket(std::move(socket)), true, false));
+    Admit(std::make_shared<Session>(
+        this, strand, MakeStreamTransport(StreamSocket(std::move(socket)), strand,
+                                          config_.max_frame_bytes),
+        true, false));
     AcceptUnix();
   });
 }
@@ -266,6 +317,12 @@ void Server::Run(bool handle_signals) {
     AcceptUnix();
     Log(LogLevel::kInfo, "hvdb-server listening on unix:" + local_socket_ + " (local fast path)");
   }
+  if (http_) {
+    http_->Start();
+    Log(LogLevel::kInfo, "web viewer on http://" + config_.http_listen.substr(0, config_.http_listen.rfind(':')) +
+                             ":" + std::to_string(http_->port()) + "/ (files from " +
+                             http_->web_root() + ")");
+  }
   std::vector<std::thread> threads;
   for (unsigned i = 1; i < config_.io_threads; ++i) threads.emplace_back([this] { io_.run(); });
   io_.run();
@@ -282,6 +339,7 @@ void Server::Stop() {
     boost::system::error_code ignored;
     acceptor_.close(ignored);
     unix_acceptor_.close(ignored);
+    if (http_) http_->Stop();
     signals_.cancel(ignored);
     std::set<std::shared_ptr<Session>> all;
     {

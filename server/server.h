@@ -59,11 +59,21 @@ struct Config {
   bool sync = true;
   std::string token_file;  // lines "TOKEN ro|rw"; required for a non-loopback address
   std::string port_file;   // written with the bound port once listening
+  // HTTP/WebSocket for the browser (server/http.h): HOST:PORT, "" for none; the web viewer's
+  // files ("": the source tree's web/ when built from one, else the installed one); other
+  // origins whose pages may open the WebSocket.
+  std::string http_listen;
+  std::string web_root;
+  std::vector<std::string> http_origins;
 };
+
+// Where the web viewer's files are when --web-root is not given.
+std::string DefaultWebRoot();
 
 enum class Role { kNone, kReadOnly, kReadWrite };
 
 class Session;
+class HttpFrontend;
 
 class Server {
  public:
@@ -74,6 +84,9 @@ class Server {
   // Stops accepting, cancels in-flight work, closes connections. Thread-safe.
   void Stop();
   uint16_t port() const { return port_; }
+  // The --http port (0 if none) and the web root it serves.
+  uint16_t http_port() const;
+  std::string web_root() const;
   // The absolute path of the Unix socket ("" if none).
   const std::string& local_socket() const { return local_socket_; }
 
@@ -87,6 +100,9 @@ class Server {
   // Role of a token; kNone if it is unknown (or tokens are required and none was given).
   Role Authenticate(const std::string& token) const;
   void Forget(Session* s);
+  // Starts serving a connection (refused when the server is at --max-connections); the HTTP
+  // front end admits its WebSockets here too.
+  void Admit(std::shared_ptr<Session> session);
 
  private:
   Server(Config config, std::unique_ptr<Database> db);
@@ -94,7 +110,6 @@ class Server {
   Status ListenUnix(const std::string& path);
   void Accept();
   void AcceptUnix();
-  void Admit(std::shared_ptr<Session> session);
 
   Config config_;
   std::unique_ptr<Database> db_;
@@ -106,6 +121,7 @@ class Server {
   std::string tcp_listen_;    // "" if none
   std::string local_socket_;  // "" if none
   boost::asio::signal_set signals_;
+  std::unique_ptr<HttpFrontend> http_;
   std::map<std::string, Role> tokens_;
   bool require_token_ = false;
   uint16_t port_ = 0;

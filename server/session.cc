@@ -11,12 +11,13 @@ namespace hvdb::server {
 
 namespace asio = boost::asio;
 
-Session::Session(Server* server, StreamSocket socket, bool unix_socket, bool loopback)
+Session::Session(Server* server, Strand strand, std::shared_ptr<Transport> transport,
+                 bool unix_socket, bool loopback)
     : server_(server),
-      socket_(std::move(socket)),
       unix_socket_(unix_socket),
       loopback_(loopback),
-      strand_(asio::make_strand(static_cast<asio::io_context&>(socket_.get_executor().context()))),
+      strand_(std::move(strand)),
+      transport_(std::move(transport)),
       timer_(strand_) {}
 
 void Session::Start() {
@@ -27,7 +28,7 @@ void Session::Start() {
   auto self = shared_from_this();
   asio::dispatch(strand_, [self] {
     self->ArmTimer();
-    self->ReadHeader();
+    self->ReadNext();
   });
 }
 
@@ -46,70 +47,29 @@ void Session::ArmTimer() {
   });
 }
 
-void Session::ReadHeader() {
+void Session::ReadNext() {
   auto self = shared_from_this();
-  asio::async_read(socket_, asio::buffer(header_),
-                   asio::bind_executor(strand_, [self](boost::system::error_code ec, size_t) {
+  transport_->Read(hello_done_ ? nullptr : &hello_msg_, &request_,
+                   [self](boost::system::error_code ec, Status st, size_t n) {
                      if (ec || self->closed_) return self->CloseOnStrand();
-                     uint32_t len;
-                     bool attachment = false;
-                     if (!wire::ParseFrameHeader(self->header_,
-                                                 self->server_->config().max_frame_bytes, &len,
-                                                 &attachment)) {
+                     self->server_->stats().bytes_in += n;
+                     if (!st.ok()) {  // undecodable: the stream cannot be trusted any more
                        self->close_after_write_ = true;
-                       self->SendError(0, Status::InvalidArgument(
-                                              "frame of " + std::to_string(len) +
-                                              " bytes exceeds the limit of " +
-                                              std::to_string(self->server_->config().max_frame_bytes)),
-                                       wire::MALFORMED);
-                       return;
+                       return self->SendError(0, st, wire::MALFORMED);
                      }
-                     if (attachment) {
-                       self->close_after_write_ = true;
-                       self->SendError(0, Status::InvalidArgument(
-                                              "a client frame may not carry an attachment (bit "
-                                              "31 of the length word)"),
-                                       wire::MALFORMED);
-                       return;
-                     }
-                     self->ReadBody(len);
-                   }));
-}
-
-void Session::ReadBody(uint32_t len) {
-  body_.resize(len);
-  auto self = shared_from_this();
-  asio::async_read(socket_, asio::buffer(body_),
-                   asio::bind_executor(strand_, [self](boost::system::error_code ec, size_t n) {
-                     if (ec || self->closed_) return self->CloseOnStrand();
-                     self->server_->stats().bytes_in += n + wire::kFrameHeaderSize;
                      self->deadline_ = Clock::now() + std::chrono::seconds(
                                                           self->server_->config().idle_timeout_s);
-                     self->OnFrame();
-                     if (!self->closed_ && !self->close_after_write_) self->ReadHeader();
-                   }));
+                     if (!self->hello_done_) {
+                       self->OnHello();
+                     } else {
+                       self->Dispatch(std::move(self->request_));
+                     }
+                     if (!self->closed_ && !self->close_after_write_) self->ReadNext();
+                   });
 }
 
-void Session::OnFrame() {
-  if (!hello_done_) return OnHello(body_);
-  wire::Request req;
-  if (!req.ParseFromString(body_)) {
-    close_after_write_ = true;
-    SendError(0, Status::InvalidArgument("request frame is not a valid Request message"),
-              wire::MALFORMED);
-    return;
-  }
-  Dispatch(std::move(req));
-}
-
-void Session::OnHello(const std::string& payload) {
-  wire::Hello hello;
-  wire::Response err;
-  if (!hello.ParseFromString(payload)) {
-    close_after_write_ = true;
-    return SendError(0, Status::InvalidArgument("the first frame must be a Hello message"),
-                     wire::MALFORMED);
-  }
+void Session::OnHello() {
+  const wire::Hello& hello = hello_msg_;
   if (hello.protocol_version() != wire::kProtocolVersion) {
     close_after_write_ = true;
     return SendError(0, Status::Unsupported("protocol version " +
@@ -149,7 +109,7 @@ void Session::OnHello(const std::string& payload) {
       slot_owner_.assign(ring_->slots(), {});
       for (int i = static_cast<int>(ring_->slots()) - 1; i >= 0; --i) free_slots_.push_back(i);
       std::string frame = wire::Frame(reply);
-      Status st = wire::SendWithFd(socket_.native_handle(), frame, ring_->fd(),
+      Status st = wire::SendWithFd(transport_->native_handle(), frame, ring_->fd(),
                                    std::chrono::seconds(server_->config().handshake_timeout_s));
       if (!st.ok()) {
         Log(LogLevel::kWarn, "handshake with shared memory failed: " + st.ToString());
@@ -418,13 +378,12 @@ void Session::Finish(uint64_t id) {
   ops_.erase(it);
 }
 
-void Session::Send(const google::protobuf::MessageLite& m) {
-  Enqueue(OutFrame{wire::Frame(m), {}, 0});
+void Session::Send(const google::protobuf::Message& m) {
+  Enqueue(transport_->Encode(m, {}, 0));
 }
 
 void Session::SendRecords(const wire::Response& r, std::vector<Point> records, size_t count) {
-  const auto bytes = static_cast<uint32_t>(count * sizeof(Point));
-  Enqueue(OutFrame{wire::FrameHead(r, bytes), std::move(records), count});
+  Enqueue(transport_->Encode(r, std::move(records), count));
 }
 
 void Session::Enqueue(OutFrame f) {
@@ -442,42 +401,31 @@ void Session::WriteNext() {
   if (writing_ || corked_ || out_.empty() || closed_) return;
   writing_ = true;
   auto self = shared_from_this();
-  // Every frame queued so far in one gather write (a batch and its QueryDone, a task's
-  // batches): one system call and one completion instead of one per frame.
-  std::vector<asio::const_buffer> bufs;
-  size_t frames = 0;
-  for (const OutFrame& f : out_) {
-    if (frames == kMaxGather) break;
-    bufs.push_back(asio::buffer(f.head));
-    if (f.count > 0) bufs.push_back(asio::buffer(f.records.data(), f.count * sizeof(Point)));
-    ++frames;
-  }
-  asio::async_write(socket_, bufs,
-                    asio::bind_executor(strand_, [self, frames](boost::system::error_code ec, size_t n) {
-                      self->writing_ = false;
-                      if (ec) return self->CloseOnStrand();
-                      self->server_->stats().bytes_out += n;
-                      for (size_t k = 0; k < frames; ++k) {
-                        OutFrame& done = self->out_.front();
-                        self->bytes_queued_ -= done.bytes();
-                        // The records' buffer serves the next batch (a few, so memory stays
-                        // bounded by the flow control's high-water mark).
-                        if (done.records.capacity() != 0 && self->spare_.size() < kMaxSpares) {
-                          self->spare_.push_back(std::move(done.records));
-                        }
-                        self->out_.pop_front();
-                      }
-                      // A write finishing is progress too: a slow reader is not idle.
-                      self->deadline_ = Clock::now() + std::chrono::seconds(
-                                                           self->server_->config().idle_timeout_s);
-                      if (self->bytes_queued_ < self->server_->config().outbound_high_water / 2) {
-                        self->ResumePaused();
-                      }
-                      if (self->out_.empty() && self->close_after_write_) {
-                        return self->CloseOnStrand();
-                      }
-                      self->WriteNext();
-                    }));
+  transport_->Write(out_, [self](boost::system::error_code ec, size_t frames, size_t n) {
+    self->writing_ = false;
+    if (ec) return self->CloseOnStrand();
+    self->server_->stats().bytes_out += n;
+    for (size_t k = 0; k < frames; ++k) {
+      OutFrame& done = self->out_.front();
+      self->bytes_queued_ -= done.bytes();
+      // The records' buffer serves the next batch (a few, so memory stays
+      // bounded by the flow control's high-water mark).
+      if (done.records.capacity() != 0 && self->spare_.size() < kMaxSpares) {
+        self->spare_.push_back(std::move(done.records));
+      }
+      self->out_.pop_front();
+    }
+    // A write finishing is progress too: a slow reader is not idle.
+    self->deadline_ = Clock::now() + std::chrono::seconds(
+                                         self->server_->config().idle_timeout_s);
+    if (self->bytes_queued_ < self->server_->config().outbound_high_water / 2) {
+      self->ResumePaused();
+    }
+    if (self->out_.empty() && self->close_after_write_) {
+      return self->CloseOnStrand();
+    }
+    self->WriteNext();
+  });
 }
 
 void Session::Refuse(const Status& st) {
@@ -505,8 +453,7 @@ void Session::CloseOnStrand() {
   ring_.reset();
   boost::system::error_code ignored;
   timer_.cancel(ignored);
-  socket_.shutdown(StreamSocket::shutdown_both, ignored);
-  socket_.close(ignored);
+  transport_->Close();
   server_->stats().connections_open--;
   server_->Forget(this);
 }

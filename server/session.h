@@ -1,7 +1,8 @@
-// Session: one client connection (TCP or Unix socket). All socket I/O and session state live on
-// the session's strand; request work runs on the server's worker pool and posts its responses
-// back. session.cc: framing, handshake, dispatch, the write queue; session_stream.cc: the
-// streamed requests (query batches and render sequences) under flow control.
+// Session: one client connection (TCP or Unix socket, or a browser's WebSocket: the transport
+// decodes its bytes into requests, server/transport.h). All I/O and session state live on the
+// session's strand; request work runs on the server's worker pool and posts its responses
+// back. session.cc: handshake, dispatch, the write queue; session_stream.cc: the streamed
+// requests (query batches and render sequences) under flow control.
 #ifndef HVDB_SERVER_SESSION_H_
 #define HVDB_SERVER_SESSION_H_
 
@@ -24,17 +25,17 @@
 #include "protocol/wire.h"
 #include "render/job.h"
 #include "server/server.h"
+#include "server/transport.h"
 
 namespace hvdb::server {
-
-// Either transport: Asio's generic stream socket holds a TCP or a Unix-domain socket.
-using StreamSocket = boost::asio::generic::stream_protocol::socket;
 
 class Session : public std::enable_shared_from_this<Session> {
  public:
   // `unix_socket`: the connection came in on the Unix socket (the fast path may be offered);
-  // `loopback`: a TCP peer on this machine (the Unix socket's path is advertised to it).
-  Session(Server* server, StreamSocket socket, bool unix_socket, bool loopback);
+  // `loopback`: a TCP peer on this machine (the Unix socket's path is advertised to it). The
+  // transport's handlers run on `strand`.
+  Session(Server* server, Strand strand, std::shared_ptr<Transport> transport, bool unix_socket,
+          bool loopback);
   void Start();
   // Closes the connection and cancels its requests. Safe from any thread.
   void Close();
@@ -69,21 +70,11 @@ class Session : public std::enable_shared_from_this<Session> {
     std::optional<render::RendererPool::Lease> render_lease;
     size_t next_image = 0;
   };
-  // An outbound frame: header and message, and the point records of a RECORDS batch sent
-  // from where they lie (scatter/gather).
-  struct OutFrame {
-    std::string head;
-    std::vector<Point> records;  // a reusable buffer: the first `count` are sent
-    size_t count = 0;
-    size_t bytes() const { return head.size() + count * sizeof(Point); }
-  };
-
-  void ReadHeader();
-  void ReadBody(uint32_t len);
-  void OnFrame();
-  void OnHello(const std::string& payload);
+  // Reads the next message (the Hello, then requests) and serves it.
+  void ReadNext();
+  void OnHello();
   void Dispatch(wire::Request req);
-  void Send(const google::protobuf::MessageLite& m);
+  void Send(const google::protobuf::Message& m);
   void SendRecords(const wire::Response& r, std::vector<Point> records, size_t count);
   void Enqueue(OutFrame f);
   void SendError(uint64_t id, const Status& st, wire::ErrorCode code = wire::ERROR_UNSPECIFIED);
@@ -149,13 +140,13 @@ class Session : public std::enable_shared_from_this<Session> {
   void RenderNext(std::shared_ptr<Op> op);
 
   Server* server_;
-  StreamSocket socket_;
   const bool unix_socket_, loopback_;
-  boost::asio::strand<boost::asio::io_context::executor_type> strand_;
+  Strand strand_;
+  std::shared_ptr<Transport> transport_;
   boost::asio::steady_timer timer_;
   Clock::time_point deadline_;
-  uint8_t header_[wire::kFrameHeaderSize];
-  std::string body_;
+  wire::Hello hello_msg_;
+  wire::Request request_;
   bool hello_done_ = false;
   Role role_ = Role::kNone;
   bool closed_ = false;
@@ -165,7 +156,6 @@ class Session : public std::enable_shared_from_this<Session> {
   size_t bytes_queued_ = 0;
   bool writing_ = false;
   bool corked_ = false;  // frames are being queued together: write once they all are
-  static constexpr size_t kMaxGather = 32;  // frames in one gather write
   std::map<uint64_t, std::shared_ptr<Op>> ops_;
   // The fast path: the ring (shared with workers writing into it, so it outlives a close while
   // a batch is being made) and which slots the client holds.

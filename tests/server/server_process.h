@@ -40,6 +40,8 @@ class ServerProcess {
       std::ifstream in(port_file_);
       int p = 0;
       if (in >> p && p > 0) port_ = static_cast<uint16_t>(p);
+      int h = 0;  // with --http, the web port on a second line (the file is written whole)
+      if (port_ != 0 && in >> h && h > 0) http_port_ = static_cast<uint16_t>(h);
       if (port_ == 0) std::this_thread::sleep_for(std::chrono::milliseconds(10));
       int status;
       if (port_ == 0 && ::waitpid(pid_, &status, WNOHANG) == pid_) {
@@ -56,6 +58,7 @@ class ServerProcess {
     }
   }
   uint16_t port() const { return port_; }
+  uint16_t http_port() const { return http_port_; }
   pid_t pid() const { return pid_; }
   bool running() const { return pid_ > 0 && port_ != 0; }
   // Sends `sig` and waits; returns the wait status.
@@ -85,6 +88,7 @@ class ServerProcess {
   std::string port_file_;
   pid_t pid_ = -1;
   uint16_t port_ = 0;
+  uint16_t http_port_ = 0;
   int exit_status_ = 0;
 };
 

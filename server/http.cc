@@ -1,0 +1,396 @@
+#include "server/http.h"
+
+#include <chrono>
+#include <filesystem>
+#include <optional>
+
+#include <boost/beast/core.hpp>
+#include <boost/beast/http.hpp>
+#include <boost/beast/websocket.hpp>
+
+#include "server/server.h"
+#include "server/session.h"
+#include "server/transport_ws.h"
+
+namespace hvdb::server {
+
+namespace asio = boost::asio;
+namespace beast = boost::beast;
+namespace http = beast::http;
+namespace websocket = beast::websocket;
+using tcp = asio::ip::tcp;
+
+namespace {
+
+constexpr auto kHttpIdle = std::chrono::seconds(30);
+constexpr uint32_t kMaxHeaderBytes = 8 * 1024;
+// What the page may load and talk to: only this server (no CDN, no third-party script).
+constexpr const char* kContentSecurityPolicy =
+    "default-src 'self'; connect-src 'self'; img-src 'self' data: blob:; style-src 'self'; "
+    "object-src 'none'; base-uri 'none'; frame-ancestors 'none'";
+
+int HexValue(char c) {
+  if (c >= '0' && c <= '9') return c - '0';
+  if (c >= 'a' && c <= 'f') return c - 'a' + 10;
+  if (c >= 'A' && c <= 'F') return c - 'A' + 10;
+  return -1;
+}
+
+std::string Lower(std::string_view s) {
+  std::string out(s);
+  for (char& c : out) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return out;
+}
+
+// "http://HOST[:PORT]" -> "host:port" (default ports made explicit); "" if not such an origin.
+std::string OriginHostPort(std::string_view origin) {
+  std::string o = Lower(origin);
+  std::string port;
+  if (o.rfind("http://", 0) == 0) {
+    o = o.substr(7);
+    port = "80";
+  } else if (o.rfind("https://", 0) == 0) {
+    o = o.substr(8);
+    port = "443";
+  } else {
+    return "";
+  }
+  if (o.empty() || o.find('/') != std::string::npos) return "";
+  // A port after the last colon that is not inside an IPv6 literal's brackets.
+  auto colon = o.rfind(':');
+  if (colon != std::string::npos && o.find(']', colon) == std::string::npos) return o;
+  return o + ":" + port;
+}
+
+}  // namespace
+
+std::string WebPath(std::string_view target) {
+  target = target.substr(0, target.find_first_of("?#"));
+  if (target.empty() || target[0] != '/') return "";
+  std::string decoded;
+  for (size_t i = 0; i < target.size(); ++i) {
+    if (target[i] != '%') {
+      decoded.push_back(target[i]);
+      continue;
+    }
+    if (i + 2 >= target.size()) return "";
+    int hi = HexValue(target[i + 1]), lo = HexValue(target[i + 2]);
+    if (hi < 0 || lo < 0) return "";
+    decoded.push_back(static_cast<char>(hi * 16 + lo));
+    i += 2;
+  }
+  std::string out;
+  size_t at = 0;
+  while (at < decoded.size()) {
+    size_t end = decoded.find('/', at);
+    if (end == std::string::npos) end = decoded.size();
+    std::string_view part(decoded.data() + at, end - at);
+    at = end + 1;
+    if (part.empty()) continue;
+    if (part[0] == '.' || part.find('\\') != std::string_view::npos ||
+        part.find('\0') != std::string_view::npos) {
+      return "";
+    }
+    if (!out.empty()) out += '/';
+    out += part;
+  }
+  if (out.empty() || decoded.back() == '/') out += out.empty() ? "index.html" : "/index.html";
+  return out;
+}
+
+bool OriginAllowed(std::string_view origin, std::string_view host,
+                   const std::vector<std::string>& allowed) {
+  if (origin.empty()) return true;  // not a browser: tokens protect the data
+  std::string o = OriginHostPort(origin);
+  if (o.empty()) return false;  // "null" (a file:// page, a sandbox) and other schemes
+  std::string h = Lower(host);
+  if (!h.empty() && (h == o || h + ":80" == o)) return true;
+  for (const std::string& a : allowed) {
+    if (OriginHostPort(a) == o) return true;
+  }
+  return false;
+}
+
+const char* ContentType(std::string_view path) {
+  auto dot = path.rfind('.');
+  std::string ext = dot == std::string_view::npos ? "" : Lower(path.substr(dot + 1));
+  if (ext == "html") return "text/html; charset=utf-8";
+  if (ext == "js" || ext == "mjs") return "text/javascript; charset=utf-8";
+  if (ext == "css") return "text/css; charset=utf-8";
+  if (ext == "json" || ext == "map") return "application/json";
+  if (ext == "png") return "image/png";
+  if (ext == "svg") return "image/svg+xml";
+  if (ext == "ico") return "image/x-icon";
+  if (ext == "md" || ext == "txt") return "text/plain; charset=utf-8";
+  return "application/octet-stream";
+}
+
+// One HTTP connection: requests in turn (keep-alive), until it closes, times out or becomes a
+// WebSocket.
+class HttpConnection : public std::enable_shared_from_this<HttpConnection> {
+ public:
+  HttpConnection(HttpFrontend* front, tcp::socket socket, Strand strand)
+      : front_(front), stream_(std::move(socket)), strand_(std::move(strand)) {}
+
+  void Run(bool refuse) {
+    auto self = shared_from_this();
+    asio::dispatch(strand_, [self, refuse] {
+      if (refuse) {
+        return self->Reply(http::status::service_unavailable,
+                           "the server is at its connection limit; retry later", 11, false);
+      }
+      self->ReadRequest();
+    });
+  }
+
+  void Close() {
+    auto self = shared_from_this();
+    asio::post(strand_, [self] { self->Shutdown(); });
+  }
+
+ private:
+  void ReadRequest() {
+    parser_.emplace();
+    parser_->header_limit(kMaxHeaderBytes);
+    parser_->body_limit(0);
+    stream_.expires_after(kHttpIdle);
+    auto self = shared_from_this();
+    http::async_read(stream_, buffer_, *parser_,
+                     asio::bind_executor(strand_, [self](beast::error_code ec, size_t) {
+                       self->OnRequest(ec);
+                     }));
+  }
+
+  void OnRequest(beast::error_code ec) {
+    if (ec == http::error::end_of_stream || ec == beast::error::timeout ||
+        ec == asio::error::operation_aborted || ec == asio::error::connection_reset ||
+        ec == asio::error::eof) {
+      return Shutdown();
+    }
+    if (ec == http::error::body_limit) {
+      return Reply(http::status::payload_too_large, "requests may not have a body", 11, false);
+    }
+    if (ec == http::error::header_limit) {
+      return Reply(http::status::request_header_fields_too_large,
+                   "request headers are limited to 8 KiB", 11, false);
+    }
+    if (ec) return Reply(http::status::bad_request, "malformed HTTP request: " + ec.message(), 11, false);
+    req_ = parser_->release();
+    const unsigned version = req_.version();
+    const bool keep = req_.keep_alive();
+    std::string_view target(req_.target().data(), req_.target().size());
+    std::string_view path = target.substr(0, target.find_first_of("?#"));
+    if (path == "/ws") {
+      if (!websocket::is_upgrade(req_)) {
+        return Reply(http::status::upgrade_required,
+                     "/ws is the WebSocket endpoint: connect with a WebSocket", version, keep);
+      }
+      auto origin = req_[http::field::origin];
+      auto host = req_[http::field::host];
+      if (!OriginAllowed(std::string_view(origin.data(), origin.size()),
+                         std::string_view(host.data(), host.size()), front_->origins())) {
+        Log(LogLevel::kWarn, "refused a WebSocket from origin " + std::string(origin));
+        return Reply(http::status::forbidden,
+                     "origin " + std::string(origin) + " may not connect (allow it with "
+                     "hvdb-server --http-origin)", version, false);
+      }
+      return Upgrade();
+    }
+    if (req_.method() != http::verb::get && req_.method() != http::verb::head) {
+      return Reply(http::status::method_not_allowed, "only GET and HEAD", version, keep);
+    }
+    std::string rel = WebPath(target);
+    if (rel.empty()) return Reply(http::status::bad_request, "bad path", version, keep);
+    ServeFile(rel, version, keep);
+  }
+
+  void ServeFile(const std::string& rel, unsigned version, bool keep) {
+    namespace fs = std::filesystem;
+    std::error_code fec;
+    fs::path full = fs::weakly_canonical(fs::path(front_->web_root()) / rel, fec);
+    const std::string root = front_->web_root();
+    // Symbolic links may not lead out of the web root.
+    if (fec || full.string().rfind(root + "/", 0) != 0 || !fs::is_regular_file(full, fec)) {
+      return Reply(http::status::not_found, "not found: " + rel, version, keep);
+    }
+    http::file_body::value_type body;
+    beast::error_code ec;
+    body.open(full.c_str(), beast::file_mode::scan, ec);
+    if (ec) return Reply(http::status::not_found, "cannot read " + rel, version, keep);
+    const uint64_t size = body.size();
+    if (req_.method() == http::verb::head) {
+      auto res = std::make_shared<http::response<http::empty_body>>(http::status::ok, version);
+      Headers(*res, ContentType(rel), keep);
+      res->content_length(size);
+      return Write(res);
+    }
+    auto res = std::make_shared<http::response<http::file_body>>(
+        std::piecewise_construct, std::make_tuple(std::move(body)),
+        std::make_tuple(http::status::ok, version));
+    Headers(*res, ContentType(rel), keep);
+    res->content_length(size);
+    Write(res);
+  }
+
+  template <typename Response>
+  void Headers(Response& res, const char* type, bool keep) {
+    res.set(http::field::server, "hvdb-server");
+    res.set(http::field::content_type, type);
+    res.set(http::field::cache_control, "no-cache");
+    res.set("X-Content-Type-Options", "nosniff");
+    res.set("Content-Security-Policy", kContentSecurityPolicy);
+    res.keep_alive(keep);
+  }
+
+  void Reply(http::status status, const std::string& text, unsigned version, bool keep) {
+    auto res = std::make_shared<http::response<http::string_body>>(status, version);
+    Headers(*res, "text/plain; charset=utf-8", keep);
+    res->body() = text + "\n";
+    res->prepare_payload();
+    Write(res);
+  }
+
+  template <typename Response>
+  void Write(std::shared_ptr<Response> res) {
+    auto self = shared_from_this();
+    http::async_write(stream_, *res,
+                      asio::bind_executor(strand_, [self, res](beast::error_code ec, size_t) {
+                        if (ec || !res->keep_alive()) return self->Shutdown();
+                        self->ReadRequest();
+                      }));
+  }
+
+  void Upgrade() {
+    stream_.expires_never();  // the session's own timers take over
+    auto ws = std::make_unique<WebSocket>(std::move(stream_));
+    ws->set_option(websocket::stream_base::timeout::suggested(beast::role_type::server));
+    ws->set_option(websocket::stream_base::decorator([](websocket::response_type& r) {
+      r.set(http::field::server, "hvdb-server");
+    }));
+    ws->read_message_max(front_->server()->config().max_frame_bytes);
+    WebSocket* raw = ws.get();
+    auto self = shared_from_this();
+    auto owned = std::make_shared<std::unique_ptr<WebSocket>>(std::move(ws));
+    raw->async_accept(req_, asio::bind_executor(strand_, [self, owned](beast::error_code ec) {
+      self->front_->Unregister(self.get());
+      if (ec) {
+        Log(LogLevel::kInfo, "WebSocket handshake failed: " + ec.message());
+        return;
+      }
+      Server* server = self->front_->server();
+      auto transport = MakeWebSocketTransport(std::move(*owned), self->strand_);
+      server->Admit(std::make_shared<Session>(server, self->strand_, std::move(transport),
+                                              /*unix_socket=*/false, /*loopback=*/false));
+    }));
+  }
+
+  void Shutdown() {
+    if (done_) return;
+    done_ = true;
+    beast::error_code ignored;
+    stream_.socket().shutdown(tcp::socket::shutdown_both, ignored);
+    stream_.close();
+    front_->Unregister(this);
+  }
+
+  HttpFrontend* front_;
+  beast::tcp_stream stream_;
+  Strand strand_;
+  beast::flat_buffer buffer_;
+  std::optional<http::request_parser<http::string_body>> parser_;
+  http::request<http::string_body> req_;
+  bool done_ = false;
+};
+
+HttpFrontend::HttpFrontend(Server* server, std::string web_root, std::vector<std::string> origins)
+    : server_(server),
+      web_root_(std::move(web_root)),
+      origins_(std::move(origins)),
+      acceptor_(server->io()) {}
+
+HttpFrontend::~HttpFrontend() = default;
+
+Result<std::unique_ptr<HttpFrontend>> HttpFrontend::Create(Server* server, const std::string& host,
+                                                           uint16_t port, std::string web_root,
+                                                           std::vector<std::string> origins) {
+  namespace fs = std::filesystem;
+  std::error_code fec;
+  fs::path root = fs::canonical(web_root, fec);
+  if (fec || !fs::is_regular_file(root / "index.html")) {
+    return Status::InvalidArgument("--web-root " + web_root + ": no index.html there (give "
+                                   "the web/ folder of the source or of the installed package)");
+  }
+  if (!fs::is_directory(root / "node_modules" / "gl-matrix")) {
+    Log(LogLevel::kWarn, "--web-root " + root.string() + " has no node_modules/gl-matrix: the "
+                         "page will not load until `npm ci --prefix " + root.string() + "` ran");
+  }
+  for (const std::string& o : origins) {
+    if (OriginHostPort(o).empty()) {
+      return Status::InvalidArgument("--http-origin '" + o + "': expected http(s)://HOST[:PORT]");
+    }
+  }
+  std::unique_ptr<HttpFrontend> f(new HttpFrontend(server, root.string(), std::move(origins)));
+  boost::system::error_code ec;
+  auto addr = asio::ip::make_address(host, ec);
+  if (ec) return Status::InvalidArgument("--http: '" + host + "' is not an IP address");
+  tcp::endpoint ep(addr, port);
+  f->acceptor_.open(ep.protocol(), ec);
+  if (!ec) f->acceptor_.set_option(tcp::acceptor::reuse_address(true), ec);
+  if (!ec) f->acceptor_.bind(ep, ec);
+  if (!ec) f->acceptor_.listen(asio::socket_base::max_listen_connections, ec);
+  if (ec) return Status::IOError("--http " + host + ":" + std::to_string(port) + ": " + ec.message());
+  f->port_ = f->acceptor_.local_endpoint().port();
+  return f;
+}
+
+void HttpFrontend::Start() { Accept(); }
+
+void HttpFrontend::Accept() {
+  Strand strand = asio::make_strand(server_->io());
+  acceptor_.async_accept(strand, [this, strand](boost::system::error_code ec, tcp::socket socket) {
+    if (ec) {
+      if (!stopping_) {
+        Log(LogLevel::kWarn, "accept on --http: " + ec.message());
+        Accept();
+      }
+      return;
+    }
+    boost::system::error_code ignored;
+    socket.set_option(tcp::no_delay(true), ignored);
+    auto c = std::make_shared<HttpConnection>(this, std::move(socket), strand);
+    bool refuse;
+    {
+      std::lock_guard<std::mutex> l(mu_);
+      refuse = connections_.size() >= server_->config().max_connections;
+    }
+    Register(c);
+    c->Run(refuse);
+    Accept();
+  });
+}
+
+void HttpFrontend::Register(const std::shared_ptr<HttpConnection>& c) {
+  std::lock_guard<std::mutex> l(mu_);
+  connections_[c.get()] = c;
+}
+
+void HttpFrontend::Unregister(HttpConnection* c) {
+  std::lock_guard<std::mutex> l(mu_);
+  connections_.erase(c);
+}
+
+void HttpFrontend::Stop() {
+  if (stopping_.exchange(true)) return;
+  boost::system::error_code ignored;
+  acceptor_.close(ignored);
+  std::vector<std::shared_ptr<HttpConnection>> all;
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    for (auto& [p, w] : connections_) {
+      if (auto c = w.lock()) all.push_back(c);
+    }
+  }
+  for (auto& c : all) c->Close();
+}
+
+}  // namespace hvdb::server
