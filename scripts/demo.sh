@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The main job: hvdb-server on ./data (127.0.0.1:7878, and the Unix socket ./data/hvdb.sock
-# that local clients switch to by themselves) with a demo dataset built from the real
+# that local clients switch to by themselves; the web viewer on http://127.0.0.1:8080/) with a demo dataset built from the real
 # CMU Panoptic point-cloud video in ../shared/data (16 frames of a moving person), queried once
 # through the server with the hvdb CLI, and frame 5 rendered through it into out/demo.png. The
 # server keeps running in the foreground; Ctrl-C stops it gracefully.
@@ -11,6 +11,7 @@ HVDB=build/client/hvdb
 SERVER=build/server/hvdb-server
 DATA=${HVDB_DATA:-./data}
 LISTEN=${HVDB_LISTEN:-127.0.0.1:7878}
+HTTP=${HVDB_HTTP:-127.0.0.1:8080}
 SRC=../shared/data/cmu-panoptic-kinoptic-171026-pose3/kinoptic_ptclouds
 for b in "$HVDB" "$SERVER"; do
   if [ ! -x "$b" ]; then echo "demo: $b is missing; run scripts/setup.sh first" >&2; exit 1; fi
@@ -28,7 +29,11 @@ if ! "$HVDB" --data "$DATA" describe panoptic >/dev/null 2>&1; then
 fi
 "$HVDB" --data "$DATA" check panoptic
 
-"$SERVER" --data "$DATA" --listen "$LISTEN" --listen unix: &
+if [ ! -f web/node_modules/gl-matrix/esm/index.js ]; then
+  echo "demo: web/node_modules is missing; run scripts/setup.sh first (it runs npm ci in web/)" >&2
+  exit 1
+fi
+"$SERVER" --data "$DATA" --listen "$LISTEN" --listen unix: --http "$HTTP" &
 server_pid=$!
 trap 'kill -TERM $server_pid 2>/dev/null || true' INT TERM
 for _ in $(seq 100); do
@@ -59,7 +64,12 @@ echo "== frame 5 (t = 0.1668 s) rendered by the server from 3 m in front, writte
   --look-at -0.4 -0.9 -3 -0.4 -0.9 0 --fov 40 --size 640 480 --out out/demo.png
 cat <<MSG
 
-hvdb-server is running on $LISTEN with the dataset 'panoptic' ($DATA). Try, in another shell:
+hvdb-server is running on $LISTEN with the dataset 'panoptic' ($DATA).
+
+Open the web viewer (play, slice, select, graph-cut and cut the video; press ? for help):
+  http://$HTTP/?dataset=panoptic&t=0.1668&look_at=-0.4,-0.9,-3,-0.4,-0.9,0&fov=40
+
+Or try, in another shell:
   $HVDB --server $LISTEN datasets
   $HVDB --server $LISTEN slice panoptic --normal 0 0 0 1 --offset 0.2 --thickness 0.02 --out slice.ply
   $HVDB --server $LISTEN stats panoptic

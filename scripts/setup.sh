@@ -15,7 +15,11 @@ PACKAGES=(
   libspatialindex-dev libnanoflann-dev libpcl-dev python3-matplotlib
   clang libclang-rt-14-dev liburing-dev
   python3 python3-numpy pybind11-dev python3-pytest python3-open3d
+  chromium chromium-driver python3-selenium
 )
+# The web viewer's JavaScript dependencies come from the npm registry (web/package-lock.json);
+# Debian's npm unless a Node.js with its own npm is installed already.
+command -v npm >/dev/null 2>&1 || PACKAGES+=(npm)
 
 missing=()
 for p in "${PACKAGES[@]}"; do
@@ -30,6 +34,13 @@ if ((${#missing[@]})); then
   export DEBIAN_FRONTEND=noninteractive
   apt-get update -qq
   apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+# The web viewer's pinned dependencies, installed into web/node_modules (served by hvdb-server
+# --http; nothing is fetched from a CDN at run time). Again only when the lockfile changed.
+if [ ! -f web/node_modules/.package-lock.json ] || [ web/package-lock.json -nt web/node_modules/.package-lock.json ]; then
+  echo "setup: installing the web viewer's npm dependencies (web/package-lock.json)"
+  npm ci --prefix web --no-audit --no-fund --loglevel=error
 fi
 
 BUILD_DIR=${HVDB_BUILD_DIR:-build}

@@ -1,0 +1,499 @@
+// The hvdb viewer: wires the connection, renderer, frame store, player, editor and UI
+// together, reads the URL parameters and exposes window.hvdbApp (the test hooks).
+//   /?dataset=NAME&t=SECONDS&look_at=EX,EY,EZ,TX,TY,TZ&fov=DEG&size=WxH&lod=N&token=T
+//     &renderer=points&splats=sprites|quads&bit=N
+import { Connection, frameWindow, allTimeWindow, sliceRegion } from './connection.js';
+import { ViewCamera, NavigationController, wireCamera, DEFAULT_UP } from './camera.js';
+import { SplatRenderer } from './renderer.js';
+import { FrameStore, Player } from './player.js';
+import { Editor } from './editor.js';
+import { UI } from './ui.js';
+
+const kMaxLod = 12;
+
+function parseParams() {
+  const q = new URLSearchParams(location.search);
+  const nums = (s, n, what) => {
+    const v = s.split(',').map(Number);
+    if (v.length !== n || v.some((x) => !Number.isFinite(x))) throw new Error(`URL parameter ${what}: expected ${n} comma-separated numbers, got "${s}"`);
+    return v;
+  };
+  const p = {
+    dataset: q.get('dataset') || '',
+    t: q.has('t') ? Number(q.get('t')) : 0,
+    lookAt: q.has('look_at') ? nums(q.get('look_at'), 6, 'look_at') : null,
+    fov: q.has('fov') ? Number(q.get('fov')) : 40,
+    size: null,
+    lod: q.has('lod') ? Number(q.get('lod')) : 0,
+    token: q.get('token') || '',
+    renderer: q.get('renderer') === 'points' ? 'points' : 'splats',
+    splats: ['sprites', 'quads'].includes(q.get('splats')) ? q.get('splats') : 'auto',
+    bit: q.has('bit') ? Number(q.get('bit')) : 0,
+  };
+  if (q.has('size')) {
+    const m = /^(\d+)x(\d+)$/.exec(q.get('size'));
+    if (!m) throw new Error(`URL parameter size: expected WxH, got "${q.get('size')}"`);
+    p.size = [Number(m[1]), Number(m[2])];
+  }
+  if (!Number.isFinite(p.t)) throw new Error('URL parameter t: not a number');
+  if (!(p.fov > 0 && p.fov < 180)) throw new Error('URL parameter fov: must be in (0, 180) degrees');
+  if (!Number.isInteger(p.lod) || p.lod < 0) throw new Error('URL parameter lod: a level >= 0');
+  if (!Number.isInteger(p.bit) || p.bit < 0 || p.bit > 31) throw new Error('URL parameter bit: 0..31');
+  return p;
+}
+
+const nextFrame = () => new Promise((r) => requestAnimationFrame(() => r()));
+
+class App {
+  constructor(params) {
+    this.params = params;
+    this.canvas = document.getElementById('view');
+    this.overlayCanvas = document.getElementById('overlay-canvas');
+    this.viewport = document.getElementById('viewport');
+    this.metrics = { firstPictureMs: null, firstFrameMs: null, playFps: 0, framesShown: 0, lastQueryMs: null };
+    this.lastSelect = null;
+    this.lastEditMs = null;
+    this.dataset = '';
+    this.info = null;
+    this.frame = 0;
+    this.lod = params.lod;
+    this.bit = params.bit;
+    this.overlay = true;
+    this.box = null;
+    this.viewMode = 'frames';
+    this.slice = null;
+    this.shown = null;    // the FrameData on screen
+    this.target = null;   // the FrameData being loaded for the screen (drawn as it arrives)
+    this.drawPending = false;
+    this.firstQueryAt = null;
+    this.cam = new ViewCamera();
+    this.cam.fovDeg = params.fov;
+    this.ui = null;
+    this.sequence = null;
+  }
+
+  async start() {
+    this.setupCanvas();
+    this.renderer = new SplatRenderer(this.canvas, { mode: this.params.renderer, primitive: this.params.splats });
+    const scheme = location.protocol === 'https:' ? 'wss' : 'ws';
+    this.conn = new Connection(`${scheme}://${location.host}/ws`, {
+      token: this.params.token,
+      onState: (state, detail) => {
+        this.setStatus('conn', `${state}${detail ? `: ${detail}` : ''}`, state);
+        if (state === 'closed' || state === 'error') this.showError(new Error(`server connection ${state}: ${detail}`));
+      },
+    });
+    this.store = new FrameStore(this.conn, this.renderer, {
+      capacity: 24,
+      onBatch: (d) => this.onBatch(d),
+      onError: (err, d) => { if (err.code !== 'CANCELLED') this.showError(err, `query of ${d.key}`); },
+    });
+    this.player = new Player(this);
+    this.editor = new Editor(this, this.canvas, this.overlayCanvas);
+    this.nav = new NavigationController(this.canvas, this.cam, {
+      shouldNavigate: (e) => !this.editor.wantsPointer(e),
+      onChange: () => this.requestDraw(true),
+    });
+    this.ui = new UI(this);
+    this.editor.setTool('navigate');
+    if (this.renderer.mode === 'points') this.setStatus('edit', `point renderer${this.renderer.fallbackReason ? ` (${this.renderer.fallbackReason})` : ''}`);
+    else if (this.renderer.software) this.setStatus('edit', `software WebGL (${this.renderer.rendererName.slice(0, 60)}): half resolution while moving or playing`);
+    await this.conn.open();
+    const list = await this.conn.request({ list: {} });
+    const names = list.datasets?.names || [];
+    if (!names.length) throw new Error('the server has no datasets');
+    const name = this.params.dataset || names[0];
+    if (!names.includes(name)) throw new Error(`dataset "${name}" is not on the server (it has: ${names.join(', ')})`);
+    this.ui.setDatasets(names, name);
+    await this.openDataset(name, true);
+  }
+
+  setupCanvas() {
+    const size = this.params.size;
+    if (size) {
+      this.viewport.classList.add('fixed');
+      this.viewport.style.width = `${size[0]}px`;
+      this.viewport.style.height = `${size[1]}px`;
+    }
+    const fit = () => {
+      const dpr = window.devicePixelRatio || 1;
+      const w = size ? size[0] : this.viewport.clientWidth, h = size ? size[1] : this.viewport.clientHeight;
+      const bw = Math.max(1, Math.round(w * dpr)), bh = Math.max(1, Math.round(h * dpr));
+      for (const c of [this.canvas, this.overlayCanvas]) {
+        c.style.width = `${w}px`;
+        c.style.height = `${h}px`;
+        if (c.width !== bw || c.height !== bh) { c.width = bw; c.height = bh; }
+      }
+      this.requestDraw();
+    };
+    fit();
+    new ResizeObserver(fit).observe(this.viewport);
+    window.addEventListener('resize', fit);
+  }
+
+  async openDataset(name, initial = false) {
+    this.player.stop();
+    const reply = await this.conn.request({ describe: { dataset: name } });
+    this.info = reply.info;
+    this.info.fps = Number(this.info.fps) || 30;
+    this.info.frame_count = Number(this.info.frame_count) || 0;
+    this.dataset = name;
+    this.store.invalidate();
+    this.shown = this.target = null;
+    this.viewMode = 'frames';
+    this.ui.setFrameRange(this.info.frame_count);
+    this.ui.setLodRange(kMaxLod, this.lod);
+    const p = this.params;
+    if (initial && p.lookAt) {
+      this.cam.set(p.lookAt.slice(0, 3), p.lookAt.slice(3, 6), p.fov, DEFAULT_UP);
+    } else if (this.info.bounds_min?.length === 3) {
+      this.cam.frameBounds(this.info.bounds_min.map(Number), this.info.bounds_max.map(Number), initial ? p.fov : this.cam.fovDeg, this.canvas.width / this.canvas.height);
+    }
+    const f = initial ? this.frameAt(p.t) : 0;
+    this.firstQueryAt = performance.now();
+    const firstQueryAt = this.firstQueryAt;
+    await this.gotoFrame(f);
+    if (initial) this.metrics.firstFrameMs = performance.now() - firstQueryAt;
+  }
+
+  frameAt(t) {
+    const n = this.info.frame_count;
+    return Math.min(Math.max(0, Math.round(t * this.info.fps)), Math.max(0, n - 1));
+  }
+
+  frameKey(f) { return FrameStore.frameKey(this.dataset, f, this.lod, this.box); }
+
+  currentKey() {
+    if (this.viewMode === 'slice') return `${this.dataset}|slice|${JSON.stringify(this.slice)}|l${this.lod}|${JSON.stringify(this.box)}`;
+    return this.frameKey(this.frame);
+  }
+
+  // The region shown: the current frame's window (within the box), or the slice.
+  currentRegion() {
+    if (this.viewMode === 'slice') {
+      const r = sliceRegion(this.slice.normal, this.slice.offset, this.slice.thickness);
+      if (this.box) r.slice.clip = allTimeWindow(this.box).window;
+      return r;
+    }
+    return frameWindow(this.frame / this.info.fps, this.box);
+  }
+
+  loadSpec() {
+    return { dataset: this.dataset, frame: this.viewMode === 'slice' ? -1 : this.frame, region: this.currentRegion(), lod: this.lod };
+  }
+
+  // Shows frame i (drawn progressively as its batches arrive); resolves once it is complete
+  // and drawn.
+  async gotoFrame(i) {
+    if (!this.info) throw new Error('no dataset open');
+    const n = this.info.frame_count;
+    if (!Number.isInteger(i) || i < 0 || i >= Math.max(1, n)) throw new Error(`frame ${i} is outside 0..${n - 1}`);
+    if (this.viewMode !== 'frames') this.viewMode = 'frames';
+    this.frame = i;
+    return this.showCurrent();
+  }
+
+  async showCurrent() {
+    const key = this.currentKey();
+    const d = this.store.load(key, this.loadSpec());
+    this.target = d;
+    this.store.pinned = new Set([key]);
+    this.ui.setFrame(this.frame, this.info.frame_count, this.info.fps, this.viewMode === 'slice');
+    if (d.chunks.length || d.done) this.shown = d;
+    this.requestDraw();
+    await d.promise;
+    if (this.target !== d) return d;  // superseded by a later request
+    this.showFrameData(d, this.frame, true);
+    await nextFrame();
+    if (this.viewMode === 'frames') this.player.prefetch(this.frame, 2);
+    return d;
+  }
+
+  onBatch(d) {
+    if (this.store.maxLevel !== null) this.ui.setLodRange(Math.min(kMaxLod, this.store.maxLevel), this.lod);
+    // A reload after an edit keeps the old picture until the new one is complete.
+    if (d !== this.target || d.quiet) return;
+    this.shown = d;
+    // The coarse levels as they come (the first picture at once); with a software rasteriser
+    // only that first one: the complete frame is drawn when its query is done.
+    if (d.drawnBatches && this.renderer.software) return;
+    d.drawnBatches = true;
+    this.requestDraw();
+  }
+
+  // immediate: draw now (the caller needs the picture) instead of on the next animation frame;
+  // at `resolution` of the canvas size (playback on a software rasteriser: 0.5).
+  showFrameData(d, f, immediate = false, resolution = 1) {
+    this.shown = d;
+    this.target = d;
+    if (f >= 0) this.frame = f;
+    this.store.pinned = new Set([d.key]);
+    if (d.done) this.metrics.lastQueryMs = d.loadMs;
+    this.ui.setFrame(this.frame, this.info.frame_count, this.info.fps, this.viewMode === 'slice');
+    if (immediate) this.drawNow(resolution); else this.requestDraw();
+  }
+
+  stepFrame(delta) {
+    this.player.stop();
+    const n = this.info.frame_count;
+    return this.gotoFrame(((this.frame + delta) % n + n) % n);
+  }
+
+  async setLod(l) {
+    const max = this.store.maxLevel !== null ? Math.min(kMaxLod, this.store.maxLevel) : kMaxLod;
+    const lod = Math.min(Math.max(0, l), max);
+    this.ui.setLodRange(max, lod);
+    if (lod === this.lod) return;
+    this.lod = lod;
+    await this.showCurrent();
+  }
+
+  async setBox(box) {
+    this.box = box;
+    this.ui.setBoxInputs(box);
+    await this.showCurrent();
+  }
+
+  async showSlice(normal, offset, thickness) {
+    this.player.stop();
+    this.slice = { normal, offset, thickness };
+    this.viewMode = 'slice';
+    await this.showCurrent();
+  }
+
+  async showFrames() {
+    this.viewMode = 'frames';
+    await this.showCurrent();
+  }
+
+  setOverlay(on) {
+    this.overlay = on;
+    this.ui.setOverlay(on);
+    this.requestDraw();
+  }
+
+  // After an edit every cached frame may be stale: re-query what is on screen (keeping the
+  // old picture until the new one is complete), drop the rest (prefetch reloads them).
+  async refreshAfterEdit() {
+    const key = this.currentKey();
+    this.store.invalidate(new Set([key]));
+    const d = this.store.reload(key, this.loadSpec());
+    d.quiet = true;
+    this.target = d;
+    const fresh = await d.promise;
+    if (this.target === fresh) {
+      this.showFrameData(fresh, this.viewMode === 'slice' ? -1 : this.frame, true);
+      await nextFrame();
+    }
+    if (this.viewMode === 'frames') this.player.prefetch(this.frame, 2);
+  }
+
+  wireCamera() { return wireCamera(this.cam.camera(this.canvas.width, this.canvas.height)); }
+
+  // Coalesces redraws into one per animation frame; a drawNow() in between makes it moot
+  // (drawing 75k splats is the expensive part on software GL). `moving`: the camera is being
+  // dragged; a software rasteriser then draws at half resolution, and at full resolution once
+  // the view has rested for a moment.
+  requestDraw(moving = false) {
+    this.dirty = true;
+    if (moving && this.renderer?.software) {
+      this.dirtyRes = 0.5;
+      clearTimeout(this.settleTimer);
+      this.settleTimer = setTimeout(() => this.requestDraw(), 250);
+    }
+    if (this.drawPending) return;
+    this.drawPending = true;
+    requestAnimationFrame(() => {
+      this.drawPending = false;
+      if (!this.dirty) return;
+      const res = this.dirtyRes || 1;
+      this.dirtyRes = 0;
+      try {
+        this.drawNow(res);
+      } catch (e) {
+        this.showError(e);
+      }
+    });
+  }
+
+  // The resolution playback draws at: half on a software rasteriser.
+  get playResolution() { return this.renderer?.software ? 0.5 : 1; }
+
+  drawNow(resolution = 1) {
+    this.dirty = false;
+    if (!this.renderer) return 0;
+    const cam = this.cam.camera(this.canvas.width, this.canvas.height);
+    const d = this.shown;
+    const layers = d && !d.disposed ? [d.layer] : [];
+    const n = this.renderer.draw(layers, cam, { selMask: (1 << this.bit) >>> 0, overlay: this.overlay, zFar: this.zFar(d), resolution });
+    if (n > 0 && this.metrics.firstPictureMs === null && this.firstQueryAt !== null) {
+      this.metrics.firstPictureMs = performance.now() - this.firstQueryAt;
+    }
+    this.setStatus('points', `${n.toLocaleString()} points${d && !d.done ? ' (loading)' : ''}`);
+    if (this.info) this.setStatus('frame', this.viewMode === 'slice' ? 'slice' : `frame ${this.frame}`);
+    if (d?.done) this.setStatus('query', `query ${d.loadMs.toFixed(0)} ms`);
+    if (this.player?.playing) this.setStatus('fps', `${this.metrics.playFps.toFixed(1)} fps`);
+    return n;
+  }
+
+  // Far end of the linear depth mapping: beyond the farthest corner of the points' box.
+  zFar(d) {
+    if (!d || !(d.bboxLo[0] <= d.bboxHi[0])) return 1000;
+    let far = 0;
+    for (let i = 0; i < 8; ++i) {
+      const c = [i & 1 ? d.bboxHi[0] : d.bboxLo[0], i & 2 ? d.bboxHi[1] : d.bboxLo[1], i & 4 ? d.bboxHi[2] : d.bboxLo[2]];
+      far = Math.max(far, Math.hypot(c[0] - this.cam.eye[0], c[1] - this.cam.eye[1], c[2] - this.cam.eye[2]));
+    }
+    return far * 1.5 + 1;
+  }
+
+  renderView() {
+    return {
+      look_at: {
+        eye: this.cam.eye.slice(), target: this.cam.target.slice(), up: this.cam.up.slice(),
+        fov_y_deg: this.cam.fovDeg, width: this.canvas.width, height: this.canvas.height,
+      },
+    };
+  }
+
+  async renderStill() {
+    this.setStatus('edit', 'server render…');
+    const reply = await this.conn.request({
+      render: { dataset: this.dataset, region: this.currentRegion(), lod: this.lod, view: this.renderView(), renderer: 'RENDERER_CPU' },
+    });
+    const png = reply.sections.png;
+    if (!png) throw new Error('render reply without a png section');
+    const url = await blobToDataUrl(new Blob([png], { type: 'image/png' }));
+    const r = reply.render;
+    this.ui.showRender(url, `${r.width}×${r.height}, ${r.renderer_used}, ${Number(r.render_ms).toFixed(0)} ms, ${r.points} points, lod ${r.lod}`);
+    this.setStatus('edit', `server render ${Number(r.render_ms).toFixed(0)} ms`);
+    return { png: url, reply };
+  }
+
+  // Every frame from the current camera, rendered by the server, then played as images.
+  async renderSequence() {
+    this.stopSequence();
+    const n = this.info.frame_count;
+    const view = this.renderView();
+    const req = { render: { dataset: this.dataset, lod: this.lod, path: Array.from({ length: n }, () => view), frames: Array.from({ length: n }, (_, i) => i), renderer: 'RENDERER_CPU' } };
+    if (this.box) req.render.region = allTimeWindow(this.box);
+    const images = new Array(n);
+    let got = 0;
+    this.setStatus('edit', `rendering ${n} frames…`);
+    await this.conn.request(req, {
+      onPart: (part) => {
+        const png = part.sections.png;
+        if (!png) return;
+        images[Number(part.response.render.index || 0)] = URL.createObjectURL(new Blob([png], { type: 'image/png' }));
+        this.setStatus('edit', `rendered ${++got} / ${n}`);
+      },
+    });
+    const frames = images.filter(Boolean);
+    let i = 0;
+    const seq = { frames, timer: 0 };
+    this.sequence = seq;
+    const show = () => {
+      this.ui.showRender(frames[i], `sequence: frame ${i + 1} / ${frames.length} (server CPU render)`);
+      i = (i + 1) % frames.length;
+    };
+    show();
+    seq.timer = setInterval(show, 1000 / this.info.fps);
+    return { frames: frames.length };
+  }
+
+  stopSequence() {
+    if (!this.sequence) return;
+    clearInterval(this.sequence.timer);
+    for (const u of this.sequence.frames) URL.revokeObjectURL(u);
+    this.sequence = null;
+  }
+
+  setStatus(field, text, cls) { if (this.ui) this.ui.setStatus(field, text, cls); }
+
+  showError(err, context = '') {
+    const msg = `${context ? `${context}: ` : ''}${err && err.message ? err.message : String(err)}`;
+    console.error('hvdb:', msg, err);
+    this.lastError = msg;
+    this.setStatus('error', msg);
+  }
+}
+
+function blobToDataUrl(blob) {
+  return new Promise((resolve, reject) => {
+    const r = new FileReader();
+    r.onload = () => resolve(r.result);
+    r.onerror = () => reject(r.error);
+    r.readAsDataURL(blob);
+  });
+}
+
+// ---- window.hvdbApp: the hooks the browser tests use. ----
+function exposeHooks(app, ready) {
+  window.hvdbApp = {
+    app,
+    ready,
+    metrics: app.metrics,
+    get lastSelect() { return app.lastSelect; },
+    get lastEditMs() { return app.lastEditMs; },
+    get lastRequest() { return app.lastRequest || null; },
+    get lastError() { return app.lastError || null; },
+    async setView(eye, target, fovDeg = app.cam.fovDeg) {
+      app.cam.set(eye, target, fovDeg, app.cam.up);
+      const d = app.target;
+      if (d) await d.promise;
+      app.drawNow();
+      await nextFrame();
+      return true;
+    },
+    async gotoFrame(i) {
+      app.player.stop();
+      await app.gotoFrame(i);
+      return true;
+    },
+    playFor: (seconds) => app.player.playFor(seconds),
+    snapshot() {
+      app.drawNow();
+      return app.canvas.toDataURL('image/png');
+    },
+    camera: () => app.wireCamera(),
+    marquee: (u0, v0, u1, v1, mode = 'SELECT_REPLACE') => app.editor.marquee(u0, v0, u1, v1, mode),
+    selectedCount: () => (app.shown ? app.shown.countBit((1 << app.bit) >>> 0) : 0),
+    pointsShown: () => (app.shown ? app.shown.points : 0),
+    rendererInfo: () => ({ name: app.renderer.rendererName, software: app.renderer.software, mode: app.renderer.mode, splats: app.renderer.sprites ? 'sprites' : 'quads' }),
+    // The time one full-resolution draw takes, to the GPU's completion (gl.finish).
+    timeDraw() {
+      const t = performance.now();
+      app.drawNow();
+      app.renderer.waitForGpu();
+      return performance.now() - t;
+    },
+    undo: () => app.editor.undo(),
+    redo: () => app.editor.redo(),
+    request: (obj) => app.conn.request(obj),
+    renderStill: () => app.renderStill(),
+  };
+}
+
+function boot() {
+  let app;
+  let ready;
+  try {
+    app = new App(parseParams());
+    ready = app.start().then(() => true);
+  } catch (e) {
+    ready = Promise.reject(e);
+  }
+  ready.catch((e) => {
+    if (app) app.showError(e, 'start');
+    else {
+      const el = document.getElementById('status-error');
+      if (el) el.textContent = `start: ${e.message}`;
+      console.error('hvdb: start failed', e);
+    }
+  });
+  if (app) exposeHooks(app, ready);
+  else window.hvdbApp = { ready, metrics: {} };
+}
+
+if (document.readyState === 'loading') document.addEventListener('DOMContentLoaded', boot);
+else boot();

@@ -1,0 +1,274 @@
+// Frames on the GPU: progressive queries (coarsest level first, drawn as they arrive), an LRU
+// cache of loaded frames, prefetch ahead of the play head, and playback at the dataset's fps.
+import { frameWindow } from './connection.js';
+
+// One loaded view of points: a frame's window (or a slice, or a box), at one level of detail.
+export class FrameData {
+  constructor(key, frame, region, lod) {
+    this.key = key;
+    this.frame = frame;
+    this.region = region;
+    this.lod = lod;
+    this.chunks = [];
+    this.labels = [];       // Uint32Array copies per chunk (for selectedCount)
+    this.points = 0;
+    this.scale = 1;          // splat growth: the finest complete level's splat_scale
+    this.levelsDone = [];
+    this.coarsest = null;    // level of the first batch: the dataset's coarsest level
+    this.done = false;
+    this.error = null;
+    this.bboxLo = [Infinity, Infinity, Infinity];
+    this.bboxHi = [-Infinity, -Infinity, -Infinity];
+    this.sentAt = 0;
+    this.firstBatchMs = null;
+    this.loadMs = null;      // query sent -> done
+    this.serverMs = null;
+    this.lastUse = performance.now();
+    this.promise = null;
+    this.requestId = 0;
+    this.disposed = false;
+  }
+
+  get layer() { return { chunks: this.chunks, scale: this.scale }; }
+
+  countBit(mask) {
+    let n = 0;
+    for (const l of this.labels) for (let i = 0; i < l.length; ++i) if (l[i] & mask) ++n;
+    return n;
+  }
+}
+
+export class FrameStore {
+  // onBatch(frameData) is called after each batch is on the GPU (the page redraws if shown).
+  constructor(conn, renderer, { capacity = 24, onBatch = () => {}, onError = () => {} } = {}) {
+    this.conn = conn;
+    this.renderer = renderer;
+    this.capacity = capacity;
+    this.onBatch = onBatch;
+    this.onError = onError;
+    this.map = new Map();
+    this.pinned = new Set();  // keys that must not be evicted (what is on screen)
+    this.maxLevel = null;
+  }
+
+  static frameKey(dataset, frame, lod, box) {
+    return `${dataset}|f${frame}|l${lod}|${box ? JSON.stringify(box) : 'all'}`;
+  }
+
+  get(key) {
+    const d = this.map.get(key);
+    if (d) d.lastUse = performance.now();
+    return d;
+  }
+
+  // Starts (or returns) the query for `key`. Resolves with the FrameData when it is done.
+  load(key, { dataset, frame, region, lod }) {
+    let d = this.get(key);
+    if (d && !d.error) return d;
+    d = new FrameData(key, frame, region, lod);
+    this.map.set(key, d);
+    this.startQuery(d, dataset);
+    this.evict();
+    return d;
+  }
+
+  // A fresh query for an entry already shown: the old data stays on screen until the new
+  // one is complete (no flicker after an edit). Resolves with the new FrameData.
+  reload(key, { dataset, frame, region, lod }) {
+    const d = new FrameData(key, frame, region, lod);
+    this.startQuery(d, dataset);
+    d.promise = d.promise.then((fresh) => {
+      const old = this.map.get(key);
+      if (old && old !== fresh) this.dispose(old);
+      this.map.set(key, fresh);
+      return fresh;
+    });
+    return d;
+  }
+
+  startQuery(d, dataset) {
+    d.sentAt = performance.now();
+    d.requestId = this.conn.peekId();
+    const query = { dataset, region: d.region, lod: d.lod, progressive: true, encoding: 'COLUMNS' };
+    d.promise = this.conn.request({ query }, { onPart: (part) => this.addBatch(d, part) })
+      .then((reply) => {
+        d.done = true;
+        d.loadMs = performance.now() - d.sentAt;
+        d.serverMs = reply.elapsedMs;
+        d.reply = reply.done;
+        // The last level's splat scale (2^(lod/2)) applies to every point once all are in.
+        if (d.levelsDone.length) d.scale = Math.pow(2, d.lod / 2);
+        return d;
+      }, (err) => {
+        d.error = err;
+        this.onError(err, d);
+        throw err;
+      });
+    // Callers that only prefetch do not wait: keep unhandled rejections out of the console.
+    d.promise.catch(() => {});
+  }
+
+  addBatch(d, part) {
+    if (d.disposed) return;
+    const b = part.response.batch;
+    const cols = part.columns;
+    const n = Number(b.columns?.count ?? (cols.position ? cols.position.length / 3 : 0));
+    if (d.coarsest === null) {
+      d.coarsest = Number(b.level);
+      if (this.maxLevel === null || d.coarsest > this.maxLevel) this.maxLevel = d.coarsest;
+    }
+    if (n > 0) {
+      if (!cols.position || cols.position.length < 3 * n) throw new Error(`batch of ${n} points without a position column`);
+      d.chunks.push(this.renderer.createChunk(cols, n));
+      d.labels.push(cols.label ? new Uint32Array(cols.label) : new Uint32Array(n));
+      d.points += n;
+      const p = cols.position;
+      const lo = d.bboxLo, hi = d.bboxHi;
+      for (let i = 0; i < 3 * n; i += 3) {
+        const x = p[i], y = p[i + 1], z = p[i + 2];
+        if (x < lo[0]) lo[0] = x; if (x > hi[0]) hi[0] = x;
+        if (y < lo[1]) lo[1] = y; if (y > hi[1]) hi[1] = y;
+        if (z < lo[2]) lo[2] = z; if (z > hi[2]) hi[2] = z;
+      }
+    }
+    // Until a level is complete its finer points leave holes: grow splats as the coarsest
+    // complete level says; then shrink as finer levels complete.
+    const scale = Number(b.splat_scale) || 1;
+    if (b.level_done) {
+      d.levelsDone.push(Number(b.level));
+      d.scale = scale;
+    } else if (d.levelsDone.length === 0) {
+      d.scale = Math.max(d.scale, scale);
+    }
+    if (d.firstBatchMs === null && n > 0) d.firstBatchMs = performance.now() - d.sentAt;
+    this.onBatch(d);
+  }
+
+  dispose(d) {
+    if (d.disposed) return;
+    d.disposed = true;
+    for (const c of d.chunks) this.renderer.deleteChunk(c);
+    d.chunks = [];
+    d.labels = [];
+    if (!d.done && !d.error) this.conn.cancel(d.requestId);
+  }
+
+  evict() {
+    if (this.map.size <= this.capacity) return;
+    const entries = [...this.map.values()].filter((d) => !this.pinned.has(d.key))
+      .sort((a, b) => a.lastUse - b.lastUse);
+    while (this.map.size > this.capacity && entries.length) {
+      const d = entries.shift();
+      this.map.delete(d.key);
+      this.dispose(d);
+    }
+  }
+
+  // Drops everything but `keep` (after an edit every cached frame may be stale).
+  invalidate(keep = new Set()) {
+    for (const [k, d] of [...this.map]) {
+      if (keep.has(k)) continue;
+      this.map.delete(k);
+      this.dispose(d);
+    }
+  }
+}
+
+// Playback: the play head follows the wall clock at the dataset's fps; a frame is shown
+// when its query is done (so a slow server drops frames rather than slowing time down).
+export class Player {
+  constructor(app) {
+    this.app = app;
+    this.playing = false;
+    this.prefetchAhead = 8;
+    this.stats = null;
+    this.raf = 0;
+  }
+
+  frameRegion(f) {
+    const a = this.app;
+    return frameWindow(f / a.info.fps, a.box);
+  }
+
+  // Makes sure frames f+1 .. f+ahead are loading (at most a few queries in flight).
+  prefetch(f, ahead = this.prefetchAhead) {
+    const a = this.app;
+    const n = a.info.frame_count;
+    if (!n || a.viewMode !== 'frames') return;
+    let inFlight = 0;
+    for (const d of a.store.map.values()) if (!d.done && !d.error) ++inFlight;
+    for (let k = 1; k <= ahead && inFlight < 4; ++k) {
+      const g = (f + k) % n;
+      const key = a.frameKey(g);
+      const d = a.store.get(key);
+      if (d && !d.error) continue;
+      a.store.load(key, { dataset: a.dataset, frame: g, region: this.frameRegion(g), lod: a.lod });
+      ++inFlight;
+    }
+  }
+
+  toggle() { if (this.playing) this.stop(); else this.start(); }
+
+  start() {
+    const a = this.app;
+    if (this.playing || !a.info || a.viewMode !== 'frames' || a.info.frame_count < 1) return;
+    this.playing = true;
+    const startFrame = a.frame;
+    const t0 = performance.now();
+    this.stats = { t0, framesShown: 0, distinct: new Set(), loadMs: [], lastShown: t0, startFrame };
+    a.metrics.framesShown = 0;
+    a.ui?.setPlaying(true);
+    const tick = () => {
+      if (!this.playing) return;
+      const now = performance.now();
+      const n = a.info.frame_count;
+      const want = (startFrame + Math.floor(((now - t0) / 1000) * a.info.fps)) % n;
+      this.prefetch(want);
+      const key = a.frameKey(want);
+      let d = a.store.get(key);
+      if (!d) d = a.store.load(key, { dataset: a.dataset, frame: want, region: this.frameRegion(want), lod: a.lod });
+      if (want !== a.frame && d.done) {
+        a.showFrameData(d, want, true, a.playResolution);  // drawn now, not on the next animation frame
+        const s = this.stats;
+        s.framesShown++;
+        s.distinct.add(want);
+        if (d.loadMs !== null && !d.countedInPlay) {
+          d.countedInPlay = true;
+          s.loadMs.push(d.loadMs);
+        }
+        const el = (now - s.t0) / 1000;
+        a.metrics.framesShown = s.framesShown;
+        a.metrics.playFps = el > 0 ? s.framesShown / el : 0;
+      }
+      this.raf = requestAnimationFrame(tick);
+    };
+    this.raf = requestAnimationFrame(tick);
+  }
+
+  stop() {
+    if (!this.playing) return this.result();
+    this.playing = false;
+    cancelAnimationFrame(this.raf);
+    if (this.app.playResolution < 1) this.app.requestDraw();  // the still frame at full resolution
+    this.app.ui?.setPlaying(false);
+    const r = this.result();
+    this.app.metrics.playFps = r.fps;
+    return r;
+  }
+
+  result() {
+    const s = this.stats;
+    if (!s) return { fps: 0, framesShown: 0, distinctFrames: 0, frameLoadMsMedian: null };
+    const el = (performance.now() - s.t0) / 1000;
+    const sorted = [...s.loadMs].sort((x, y) => x - y);
+    const median = sorted.length ? sorted[Math.floor((sorted.length - 1) / 2)] : null;
+    return { fps: el > 0 ? s.framesShown / el : 0, framesShown: s.framesShown, distinctFrames: s.distinct.size, frameLoadMsMedian: median };
+  }
+
+  playFor(seconds) {
+    this.stop();
+    this.start();
+    if (!this.playing) return Promise.reject(new Error('cannot play: no frames (or a slice is shown)'));
+    return new Promise((resolve) => setTimeout(() => resolve(this.stop()), seconds * 1000));
+  }
+}
