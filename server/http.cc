@@ -287,6 +287,7 @@ class HttpConnection : public std::enable_shared_from_this<HttpConnection> {
   void Shutdown() {
     if (done_) return;
     done_ = true;
+    Log(LogLevel::kDebug, "HTTP connection closed");
     beast::error_code ignored;
     stream_.socket().shutdown(tcp::socket::shutdown_both, ignored);
     stream_.close();

@@ -4,6 +4,7 @@
 #include <boost/beast/websocket.hpp>
 
 #include "protocol/ws_codec.h"
+#include "server/server.h"
 
 namespace hvdb::server {
 
@@ -70,12 +71,19 @@ class WsTransport : public Transport, public std::enable_shared_from_this<WsTran
   void Close() override {
     if (closing_) return;
     closing_ = true;
-    // A close frame (1008 after a message that could not be decoded), then the socket; a peer
-    // that does not answer is cut off by the close timeout.
-    beast::get_lowest_layer(*ws_).expires_after(std::chrono::seconds(5));
+    // A close frame (1008 after a message that could not be decoded), then the socket. A peer
+    // that does not answer, or does not read what was sent before (the close frame queues
+    // behind a pending write), is cut off after 2 s: a stopping server waits for this.
     auto self = shared_from_this();
+    close_timer_ = std::make_unique<asio::steady_timer>(strand_, std::chrono::seconds(2));
+    close_timer_->async_wait([self](boost::system::error_code ec) {
+      if (!ec) beast::get_lowest_layer(*self->ws_).close();
+    });
     ws_->async_close(malformed_ ? websocket::close_code::policy_error : websocket::close_code::normal,
-                     asio::bind_executor(strand_, [self](boost::system::error_code) {
+                     asio::bind_executor(strand_, [self](boost::system::error_code ec) {
+                       Log(LogLevel::kDebug, "WebSocket closed" +
+                                                 (ec ? " (" + ec.message() + ")" : std::string()));
+                       self->close_timer_->cancel();
                        beast::get_lowest_layer(*self->ws_).close();
                      }));
   }
@@ -88,6 +96,7 @@ class WsTransport : public Transport, public std::enable_shared_from_this<WsTran
   beast::flat_buffer buf_;
   bool malformed_ = false;
   bool closing_ = false;
+  std::unique_ptr<boost::asio::steady_timer> close_timer_;
 };
 
 }  // namespace

@@ -8,6 +8,7 @@
 #include <fstream>
 #include <random>
 #include <set>
+#include <thread>
 
 #include <utility>  // before Asio: Boost 1.74's awaitable.hpp needs std::exchange
 
@@ -451,6 +452,30 @@ TEST_F(HttpServerTest, TokensAndRolesAsOnTheSocket) {
   EXPECT_EQ(ro.ReadJson()["error"]["code"], "PERMISSION_DENIED");
   ro.Text(R"({"id": 2, "list": {}})");
   EXPECT_EQ(ro.ReadJson()["id"], "2");
+}
+
+TEST_F(HttpServerTest, StopsPromptlyWithAPeerThatStoppedReading) {
+  Start();
+  auto c = Client();
+  DatasetInfo info;
+  info.name = "big";
+  info.fps = kFps;
+  ASSERT_TRUE(c->CreateDataset(info).ok());
+  std::mt19937_64 rng(3);
+  ASSERT_TRUE(c->Ingest("big", 0, RandomPoints(rng, 300000, 0)).ok());
+  c.reset();
+  // 300 000 points as columns (~19 MB): more than the sockets buffer, so the server's writes
+  // block on a client that does not read, and its close frame queues behind them.
+  Ws stalled;
+  ASSERT_EQ(stalled.Open(server_->http_port()), 101u);
+  stalled.Hello();
+  stalled.Text(R"({"id": 1, "query": {"dataset": "big", "region": {"window": {"lo": [-1e30, -1e30, -1e30, -1e30], "hi": [1e30, 1e30, 1e30, 1e30]}}}})");
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  auto start = std::chrono::steady_clock::now();
+  int status = server_->Stop(SIGTERM);
+  double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << status;
+  EXPECT_LT(s, 10.0) << "a WebSocket peer that does not read held up the shutdown";
 }
 
 TEST(HttpServerStart, NonLoopbackNeedsTokensAndAWebRoot) {

@@ -38,17 +38,18 @@ def server(tmp_path_factory):
     run_cli("create", DATASET, "--fps", FPS, data=data)
     run_cli("import", DATASET, "--frame", "0", "--units-scale", "0.01", *files, data=data)
     port_file = data + ".port"
+    log = open(data + ".log", "w")  # a file, not a pipe nobody reads: the server never blocks
     proc = subprocess.Popen(
         [SERVER, "--data", data, "--listen", "127.0.0.1:0", "--http", "127.0.0.1:0",
-         "--web-root", WEB_ROOT, "--port-file", port_file, "--log-level", "warn"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+         "--web-root", WEB_ROOT, "--port-file", port_file, "--log-level", "info"],
+        stdout=subprocess.DEVNULL, stderr=log)
     deadline = time.time() + 30
     ports = []
     while time.time() < deadline and len(ports) < 2:
         if os.path.exists(port_file):
             ports = open(port_file).read().split()
         if proc.poll() is not None:
-            raise AssertionError("hvdb-server exited: " + proc.stderr.read().decode())
+            raise AssertionError("hvdb-server exited: " + open(data + ".log").read())
         time.sleep(0.05)
     assert len(ports) == 2, "hvdb-server did not start within 30 s"
 
@@ -57,7 +58,10 @@ def server(tmp_path_factory):
         http = "http://127.0.0.1:" + ports[1]
     yield S
     proc.terminate()
-    proc.wait(timeout=30)
+    try:
+        proc.wait(timeout=30)
+    finally:
+        log.close()
 
 
 @pytest.fixture(scope="session")

@@ -30,10 +30,10 @@ MIN_PSNR_DB = 40.0
 RESULTS = {}
 
 
-def page_url(server, frame=FRAME):
+def page_url(server, frame=FRAME, extra=""):
     look = ",".join(str(v) for v in EYE + TARGET)
     return (f"{server.http}/?dataset={DATASET}&t={frame / FPS:.6f}&look_at={look}&fov={FOV}"
-            f"&size={W}x{H}")
+            f"&size={W}x{H}{extra}")
 
 
 def call(browser, script, *args):
@@ -47,9 +47,9 @@ def call(browser, script, *args):
     return out["ok"]
 
 
-def open_page(browser, server, frame=FRAME):
+def open_page(browser, server, frame=FRAME, extra=""):
     start = time.perf_counter()
-    browser.get(page_url(server, frame))
+    browser.get(page_url(server, frame, extra))
     WebDriverWait(browser, 60).until(lambda d: d.execute_script("return !!window.hvdbApp"))
     call(browser, "window.hvdbApp.ready")
     load_s = time.perf_counter() - start
@@ -99,8 +99,14 @@ def test_page_loads_and_shows_the_frame(browser, server):
     RESULTS["points_first_frame"] = n
 
 
-def test_screenshot_matches_the_servers_cpu_render(browser, server, tmp_path):
-    open_page(browser, server)
+# Both ways of drawing splats: point sprites (what a software rasteriser gets) and instanced
+# quads fitted to the ellipses (what a GPU gets).
+@pytest.mark.parametrize("splats", ["sprites", "quads"])
+def test_screenshot_matches_the_servers_cpu_render(browser, server, tmp_path, splats):
+    open_page(browser, server, extra=f"&splats={splats}")
+    info = browser.execute_script("return window.hvdbApp.rendererInfo()")
+    assert info["splats"] == splats and info["mode"] == "splats"
+    draw_ms = [browser.execute_script("return window.hvdbApp.timeDraw()") for _ in range(3)]
     url = browser.execute_script("return window.hvdbApp.snapshot()")
     assert url.startswith("data:image/png;base64,")
     ours = png_to_array(base64.b64decode(url.split(",", 1)[1]))
@@ -116,12 +122,16 @@ def test_screenshot_matches_the_servers_cpu_render(browser, server, tmp_path):
     mse = ((ours - ref)[covered] ** 2).mean()
     psnr = 10 * np.log10(255.0 ** 2 / max(mse, 1e-9))
     Image.fromarray(ours.astype(np.uint8)).save(tmp_path / "browser.png")
-    RESULTS["psnr_vs_server_cpu_render_db"] = round(float(psnr), 2)
-    RESULTS["covered_fraction"] = round(float(covered.mean()), 4)
+    RESULTS.setdefault("splats", {})[splats] = {
+        "psnr_vs_server_cpu_render_db": round(float(psnr), 2),
+        "covered_fraction": round(float(covered.mean()), 4),
+        "draw_ms_median": round(statistics.median(draw_ms), 1),
+    }
+    RESULTS["webgl_renderer"] = info["name"]
     assert psnr >= MIN_PSNR_DB, f"browser vs server render: {psnr:.1f} dB (see {tmp_path})"
 
 
-def test_plays_every_frame(browser, server):
+def test_plays_every_frame(browser, server, tmp_path):
     open_page(browser, server, frame=0)
     play = call(browser, "window.hvdbApp.playFor(6)")
     RESULTS["playback"] = play
@@ -136,6 +146,23 @@ def test_plays_every_frame(browser, server):
     for f, n, _ in counts:
         assert n == len(frame_points(server, f)), f"frame {f}"
     RESULTS["step_frame_s_median"] = round(statistics.median(c[2] for c in counts), 3)
+    # The server's side of a frame: the query (Python client, columns as the page gets them
+    # but over the binary protocol) and a CPU render of it at the page's size.
+    query_ms, render_ms, elapsed_ms = [], [], []
+    for f in range(16):
+        start = time.perf_counter()
+        frame_points(server, f)
+        query_ms.append(1000 * (time.perf_counter() - start))
+        t = f / FPS
+        out = json.loads(run_cli("render", DATASET, "--box", -1e9, 1e9, -1e9, 1e9, -1e9, 1e9, t, t,
+                                 "--look-at", *EYE, *TARGET, "--fov", FOV, "--size", W, H,
+                                 "--renderer", "cpu", "--out", tmp_path / "f.png", "--json",
+                                 server=server.address))
+        render_ms.append(out["render_ms"])
+        elapsed_ms.append(out["elapsed_ms"])
+    RESULTS["server_query_frame_ms_median"] = round(statistics.median(query_ms), 1)
+    RESULTS["server_cpu_render_frame_ms_median"] = round(statistics.median(render_ms), 1)
+    RESULTS["server_render_request_ms_median"] = round(statistics.median(elapsed_ms), 1)
 
 
 def test_marquee_selects_what_the_cli_selects_and_undo_reverts(browser, server):

@@ -491,7 +491,13 @@ function boot() {
       console.error('hvdb: start failed', e);
     }
   });
-  if (app) exposeHooks(app, ready);
+  if (app) {
+    exposeHooks(app, ready);
+    // A page leaving (or frozen in the back/forward cache) gives its connection back to the
+    // server; coming back from that cache starts afresh.
+    window.addEventListener('pagehide', () => { if (app.conn) app.conn.close(); });
+    window.addEventListener('pageshow', (e) => { if (e.persisted) location.reload(); });
+  }
   else window.hvdbApp = { ready, metrics: {} };
 }
 
