@@ -47,13 +47,15 @@ chroot "$ROOT" hvdb-server --help | head -n 1
 # The packaged configuration as the unit runs it (user hvdb), on a free port rather than 7878
 # (this root shares the host's network).
 chroot "$ROOT" sh -c 'rm -f /tmp/deb-check.port; su -s /bin/sh hvdb -c \
-  "hvdb-server --config /etc/hvdb/hvdb-server.conf --listen 127.0.0.1:0 --port-file /tmp/deb-check.port \
+  "hvdb-server --config /etc/hvdb/hvdb-server.conf --listen 127.0.0.1:0 --http 127.0.0.1:0 \
+   --port-file /tmp/deb-check.port \
    >/tmp/server.log 2>&1 &"'
 for _ in $(seq 100); do
   [ -s "$ROOT/tmp/deb-check.port" ] && break
   sleep 0.1
 done
-port=$(cat "$ROOT/tmp/deb-check.port" 2>/dev/null || true)  # empty is reported just below
+port=$(sed -n 1p "$ROOT/tmp/deb-check.port" 2>/dev/null || true)  # empty is reported just below
+http_port=$(sed -n 2p "$ROOT/tmp/deb-check.port" 2>/dev/null || true)
 if [ -z "$port" ]; then
   echo "deb-check: hvdb-server did not start:" >&2
   cat "$ROOT/tmp/server.log" >&2
@@ -69,5 +71,13 @@ db = hvdb.connect('127.0.0.1:$port')
 with db.transaction('check') as tx:
     tx.insert(hvdb.points(np.random.default_rng(1).normal(size=(1000, 3)), frame=0))
 print('  python3: import hvdb ok;', db.datasets(), len(db.frame('check', frame=0)), 'points')
+"
+# The web viewer from the packaged files (share/hvdb/web, its npm dependency included).
+chroot "$ROOT" python3 -c "
+import urllib.request
+for path in ('/', '/src/main.js', '/node_modules/gl-matrix/esm/index.js'):
+    with urllib.request.urlopen('http://127.0.0.1:$http_port' + path) as r:
+        assert r.status == 200, (path, r.status)
+print('  web viewer: served on port $http_port from /usr/share/hvdb/web')
 "
 echo "deb-check: the package works in a clean Debian 12 root"

@@ -111,6 +111,30 @@ bool OriginAllowed(std::string_view origin, std::string_view host,
   return false;
 }
 
+bool HostAllowed(std::string_view host, const std::vector<std::string>& allowed) {
+  std::string h = Lower(host);
+  // Without the port: "[v6]:port", "v4:port", "name:port".
+  std::string name = h;
+  if (!h.empty() && h[0] == '[') {
+    auto end = h.find(']');
+    if (end == std::string::npos) return false;
+    name = h.substr(1, end - 1);
+  } else if (auto colon = h.rfind(':'); colon != std::string::npos) {
+    name = h.substr(0, colon);
+  }
+  if (name.empty()) return false;
+  if (name == "localhost") return true;
+  boost::system::error_code ec;
+  asio::ip::make_address(name, ec);
+  if (!ec) return true;
+  for (const std::string& a : allowed) {
+    std::string o = OriginHostPort(a);
+    std::string oname = o.substr(0, o.rfind(':'));
+    if (!oname.empty() && oname == name) return true;
+  }
+  return false;
+}
+
 const char* ContentType(std::string_view path) {
   auto dot = path.rfind('.');
   std::string ext = dot == std::string_view::npos ? "" : Lower(path.substr(dot + 1));
@@ -178,6 +202,15 @@ class HttpConnection : public std::enable_shared_from_this<HttpConnection> {
     req_ = parser_->release();
     const unsigned version = req_.version();
     const bool keep = req_.keep_alive();
+    auto host_header = req_[http::field::host];
+    if (!HostAllowed(std::string_view(host_header.data(), host_header.size()), front_->origins())) {
+      Log(LogLevel::kWarn, "refused a request for host " + std::string(host_header));
+      return Reply(http::status::forbidden,
+                   "this server does not answer to the host name '" + std::string(host_header) +
+                   "': use its IP address or localhost, or allow the name with hvdb-server "
+                   "--http-origin http://NAME:PORT",
+                   version, false);
+    }
     std::string_view target(req_.target().data(), req_.target().size());
     std::string_view path = target.substr(0, target.find_first_of("?#"));
     if (path == "/ws") {
@@ -268,6 +301,9 @@ class HttpConnection : public std::enable_shared_from_this<HttpConnection> {
       r.set(http::field::server, "hvdb-server");
     }));
     ws->read_message_max(front_->server()->config().max_frame_bytes);
+    // Whole messages as single frames: Beast's default splits writes into 4 KiB frames, 256
+    // frames (and completions) for one 1 MiB batch.
+    ws->auto_fragment(false);
     WebSocket* raw = ws.get();
     auto self = shared_from_this();
     auto owned = std::make_shared<std::unique_ptr<WebSocket>>(std::move(ws));
@@ -307,7 +343,9 @@ HttpFrontend::HttpFrontend(Server* server, std::string web_root, std::vector<std
     : server_(server),
       web_root_(std::move(web_root)),
       origins_(std::move(origins)),
-      acceptor_(server->io()) {}
+      accept_strand_(asio::make_strand(server->io())),
+      acceptor_(accept_strand_),
+      retry_(accept_strand_) {}
 
 HttpFrontend::~HttpFrontend() = default;
 
@@ -344,16 +382,22 @@ Result<std::unique_ptr<HttpFrontend>> HttpFrontend::Create(Server* server, const
   return f;
 }
 
-void HttpFrontend::Start() { Accept(); }
+void HttpFrontend::Start() {
+  asio::dispatch(accept_strand_, [this] { Accept(); });
+}
 
+// On accept_strand_.
 void HttpFrontend::Accept() {
   Strand strand = asio::make_strand(server_->io());
   acceptor_.async_accept(strand, [this, strand](boost::system::error_code ec, tcp::socket socket) {
+    if (stopping_) return;  // the socket, if any, closes with it
     if (ec) {
-      if (!stopping_) {
-        Log(LogLevel::kWarn, "accept on --http: " + ec.message());
-        Accept();
-      }
+      // Out of descriptors and the like: try again shortly rather than spin.
+      Log(LogLevel::kWarn, "accept on --http: " + ec.message());
+      retry_.expires_after(std::chrono::milliseconds(100));
+      retry_.async_wait([this](boost::system::error_code wec) {
+        if (!wec && !stopping_) Accept();
+      });
       return;
     }
     boost::system::error_code ignored;
@@ -364,15 +408,16 @@ void HttpFrontend::Accept() {
       std::lock_guard<std::mutex> l(mu_);
       refuse = connections_.size() >= server_->config().max_connections;
     }
-    Register(c);
-    c->Run(refuse);
+    if (Register(c)) c->Run(refuse);
     Accept();
   });
 }
 
-void HttpFrontend::Register(const std::shared_ptr<HttpConnection>& c) {
+bool HttpFrontend::Register(const std::shared_ptr<HttpConnection>& c) {
   std::lock_guard<std::mutex> l(mu_);
+  if (stopping_) return false;  // Stop has taken its list: this one would linger
   connections_[c.get()] = c;
+  return true;
 }
 
 void HttpFrontend::Unregister(HttpConnection* c) {
@@ -381,9 +426,15 @@ void HttpFrontend::Unregister(HttpConnection* c) {
 }
 
 void HttpFrontend::Stop() {
-  if (stopping_.exchange(true)) return;
-  boost::system::error_code ignored;
-  acceptor_.close(ignored);
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    if (stopping_.exchange(true)) return;
+  }
+  asio::dispatch(accept_strand_, [this] {
+    boost::system::error_code ignored;
+    acceptor_.close(ignored);
+    retry_.cancel();
+  });
   std::vector<std::shared_ptr<HttpConnection>> all;
   {
     std::lock_guard<std::mutex> l(mu_);

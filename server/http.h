@@ -41,7 +41,8 @@ class HttpFrontend {
   // For connections.
   Server* server() { return server_; }
   const std::vector<std::string>& origins() const { return origins_; }
-  void Register(const std::shared_ptr<HttpConnection>& c);
+  // False once stopping: the caller drops the connection.
+  bool Register(const std::shared_ptr<HttpConnection>& c);
   void Unregister(HttpConnection* c);
 
  private:
@@ -51,7 +52,10 @@ class HttpFrontend {
   Server* server_;
   std::string web_root_;
   std::vector<std::string> origins_;
+  // The acceptor is only touched on this strand (accepts, and Stop from another thread).
+  boost::asio::strand<boost::asio::io_context::executor_type> accept_strand_;
   boost::asio::ip::tcp::acceptor acceptor_;
+  boost::asio::steady_timer retry_;  // after a failed accept (e.g. out of descriptors)
   uint16_t port_ = 0;
   std::atomic<bool> stopping_{false};
   std::mutex mu_;
@@ -66,6 +70,10 @@ std::string WebPath(std::string_view target);
 // the server's own `host` (the Host header), or one of `allowed` ("http://HOST:PORT").
 bool OriginAllowed(std::string_view origin, std::string_view host,
                    const std::vector<std::string>& allowed);
+// Whether a request's Host header names this server: an IP address, "localhost", or the host of
+// one of `allowed`. Anything else is a name that may have been re-pointed at this address by
+// its owner (DNS rebinding), whose pages would then pass the same-origin check.
+bool HostAllowed(std::string_view host, const std::vector<std::string>& allowed);
 // The Content-Type of a file by its extension.
 const char* ContentType(std::string_view path);
 

@@ -50,8 +50,15 @@ Server::~Server() {
 std::string DefaultWebRoot() {
   namespace fs = std::filesystem;
   std::error_code ec;
-  if (fs::is_regular_file(fs::path(HVDB_SOURCE_WEB_ROOT) / "index.html", ec)) {
+  // A binary in its build tree serves the source tree's web/; an installed one its package's
+  // share/hvdb/web, found next to its bin/ (so a relocated install works too).
+  fs::path exe = fs::read_symlink("/proc/self/exe", ec);
+  if (!ec && exe.string().rfind(std::string(HVDB_BUILD_ROOT) + "/", 0) == 0) {
     return HVDB_SOURCE_WEB_ROOT;
+  }
+  if (!ec) {
+    fs::path beside = exe.parent_path().parent_path() / "share" / "hvdb" / "web";
+    if (fs::is_regular_file(beside / "index.html", ec)) return beside.string();
   }
   return HVDB_INSTALLED_WEB_ROOT;
 }
@@ -276,6 +283,11 @@ void Server::Admit(std::shared_ptr<Session> session) {
   bool refuse = false;
   {
     std::lock_guard<std::mutex> l(mu_);
+    if (stopping_) {  // e.g. a WebSocket whose handshake ended after Stop took its list
+      session->Start();
+      session->Close();
+      return;
+    }
     refuse = sessions_.size() >= config_.max_connections;
     sessions_.insert(session);
   }

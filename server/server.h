@@ -60,14 +60,14 @@ struct Config {
   std::string token_file;  // lines "TOKEN ro|rw"; required for a non-loopback address
   std::string port_file;   // written with the bound port once listening
   // HTTP/WebSocket for the browser (server/http.h): HOST:PORT, "" for none; the web viewer's
-  // files ("": the source tree's web/ when built from one, else the installed one); other
-  // origins whose pages may open the WebSocket.
+  // files ("": DefaultWebRoot()); other origins whose pages may open the WebSocket.
   std::string http_listen;
   std::string web_root;
   std::vector<std::string> http_origins;
 };
 
-// Where the web viewer's files are when --web-root is not given.
+// Where the web viewer's files are when --web-root is not given: the source tree's web/ for a
+// binary in its build tree, else the installed share/hvdb/web.
 std::string DefaultWebRoot();
 
 enum class Role { kNone, kReadOnly, kReadWrite };

@@ -67,6 +67,18 @@ TEST(OriginAllowed, SameOriginOrListed) {
                                     {"https://viewer.example:443"}));
 }
 
+TEST(HostAllowed, AddressesLocalhostOrListedNames) {
+  EXPECT_TRUE(server::HostAllowed("127.0.0.1:8080", {}));
+  EXPECT_TRUE(server::HostAllowed("localhost:8080", {}));
+  EXPECT_TRUE(server::HostAllowed("[::1]:8080", {}));
+  EXPECT_TRUE(server::HostAllowed("192.168.1.7", {}));
+  // A name could have been re-pointed at this address by a site's owner (DNS rebinding).
+  EXPECT_FALSE(server::HostAllowed("evil.example:8080", {}));
+  EXPECT_FALSE(server::HostAllowed("", {}));
+  EXPECT_FALSE(server::HostAllowed("[::1", {}));
+  EXPECT_TRUE(server::HostAllowed("viewer.example:8080", {"http://viewer.example:3000"}));
+}
+
 TEST(WsCodec, DecodesJsonAndProtobufRequests) {
   wire::Request r;
   ASSERT_TRUE(wire::DecodeWsMessage(
@@ -160,12 +172,14 @@ class HttpServerTest : public ::testing::Test {
   }
   // One HTTP request on a new connection (a WebSocket upgrade from `origin` if one is given).
   http::response<http::string_body> Get(const std::string& target, http::verb verb = http::verb::get,
-                                        const std::string& body = "", const std::string& origin = "") {
+                                        const std::string& body = "", const std::string& origin = "",
+                                        const std::string& host = "") {
     asio::io_context io;
     tcp::socket s(io);
     s.connect({asio::ip::address_v4::loopback(), server_->http_port()});
     http::request<http::string_body> req{verb, target, 11};
-    req.set(http::field::host, "127.0.0.1:" + std::to_string(server_->http_port()));
+    req.set(http::field::host,
+            host.empty() ? "127.0.0.1:" + std::to_string(server_->http_port()) : host);
     if (!body.empty()) {
       req.body() = body;
       req.prepare_payload();
@@ -266,6 +280,12 @@ TEST_F(HttpServerTest, ServesTheViewerFilesAndNothingElse) {
   EXPECT_EQ(Get("/", http::verb::delete_).result_int(), 405);
   EXPECT_EQ(Get("/", http::verb::post, "x=1").result_int(), 413);
   EXPECT_EQ(Get("/ws").result_int(), 426);
+  // DNS rebinding: a page of evil.example, its name now pointing here, is same-origin with
+  // itself; the Host header gives it away.
+  const std::string evil = "evil.example:" + std::to_string(server_->http_port());
+  EXPECT_EQ(Get("/", http::verb::get, "", "", evil).result_int(), 403);
+  EXPECT_EQ(Get("/ws", http::verb::get, "", "http://" + evil, evil).result_int(), 403);
+  EXPECT_EQ(Get("/", http::verb::get, "", "", "localhost:1").result_int(), 200);
 }
 
 TEST_F(HttpServerTest, MalformedHttpGetsAnErrorAndTheServerGoesOn) {

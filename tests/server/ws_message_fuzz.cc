@@ -42,5 +42,6 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     std::abort();
   }
   (void)server::OriginAllowed(msg, "127.0.0.1:8080", {"http://viewer.example:3000"});
+  (void)server::HostAllowed(msg, {"http://viewer.example:3000"});
   return 0;
 }
