@@ -50,9 +50,11 @@ struct RegionPlan {
 Result<RegionPlan> PlanRegion(const Region& region, int lod, bool temporal_lod,
                               const FrameMap& frames, const DatasetInfo& info,
                               const Options& opts);
-// A copy of `old` with `step` applied; each removed point is found by id and position.
+// A copy of `old` with `step` applied; each removed point is found by id and position, and, when
+// `exact`, must also hold the very record given (a revert: a point a later transaction changed,
+// e.g. relabelled, is an error rather than silently restored to its old value).
 Result<std::shared_ptr<FrameVersion>> ApplyStep(const FrameVersion& old, const FrameEffect& step,
-                                                uint64_t lsn);
+                                                uint64_t lsn, bool exact = false);
 
 class DatasetImpl {
  public:

@@ -38,6 +38,14 @@ bool SamePoint(const Point& a, const Point& b) {
   return a.id == b.id && a.x == b.x && a.y == b.y && a.z == b.z;
 }
 
+// Every field, as stored (the 64-byte record).
+bool SameRecord(const Point& a, const Point& b) {
+  uint8_t ra[kPointRecordSize], rb[kPointRecordSize];
+  EncodePoints(std::span<const Point>(&a, 1), ra);
+  EncodePoints(std::span<const Point>(&b, 1), rb);
+  return std::memcmp(ra, rb, kPointRecordSize) == 0;
+}
+
 // Where a point lives in a frame version: -1 = T0, >= 0 = tree slot, -2 = nowhere.
 struct Holder {
   int slot = -2;
@@ -90,7 +98,7 @@ Result<Holder> Locate(const FrameVersion& v, const Point& target,
 }  // namespace
 
 Result<std::shared_ptr<FrameVersion>> ApplyStep(const FrameVersion& old, const FrameEffect& step,
-                                                uint64_t lsn) {
+                                                uint64_t lsn, bool exact) {
   auto v = std::make_shared<FrameVersion>(old);
   v->frame = step.frame;
   v->applied_lsn = std::max(v->applied_lsn, lsn);
@@ -103,7 +111,8 @@ Result<std::shared_ptr<FrameVersion>> ApplyStep(const FrameVersion& old, const F
     v->t0.RemoveIf([&](const Point& p) {
       auto [lo, hi] = wanted.equal_range(p.id);
       for (auto it = lo; it != hi; ++it) {
-        if (!in_t0[it->second] && SamePoint(p, step.removed[it->second])) {
+        const Point& want = step.removed[it->second];
+        if (!in_t0[it->second] && SamePoint(p, want) && (!exact || SameRecord(p, want))) {
           in_t0[it->second] = true;
           return true;
         }
@@ -118,6 +127,11 @@ Result<std::shared_ptr<FrameVersion>> ApplyStep(const FrameVersion& old, const F
     if (in_t0[i]) continue;
     const Point& target = step.removed[i];
     HVDB_ASSIGN_OR_RETURN(Holder h, Locate(probe, target, &new_dead));
+    if (exact && h.slot != -2 && (h.slot == -1 || !SameRecord(h.stored, target))) {
+      return Status::InvalidArgument("point " + std::to_string(target.id) + " of frame " +
+                                        std::to_string(step.frame) +
+                                        " was changed by a later transaction");
+    }
     if (h.slot < 0) {
       return Status::NotFound("point " + std::to_string(target.id) + " at (" +
                               std::to_string(target.x) + ", " + std::to_string(target.y) + ", " +
@@ -505,7 +519,7 @@ void DatasetImpl::LeadCommits(std::vector<WriteRequest*>& group) {
           auto basev = attempt.Get(inv.frame);
           FrameVersion empty;
           empty.frame = inv.frame;
-          auto applied = ApplyStep(basev ? *basev : empty, inv, rec.lsn);
+          auto applied = ApplyStep(basev ? *basev : empty, inv, rec.lsn, /*exact=*/true);
           if (!applied.ok()) {
             st = Status::InvalidArgument(
                 "cannot revert transaction " + std::to_string(w->revert_lsn) +

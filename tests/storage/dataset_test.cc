@@ -353,6 +353,45 @@ TEST_F(DatasetTest, RevertOfInsertAndOfRevert) {
   EXPECT_TRUE(ds_->Revert(9999).status().IsNotFound());
 }
 
+// Undo out of order: reverting a label change whose points a later transaction relabelled
+// would restore their old labels and silently drop the later change; it is refused until the
+// later one is reverted (in the tree and in T0 alike: a checkpoint moves the points between).
+TEST_F(DatasetTest, RevertRefusesWhenALaterTransactionChangedThePoints) {
+  Open();
+  std::mt19937_64 rng(8);
+  InsertRandom(rng, 600);
+  for (bool merged : {false, true}) {
+    SCOPED_TRACE(merged ? "points in trees" : "points in T0");
+    if (merged) {
+      ASSERT_TRUE(ds_->Checkpoint().ok());
+    }
+    const uint32_t f = merged ? 2 : 1;
+    Selection sel;
+    sel.region = FrameWindow(f);
+    Transaction a;
+    a.SetLabel(sel, 1u << 0, true);
+    CommitInfo ia;
+    Commit(a, &ia);
+    Transaction b;
+    b.SetLabel(sel, 1u << 5, true);
+    CommitInfo ib;
+    Commit(b, &ib);
+    auto r = ds_->Revert(ia.lsn);
+    ASSERT_FALSE(r.ok());
+    EXPECT_TRUE(r.status().IsInvalidArgument()) << r.status().ToString();
+    EXPECT_NE(r.status().message().find("later transaction"), std::string::npos);
+    auto now = RunQuery(*ds_, FrameWindow(f));
+    ASSERT_FALSE(now.empty());
+    for (const Point& p : now) EXPECT_EQ(p.label | 0x21u, p.label);
+    // Latest first works, and restores the labels as they were.
+    ASSERT_TRUE(ds_->Revert(ib.lsn).ok());
+    ASSERT_TRUE(ds_->Revert(ia.lsn).ok());
+    for (const Point& p : RunQuery(*ds_, FrameWindow(f))) {
+      EXPECT_EQ(p.label, model_[f][p.id].label);
+    }
+  }
+}
+
 TEST_F(DatasetTest, FailedTransactionChangesNothing) {
   Open();
   std::mt19937_64 rng(7);
