@@ -226,7 +226,25 @@ export class NavigationController {
   }
 }
 
+// Input types whose keys are text (a range slider or a checkbox is not typing).
+const kTextInputTypes = new Set(['text', 'number', 'search', 'email', 'password', 'tel', 'url',
+  'date', 'time', 'datetime-local', 'month', 'week']);
+
+// Whether the element takes typed text: text-like inputs, textareas, selects, contenteditable.
+export function isTextField(t) {
+  if (!t || t.nodeType !== 1) return false;
+  if (t.isContentEditable || t.tagName === 'TEXTAREA' || t.tagName === 'SELECT') return true;
+  return t.tagName === 'INPUT' && kTextInputTypes.has((t.type || 'text').toLowerCase());
+}
+
+// Whether a key event goes to a text field (then the page's single-key shortcuts stay out).
 export function isTyping(e) {
-  const t = e.target;
-  return t && (t.tagName === 'INPUT' || t.tagName === 'TEXTAREA' || t.tagName === 'SELECT' || t.isContentEditable);
+  return isTextField(e.target) || isTextField(document.activeElement);
+}
+
+// Whether the element is a form control (or link) that keyboard focus navigation belongs to.
+export function isFormControl(t) {
+  if (!t || t.nodeType !== 1) return false;
+  if (isTextField(t)) return true;
+  return ['INPUT', 'BUTTON', 'SELECT', 'TEXTAREA'].includes(t.tagName) || (t.tagName === 'A' && t.hasAttribute('href'));
 }

@@ -123,9 +123,10 @@ export class Connection {
         this.onState('closed', why);
         const err = new HvdbError('CLOSED', why);
         if (!greeted) reject(err);
-        for (const p of this.pending.values()) p.reject(err);
-        this.pending.clear();
         this.ws = null;
+        const pending = [...this.pending.values()];
+        this.pending.clear();
+        for (const p of pending) p.reject(err);
       };
     });
   }
@@ -138,11 +139,12 @@ export class Connection {
   // attached for binary replies); rejects with HvdbError on an error reply.
   // onPart(decoded) is called for every streamed part: each query batch ({response, columns,
   // sections}) and each render reply (the last one too).
-  request(body, { onPart = null } = {}) {
+  request(body, { onPart = null, onId = null } = {}) {
     if (!this.isOpen) return Promise.reject(new HvdbError('CLOSED', 'not connected to the server'));
     const id = this.nextId++;
     const kind = Object.keys(body)[0];
     const msg = JSON.stringify({ id, ...body });
+    if (onId) onId(id);  // the caller can cancel it later (only ids actually sent are given)
     return new Promise((resolve, reject) => {
       this.pending.set(id, { resolve, reject, onPart, kind, sentAt: performance.now() });
       this.ws.send(msg);
@@ -151,12 +153,37 @@ export class Connection {
 
   // Cancels a request in flight (its promise then rejects with CANCELLED).
   cancel(id) {
-    if (!this.isOpen) return Promise.resolve(null);
+    if (!this.isOpen || !(id > 0)) return Promise.resolve(null);
     return this.request({ cancel: { target: id } }).catch(() => null);
   }
 
   // The id the next request will get (so that a caller can cancel it later).
   peekId() { return this.nextId; }
+
+  // A message that cannot be decoded: the request it answers (when its id can still be read)
+  // fails with MALFORMED; otherwise nothing on this connection can be trusted any more.
+  undecodable(data, e) {
+    console.error('hvdb: undecodable message from the server', e);
+    const err = e instanceof HvdbError ? e : new HvdbError('MALFORMED', `undecodable message from the server: ${e.message}`);
+    const id = readId(data);
+    const p = id > 0 ? this.pending.get(id) : null;
+    if (p) {
+      this.pending.delete(id);
+      p.reject(err);
+      this.cancel(id);
+      return;
+    }
+    this.failAll(err);
+    if (this.ws) this.ws.close(4000, 'undecodable message');
+  }
+
+  // Every request in flight fails with `err` (a connection-level error).
+  failAll(err) {
+    this.onState('error', err.message);
+    const pending = [...this.pending.values()];
+    this.pending.clear();
+    for (const p of pending) p.reject(err);
+  }
 
   dispatch(data) {
     let decoded;
@@ -167,8 +194,7 @@ export class Connection {
         decoded = decodeBinary(data);
       }
     } catch (e) {
-      console.error('hvdb: undecodable message from the server', e);
-      this.onState('error', `undecodable message: ${e.message}`);
+      this.undecodable(data, e);
       return;
     }
     const r = decoded.response;
@@ -176,10 +202,7 @@ export class Connection {
     const kind = bodyKind(r);
     if (id === 0) {
       // A connection-level error: every request fails with it; the server closes.
-      const err = new HvdbError(r.error?.code || 'MALFORMED', r.error?.message || 'connection error');
-      this.onState('error', err.message);
-      for (const p of this.pending.values()) p.reject(err);
-      this.pending.clear();
+      this.failAll(new HvdbError(r.error?.code || 'MALFORMED', r.error?.message || 'connection error'));
       return;
     }
     const p = this.pending.get(id);
@@ -197,6 +220,7 @@ export class Connection {
           console.error('hvdb: batch handler failed', e);
           this.pending.delete(id);
           p.reject(e);
+          this.cancel(id);  // the server stops streaming what nobody reads any more
           return;
         }
       }
@@ -208,6 +232,22 @@ export class Connection {
     r.columns = decoded.columns;
     r.elapsedMs = performance.now() - p.sentAt;
     p.resolve(r);
+  }
+}
+
+// The request id of a message that did not decode, if it can be read (0 if not).
+function readId(data) {
+  try {
+    let text = data;
+    if (typeof data !== 'string') {
+      const dv = new DataView(data);
+      const j = dv.getUint32(0, true);
+      text = kDecoder.decode(new Uint8Array(data, 4, Math.min(j, data.byteLength - 4)));
+    }
+    const m = /"id"\s*:\s*"?(\d+)/.exec(text);
+    return m ? Number(m[1]) : 0;
+  } catch (e) {
+    return 0;
   }
 }
 

@@ -1,6 +1,7 @@
 // Editing tools (docs/PROTOCOL.md, "Editing"): marquee and lasso selections, foreground /
 // background brush strokes, graph cut, clipboard, undo/redo. Every change is a transaction in
-// the server; undo reverts its LSN, redo reverts the undo's LSN.
+// the server; undo reverts its LSN, redo reverts the undo's LSN. LSNs are per dataset: each undo
+// entry keeps its dataset. Edits, undo and redo run one at a time, in the order asked (queue).
 import { allTimeWindow } from './connection.js';
 
 export const TOOLS = ['navigate', 'marquee', 'lasso', 'brush-fg', 'brush-bg'];
@@ -15,8 +16,10 @@ export class Editor {
     this.overlay = overlay;          // 2D canvas over the view for outlines
     this.ctx = overlay.getContext('2d');
     this.tool = 'navigate';
-    this.undoStack = [];             // [{label, lsns: [...] }]
+    this.undoStack = [];             // [{label, dataset, lsns: [...] }]
     this.redoStack = [];
+    this.queue = Promise.resolve();  // the edit operations, one after another
+    this.stroke = null;
     this.drag = null;
     this.brushPixelRadius = 12;
     this.brushRadius = 0.05;
@@ -125,6 +128,27 @@ export class Editor {
     c.stroke();
   }
 
+  // Runs fn() after every edit operation asked before it has finished (failed or not).
+  enqueue(fn) {
+    const run = this.queue.then(() => fn());
+    this.queue = run.catch(() => {});
+    return run;
+  }
+
+  // Another dataset: its LSNs mean nothing for the history kept so far.
+  resetHistory() {
+    this.undoStack = [];
+    this.redoStack = [];
+    this.app.ui?.updateEditButtons();
+  }
+
+  // Records an undoable change (not if the page has moved to another dataset meanwhile).
+  record(label, dataset, lsns) {
+    if (dataset !== this.app.dataset || !lsns.length) return;
+    this.undoStack.push({ label, dataset, lsns });
+    this.redoStack = [];
+  }
+
   // ---- Requests. ----
 
   async select(shape, mode, bit = this.app.bit) {
@@ -142,19 +166,23 @@ export class Editor {
     return this.select({ lasso: { camera: this.app.wireCamera(), polygon } }, mode);
   }
 
-  // Runs an edit request, records its LSN for undo, re-queries the frames, and times the
-  // whole round trip (sent -> reply -> frame reloaded -> redrawn).
-  async commit(label, req, pick, { record = true } = {}) {
+  // Runs an edit request (built now, sent when the edits before it are done), records its LSN
+  // for undo, re-queries the frames, and times the whole round trip (sent -> reply -> frame
+  // reloaded -> redrawn).
+  commit(label, req, pick, { record = true } = {}) {
+    return this.enqueue(() => this.commitNow(label, req, pick, record));
+  }
+
+  async commitNow(label, req, pick, record) {
     const t0 = performance.now();
+    const dataset = Object.values(req)[0].dataset;
     this.app.lastRequest = req;
     this.app.setStatus('edit', `${label}…`);
     const reply = await this.app.conn.request(req);
     const body = pick(reply);
     const lsn = body && body.lsn !== undefined ? String(body.lsn) : '0';
-    if (record && lsn !== '0') {
-      this.undoStack.push({ label, lsns: [lsn] });
-      this.redoStack = [];
-    }
+    if (record && lsn !== '0') this.record(label, dataset, [lsn]);
+    this.app.ui?.updateEditButtons();
     await this.app.refreshAfterEdit();
     this.app.renderer.waitForGpu();  // the round trip ends with the overlay on screen
     this.app.lastEditMs = performance.now() - t0;
@@ -166,22 +194,28 @@ export class Editor {
 
   // ---- Brush strokes: one brush select per stamp, one undo entry per stroke. ----
 
+  // Stamps go out as the pointer moves (one in flight per stroke); the stroke's undo entry and
+  // refresh run in the edit queue.
   startStroke(p) {
-    this.stroke = { lsns: [], busy: null, pending: null, bit: this.tool === 'brush-fg' ? FOREGROUND_BIT : BACKGROUND_BIT, error: null };
-    this.stamp(p);
+    const s = {
+      lsns: [], busy: null, pending: null, error: null, ended: false, dataset: this.app.dataset,
+      bit: this.tool === 'brush-fg' ? FOREGROUND_BIT : BACKGROUND_BIT,
+    };
+    this.stroke = s;
+    this.stamp(s, p);
   }
 
   strokeTo(p) {
-    if (!this.stroke) return;
-    if (this.stroke.busy) this.stroke.pending = p;  // only the newest position waits
-    else this.stamp(p);
+    const s = this.stroke;
+    if (!s || s.ended) return;
+    if (s.busy) s.pending = p;  // only the newest position waits
+    else this.stamp(s, p);
   }
 
-  stamp([u, v]) {
-    const s = this.stroke;
+  stamp(s, [u, v]) {
     const req = {
       select: {
-        dataset: this.app.dataset, region: this.app.currentRegion(), bit: s.bit, mode: 'SELECT_ADD',
+        dataset: s.dataset, region: this.app.currentRegion(), bit: s.bit, mode: 'SELECT_ADD',
         brush: { camera: this.app.wireCamera(), u, v, pixel_radius: this.brushPixelRadius, radius: this.brushRadius, nearest: false },
       },
     };
@@ -193,27 +227,28 @@ export class Editor {
       if (s.pending && !s.error) {
         const next = s.pending;
         s.pending = null;
-        this.stamp(next);
+        this.stamp(s, next);
       }
     });
   }
 
-  async endStroke() {
+  endStroke() {
     const s = this.stroke;
-    if (!s) return;
+    if (!s || s.ended) return Promise.resolve();
+    s.ended = true;  // its last pending position is still stamped
     const t0 = performance.now();
-    while (s.busy) await s.busy;
-    this.stroke = null;
-    if (s.lsns.length) {
-      this.undoStack.push({ label: s.bit === FOREGROUND_BIT ? 'foreground stroke' : 'background stroke', lsns: s.lsns });
-      this.redoStack = [];
-    }
-    if (s.error) throw s.error;
-    await this.app.refreshAfterEdit();
-    this.app.renderer.waitForGpu();  // the round trip ends with the overlay on screen
-    this.app.lastEditMs = performance.now() - t0;
-    this.app.setStatus('edit', `stroke: ${s.lsns.length} stamps`);
-    this.app.ui?.updateEditButtons();
+    return this.enqueue(async () => {
+      while (s.busy) await s.busy;
+      if (this.stroke === s) this.stroke = null;  // a stroke started meanwhile stays
+      this.record(s.bit === FOREGROUND_BIT ? 'foreground stroke' : 'background stroke', s.dataset, s.lsns);
+      this.app.ui?.updateEditButtons();
+      if (s.error) throw s.error;
+      await this.app.refreshAfterEdit();
+      this.app.renderer.waitForGpu();  // the round trip ends with the overlay on screen
+      this.app.lastEditMs = performance.now() - t0;
+      this.app.setStatus('edit', `stroke: ${s.lsns.length} stamps`);
+      this.app.ui?.updateEditButtons();
+    });
   }
 
   // ---- Graph cut, clipboard, labels. ----
@@ -244,30 +279,37 @@ export class Editor {
   clearStrokes() { return this.clearSelection((1 << FOREGROUND_BIT) | (1 << BACKGROUND_BIT)); }
 
   // Undo: revert each LSN of the entry, newest first; redo reverts those undos.
-  async undo() { return this.revertEntry(this.undoStack, this.redoStack, 'undo'); }
+  // The stacks are looked at when the operation's turn comes (after the edits before it).
+  undo() { return this.enqueue(() => this.revertEntry('undoStack', 'redoStack', 'undo')); }
 
-  async redo() { return this.revertEntry(this.redoStack, this.undoStack, 'redo'); }
+  redo() { return this.enqueue(() => this.revertEntry('redoStack', 'undoStack', 'redo')); }
 
-  async revertEntry(from, to, what) {
-    const entry = from.pop();
+  async revertEntry(fromName, toName, what) {
+    const entry = this[fromName].pop();
     if (!entry) throw new Error(`nothing to ${what}`);
+    this.app.ui?.updateEditButtons();
     const t0 = performance.now();
     const done = [];
     let last = null;
+    // A dataset switch clears the stacks meanwhile: then nothing is pushed back.
+    const push = (name, lsns) => {
+      if (lsns.length && entry.dataset === this.app.dataset) this[name].push({ label: entry.label, dataset: entry.dataset, lsns });
+    };
     try {
       for (const lsn of [...entry.lsns].reverse()) {
-        last = await this.app.conn.request({ revert: { dataset: this.app.dataset, lsn } });
+        last = await this.app.conn.request({ revert: { dataset: entry.dataset, lsn } });
         done.push(String(last.commit.lsn));
       }
     } catch (err) {
       // Keep what was reverted undoable; the rest stays where it was.
-      if (done.length) to.push({ label: entry.label, lsns: done });
-      const left = entry.lsns.slice(0, entry.lsns.length - done.length);
-      if (left.length) from.push({ label: entry.label, lsns: left });
+      push(toName, done);
+      push(fromName, entry.lsns.slice(0, entry.lsns.length - done.length));
       this.app.ui?.updateEditButtons();
       throw err;
     }
-    to.push({ label: entry.label, lsns: done });
+    push(toName, done);
+    this.app.ui?.updateEditButtons();
+    if (entry.dataset !== this.app.dataset) return last;  // nothing of it is on screen
     await this.app.refreshAfterEdit();
     this.app.renderer.waitForGpu();  // the round trip ends with the overlay on screen
     this.app.lastEditMs = performance.now() - t0;

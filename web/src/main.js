@@ -2,6 +2,7 @@
 // together, reads the URL parameters and exposes window.hvdbApp (the test hooks).
 //   /?dataset=NAME&t=SECONDS&look_at=EX,EY,EZ,TX,TY,TZ&fov=DEG&size=WxH&lod=N&token=T
 //     &renderer=points&splats=sprites|quads&bit=N
+// The token may also be given as #token=T (a fragment is not sent to servers nor logged).
 import { Connection, frameWindow, allTimeWindow, sliceRegion } from './connection.js';
 import { ViewCamera, NavigationController, wireCamera, DEFAULT_UP } from './camera.js';
 import { SplatRenderer } from './renderer.js';
@@ -25,7 +26,7 @@ function parseParams() {
     fov: q.has('fov') ? Number(q.get('fov')) : 40,
     size: null,
     lod: q.has('lod') ? Number(q.get('lod')) : 0,
-    token: q.get('token') || '',
+    token: new URLSearchParams(location.hash.replace(/^#/, '')).get('token') || q.get('token') || '',
     renderer: q.get('renderer') === 'points' ? 'points' : 'splats',
     splats: ['sprites', 'quads'].includes(q.get('splats')) ? q.get('splats') : 'auto',
     bit: q.has('bit') ? Number(q.get('bit')) : 0,
@@ -42,7 +43,12 @@ function parseParams() {
   return p;
 }
 
-const nextFrame = () => new Promise((r) => requestAnimationFrame(() => r()));
+// The next animation frame; a page that is hidden or occluded gets none (browsers stop them),
+// so a timer settles it as well: nothing waiting for a picture can hang on that.
+const nextFrame = () => new Promise((r) => {
+  const timer = setTimeout(r, 100);
+  requestAnimationFrame(() => { clearTimeout(timer); r(); });
+});
 
 class App {
   constructor(params) {
@@ -78,16 +84,16 @@ class App {
     const scheme = location.protocol === 'https:' ? 'wss' : 'ws';
     this.conn = new Connection(`${scheme}://${location.host}/ws`, {
       token: this.params.token,
-      onState: (state, detail) => {
-        this.setStatus('conn', `${state}${detail ? `: ${detail}` : ''}`, state);
-        if (state === 'closed' || state === 'error') this.showError(new Error(`server connection ${state}: ${detail}`));
-      },
+      onState: (state, detail) => this.onConnState(state, detail),
     });
     this.store = new FrameStore(this.conn, this.renderer, {
       capacity: 24,
       onBatch: (d) => this.onBatch(d),
-      onError: (err, d) => { if (err.code !== 'CANCELLED') this.showError(err, `query of ${d.key}`); },
+      onError: (err, d) => { if (err.code !== 'CANCELLED' && err.code !== 'CLOSED') this.showError(err, `query of ${d.key}`); },
+      inUse: (d) => d === this.shown || d === this.target,
+      onReplace: (old, fresh) => this.onReplace(old, fresh),
     });
+    this.watchContext();
     this.player = new Player(this);
     this.editor = new Editor(this, this.canvas, this.overlayCanvas);
     this.nav = new NavigationController(this.canvas, this.cam, {
@@ -106,6 +112,31 @@ class App {
     if (!names.includes(name)) throw new Error(`dataset "${name}" is not on the server (it has: ${names.join(', ')})`);
     this.ui.setDatasets(names, name);
     await this.openDataset(name, true);
+  }
+
+  onConnState(state, detail) {
+    if (state === 'closed') {
+      this.player?.stop();
+      this.setStatus('conn', `disconnected: ${detail} (reload the page)`, state);
+      this.showError(new Error(`server connection closed: ${detail}; reload the page to reconnect`));
+      return;
+    }
+    if (this.conn && !this.conn.isOpen && state === 'error') this.player?.stop();
+    this.setStatus('conn', `${state}${detail ? `: ${detail}` : ''}`, state);
+    if (state === 'error') this.showError(new Error(`server connection error: ${detail}`));
+  }
+
+  // A lost WebGL context (GPU reset, driver update, too many contexts) draws nothing more:
+  // say so; preventDefault lets the browser restore it, and a restored context starts afresh.
+  watchContext() {
+    this.canvas.addEventListener('webglcontextlost', (e) => {
+      e.preventDefault();
+      this.contextLost = true;
+      this.player?.stop();
+      this.showError(new Error('the GPU context was lost; reload the page'));
+      this.setStatus('points', 'GPU context lost', 'error');
+    });
+    this.canvas.addEventListener('webglcontextrestored', () => location.reload());
   }
 
   setupCanvas() {
@@ -137,9 +168,13 @@ class App {
     this.info = reply.info;
     this.info.fps = Number(this.info.fps) || 30;
     this.info.frame_count = Number(this.info.frame_count) || 0;
+    if (name !== this.dataset) {
+      this.editor.resetHistory();  // LSNs are per dataset
+      this.stopSequence();
+    }
     this.dataset = name;
-    this.store.invalidate();
     this.shown = this.target = null;
+    this.store.reset();
     this.viewMode = 'frames';
     this.ui.setFrameRange(this.info.frame_count);
     this.ui.setLodRange(kMaxLod, this.lod);
@@ -200,8 +235,14 @@ class App {
     this.store.pinned = new Set([key]);
     this.ui.setFrame(this.frame, this.info.frame_count, this.info.fps, this.viewMode === 'slice');
     if (d.chunks.length || d.done) this.shown = d;
+    this.store.sweep();
     this.requestDraw();
-    await d.promise;
+    try {
+      await d.promise;
+    } catch (e) {
+      if (this.target !== d) return d;  // superseded (a CANCELLED of a load nobody waits for)
+      throw e;
+    }
     if (this.target !== d) return d;  // superseded by a later request
     this.showFrameData(d, this.frame, true);
     await nextFrame();
@@ -228,6 +269,7 @@ class App {
     this.target = d;
     if (f >= 0) this.frame = f;
     this.store.pinned = new Set([d.key]);
+    this.store.sweep();
     if (d.done) this.metrics.lastQueryMs = d.loadMs;
     this.ui.setFrame(this.frame, this.info.frame_count, this.info.fps, this.viewMode === 'slice');
     if (immediate) this.drawNow(resolution); else this.requestDraw();
@@ -273,19 +315,28 @@ class App {
   }
 
   // After an edit every cached frame may be stale: re-query what is on screen (keeping the
-  // old picture until the new one is complete), drop the rest (prefetch reloads them).
+  // old picture until the new one is complete), drop the rest (prefetch reloads them). Of
+  // several reloads of a key only the newest replaces the cached entry (FrameStore.reload).
   async refreshAfterEdit() {
     const key = this.currentKey();
     this.store.invalidate(new Set([key]));
     const d = this.store.reload(key, this.loadSpec());
-    d.quiet = true;
-    this.target = d;
     const fresh = await d.promise;
-    if (this.target === fresh) {
+    if (fresh.superseded) return;  // a later edit's reload (or another dataset) took over
+    if (this.currentKey() === key && this.store.map.get(key) === fresh) {
       this.showFrameData(fresh, this.viewMode === 'slice' ? -1 : this.frame, true);
       await nextFrame();
     }
     if (this.viewMode === 'frames') this.player.prefetch(this.frame, 2);
+  }
+
+  // A reload replaced `old` in the cache: if the page shows (or waits for) it, it shows the
+  // fresh data instead (so `old` can be disposed).
+  onReplace(old, fresh) {
+    let changed = false;
+    if (this.target === old) { this.target = fresh; changed = true; }
+    if (this.shown === old) { this.shown = fresh; changed = true; }
+    if (changed) this.requestDraw();
   }
 
   wireCamera() { return wireCamera(this.cam.camera(this.canvas.width, this.canvas.height)); }
@@ -321,7 +372,7 @@ class App {
 
   drawNow(resolution = 1) {
     this.dirty = false;
-    if (!this.renderer) return 0;
+    if (!this.renderer || this.contextLost) return 0;
     const cam = this.cam.camera(this.canvas.width, this.canvas.height);
     const d = this.shown;
     const layers = d && !d.disposed ? [d.layer] : [];
@@ -371,41 +422,65 @@ class App {
   }
 
   // Every frame from the current camera, rendered by the server, then played as images.
+  // Closing the panel (stopSequence) or starting another sequence cancels it.
   async renderSequence() {
     this.stopSequence();
-    const n = this.info.frame_count;
+    const n = this.info ? this.info.frame_count : 0;
+    if (!(n > 0)) throw new Error('render sequence: the dataset has no frames');
     const view = this.renderView();
     const req = { render: { dataset: this.dataset, lod: this.lod, path: Array.from({ length: n }, () => view), frames: Array.from({ length: n }, (_, i) => i), renderer: 'RENDERER_CPU' } };
     if (this.box) req.render.region = allTimeWindow(this.box);
-    const images = new Array(n);
+    const seq = { images: new Array(n), frames: [], timer: 0, requestId: 0, done: false, stopped: false };
+    this.sequence = seq;
     let got = 0;
     this.setStatus('edit', `rendering ${n} frames…`);
-    await this.conn.request(req, {
-      onPart: (part) => {
-        const png = part.sections.png;
-        if (!png) return;
-        images[Number(part.response.render.index || 0)] = URL.createObjectURL(new Blob([png], { type: 'image/png' }));
-        this.setStatus('edit', `rendered ${++got} / ${n}`);
-      },
-    });
-    const frames = images.filter(Boolean);
+    try {
+      await this.conn.request(req, {
+        onId: (id) => { seq.requestId = id; },
+        onPart: (part) => {
+          const png = part.sections.png;
+          if (!png || seq.stopped) return;
+          const i = Number(part.response.render.index || 0);
+          if (seq.images[i]) URL.revokeObjectURL(seq.images[i]);
+          seq.images[i] = URL.createObjectURL(new Blob([png], { type: 'image/png' }));
+          this.setStatus('edit', `rendered ${++got} / ${n}`);
+        },
+      });
+    } catch (e) {
+      seq.done = true;
+      if (seq.stopped) return { frames: 0, cancelled: true };
+      this.stopSequence();
+      throw e;
+    }
+    seq.done = true;
+    if (seq.stopped) return { frames: 0, cancelled: true };
+    const frames = seq.images.filter(Boolean);
+    seq.frames = frames;
+    if (!frames.length) {
+      this.stopSequence();
+      throw new Error('render sequence: the server sent no images');
+    }
     let i = 0;
-    const seq = { frames, timer: 0 };
-    this.sequence = seq;
     const show = () => {
       this.ui.showRender(frames[i], `sequence: frame ${i + 1} / ${frames.length} (server CPU render)`);
       i = (i + 1) % frames.length;
     };
     show();
-    seq.timer = setInterval(show, 1000 / this.info.fps);
+    seq.timer = setInterval(show, 1000 / (this.info.fps || 30));
     return { frames: frames.length };
   }
 
+  // Stops the sequence shown or being rendered: cancels its request, frees its images.
   stopSequence() {
-    if (!this.sequence) return;
-    clearInterval(this.sequence.timer);
-    for (const u of this.sequence.frames) URL.revokeObjectURL(u);
+    const seq = this.sequence;
+    if (!seq) return;
     this.sequence = null;
+    seq.stopped = true;
+    clearInterval(seq.timer);
+    if (!seq.done && seq.requestId) this.conn.cancel(seq.requestId);
+    for (const u of seq.images) if (u) URL.revokeObjectURL(u);
+    seq.images = [];
+    seq.frames = [];
   }
 
   setStatus(field, text, cls) { if (this.ui) this.ui.setStatus(field, text, cls); }
@@ -440,7 +515,13 @@ function exposeHooks(app, ready) {
     async setView(eye, target, fovDeg = app.cam.fovDeg) {
       app.cam.set(eye, target, fovDeg, app.cam.up);
       const d = app.target;
-      if (d) await d.promise;
+      if (d) {
+        try {
+          await d.promise;
+        } catch (e) {
+          if (app.target === d) throw e;  // a superseded load's failure is not this view's
+        }
+      }
       app.drawNow();
       await nextFrame();
       return true;

@@ -40,15 +40,21 @@ export class FrameData {
 
 export class FrameStore {
   // onBatch(frameData) is called after each batch is on the GPU (the page redraws if shown).
-  constructor(conn, renderer, { capacity = 24, onBatch = () => {}, onError = () => {} } = {}) {
+  // inUse(frameData): whether the page shows it or is loading it for the screen (then it is
+  // not disposed until replaced); onReplace(old, fresh): a reload replaced `old` in the cache.
+  constructor(conn, renderer, { capacity = 24, onBatch = () => {}, onError = () => {}, inUse = () => false, onReplace = () => {} } = {}) {
     this.conn = conn;
     this.renderer = renderer;
     this.capacity = capacity;
     this.onBatch = onBatch;
     this.onError = onError;
+    this.inUse = inUse;
+    this.onReplace = onReplace;
     this.map = new Map();
     this.pinned = new Set();  // keys that must not be evicted (what is on screen)
     this.maxLevel = null;
+    this.reloads = new Map(); // key -> the newest reload in flight (its generation is current)
+    this.retired = new Set(); // dropped entries still on screen: disposed by sweep() later
   }
 
   static frameKey(dataset, frame, lod, box) {
@@ -62,9 +68,15 @@ export class FrameStore {
   }
 
   // Starts (or returns) the query for `key`. Resolves with the FrameData when it is done.
+  // Without a connection nothing is sent: what is cached (even a failed entry) is returned.
   load(key, { dataset, frame, region, lod }) {
     let d = this.get(key);
     if (d && !d.error) return d;
+    if (d && !this.conn.isOpen) return d;
+    if (d) {
+      this.map.delete(key);
+      this.retire(d);  // its partial chunks' GPU buffers
+    }
     d = new FrameData(key, frame, region, lod);
     this.map.set(key, d);
     this.startQuery(d, dataset);
@@ -73,24 +85,50 @@ export class FrameStore {
   }
 
   // A fresh query for an entry already shown: the old data stays on screen until the new
-  // one is complete (no flicker after an edit). Resolves with the new FrameData.
+  // one is complete (no flicker after an edit). Resolves with the new FrameData; a reload
+  // superseded by a later one (or by invalidate) resolves with `superseded` set and is
+  // disposed. Only the newest reload of a key replaces the cached entry.
   reload(key, { dataset, frame, region, lod }) {
+    const prev = this.reloads.get(key);
     const d = new FrameData(key, frame, region, lod);
+    this.reloads.set(key, d);
+    if (prev) this.retire(prev);  // superseded before it completed: cancel it
     this.startQuery(d, dataset);
+    const current = () => this.reloads.get(key) === d && !d.disposed;
     d.promise = d.promise.then((fresh) => {
+      if (!current()) {
+        fresh.superseded = true;
+        this.retire(fresh);
+        return fresh;
+      }
+      this.reloads.delete(key);
       const old = this.map.get(key);
-      if (old && old !== fresh) this.dispose(old);
       this.map.set(key, fresh);
+      if (old && old !== fresh) {
+        this.onReplace(old, fresh);  // the page moves to `fresh` if it showed `old`
+        this.retire(old);
+      }
+      this.evict();
       return fresh;
+    }, (err) => {
+      const wasCurrent = current();
+      if (this.reloads.get(key) === d) this.reloads.delete(key);
+      this.retire(d);
+      if (!wasCurrent) {
+        d.superseded = true;
+        return d;
+      }
+      throw err;
     });
+    d.promise.catch(() => {});
     return d;
   }
 
   startQuery(d, dataset) {
     d.sentAt = performance.now();
-    d.requestId = this.conn.peekId();
+    d.requestId = 0;
     const query = { dataset, region: d.region, lod: d.lod, progressive: true, encoding: 'COLUMNS' };
-    d.promise = this.conn.request({ query }, { onPart: (part) => this.addBatch(d, part) })
+    d.promise = this.conn.request({ query }, { onPart: (part) => this.addBatch(d, part), onId: (id) => { d.requestId = id; } })
       .then((reply) => {
         d.done = true;
         d.loadMs = performance.now() - d.sentAt;
@@ -101,7 +139,7 @@ export class FrameStore {
         return d;
       }, (err) => {
         d.error = err;
-        this.onError(err, d);
+        if (!d.disposed) this.onError(err, d);  // a dropped entry's CANCELLED is no news
         throw err;
       });
     // Callers that only prefetch do not wait: keep unhandled rejections out of the console.
@@ -147,15 +185,40 @@ export class FrameStore {
   dispose(d) {
     if (d.disposed) return;
     d.disposed = true;
+    this.retired.delete(d);
     for (const c of d.chunks) this.renderer.deleteChunk(c);
     d.chunks = [];
     d.labels = [];
-    if (!d.done && !d.error) this.conn.cancel(d.requestId);
+    this.cancelQuery(d);
+  }
+
+  cancelQuery(d) {
+    if (d.done || d.error || d.cancelSent) return;
+    d.cancelSent = true;
+    this.conn.cancel(d.requestId);
+  }
+
+  // Disposes an entry no longer cached, or keeps it until the page stops showing it.
+  retire(d) {
+    if (d.disposed) return;
+    if (this.inUse(d)) {
+      this.retired.add(d);
+      this.cancelQuery(d);  // no more batches for it
+    } else {
+      this.dispose(d);
+    }
+  }
+
+  // Disposes the retired entries the page no longer shows (called when it changes what it shows).
+  sweep() {
+    for (const d of [...this.retired]) {
+      if (!this.inUse(d) && this.map.get(d.key) !== d) this.dispose(d);
+    }
   }
 
   evict() {
     if (this.map.size <= this.capacity) return;
-    const entries = [...this.map.values()].filter((d) => !this.pinned.has(d.key))
+    const entries = [...this.map.values()].filter((d) => !this.pinned.has(d.key) && !this.inUse(d))
       .sort((a, b) => a.lastUse - b.lastUse);
     while (this.map.size > this.capacity && entries.length) {
       const d = entries.shift();
@@ -164,13 +227,26 @@ export class FrameStore {
     }
   }
 
-  // Drops everything but `keep` (after an edit every cached frame may be stale).
+  // Drops everything but `keep` (after an edit every cached frame may be stale); reloads of
+  // dropped keys are cancelled.
   invalidate(keep = new Set()) {
+    for (const [k, d] of [...this.reloads]) {
+      if (keep.has(k)) continue;
+      this.reloads.delete(k);
+      this.retire(d);
+    }
     for (const [k, d] of [...this.map]) {
       if (keep.has(k)) continue;
       this.map.delete(k);
-      this.dispose(d);
+      this.retire(d);
     }
+  }
+
+  // Another dataset: nothing cached applies, nor its levels of detail.
+  reset() {
+    this.invalidate();
+    this.pinned = new Set();
+    this.maxLevel = null;
   }
 }
 
@@ -194,7 +270,7 @@ export class Player {
   prefetch(f, ahead = this.prefetchAhead) {
     const a = this.app;
     const n = a.info.frame_count;
-    if (!n || a.viewMode !== 'frames') return;
+    if (!n || a.viewMode !== 'frames' || !a.conn.isOpen) return;
     let inFlight = 0;
     for (const d of a.store.map.values()) if (!d.done && !d.error) ++inFlight;
     for (let k = 1; k <= ahead && inFlight < 4; ++k) {
@@ -220,6 +296,10 @@ export class Player {
     a.ui?.setPlaying(true);
     const tick = () => {
       if (!this.playing) return;
+      if (!a.conn.isOpen) {  // nothing more can load: stop rather than retry every frame
+        this.stop();
+        return;
+      }
       const now = performance.now();
       const n = a.info.frame_count;
       const want = (startFrame + Math.floor(((now - t0) / 1000) * a.info.fps)) % n;

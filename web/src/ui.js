@@ -1,6 +1,6 @@
 // The page's controls: toolbar, side panel, timeline, status bar, help panel and keyboard
 // shortcuts. Everything here calls into the App (main.js); errors go to the status bar.
-import { isTyping } from './camera.js';
+import { isTyping, isTextField, isFormControl } from './camera.js';
 
 const $ = (id) => {
   const el = document.getElementById(id);
@@ -101,26 +101,38 @@ export class UI {
 
   bindKeys() {
     const a = this.app;
+    const fail = (x) => a.showError(x);
+    // Server-side copy / cut only when the page's own text is not what the user copies.
+    const pageTextSelected = () => {
+      const sel = window.getSelection ? window.getSelection() : null;
+      return !!sel && !sel.isCollapsed && sel.toString().length > 0;
+    };
     window.addEventListener('keydown', this.run((e) => {
       if (isTyping(e)) return;
       const k = e.key;
       const ctrl = e.ctrlKey || e.metaKey;
       const lower = k.toLowerCase();
+      // Keys a focused control handles itself: a slider's arrows, a checkbox's Space.
+      const type = e.target?.tagName === 'INPUT' ? String(e.target.type).toLowerCase() : '';
+      if (type === 'range' && ['ArrowLeft', 'ArrowRight', 'ArrowUp', 'ArrowDown', 'Home', 'End', 'PageUp', 'PageDown'].includes(k)) return;
+      if ((type === 'checkbox' || type === 'radio') && k === ' ') return;
+      const edit = (fn) => { if (!e.repeat) fn().catch(fail); };  // auto-repeat starts no edits
+      const clipboardOk = () => !pageTextSelected() && !isTextField(document.activeElement);
       let handled = true;
-      if (ctrl && lower === 'z' && e.shiftKey) a.editor.redo().catch((x) => a.showError(x));
-      else if (ctrl && lower === 'z') a.editor.undo().catch((x) => a.showError(x));
-      else if (ctrl && lower === 'y') a.editor.redo().catch((x) => a.showError(x));
-      else if (ctrl && lower === 'c') a.editor.copy(false).catch((x) => a.showError(x));
-      else if (ctrl && lower === 'x') a.editor.copy(true).catch((x) => a.showError(x));
-      else if (ctrl && lower === 'v') a.editor.paste(this.pasteOffset()).catch((x) => a.showError(x));
+      if (ctrl && lower === 'z' && e.shiftKey) edit(() => a.editor.redo());
+      else if (ctrl && lower === 'z') edit(() => a.editor.undo());
+      else if (ctrl && lower === 'y') edit(() => a.editor.redo());
+      else if (ctrl && lower === 'c') { if (clipboardOk()) edit(() => a.editor.copy(false)); else handled = false; }
+      else if (ctrl && lower === 'x') { if (clipboardOk()) edit(() => a.editor.copy(true)); else handled = false; }
+      else if (ctrl && lower === 'v') edit(() => a.editor.paste(this.pasteOffset()));
       else if (ctrl) handled = false;
-      else if (k === 'Tab') this.toggleFly();
+      else if (k === 'Tab') { if (!e.shiftKey && !e.altKey && !isFormControl(document.activeElement)) this.toggleFly(); else handled = false; }
       else if (a.cam.fly && 'wasdqe'.includes(lower) && lower.length === 1) handled = false;  // flying
-      else if (k === ' ') a.player.toggle();
-      else if (k === 'ArrowLeft') a.stepFrame(-1).catch((x) => a.showError(x));
-      else if (k === 'ArrowRight') a.stepFrame(1).catch((x) => a.showError(x));
-      else if (k === 'Home') { a.player.stop(); a.gotoFrame(0).catch((x) => a.showError(x)); }
-      else if (k === 'Delete') a.editor.copy(true).catch((x) => a.showError(x));
+      else if (k === ' ') { if (!e.repeat) a.player.toggle(); }
+      else if (k === 'ArrowLeft') a.stepFrame(-1).catch(fail);
+      else if (k === 'ArrowRight') a.stepFrame(1).catch(fail);
+      else if (k === 'Home') { a.player.stop(); a.gotoFrame(0).catch(fail); }
+      else if (k === 'Delete') { if (clipboardOk()) edit(() => a.editor.copy(true)); else handled = false; }
       else if (k === '?' || lower === 'h') this.toggleHelp();
       else if (k === 'Escape') this.toggleHelp(false);
       else if (lower === 'n') a.editor.setTool('navigate');
@@ -128,10 +140,10 @@ export class UI {
       else if (lower === 'l') a.editor.setTool('lasso');
       else if (lower === 'f') a.editor.setTool('brush-fg');
       else if (lower === 'g') a.editor.setTool('brush-bg');
-      else if (lower === 'c') a.editor.graphCut().catch((x) => a.showError(x));
-      else if (lower === 'r') a.renderStill().catch((x) => a.showError(x));
-      else if (k === '[') a.setLod(a.lod - 1).catch((x) => a.showError(x));
-      else if (k === ']') a.setLod(a.lod + 1).catch((x) => a.showError(x));
+      else if (lower === 'c') edit(() => a.editor.graphCut());
+      else if (lower === 'r') { if (!e.repeat) a.renderStill().catch(fail); }
+      else if (k === '[') a.setLod(a.lod - 1).catch(fail);
+      else if (k === ']') a.setLod(a.lod + 1).catch(fail);
       else if (lower === 'o') a.setOverlay(!a.overlay);
       else handled = false;
       if (handled) e.preventDefault();
