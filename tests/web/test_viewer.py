@@ -199,6 +199,7 @@ def test_marquee_selects_what_the_cli_selects_and_undo_reverts(browser, server):
     assert by_page == by_cli
     assert int(reply["selected"]) == len(by_page) == shown_selected
     RESULTS["marquee_round_trip_ms"] = edit_ms
+    RESULTS["marquee_phases_ms"] = browser.execute_script("return window.hvdbApp.lastEditPhases")
     RESULTS["marquee_points"] = len(by_page)
 
     # Undo, latest first: the command line's selection, then the page's (the page's undo).
@@ -212,3 +213,60 @@ def test_marquee_selects_what_the_cli_selects_and_undo_reverts(browser, server):
     pts = frame_points(server, FRAME)
     assert set(pts["id"][(pts["label"] & 1) != 0].tolist()) == by_page
     call(browser, "window.hvdbApp.undo()")
+
+
+def drag(browser, points):
+    """A left-button drag on the canvas through `points` (canvas pixels)."""
+    canvas = browser.find_element(By.ID, "view")
+    (u, v), rest = points[0], points[1:]
+    chain = ActionChains(browser).move_to_element_with_offset(canvas, u - W // 2, v - H // 2)
+    chain.click_and_hold()
+    for nu, nv in rest:
+        chain.move_by_offset(nu - u, nv - v)
+        u, v = nu, nv
+    chain.release().perform()
+
+
+def test_slice_and_graph_cut_through_the_page(browser, server):
+    open_page(browser, server)
+    # A hyperslice orthogonal to t through frame 5, from the side panel.
+    t = FRAME / FPS
+    for field, value in (("slice-nx", 0), ("slice-ny", 0), ("slice-nz", 0), ("slice-nt", 1),
+                         ("slice-offset", t), ("slice-thickness", 0.01)):
+        el = browser.find_element(By.ID, field)
+        el.clear()
+        el.send_keys(str(value))
+    browser.find_element(By.ID, "slice-apply").click()
+    db = hvdb.connect(server.address)
+    try:
+        want = len(db.hyperslice(DATASET, (0, 0, 0, 1), t, 0.01))
+    finally:
+        db.close()
+    WebDriverWait(browser, 60).until(
+        lambda d: d.execute_script("return window.hvdbApp.pointsShown()") == want)
+    browser.find_element(By.ID, "slice-back").click()
+    call(browser, "window.hvdbApp.gotoFrame(args[0])", FRAME)
+
+    # Strokes as a user paints them: foreground on the head and chest, background on the legs;
+    # then the graph cut grows the foreground into an object (bit 0).
+    browser.find_element(By.ID, "tool-brush-fg").click()
+    drag(browser, [(485, 110), (495, 160), (500, 210)])
+    browser.find_element(By.ID, "tool-brush-bg").click()
+    drag(browser, [(470, 420), (500, 440), (525, 460)])
+    stacks = call(browser, "window.hvdbApp.idle()")
+    assert stacks["undo"] == 2
+    browser.find_element(By.ID, "graph-cut").click()
+    WebDriverWait(browser, 120).until(
+        lambda d: d.execute_script("return window.hvdbApp.app.editor.undoStack.length") == 3)
+    call(browser, "window.hvdbApp.idle()")
+    pts = frame_points(server, FRAME)
+    fg, bg, cut = ((pts["label"] & b) != 0 for b in (2, 4, 1))
+    assert fg.sum() > 100 and bg.sum() > 100
+    assert cut[fg].all() and not cut[bg].any()
+    assert cut.sum() > fg.sum()
+    assert browser.execute_script("return window.hvdbApp.selectedCount()") == cut.sum()
+    RESULTS["graph_cut_round_trip_ms"] = browser.execute_script("return window.hvdbApp.lastEditMs")
+    for _ in range(3):
+        call(browser, "window.hvdbApp.undo()")
+    pts = frame_points(server, FRAME)
+    assert not ((pts["label"] & 7) != 0).any()

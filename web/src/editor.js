@@ -183,9 +183,19 @@ export class Editor {
     const lsn = body && body.lsn !== undefined ? String(body.lsn) : '0';
     if (record && lsn !== '0') this.record(label, dataset, [lsn]);
     this.app.ui?.updateEditButtons();
-    await this.app.refreshAfterEdit();
+    const t1 = performance.now();
+    const fresh = await this.app.refreshAfterEdit();
+    const t2 = performance.now();
     this.app.renderer.waitForGpu();  // the round trip ends with the overlay on screen
     this.app.lastEditMs = performance.now() - t0;
+    // Where the time went: the request (server: the edit's commit), the frame's re-query,
+    // and the draw until the GPU is done with it.
+    this.app.lastEditPhases = {
+      request_ms: t1 - t0,
+      requery_ms: fresh && fresh.loadMs !== null ? fresh.loadMs : null,
+      refresh_ms: t2 - t1,
+      gpu_ms: performance.now() - t2,
+    };
     if (label === 'select' || label === 'brush') this.app.lastSelect = body;
     this.app.setStatus('edit', `${label}: ${describe(body)} (${this.app.lastEditMs.toFixed(0)} ms)`);
     this.app.ui?.updateEditButtons();

@@ -322,12 +322,13 @@ class App {
     this.store.invalidate(new Set([key]));
     const d = this.store.reload(key, this.loadSpec());
     const fresh = await d.promise;
-    if (fresh.superseded) return;  // a later edit's reload (or another dataset) took over
+    if (fresh.superseded) return null;  // a later edit's reload (or another dataset) took over
     if (this.currentKey() === key && this.store.map.get(key) === fresh) {
       this.showFrameData(fresh, this.viewMode === 'slice' ? -1 : this.frame, true);
       await nextFrame();
     }
     if (this.viewMode === 'frames') this.player.prefetch(this.frame, 2);
+    return fresh;
   }
 
   // A reload replaced `old` in the cache: if the page shows (or waits for) it, it shows the
@@ -511,6 +512,16 @@ function exposeHooks(app, ready) {
     get lastSelect() { return app.lastSelect; },
     get lastEditMs() { return app.lastEditMs; },
     get lastRequest() { return app.lastRequest || null; },
+    get lastEditPhases() { return app.lastEditPhases || null; },
+    // Resolves once the edits asked for so far (strokes included) are done and drawn.
+    async idle() {
+      let q;
+      do {
+        q = app.editor.queue;
+        await q;
+      } while (q !== app.editor.queue);
+      return { undo: app.editor.undoStack.length, redo: app.editor.redoStack.length };
+    },
     get lastError() { return app.lastError || null; },
     async setView(eye, target, fovDeg = app.cam.fovDeg) {
       app.cam.set(eye, target, fovDeg, app.cam.up);

@@ -189,7 +189,8 @@ export class UI {
     const s = $('frame-slider');
     s.value = frame;
     s.disabled = sliceMode;
-    $('frame-label').textContent = sliceMode ? 'slice' : `frame ${frame + 1} / ${count}`;
+    // Frames are numbered from 0, as everywhere else in hvdb (frame 5 is t = 5 / fps).
+    $('frame-label').textContent = sliceMode ? 'slice' : `frame ${frame} of ${count}`;
     $('time-label').textContent = sliceMode ? '' : `${(frame / fps).toFixed(3)} s`;
   }
 
