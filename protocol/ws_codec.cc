@@ -57,8 +57,16 @@ std::string ToJson(const google::protobuf::Message& m) {
   o.always_print_primitive_fields = true;
   o.preserve_proto_field_names = true;
   std::string out;
-  // Printing a valid message cannot fail (no Any fields to resolve).
-  (void)google::protobuf::util::MessageToJsonString(m, &out, o);
+  auto st = google::protobuf::util::MessageToJsonString(m, &out, o);
+  if (!st.ok()) {  // e.g. a string field that is not UTF-8: the client still gets an answer
+    const auto* r = dynamic_cast<const Response*>(&m);
+    Response err;
+    err.set_id(r != nullptr ? r->id() : 0);
+    err.mutable_error()->set_code(INTERNAL);
+    err.mutable_error()->set_message("the response cannot be written as JSON");
+    out.clear();
+    (void)google::protobuf::util::MessageToJsonString(err, &out, o);  // ASCII only: cannot fail
+  }
   return out;
 }
 

@@ -17,6 +17,7 @@
 
 #include <boost/asio.hpp>
 
+#include "server/web_checks.h"
 #include "storage/status.h"
 
 namespace hvdb::server {
@@ -61,21 +62,6 @@ class HttpFrontend {
   std::mutex mu_;
   std::map<HttpConnection*, std::weak_ptr<HttpConnection>> connections_;
 };
-
-// The file a request target names, relative to the web root ("index.html" for "/"), or "" when
-// the target is not a plain path inside it: "..", a leading dot in a component (hidden files,
-// "."), a backslash, a NUL or a bad percent escape. Query and fragment are ignored.
-std::string WebPath(std::string_view target);
-// Whether a WebSocket request from a page at `origin` may connect: no Origin (not a browser),
-// the server's own `host` (the Host header), or one of `allowed` ("http://HOST:PORT").
-bool OriginAllowed(std::string_view origin, std::string_view host,
-                   const std::vector<std::string>& allowed);
-// Whether a request's Host header names this server: an IP address, "localhost", or the host of
-// one of `allowed`. Anything else is a name that may have been re-pointed at this address by
-// its owner (DNS rebinding), whose pages would then pass the same-origin check.
-bool HostAllowed(std::string_view host, const std::vector<std::string>& allowed);
-// The Content-Type of a file by its extension.
-const char* ContentType(std::string_view path);
 
 }  // namespace hvdb::server
 

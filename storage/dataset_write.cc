@@ -95,6 +95,71 @@ Result<Holder> Locate(const FrameVersion& v, const Point& target,
   return Holder{};
 }
 
+Status NotInFrame(const Point& target, uint32_t frame) {
+  return Status::NotFound("point " + std::to_string(target.id) + " at (" +
+                          std::to_string(target.x) + ", " + std::to_string(target.y) + ", " +
+                          std::to_string(target.z) + ") not found in frame " +
+                          std::to_string(frame));
+}
+
+Status ChangedLater(const Point& target, uint32_t frame) {
+  return Status::InvalidArgument("point " + std::to_string(target.id) + " of frame " +
+                                 std::to_string(frame) + " was changed by a later transaction");
+}
+
+// From this many removed points on, ApplyStep reads the trees once rather than searching for
+// each point.
+constexpr size_t kBatchLocate = 256;
+
+// Finds step.removed[i] for every i in `which` in the trees of `v` (each live point matches
+// the first unmatched removed point with its id and position; with `exact` it must also be
+// that record) and appends their ids to (*dead)[slot].
+Status LocateMany(const FrameVersion& v, const FrameEffect& step, const std::vector<size_t>& which,
+                  bool exact, std::vector<std::vector<uint64_t>>* dead) {
+  std::unordered_multimap<uint64_t, size_t> wanted;
+  wanted.reserve(which.size());
+  for (size_t i : which) wanted.emplace(step.removed[i].id, i);
+  std::vector<uint8_t> found(step.removed.size(), 0);
+  BoxTest everything = [](const Box3&) { return Relation::kCrosses; };
+  Status mismatch;
+  for (size_t s = 0; s < v.slots.size(); ++s) {
+    const TreeSlot& slot = v.slots[s];
+    if (!slot.tree) continue;
+    std::vector<KdTree::BucketHit> hits;
+    HVDB_RETURN_IF_ERROR(slot.tree->FindBuckets(everything, &hits));
+    for (const auto& hit : hits) {
+      for (uint32_t k = 0; k < slot.tree->header().levels; ++k) {
+        HVDB_RETURN_IF_ERROR(slot.tree->ReadRange(
+            static_cast<int>(k), hit.entry.start[k], hit.entry.count[k],
+            [&](const uint8_t* rec, size_t n) {
+              for (size_t j = 0; j < n; ++j) {
+                const uint8_t* r = rec + j * kPointRecordSize;
+                auto [lo, hi] = wanted.equal_range(DecodeLE<uint64_t>(r));
+                if (lo == hi) continue;
+                const Point p = DecodePoint(r);
+                if (slot.IsDead(p.id)) continue;
+                for (auto it = lo; it != hi; ++it) {
+                  const Point& want = step.removed[it->second];
+                  if (found[it->second] || !SamePoint(p, want)) continue;
+                  if (exact && !SameRecord(p, want) && mismatch.ok()) {
+                    mismatch = ChangedLater(want, step.frame);
+                  }
+                  found[it->second] = 1;
+                  (*dead)[s].push_back(p.id);
+                  break;
+                }
+              }
+            }));
+      }
+    }
+  }
+  HVDB_RETURN_IF_ERROR(mismatch);
+  for (size_t i : which) {
+    if (!found[i]) return NotInFrame(step.removed[i], step.frame);
+  }
+  return Status::OK();
+}
+
 }  // namespace
 
 Result<std::shared_ptr<FrameVersion>> ApplyStep(const FrameVersion& old, const FrameEffect& step,
@@ -121,23 +186,26 @@ Result<std::shared_ptr<FrameVersion>> ApplyStep(const FrameVersion& old, const F
     });
   }
   std::vector<std::vector<uint64_t>> new_dead(v->slots.size());
+  std::vector<size_t> rest;  // removed points not in T0: in the trees
+  for (size_t i = 0; i < step.removed.size(); ++i) {
+    if (!in_t0[i]) rest.push_back(i);
+  }
+  if (rest.size() >= kBatchLocate) {
+    // Many points (a selection relabelled, a region deleted): one pass over each tree's
+    // buckets instead of a search per point (52 k relabelled points of a 75 k-point frame:
+    // one read of the frame instead of 52 k bucket probes).
+    HVDB_RETURN_IF_ERROR(LocateMany(*v, step, rest, exact, &new_dead));
+    rest.clear();
+  }
   FrameVersion probe;  // the trees only: T0 was searched above
   probe.slots = v->slots;
-  for (size_t i = 0; i < step.removed.size(); ++i) {
-    if (in_t0[i]) continue;
+  for (size_t i : rest) {
     const Point& target = step.removed[i];
     HVDB_ASSIGN_OR_RETURN(Holder h, Locate(probe, target, &new_dead));
-    if (exact && h.slot != -2 && (h.slot == -1 || !SameRecord(h.stored, target))) {
-      return Status::InvalidArgument("point " + std::to_string(target.id) + " of frame " +
-                                        std::to_string(step.frame) +
-                                        " was changed by a later transaction");
+    if (exact && h.slot >= 0 && !SameRecord(h.stored, target)) {
+      return ChangedLater(target, step.frame);
     }
-    if (h.slot < 0) {
-      return Status::NotFound("point " + std::to_string(target.id) + " at (" +
-                              std::to_string(target.x) + ", " + std::to_string(target.y) + ", " +
-                              std::to_string(target.z) + ") not found in frame " +
-                              std::to_string(step.frame));
-    }
+    if (h.slot < 0) return NotInFrame(target, step.frame);
     new_dead[static_cast<size_t>(h.slot)].push_back(target.id);
   }
   for (size_t s = 0; s < new_dead.size(); ++s) {
@@ -328,7 +396,15 @@ Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
   };
   auto select = [&](const Selection& sel) -> Result<Selected> {
     Selected out;
-    std::set<std::pair<uint32_t, uint64_t>> seen;
+    // (frame, id) pairs taken, hashed: a selection can hold a whole frame (tens of thousands
+    // of points), and an ordered set took a quarter of the CPU samples of a 52 k-point relabel.
+    struct PairHash {
+      size_t operator()(const std::pair<uint32_t, uint64_t>& k) const {
+        return std::hash<uint64_t>()(k.second * 0x9E3779B97F4A7C15ull ^ k.first);
+      }
+    };
+    std::unordered_set<std::pair<uint32_t, uint64_t>, PairHash> seen;
+    seen.reserve(sel.ids.size() + 1024);
     auto add = [&](const Point& p) {
       if (seen.insert({p.frame, p.id}).second) out.by_frame[p.frame].push_back(p);
     };

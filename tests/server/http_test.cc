@@ -1,6 +1,8 @@
 // The HTTP front end and the WebSocket transport (docs/PROTOCOL.md, "HTTP and WebSocket"): a
 // real hvdb-server process with --http, driven by Beast's HTTP and WebSocket clients; and the
 // pure parts (paths, origins, the message codec) directly.
+#include <sys/socket.h>
+
 #include <gtest/gtest.h>
 
 #include <array>
@@ -444,6 +446,48 @@ TEST_F(HttpServerTest, BadMessagesCloseOnlyTheirConnection) {
   EXPECT_EQ(nohello.ReadJson()["error"]["code"], "MALFORMED");
   good.Text(R"({"id": 9, "list": {}})");
   EXPECT_EQ(good.ReadJson()["id"], "9");
+}
+
+// Frames that break RFC 6455 itself (Beast's parser rejects them): the connection is failed,
+// the server goes on.
+TEST_F(HttpServerTest, BrokenWebSocketFramesCloseTheirConnection) {
+  Start();
+  const std::vector<std::string> frames = {
+      std::string("\x81\x05hello", 7),                  // unmasked: clients must mask
+      std::string("\x83\x80\x01\x02\x03\x04", 6),      // reserved opcode 3
+      std::string("\xf1\x80\x01\x02\x03\x04", 6),      // RSV bits without an extension
+      std::string("\x89\xfe\x01\x00\x01\x02\x03\x04", 8),  // a ping longer than 125 bytes
+  };
+  for (const std::string& raw : frames) {
+    asio::io_context io;
+    tcp::socket s(io);
+    s.connect({asio::ip::address_v4::loopback(), server_->http_port()});
+    const std::string upgrade =
+        "GET /ws HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+        "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n";
+    asio::write(s, asio::buffer(upgrade));
+    asio::streambuf head;
+    asio::read_until(s, head, "\r\n\r\n");
+    std::string status(asio::buffers_begin(head.data()), asio::buffers_begin(head.data()) + 12);
+    ASSERT_EQ(status, "HTTP/1.1 101");
+    asio::write(s, asio::buffer(raw));
+    // The server fails the connection: a close frame (status 1002), then EOF; never a hang.
+    s.non_blocking(false);
+    struct timeval tv{5, 0};
+    ::setsockopt(s.native_handle(), SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof(tv));
+    std::string rest;
+    beast::error_code ec;
+    char buf[256];
+    for (;;) {
+      size_t n = s.read_some(asio::buffer(buf), ec);
+      if (ec) break;
+      rest.append(buf, n);
+    }
+    EXPECT_TRUE(ec == asio::error::eof || ec == asio::error::connection_reset) << ec.message();
+  }
+  Ws good;
+  ASSERT_EQ(good.Open(server_->http_port()), 101u);
+  EXPECT_EQ(good.Hello()["protocol_version"], 2);
 }
 
 TEST_F(HttpServerTest, ForeignOriginsAreRefused) {

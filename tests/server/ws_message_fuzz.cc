@@ -10,7 +10,7 @@
 
 #include "protocol/wire.h"
 #include "protocol/ws_codec.h"
-#include "server/http.h"
+#include "server/web_checks.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   using namespace hvdb;
