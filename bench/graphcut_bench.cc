@@ -39,10 +39,15 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1, 100));
   app.add_option("--frames", frames, "frames in the region of interest")->capture_default_str()
       ->check(CLI::Range(1, 100));
+  std::vector<double> only;
+  app.add_option("--spacing", only, "sample spacings (m) to run instead of the default series; "
+                                    "0.0033 gives ~1.2 M points over 10 frames")
+      ->check(CLI::Range(0.001, 0.1));
   CLI11_PARSE(app, argc, argv);
   // Sample spacing -> points per frame (plane 1 m^2 + sphere of radius 15 cm).
   std::vector<double> spacings = quick ? std::vector<double>{0.02, 0.012}
                                        : std::vector<double>{0.012, 0.007, 0.005, 0.004, 0.0033};
+  if (!only.empty()) spacings = only;
   if (quick) reps = 1;
   nlohmann::json figures = nlohmann::json::array();
   for (double spacing : spacings) {

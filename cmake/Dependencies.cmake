@@ -3,7 +3,7 @@
 find_package(Threads REQUIRED)
 find_package(Boost 1.74 REQUIRED COMPONENTS program_options graph)
 find_package(PkgConfig REQUIRED)
-pkg_check_modules(FLANN REQUIRED IMPORTED_TARGET flann)
+find_package(nanoflann REQUIRED)
 find_package(OpenCV REQUIRED COMPONENTS core imgproc imgcodecs calib3d ml)
 find_package(Ceres REQUIRED)
 find_package(draco REQUIRED)
