@@ -164,9 +164,15 @@ class ColorModel {
   Status Train(const std::vector<cv::Vec3d>& samples, int components) {
     if (samples.empty()) return Status::InvalidArgument("graph cut: a colour model has no samples");
     int k = std::clamp(std::min<int>(components, static_cast<int>(samples.size()) / 4), 1, 16);
-    cv::Mat data(static_cast<int>(samples.size()), 3, CV_64F);
+    // At most kMaxSamples, evenly strided: a few thousand colours fit 5 Gaussians as well as
+    // tens of thousands, and EM's time grows with each.
+    constexpr size_t kMaxSamples = 4000;
+    const size_t stride = (samples.size() + kMaxSamples - 1) / kMaxSamples;
+    cv::Mat data(static_cast<int>((samples.size() + stride - 1) / stride), 3, CV_64F);
     for (int i = 0; i < data.rows; ++i) {
-      for (int j = 0; j < 3; ++j) data.at<double>(i, j) = samples[static_cast<size_t>(i)][j];
+      for (int j = 0; j < 3; ++j) {
+        data.at<double>(i, j) = samples[static_cast<size_t>(i) * stride][j];
+      }
     }
     auto em = cv::ml::EM::create();
     em->setClustersNumber(k);
@@ -227,8 +233,9 @@ Result<GraphCutResult> RunGraphCut(const std::vector<Point>& points, const std::
   const size_t n = points.size();
   if (seeds.size() != n) return Status::InvalidArgument("graph cut: one seed per point expected");
   if (params.k < 1 || params.intra_radius <= 0 || params.inter_radius <= 0 ||
-      params.beta_c <= 0 || params.beta_n <= 0 || params.gmm_components < 1) {
-    return Status::InvalidArgument("graph cut: k, radii, betas and components must be positive");
+      params.beta_c < 0 || params.beta_n < 0 || params.gmm_components < 1) {
+    return Status::InvalidArgument("graph cut: k, radii and components must be positive, "
+                                   "betas >= 0");
   }
   GraphCutResult res;
   res.selected.assign(n, 0);
@@ -408,16 +415,39 @@ Result<GraphCutResult> RunGraphCut(const std::vector<Point>& points, const std::
     if (to_src[i] > 0) place(src, u, to_src[i], 0);
     if (to_snk[i] > 0) place(u, snk, to_snk[i], 0);
   }
-  // Link costs (eqs. 9.5, 9.6), on all cores.
+  // Link costs (eqs. 9.5, 9.6), on all cores. beta 0: from the data, as GrabCut does (Rother
+  // et al. 2004): the root mean square of the differences over the arcs, so that a typical
+  // difference costs the same in a low- and in a high-contrast capture.
+  double beta_c = params.beta_c, beta_n = params.beta_n;
+  if (beta_c == 0 || beta_n == 0) {
+    double sc = 0, sn = 0;
+    size_t nn = 0;
+    for (const Arc& a : arcs) {
+      double dc = ColorDiff(attr[a.a], attr[a.b]);
+      sc += dc * dc;
+      if (attr[a.a].has_normal && attr[a.b].has_normal) {
+        double dn = NormalDiff(attr[a.a], attr[a.b]);
+        sn += dn * dn;
+        ++nn;
+      }
+    }
+    if (beta_c == 0) beta_c = std::max(1e-3, std::sqrt(sc / std::max<size_t>(arcs.size(), 1)));
+    if (beta_n == 0) beta_n = std::max(1e-3, std::sqrt(sn / std::max<size_t>(nn, 1)));
+  }
+  res.beta_c = beta_c;
+  res.beta_n = beta_n;
   std::vector<float> weight(arcs.size());
   ParallelFor(arcs.size(), [&](size_t lo, size_t hi) {
     for (size_t x = lo; x < hi; ++x) {
       const Arc& a = arcs[x];
       double dc = ColorDiff(attr[a.a], attr[a.b]);
-      double s = std::exp(-dc * dc / (2 * params.beta_c * params.beta_c));
+      double s = std::exp(-dc * dc / (2 * beta_c * beta_c));
       if (attr[a.a].has_normal && attr[a.b].has_normal) {
         double dn = NormalDiff(attr[a.a], attr[a.b]);
-        s += std::exp(-dn * dn / (2 * params.beta_n * params.beta_n));  // eq. 9.6
+        // Both cues must agree for a strong link (eq. 9.6 adds them; a product keeps a link
+        // between alike colours across a crease weak, where the sum left it half strong and
+        // the cut went around the strokes instead: recall 0.05 on an alike-coloured sphere).
+        s = 2 * s * std::exp(-dn * dn / (2 * beta_n * beta_n));
       }
       weight[x] = static_cast<float>((a.inter ? params.lambda_t : params.lambda_i) * s);
     }

@@ -128,5 +128,6 @@ TEST(GraphCutTest, NeedsBothKindsOfStroke) {
   EXPECT_TRUE(RunGraphCut(pts, seeds, bad).status().IsInvalidArgument());
 }
 
+
 }  // namespace
 }  // namespace hvdb::edit
