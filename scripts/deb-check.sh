@@ -55,8 +55,8 @@ for _ in $(seq 100); do
   sleep 0.1
 done
 port=$(sed -n 1p "$ROOT/tmp/deb-check.port" 2>/dev/null || true)  # empty is reported just below
-http_port=$(sed -n 2p "$ROOT/tmp/deb-check.port" 2>/dev/null || true)
-if [ -z "$port" ]; then
+http_port=$(sed -n 2p "$ROOT/tmp/deb-check.port" 2>/dev/null || true)  # likewise
+if [ -z "$port" ] || [ -z "$http_port" ]; then
   echo "deb-check: hvdb-server did not start:" >&2
   cat "$ROOT/tmp/server.log" >&2
   exit 1
