@@ -95,6 +95,20 @@ Result<Holder> Locate(const FrameVersion& v, const Point& target,
   return Holder{};
 }
 
+// Calls fn(hit, records, n) for the runs of records of every level of the buckets `hits` of
+// `tree` (each stored point once: a point lives at one level).
+template <typename Fn>
+Status ReadHits(const KdTree& tree, const std::vector<KdTree::BucketHit>& hits, Fn&& fn) {
+  for (const auto& hit : hits) {
+    for (uint32_t k = 0; k < tree.header().levels; ++k) {
+      HVDB_RETURN_IF_ERROR(tree.ReadRange(static_cast<int>(k), hit.entry.start[k],
+                                          hit.entry.count[k],
+                                          [&](const uint8_t* rec, size_t n) { fn(hit, rec, n); }));
+    }
+  }
+  return Status::OK();
+}
+
 Status NotInFrame(const Point& target, uint32_t frame) {
   return Status::NotFound("point " + std::to_string(target.id) + " at (" +
                           std::to_string(target.x) + ", " + std::to_string(target.y) + ", " +
@@ -127,31 +141,25 @@ Status LocateMany(const FrameVersion& v, const FrameEffect& step, const std::vec
     if (!slot.tree) continue;
     std::vector<KdTree::BucketHit> hits;
     HVDB_RETURN_IF_ERROR(slot.tree->FindBuckets(everything, &hits));
-    for (const auto& hit : hits) {
-      for (uint32_t k = 0; k < slot.tree->header().levels; ++k) {
-        HVDB_RETURN_IF_ERROR(slot.tree->ReadRange(
-            static_cast<int>(k), hit.entry.start[k], hit.entry.count[k],
-            [&](const uint8_t* rec, size_t n) {
-              for (size_t j = 0; j < n; ++j) {
-                const uint8_t* r = rec + j * kPointRecordSize;
-                auto [lo, hi] = wanted.equal_range(DecodeLE<uint64_t>(r));
-                if (lo == hi) continue;
-                const Point p = DecodePoint(r);
-                if (slot.IsDead(p.id)) continue;
-                for (auto it = lo; it != hi; ++it) {
-                  const Point& want = step.removed[it->second];
-                  if (found[it->second] || !SamePoint(p, want)) continue;
-                  if (exact && !SameRecord(p, want) && mismatch.ok()) {
-                    mismatch = ChangedLater(want, step.frame);
-                  }
-                  found[it->second] = 1;
-                  (*dead)[s].push_back(p.id);
-                  break;
-                }
-              }
-            }));
+    HVDB_RETURN_IF_ERROR(ReadHits(*slot.tree, hits, [&](const auto&, const uint8_t* rec, size_t n) {
+      for (size_t j = 0; j < n; ++j) {
+        const uint8_t* r = rec + j * kPointRecordSize;
+        auto [lo, hi] = wanted.equal_range(DecodeLE<uint64_t>(r));
+        if (lo == hi) continue;
+        const Point p = DecodePoint(r);
+        if (slot.IsDead(p.id)) continue;
+        for (auto it = lo; it != hi; ++it) {
+          const Point& want = step.removed[it->second];
+          if (found[it->second] || !SamePoint(p, want)) continue;
+          if (exact && !SameRecord(p, want) && mismatch.ok()) {
+            mismatch = ChangedLater(want, step.frame);
+          }
+          found[it->second] = 1;
+          (*dead)[s].push_back(p.id);
+          break;
+        }
       }
-    }
+    }));
   }
   HVDB_RETURN_IF_ERROR(mismatch);
   for (size_t i : which) {
@@ -238,21 +246,16 @@ Status ScanVersion(const FrameVersion& v, const RegionPlan* plan, uint32_t label
     };
     std::vector<KdTree::BucketHit> hits;
     HVDB_RETURN_IF_ERROR(slot.tree->FindBuckets(test, &hits));
-    for (const auto& hit : hits) {
-      for (uint32_t k = 0; k < slot.tree->header().levels; ++k) {
-        HVDB_RETURN_IF_ERROR(slot.tree->ReadRange(
-            static_cast<int>(k), hit.entry.start[k], hit.entry.count[k],
-            [&](const uint8_t* rec, size_t n) {
-              for (size_t j = 0; j < n; ++j) {
-                Point p = DecodePoint(rec + j * kPointRecordSize);
-                if (slot.IsDead(p.id)) continue;
-                if (label_mask != 0 && (p.label & label_mask) == 0) continue;
-                if (!hit.inside && plan != nullptr && !plan->Contains(p)) continue;
-                fn(p);
-              }
-            }));
+    HVDB_RETURN_IF_ERROR(ReadHits(*slot.tree, hits, [&](const KdTree::BucketHit& hit,
+                                                        const uint8_t* rec, size_t n) {
+      for (size_t j = 0; j < n; ++j) {
+        Point p = DecodePoint(rec + j * kPointRecordSize);
+        if (slot.IsDead(p.id)) continue;
+        if (label_mask != 0 && (p.label & label_mask) == 0) continue;
+        if (!hit.inside && plan != nullptr && !plan->Contains(p)) continue;
+        fn(p);
       }
-    }
+    }));
   }
   return Status::OK();
 }
