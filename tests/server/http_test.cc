@@ -549,6 +549,11 @@ TEST(HttpServerStart, NonLoopbackNeedsTokensAndAWebRoot) {
   ServerProcess no_root(dir.path() + "/b", {"--http", "127.0.0.1:0", "--web-root",
                                             dir.path() + "/nothing"});
   EXPECT_FALSE(no_root.running());
+  // Malformed options are refused at start, not taken for something else.
+  ServerProcess bad_origin(dir.path() + "/c", {"--http", "127.0.0.1:0", "--http-origin", "ftp://x"});
+  EXPECT_FALSE(bad_origin.running());
+  ServerProcess bad_address(dir.path() + "/d", {"--http", "localhost-8080"});
+  EXPECT_FALSE(bad_address.running());
 }
 
 }  // namespace
