@@ -295,6 +295,10 @@ Status Encode(std::span<const Point> points, const EncodeOptions& options, std::
   auto sz = SubtreeZero(h, attrs);
 
   std::unique_ptr<TemporalIndex> tindex;
+  if (reference && !(attrs & kColor)) {
+    return Status::InvalidArgument("temporal coding needs the colour attribute (it is what the "
+                                   "reference predicts)");
+  }
   if (reference) {
     hd.flags |= kTemporal;
     hd.reference_points = reference->points.size();

@@ -35,7 +35,7 @@ struct Models {
   IntModel pos_w[kRBuckets][kSizeBuckets];  // w's residual from the plane, by |u| + |v|
   BitModel zerotree[kGroups][kLevelBuckets][2];
   IntModel val[kChannels][kLevelBuckets][kMagBuckets];
-  IntModel tval[kChannels][kLevelBuckets];
+  IntModel tval[kChannels][kLevelBuckets][kMagBuckets];  // colour, by the reference's detail
 };
 
 struct EncIO {
@@ -59,10 +59,10 @@ struct DecIO {
   unsigned B(BitModel& m, unsigned) { return rc.Bit(m); }
 };
 
-// Temporal prediction of one pair: the reference frame's points nearest to the two decoded
-// children (kNoChild: no usable reference point near them). The predicted detail of an
-// attribute is the difference of those two points' values: the reference as a field over the
-// surface, which holds when the surface is sampled differently from frame to frame.
+// Temporal context of one pair: the reference frame's points nearest to the two decoded
+// children (kNoChild: no usable reference point near them). The difference of their colours
+// selects the context the pair's colour detail is coded in (the reference as a field over the
+// surface, which holds when the surface is sampled differently from frame to frame).
 struct TemporalHint {
   uint32_t a = kNoChild, b = kNoChild;
   bool valid() const { return a != kNoChild; }
@@ -256,15 +256,13 @@ void CodeGroup(IO& io, Models& md, int g, LevelState& L, size_t b, size_t e) {
       inherit[i] = 1;  // the children inherit "zero"
       continue;
     }
-    const bool temporal = L.reference && L.hints[i].valid();
+    const bool temporal = g == 1 && L.reference && L.hints[i].valid();
     for (int c = c0; c < c1; ++c) {
       int64_t& dv = L.det.ch[c][i];
       if (temporal) {
         const auto& ref = L.reference->ch[c];
-        int64_t pred = Diff(ref[L.hints[i].a], ref[L.hints[i].b]);
-        int64_t r = Diff(dv, pred);
-        io.S(md.tval[c][lb], r);
-        dv = static_cast<int64_t>(static_cast<uint64_t>(r) + static_cast<uint64_t>(pred));
+        const uint64_t rd = Abs(Diff(ref[L.hints[i].a], ref[L.hints[i].b]));
+        io.S(md.tval[c][lb][MagBucket(rd)], dv);
       } else {
         io.S(md.val[c][lb][mag[i]], dv);
       }

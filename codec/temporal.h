@@ -1,11 +1,13 @@
-// Temporal prediction (beyond the thesis): a frame coded against the decoded previous frame.
+// Temporal coding (beyond the thesis): a frame coded against the decoded previous frame.
 //
 // Frames of 3D video are re-sampled every frame (a fusion of depth maps does not put the
 // samples where it put them before), so the previous frame cannot predict a pair's detail
-// directly; it can predict the attributes as fields over the surface. Positions are decoded
-// before the other attributes of a chunk, so both sides know the two children's positions;
-// the reference points nearest to them give the predicted colour, normal, ... difference of
-// the pair. docs/CODEC.md, "Temporal prediction".
+// directly. It can describe the attributes as fields over the surface: positions are decoded
+// before the other attributes of a chunk, so both sides know the two children's positions, and
+// the reference points nearest to them show how much the colour changes across the pair there.
+// That selects the context of the pair's colour detail. Using the reference's difference as the
+// prediction itself was measured and lost (it adds the previous frame's noise): docs/CODEC.md,
+// "Temporal coding", has the figures.
 #ifndef HVDB_CODEC_TEMPORAL_H_
 #define HVDB_CODEC_TEMPORAL_H_
 
