@@ -625,6 +625,16 @@ Result<std::unique_ptr<Backend>> MakeRemoteBackend(const RemoteOptions& options)
   client::Options opts;
   HVDB_RETURN_IF_ERROR(ParseAddress(options.address, &opts));
   opts.token = options.token;
+  if (options.wire == "columns") {
+    opts.columns = true;
+  } else if (options.wire == "draco") {
+    opts.draco = true;
+  } else if (options.wire == "hvdb7") {
+    opts.hvdb7 = true;
+  } else if (options.wire != "records") {
+    return Status::InvalidArgument("wire encoding '" + options.wire +
+                                   "': use records, columns, draco or hvdb7");
+  }
   return std::unique_ptr<Backend>(new RemoteBackend(options.address, std::move(opts)));
 }
 

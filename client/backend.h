@@ -143,6 +143,8 @@ std::unique_ptr<Backend> MakeEmbeddedBackend(std::string data_dir, size_t cache_
 struct RemoteOptions {
   std::string address;  // HOST:PORT or unix:PATH (a loopback server's Unix socket is used by itself)
   std::string token;    // "" for servers that need none
+  // How query results travel: "records", "columns", "draco" or "hvdb7" (codec/).
+  std::string wire = "records";
 };
 // Validates the address (InvalidArgument if it is neither HOST:PORT nor unix:PATH); connects on
 // first use.

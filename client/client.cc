@@ -214,6 +214,7 @@ Result<std::unique_ptr<Connection>> Connection::Connect(const Options& options) 
   hello.set_token(options.token);
   hello.set_client_name("hvdb-client 0.2");
   if (options.draco) hello.add_capabilities("draco");
+  if (options.hvdb7) hello.add_capabilities("hvdb7");
   if (local && options.shm) hello.add_capabilities("shm");
   HVDB_RETURN_IF_ERROR(im.Write(wire::Frame(hello)));
   // The reply's first bytes may carry the ring's descriptor (SCM_RIGHTS).
@@ -440,9 +441,14 @@ Result<std::unique_ptr<QueryStream>> Connection::Query(const std::string& datase
   q->set_no_temporal_lod(!opts.temporal_lod);
   q->set_batch_points(static_cast<uint32_t>(std::min<size_t>(opts.batch_points, UINT32_MAX)));
   q->set_label_mask(opts.label_mask);
-  q->set_encoding(impl_->opts.draco     ? wire::DRACO
+  q->set_encoding(impl_->opts.hvdb7     ? wire::HVDB7
+                  : impl_->opts.draco   ? wire::DRACO
                   : impl_->opts.columns ? wire::COLUMNS
                                         : wire::RECORDS);
+  if (impl_->opts.hvdb7) {
+    q->mutable_codec()->set_position_bits(static_cast<uint32_t>(impl_->opts.hvdb7_position_bits));
+    q->mutable_codec()->set_normal_bits(static_cast<uint32_t>(impl_->opts.hvdb7_normal_bits));
+  }
   HVDB_ASSIGN_OR_RETURN(uint64_t id, Send(&req));
   return std::unique_ptr<QueryStream>(new QueryStream(this, id));
 }
@@ -502,8 +508,9 @@ Result<bool> QueryStream::Advance(Batch* batch, BatchView* view) {
     }
   } else {
     dst->clear();
-    st = b.encoding() == wire::DRACO ? wire::DecodeDraco(b.draco(), dst)
-                                     : wire::DecodeColumns(b.columns(), dst);
+    st = b.encoding() == wire::DRACO   ? wire::DecodeDraco(b.draco(), dst)
+         : b.encoding() == wire::HVDB7 ? wire::DecodeHvdb7(b.hvdb7(), dst)
+                                       : wire::DecodeColumns(b.columns(), dst);
     points = *dst;
   }
   if (!st.ok()) {

@@ -41,6 +41,11 @@ struct Options {
   std::chrono::milliseconds connect_timeout{5000};
   std::chrono::milliseconds request_timeout{120000};
   bool draco = false;  // ask for Draco-coded batches (positions quantised, colours, ids, frames)
+  // Ask for hvdb7-coded batches (codec/: every attribute; positions on a grid of 2^bits over
+  // each batch's extent, 0: the server's default of 16; colours and lossless fields exact).
+  bool hvdb7 = false;
+  int hvdb7_position_bits = 0;
+  int hvdb7_normal_bits = 0;  // 0: the server's default of 12
   int max_attempts = 5;                           // Client: tries per idempotent request
   std::chrono::milliseconds backoff{100};         // Client: first retry delay, doubled each time
 };

@@ -49,6 +49,7 @@
 
 #include "client/backend.h"
 #include "client/ply.h"
+#include "client/point_files.h"
 #include "render/job.h"
 #include "render/renderer.h"
 #include "storage/database.h"
@@ -192,6 +193,7 @@ struct GlobalArgs {
   size_t cache_mb = 256;
   std::string server;
   std::string token;
+  std::string wire = "records";
   // To tell options given from defaults.
   CLI::Option *data_opt = nullptr, *cache_opt = nullptr, *token_opt = nullptr;
 };
@@ -213,12 +215,22 @@ struct ImportArgs {
   bool json = false;
 };
 
+struct ExportArgs {
+  std::string name, dir;
+  std::string codec = "hvdb7";
+  int qp = 16, qc = 8, qn = 12;
+  bool temporal = false;
+  uint32_t first = 0, count = 0;
+};
+
 struct QueryArgs {
   std::string name;
   int lod = 0;
   bool progressive = false;
   uint32_t label_mask = 0;
   std::string out;
+  std::string codec = "raw";
+  int qp = 16;
   bool ascii = false;
   bool json = false;
 };
@@ -692,6 +704,7 @@ class Cli {
   int CmdCreate();
   int CmdDescribe();
   int CmdImport();
+  int CmdExport();
   int CmdWindow();
   int CmdSlice();
   int RunQuery(const Region& region, const QueryArgs& q, const std::string& command);
@@ -714,6 +727,7 @@ class Cli {
   GlobalArgs g_;
   CreateArgs create_;
   ImportArgs import_;
+  ExportArgs export_;
   WindowArgs window_;
   SliceArgs slice_;
   EditArgs edit_;
@@ -726,7 +740,7 @@ class Cli {
   PasteArgs paste_;
   CompositeArgs composite_;
   RenderArgs render_;
-  CLI::App *datasets_cmd_, *create_cmd_, *describe_cmd_, *import_cmd_, *window_cmd_, *slice_cmd_,
+  CLI::App *datasets_cmd_, *create_cmd_, *describe_cmd_, *import_cmd_, *export_cmd_, *window_cmd_, *slice_cmd_,
       *edit_cmd_, *undo_cmd_, *redo_cmd_, *select_cmd_, *graphcut_cmd_, *copy_cmd_, *cut_cmd_,
       *paste_cmd_, *composite_cmd_, *render_cmd_, *stats_cmd_, *check_cmd_, *drop_cmd_, *ping_cmd_;
 };
@@ -741,6 +755,14 @@ void AddQueryOptions(CLI::App* cmd, QueryArgs* q) {
                   "Only points with (label & MASK) != 0 (decimal or 0x hex)");
   cmd->add_option("--out", q->out, "Write the points to FILE.ply or FILE.csv, batch by batch");
   cmd->add_flag("--ascii", q->ascii, "With --out FILE.ply: ascii instead of binary");
+  cmd->add_option("--codec", q->codec,
+                  "With --out: raw (PLY/CSV), hvdb7 (docs/CODEC.md, every attribute) or draco "
+                  "(positions, colours, ids, frames)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"raw", "hvdb7", "draco"}));
+  cmd->add_option("--qp", q->qp, "With --codec hvdb7|draco: position bits over the extent")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 30));
   cmd->add_flag("--json", q->json,
                 "Print a JSON summary: points, frames read, per-level counts, elapsed ms");
 }
@@ -766,6 +788,11 @@ Cli::Cli(CLI::App& app) : app_(app) {
                  "HOST:PORT or unix:PATH of an hvdb-server to work on, instead of a data "
                  "directory (a server on this machine is reached through its Unix socket and "
                  "shared memory by itself)");
+  app.add_option("--wire", g_.wire,
+                 "With --server: how query results travel: records (default; shared memory on "
+                 "this machine), columns, draco or hvdb7 (compressed, docs/CODEC.md)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"records", "columns", "draco", "hvdb7"}));
   g_.token_opt = app.add_option(
       "--token", g_.token,
       "Access token for --server (default: $HVDB_TOKEN; the environment keeps it out of ps)");
@@ -811,6 +838,29 @@ Cli::Cli(CLI::App& app) : app_(app) {
   import_cmd_->add_flag("--keep-ids", import_.keep_ids,
                         "Keep the files' point ids (default: the engine assigns new ones)");
   import_cmd_->add_flag("--json", import_.json, "Print a JSON summary");
+  import_cmd_->footer("Files may be PLY or hvdb7 streams (from hvdb export or hvdb-codec); "
+                      "temporal streams must follow the frame they were coded against.");
+
+  export_cmd_ = app.add_subcommand(
+      "export", "Write frames as files DIR/NAME_FFFFFF.hv7 (or .drc, .ply), one per frame");
+  export_cmd_->add_option("name", export_.name, "Dataset")->required();
+  export_cmd_->add_option("dir", export_.dir, "Output directory (created if missing)")->required();
+  export_cmd_->add_option("--codec", export_.codec, "hvdb7 (docs/CODEC.md), draco or raw (PLY)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"raw", "hvdb7", "draco"}));
+  export_cmd_->add_option("--qp", export_.qp, "Position bits over each frame's extent")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 30));
+  export_cmd_->add_option("--qc", export_.qc, "hvdb7: colour bits (8: exact)")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 8));
+  export_cmd_->add_option("--qn", export_.qn, "hvdb7: normal bits (16: exact)")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 16));
+  export_cmd_->add_flag("--temporal", export_.temporal,
+                        "hvdb7: code each frame against the previous one (import in order)");
+  export_cmd_->add_option("--first", export_.first, "First frame")->capture_default_str();
+  export_cmd_->add_option("--count", export_.count, "Frames (0: to the last)")->capture_default_str();
 
   window_cmd_ = app.add_subcommand("window", "Query a 4D box");
   AddQueryOptions(window_cmd_, &window_.q);
@@ -1247,6 +1297,7 @@ Cli::Cli(CLI::App& app) : app_(app) {
 std::optional<int> Cli::MakeBackend() {
   if (g_.server.empty()) {
     if (g_.token_opt->count() > 0) return Usage("", "--token is for --server HOST:PORT");
+    if (g_.wire != "records") return Usage("", "--wire is for --server HOST:PORT");
     backend_ = client::MakeEmbeddedBackend(g_.data, g_.cache_mb << 20);
     return std::nullopt;
   }
@@ -1260,6 +1311,7 @@ std::optional<int> Cli::MakeBackend() {
   client::RemoteOptions ro;
   ro.address = g_.server;
   ro.token = g_.token;
+  ro.wire = g_.wire;
   if (ro.token.empty()) {
     if (const char* env = std::getenv("HVDB_TOKEN")) ro.token = env;
   }
@@ -1272,7 +1324,7 @@ std::optional<int> Cli::MakeBackend() {
 int Cli::Run() {
   if (app_.get_subcommands().empty()) {
     return Usage("",
-                 "a command is required: datasets, create, describe, import, window, slice, "
+                 "a command is required: datasets, create, describe, import, export, window, slice, "
                  "edit, undo, redo, select, graphcut, copy, cut, paste, composite, render, "
                  "stats, check, drop or ping");
   }
@@ -1281,6 +1333,7 @@ int Cli::Run() {
   if (create_cmd_->parsed()) return CmdCreate();
   if (describe_cmd_->parsed()) return CmdDescribe();
   if (import_cmd_->parsed()) return CmdImport();
+  if (export_cmd_->parsed()) return CmdExport();
   if (window_cmd_->parsed()) return CmdWindow();
   if (slice_cmd_->parsed()) return CmdSlice();
   if (edit_cmd_->parsed()) return CmdEdit();
@@ -1373,6 +1426,57 @@ int Cli::CmdDescribe() {
   return kExitOk;
 }
 
+// A frame from an hvdb7 stream (hvdb export), placed as a PLY file would be: scaled, at the
+// import's frame, ids kept only on request (by the caller). *reference holds the stream's
+// decoded points afterwards, for the next file if it was coded temporally.
+Result<std::vector<Point>> ReadStreamFrame(const std::string& path, const ply::ReadOptions& ro,
+                                           codec::Reference* reference) {
+  Result<std::vector<Point>> pts =
+      client::ReadHvdb7File(path, reference->points.empty() ? nullptr : reference);
+  if (!pts.ok()) return pts.status();
+  reference->points = *pts;
+  for (Point& p : *pts) {
+    p.x = static_cast<float>(p.x * ro.scale);
+    p.y = static_cast<float>(p.y * ro.scale);
+    p.z = static_cast<float>(p.z * ro.scale);
+    for (float& c : p.cov) c = static_cast<float>(c * ro.scale * ro.scale);
+    p.frame = ro.frame;
+  }
+  return pts;
+}
+
+int Cli::CmdExport() {
+  const ExportArgs& a = export_;
+  client::ExportOptions o;
+  Status st = client::ParseFileCodec(a.codec, &o.codec);
+  if (!st.ok()) return Usage("export", st.message());
+  if (a.temporal && o.codec != client::FileCodec::kHvdb7) {
+    return Usage("export", "--temporal is for --codec hvdb7");
+  }
+  o.encode.qp = a.qp;
+  o.encode.qc = a.qc;
+  o.encode.qn = a.qn;
+  o.encode.attributes = codec::kAllAttributes;
+  o.encode.progressive = true;
+  o.temporal = a.temporal;
+  o.first = a.first;
+  o.count = a.count;
+  Clock::time_point start = Clock::now();
+  std::unique_ptr<ProgressBar> bar;
+  Result<std::vector<std::string>> files =
+      client::ExportFrames(db(), a.name, a.dir, o, [&](size_t done, size_t total) {
+        if (!bar) bar = std::make_unique<ProgressBar>(total);
+        bar->Update(done, done);
+      });
+  if (bar) bar->Clear();
+  if (!files.ok()) return Fail(files.status());
+  uint64_t bytes = 0;
+  for (const std::string& f : *files) bytes += fs::file_size(f);
+  std::printf("exported %zu frames of '%s' to %s (%s, %.1f MB) in %.2f s\n", files->size(),
+              a.name.c_str(), a.dir.c_str(), a.codec.c_str(), bytes / 1e6, MsSince(start) / 1e3);
+  return kExitOk;
+}
+
 int Cli::CmdImport() {
   const ImportArgs& a = import_;
   if (a.files.size() - 1 > UINT32_MAX - uint64_t{a.frame}) {
@@ -1386,6 +1490,7 @@ int Cli::CmdImport() {
   ProgressBar bar(a.files.size());
   uint64_t total = 0;
   json frames = json::array();
+  codec::Reference reference;  // the previous decoded stream, for temporal ones
   bar.Update(0, 0);
   for (size_t i = 0; i < a.files.size(); ++i) {
     ply::ReadOptions ro;
@@ -1393,7 +1498,9 @@ int Cli::CmdImport() {
     ro.frame = a.frame + static_cast<uint32_t>(i);
     ro.force_frame = true;
     ro.default_sigma = a.sigma;
-    Result<std::vector<Point>> pts = ply::ReadPly(a.files[i], ro);
+    Result<std::vector<Point>> pts =
+        client::IsHvdb7File(a.files[i]) ? ReadStreamFrame(a.files[i], ro, &reference)
+                                        : ply::ReadPly(a.files[i], ro);
     if (!pts.ok()) {
       bar.Clear();
       return Fail(pts.status());
@@ -1448,8 +1555,19 @@ int Cli::CmdSlice() {
 int Cli::RunQuery(const Region& region, const QueryArgs& q, const std::string& command) {
   Clock::time_point start = Clock::now();
   std::unique_ptr<ply::PointWriter> writer;
+  if (q.codec != "raw" && q.out.empty()) return Usage(command, "--codec needs --out FILE");
   if (!q.out.empty()) {
-    Result<std::unique_ptr<ply::PointWriter>> w = ply::OpenPointWriter(q.out, q.ascii);
+    client::FileCodec fc = client::FileCodec::kRaw;
+    codec::EncodeOptions eo;
+    eo.qp = q.qp;
+    eo.qn = 12;
+    eo.attributes = codec::kAllAttributes;
+    eo.progressive = true;
+    Status parsed = client::ParseFileCodec(q.codec, &fc);
+    if (!parsed.ok()) return Usage(command, parsed.message());
+    Result<std::unique_ptr<ply::PointWriter>> w =
+        fc == client::FileCodec::kRaw ? ply::OpenPointWriter(q.out, q.ascii)
+                                      : client::OpenCompressedWriter(q.out, fc, eo);
     if (!w.ok()) return Fail(w.status());
     writer = std::move(w).value();
   }

@@ -231,6 +231,7 @@ Status CheckOptions(std::span<const Point> points, const EncodeOptions& o) {
   if (o.qcov < 0 || o.qcov > 20) return Status::InvalidArgument("qcov must be 0 (exact) to 20 bits");
   if (o.levels < 0 || o.levels > 40) return Status::InvalidArgument("levels must be 0 (auto) to 40");
   if (o.chunk < 64) return Status::InvalidArgument("chunk must be at least 64 parents");
+  if (o.effort < 0 || o.effort > 1) return Status::InvalidArgument("effort must be 0 or 1");
   if ((o.attributes & ~kAllAttributes) != 0) return Status::InvalidArgument("unknown attribute bits");
   if (points.size() >= kNoChild) return Status::InvalidArgument("at most 2^32 - 2 points per stream");
   for (const Point& p : points) {
@@ -289,7 +290,8 @@ Status Encode(std::span<const Point> points, const EncodeOptions& options, std::
   });
   int levels = options.levels > 0 ? options.levels : AutoLevels(points.size());
   Hierarchy h;
-  BuildHierarchy(std::move(base), levels, q.Has(2), &h);
+  // Most bits are in the finest levels, most of the time in k-d trees: two levels with them.
+  BuildHierarchy(std::move(base), levels, q.Has(2), options.effort >= 1 ? 2 : 0, &h);
   levels = static_cast<int>(h.level.size()) - 1;
   hd.levels = levels;
   auto sz = SubtreeZero(h, attrs);

@@ -7,7 +7,7 @@
 // neighbours within a few places, at a fraction of a k-d tree's cost), and an edge is taken
 // when it is the lightest for both of its points ("locally dominant"; the same 1/2-approximation
 // as sorted greedy matching, in linear time). Unmatched points get further rounds over the
-// unmatched alone; what is left is paired along the curve. Edge weights follow eqs. 7.1-7.3.
+// unmatched alone; what is left is paired along the curve. Edge weights follow eq. 7.1.
 #include <algorithm>
 #include <cmath>
 #include <numeric>
@@ -23,22 +23,16 @@ namespace {
 constexpr int kWindow = 6;
 constexpr int kRounds = 6;
 constexpr size_t kNearest = 8;
-// Weight of eq. 7.3's alignment terms. The thesis needs them so that its least-squares planes
-// stay stable; here they cost bits on every data set measured (0.5: +0.4 % on Panoptic, +0.6 %
-// on the bunny), so they are kept at a small weight that only breaks ties between equally
-// near candidates.
-constexpr double kAlignWeight = 0.05;
 
+// Float coordinates: neighbours only guide the encoder's pairing, so rounding is harmless.
 struct LevelCloud {
-  const std::vector<int64_t>*x, *y, *z;
-  size_t kdtree_get_point_count() const { return x->size(); }
-  double kdtree_get_pt(uint32_t i, size_t d) const {
-    return static_cast<double>(d == 0 ? (*x)[i] : d == 1 ? (*y)[i] : (*z)[i]);
-  }
+  std::vector<float> xyz;
+  size_t kdtree_get_point_count() const { return xyz.size() / 3; }
+  float kdtree_get_pt(uint32_t i, size_t d) const { return xyz[3 * i + d]; }
   template <class BBox>
   bool kdtree_get_bbox(BBox&) const { return false; }
 };
-using LevelTree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<double, LevelCloud>,
+using LevelTree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, LevelCloud>,
                                                       LevelCloud, 3, uint32_t>;
 
 uint64_t Spread(uint64_t v) {  // 21 bits -> every third bit
@@ -113,11 +107,9 @@ std::vector<uint32_t> CurveOrder(const Columns& cur) {
 
 namespace {
 
-// One level of matching: fills pairs (indices into `cur`) and the contraction directions of
-// the new parents.
-void MatchLevel(const Columns& cur, const std::vector<Vec3>& dir, bool use_normals,
-                int normal_scale_bits, std::vector<std::array<uint32_t, 2>>* pairs,
-                std::vector<Vec3>* parent_dir) {
+// One level of matching: fills pairs (indices into `cur`), in curve order.
+void MatchLevel(const Columns& cur, bool use_normals, bool use_knn, int normal_scale_bits,
+                std::vector<std::array<uint32_t, 2>>* pairs) {
   const size_t n = cur.n;
   const auto& X = cur.ch[0];
   const auto& Y = cur.ch[1];
@@ -133,40 +125,41 @@ void MatchLevel(const Columns& cur, const std::vector<Vec3>& dir, bool use_norma
       }
     });
   }
-  // Eq. 7.1: w = e_X + e_N. e_X (7.3) is the distance plus the alignment of the candidate edge
-  // with either point's previous contraction (which would make 4-neighbourhoods linear); the
-  // unitless terms are scaled by the distance so the weight stays in distance units.
+  // Eq. 7.1: w = e_X + e_N, here as the distance scaled by (1 + 2 e_N) (squared: no root).
+  // Eq. 7.3 adds the alignment with either point's previous contraction, which keeps the
+  // thesis's least-squares planes stable; our planes are exact cross products, and the terms
+  // cost bits on every data set measured (+0.4 % on Panoptic, +0.6 % on the bunny at weight
+  // 0.5), so they are left out.
   auto weight = [&](uint32_t i, uint32_t j) {
     double dx = static_cast<double>(X[j] - X[i]), dy = static_cast<double>(Y[j] - Y[i]),
            dz = static_cast<double>(Z[j] - Z[i]);
-    double dist = std::sqrt(dx * dx + dy * dy + dz * dz);
-    if (dist == 0) return 0.0;
-    double ux = dx / dist, uy = dy / dist, uz = dz / dist;
-    double align = std::abs(dir[i].x * ux + dir[i].y * uy + dir[i].z * uz) +
-                   std::abs(dir[j].x * ux + dir[j].y * uy + dir[j].z * uz);
-    double en = 0;
+    double f = 1.0;
     if (use_normals) {
-      en = (1.0 - (normal[i].x * normal[j].x + normal[i].y * normal[j].y +
-                   normal[i].z * normal[j].z)) / 2.0;
+      f += 1.0 - (normal[i].x * normal[j].x + normal[i].y * normal[j].y + normal[i].z * normal[j].z);
     }
-    return dist * (1.0 + kAlignWeight * align + 2.0 * en);
+    return (dx * dx + dy * dy + dz * dz) * f * f;
   };
 
   // Candidates: the kNearest neighbours (k-d tree) and, for points whose neighbours are all
   // taken, the unmatched points next to them along the curve.
-  std::vector<uint32_t> knn(n * kNearest, kNoChild);
-  {
-    LevelCloud cloud{&X, &Y, &Z};
+  std::vector<uint32_t> knn;
+  if (use_knn) {
+    knn.assign(n * kNearest, kNoChild);
+    LevelCloud cloud;
+    cloud.xyz.resize(3 * n);
+    for (size_t i = 0; i < n; ++i) {
+      cloud.xyz[3 * i] = static_cast<float>(X[i] - X[0]);
+      cloud.xyz[3 * i + 1] = static_cast<float>(Y[i] - Y[0]);
+      cloud.xyz[3 * i + 2] = static_cast<float>(Z[i] - Z[0]);
+    }
     LevelTree tree(3, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(16));
     ParallelRange(n, [&](size_t b, size_t e) {
       uint32_t idx[kNearest + 1];
-      double d2[kNearest + 1];
+      float d2[kNearest + 1];
       for (size_t i = b; i < e; ++i) {
-        nanoflann::KNNResultSet<double, uint32_t> rs(kNearest + 1);
+        nanoflann::KNNResultSet<float, uint32_t> rs(kNearest + 1);
         rs.init(idx, d2);
-        const double q[3] = {static_cast<double>(X[i]), static_cast<double>(Y[i]),
-                             static_cast<double>(Z[i])};
-        tree.findNeighbors(rs, q, nanoflann::SearchParams());
+        tree.findNeighbors(rs, &cloud.xyz[3 * i], nanoflann::SearchParams());
         size_t k = 0;
         for (size_t j = 0; j < rs.size() && k < kNearest; ++j) {
           if (idx[j] != i) knn[i * kNearest + k++] = idx[j];
@@ -189,7 +182,9 @@ void MatchLevel(const Columns& cur, const std::vector<Vec3>& dir, bool use_norma
           double w = weight(i, j);
           if (w < bw || (w == bw && j < bj)) bw = w, bj = j;
         };
-        for (size_t k = 0; k < kNearest; ++k) consider(knn[i * kNearest + k]);
+        if (use_knn) {
+          for (size_t k = 0; k < kNearest; ++k) consider(knn[i * kNearest + k]);
+        }
         if (bj == kNoChild) {
           size_t q0 = p >= kWindow ? p - kWindow : 0, q1 = std::min(m, p + kWindow + 1);
           for (size_t q = q0; q < q1; ++q) consider(list[q]);
@@ -232,28 +227,15 @@ void MatchLevel(const Columns& cur, const std::vector<Vec3>& dir, bool use_norma
       pairs->push_back({i, j});
     }
   }
-  parent_dir->resize(pairs->size());
-  for (size_t p = 0; p < pairs->size(); ++p) {
-    auto [a, b] = (*pairs)[p];
-    Vec3 d;
-    if (b != kNoChild) {
-      double dx = static_cast<double>(X[a] - X[b]), dy = static_cast<double>(Y[a] - Y[b]),
-             dz = static_cast<double>(Z[a] - Z[b]);
-      double len = std::sqrt(dx * dx + dy * dy + dz * dz);
-      if (len > 0) d = {dx / len, dy / len, dz / len};
-    }
-    (*parent_dir)[p] = d;
-  }
 }
 
 }  // namespace
 
-void BuildHierarchy(Columns base, int levels, bool use_normals, Hierarchy* h) {
+void BuildHierarchy(Columns base, int levels, bool use_normals, int knn_levels, Hierarchy* h) {
   h->level.clear();
   h->pairs.clear();
   h->level.push_back(std::move(base));
   h->pairs.emplace_back();  // level 0 has no pairs
-  std::vector<Vec3> dir(h->level[0].n);
   // Normals quantised to qn bits are scaled back to 16 bits for their direction.
   int normal_scale_bits = 0;
   if (use_normals) {
@@ -267,8 +249,7 @@ void BuildHierarchy(Columns base, int levels, bool use_normals, Hierarchy* h) {
     const Columns& cur = h->level[k - 1];
     if (cur.n <= 1) break;
     std::vector<std::array<uint32_t, 2>> pairs;
-    std::vector<Vec3> pdir;
-    MatchLevel(cur, dir, use_normals, normal_scale_bits, &pairs, &pdir);
+    MatchLevel(cur, use_normals, k <= knn_levels, normal_scale_bits, &pairs);
     Columns next;
     next.n = pairs.size();
     for (int c = 0; c < kChannels; ++c) {
@@ -283,7 +264,6 @@ void BuildHierarchy(Columns base, int levels, bool use_normals, Hierarchy* h) {
     }
     h->level.push_back(std::move(next));
     h->pairs.push_back(std::move(pairs));
-    dir = std::move(pdir);
   }
 }
 

@@ -73,7 +73,11 @@ double Seconds(std::chrono::steady_clock::time_point t0) {
 void PrintStats(const codec::StreamStats& s) {
   static const char* kNames[] = {"position", "color", "normal", "covariance", "id",
                                  "frame",    "label", "camera", "flags"};
-  double n = static_cast<double>(std::max<uint64_t>(s.points, 1));
+  if (s.points == 0) {
+    std::printf("0 points, %zu bytes\n", s.total_bytes);
+    return;
+  }
+  double n = static_cast<double>(s.points);
   std::printf("%llu points, %d levels, %zu bytes: %.3f bits/point%s\n",
               static_cast<unsigned long long>(s.points), s.levels, s.total_bytes,
               8.0 * s.total_bytes / n, s.temporal ? " (temporal)" : "");
@@ -117,6 +121,8 @@ int main(int argc, char** argv) {
   enc->add_flag("--progressive", eo.progressive, "Chunked stream whose prefixes decode");
   enc->add_option("--levels", eo.levels, "Pair hierarchy levels (0: automatic)")
       ->check(CLI::Range(0, 40));
+  enc->add_option("--effort", eo.effort, "Pairing effort: 0 fast, 1 fewer bits")
+      ->check(CLI::Range(0, 1))->capture_default_str();
   enc->add_option("--chunk", eo.chunk, "Pairs per progressive chunk")->check(CLI::Range(64, 1 << 24))
       ->capture_default_str();
   enc->add_option("--reference", reference,

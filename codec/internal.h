@@ -76,8 +76,9 @@ struct Hierarchy {
 // Indices of the points in Morton order of their positions.
 std::vector<uint32_t> CurveOrder(const Columns& cur);
 
-// Builds `levels` levels over `base` (moved in) by greedy matching (7.2).
-void BuildHierarchy(Columns base, int levels, bool use_normals, Hierarchy* h);
+// Builds `levels` levels over `base` (moved in) by greedy matching (7.2); the finest
+// `knn_levels` take their candidates from a k-d tree.
+void BuildHierarchy(Columns base, int levels, bool use_normals, int knn_levels, Hierarchy* h);
 
 // Number of levels when EncodeOptions::levels is 0.
 int AutoLevels(uint64_t n);

@@ -1,5 +1,7 @@
 #include "protocol/wire.h"
 
+#include "codec/codec.h"
+
 #include <cmath>
 #include <cstring>
 
@@ -533,6 +535,56 @@ Status FromWire(const wire::Error& e) {
   StatusCode code = FromWire(e.code());
   if (code == StatusCode::kOk) code = StatusCode::kInternal;
   return {code, e.message()};
+}
+
+namespace {
+
+Status Hvdb7Options(const CodecParams& params, codec::EncodeOptions* o) {
+  auto pick = [](uint32_t v, int dflt, uint32_t lo, uint32_t hi, const char* field,
+                 int* dst) -> Status {
+    if (v == 0) {
+      *dst = dflt;
+      return Status::OK();
+    }
+    if (v < lo || v > hi) {
+      return Status::InvalidArgument("query.codec." + std::string(field) + ": " +
+                                     std::to_string(v) + " is out of range " + std::to_string(lo) +
+                                     ".." + std::to_string(hi));
+    }
+    *dst = static_cast<int>(v);
+    return Status::OK();
+  };
+  HVDB_RETURN_IF_ERROR(pick(params.position_bits(), 16, 1, 30, "position_bits", &o->qp));
+  HVDB_RETURN_IF_ERROR(pick(params.color_bits(), 8, 1, 8, "color_bits", &o->qc));
+  HVDB_RETURN_IF_ERROR(pick(params.normal_bits(), 12, 1, 16, "normal_bits", &o->qn));
+  HVDB_RETURN_IF_ERROR(pick(params.covariance_bits(), 6, 1, 20, "covariance_bits", &o->qcov));
+  return Status::OK();
+}
+
+}  // namespace
+
+Status CheckHvdb7Params(const CodecParams& params) {
+  codec::EncodeOptions o;
+  return Hvdb7Options(params, &o);
+}
+
+Status EncodeHvdb7(std::span<const Point> pts, const CodecParams& params, std::string* out) {
+  codec::EncodeOptions o;
+  HVDB_RETURN_IF_ERROR(Hvdb7Options(params, &o));
+  o.attributes = codec::kAllAttributes;
+  o.progressive = true;
+  o.chunk = 4096;
+  o.effort = 0;  // coded on the fly: the faster pairing
+  return codec::Encode(pts, o, out);
+}
+
+Status DecodeHvdb7(const std::string& data, std::vector<Point>* out) {
+  std::vector<Point> pts;
+  codec::DecodeOptions o;
+  o.max_points = kMaxBatchPoints;
+  HVDB_RETURN_IF_ERROR(codec::Decode(data, &pts, o));
+  out->insert(out->end(), pts.begin(), pts.end());
+  return Status::OK();
 }
 
 }  // namespace hvdb::wire

@@ -42,6 +42,7 @@ std::vector<Section> TakeBulk(Response* r) {
       Take("flags", c->mutable_flags(), &s);
     }
     Take("draco", b->mutable_draco(), &s);
+    Take("hvdb7", b->mutable_hvdb7(), &s);
   }
   if (r->has_render()) {
     Take("png", r->mutable_render()->mutable_png(), &s);

@@ -86,6 +86,7 @@ void Session::OnHello() {
   wire::HelloReply reply;
   reply.set_protocol_version(wire::kProtocolVersion);
   reply.add_capabilities("draco");
+  reply.add_capabilities("hvdb7");
   reply.add_capabilities("records");
   reply.add_capabilities("progressive");
   reply.add_capabilities("pipelining");

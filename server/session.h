@@ -59,6 +59,7 @@ class Session : public std::enable_shared_from_this<Session> {
       if (cursor) cursor->Cancel();
     }
     wire::PointEncoding encoding = wire::COLUMNS;
+    wire::CodecParams codec;  // encoding HVDB7
     bool shm = false;  // RECORDS batches go through the shared-memory ring
     uint32_t slots_held = 0;  // ring slots granted to it or with the client for it
     uint64_t points = 0;

@@ -18,6 +18,13 @@ void Session::HandleQuery(std::shared_ptr<Op> op, const wire::Query& q) {
     return SendError(op->id, Status::InvalidArgument("query.encoding: unknown value " +
                                                      std::to_string(q.encoding())));
   }
+  if (q.encoding() == wire::HVDB7) {
+    Status st = wire::CheckHvdb7Params(q.codec());
+    if (!st.ok()) {
+      ops_.erase(op->id);
+      return SendError(op->id, st);
+    }
+  }
   if (q.lod() > 64) {
     ops_.erase(op->id);
     return SendError(op->id, Status::InvalidArgument("query.lod: " + std::to_string(q.lod()) +
@@ -30,6 +37,7 @@ void Session::HandleQuery(std::shared_ptr<Op> op, const wire::Query& q) {
   o.label_mask = q.label_mask();
   o.batch_points = q.batch_points() == 0 ? 16384u : std::min(q.batch_points(), wire::kMaxBatchPoints);
   op->encoding = q.encoding();
+  op->codec = q.codec();
   op->shm = op->encoding == wire::RECORDS && ring_ != nullptr;
   // Encoded batches may overrun batch_points by up to one bucket level; keep them under 1 MiB.
   // (Records go into a fixed buffer or ring slot, and the cursor ends a batch early instead.)
@@ -162,8 +170,10 @@ Session::Produced Session::Produce(Op* op, Grant g) {
       } else if (records) {
         m.records = std::move(batch.points);
         m.count = in_slot;
-      } else if (op->encoding == wire::DRACO) {
-        Status st = wire::EncodeDraco(batch.points, 16, b->mutable_draco());
+      } else if (op->encoding == wire::DRACO || op->encoding == wire::HVDB7) {
+        Status st = op->encoding == wire::DRACO
+                        ? wire::EncodeDraco(batch.points, 16, b->mutable_draco())
+                        : wire::EncodeHvdb7(batch.points, op->codec, b->mutable_hvdb7());
         if (!st.ok()) {
           resp = ErrorResponse(op->id, st);
           out.finished = true;
