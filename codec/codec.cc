@@ -54,7 +54,7 @@ enum class SegmentRead { kOk, kIncomplete };
 Status ReadSegment(std::string_view s, size_t* pos, uint32_t attrs, DecIOs* ios,
                    SegmentRead* result, StreamStats* stats) {
   const auto* p = reinterpret_cast<const uint8_t*>(s.data());
-  if (s.size() - *pos < 8) {
+  if (*pos > s.size() || s.size() - *pos < 8) {
     *result = SegmentRead::kIncomplete;
     return Status::OK();
   }
@@ -385,7 +385,7 @@ Status Encode(std::span<const Point> points, const EncodeOptions& options, std::
     cur = std::move(next);
     nodes = std::move(next_nodes);
   }
-  if (!options.progressive) AppendSegment(attrs, &ios, &body, &S);
+  if (!options.progressive && levels > 0) AppendSegment(attrs, &ios, &body, &S);
 
   out->clear();
   WriteHeader(hd, out);
@@ -413,6 +413,11 @@ Status Decode(std::string_view stream, std::vector<Point>* out, const DecodeOpti
     if (!(hd.flags & kProgressive)) {
       return Status::InvalidArgument("only progressive hvdb7 streams decode from a prefix "
                                      "(encode with --progressive)");
+    }
+    if (options.max_bytes < pos) {
+      return Status::InvalidArgument("a prefix of " + std::to_string(options.max_bytes) +
+                                     " bytes does not hold the stream's header (" +
+                                     std::to_string(pos) + " bytes)");
     }
     stream = stream.substr(0, options.max_bytes);
   }

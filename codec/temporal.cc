@@ -81,11 +81,17 @@ void TemporalIndex::Hints(LevelState& L, size_t b, size_t e) const {
         uint32_t idx[2];
         bool ok = true;
         for (int j = 0; j < 2 && ok; ++j) {
-          double dist;
-          nanoflann::KNNResultSet<double, uint32_t> rs(1);
-          rs.init(&idx[j], &dist);
+          // The nearest reference point; among equally near ones the lowest index, so that
+          // any decoder finds the same one (docs/CODEC.md).
+          uint32_t cand[4];
+          double dist[4];
+          nanoflann::KNNResultSet<double, uint32_t> rs(4);
+          rs.init(cand, dist);
           tree_->index->findNeighbors(rs, child[j], nanoflann::SearchParams());
-          ok = rs.size() == 1 && dist <= reach2;
+          ok = rs.size() >= 1 && dist[0] <= reach2;
+          if (!ok) break;
+          idx[j] = cand[0];
+          for (size_t c = 1; c < rs.size() && dist[c] == dist[0]; ++c) idx[j] = std::min(idx[j], cand[c]);
         }
         if (ok) h.a = idx[0], h.b = idx[1];
       }

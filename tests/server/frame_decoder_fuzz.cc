@@ -28,6 +28,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
         }
       } else if (b.encoding() == wire::DRACO) {
         (void)wire::DecodeDraco(b.draco(), &pts);
+      } else if (b.encoding() == wire::HVDB7) {
+        (void)wire::DecodeHvdb7(b.hvdb7(), &pts);
       } else {
         (void)wire::DecodeColumns(b.columns(), &pts);
       }

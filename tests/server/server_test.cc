@@ -220,6 +220,46 @@ TEST_F(ServerTest, DracoBatches) {
   }
 }
 
+TEST_F(ServerTest, Hvdb7Batches) {
+  auto c = NewDataset("h");
+  std::mt19937_64 rng(7);
+  auto pts = RandomPoints(rng, 20000, 0);
+  ASSERT_TRUE(c->Ingest("h", 0, pts).ok());
+  auto o = Opts(server_->port());
+  o.hvdb7 = true;
+  o.hvdb7_position_bits = 20;
+  auto hc = Connection::Connect(o);
+  ASSERT_TRUE(hc.ok());
+  auto exact = All(*c, "h", Everything());
+  auto coded = All(**hc, "h", Everything());
+  ASSERT_EQ(coded.size(), exact.size());
+  std::map<uint64_t, Point> by_id;
+  for (const Point& p : exact) by_id[p.id] = p;
+  for (const Point& p : coded) {
+    ASSERT_TRUE(by_id.count(p.id));
+    const Point& e = by_id[p.id];
+    EXPECT_NEAR(p.x, e.x, 10.0 / (1 << 20));  // 20 bits over at most a 10 m batch
+    EXPECT_EQ(p.r, e.r);
+    EXPECT_EQ(p.g, e.g);
+    EXPECT_EQ(p.frame, e.frame);
+    EXPECT_EQ(p.label, e.label);
+    EXPECT_EQ(p.camera, e.camera);
+  }
+  // Out-of-range codec parameters are refused up front, naming the field.
+  wire::Request r;
+  auto* q = r.mutable_query();
+  q->set_dataset("h");
+  wire::ToWire(Region(Everything()), q->mutable_region());
+  q->set_encoding(wire::HVDB7);
+  q->mutable_codec()->set_position_bits(31);
+  auto id = c->Send(&r);
+  ASSERT_TRUE(id.ok());
+  auto resp = c->Receive(*id);
+  ASSERT_TRUE(resp.ok());
+  EXPECT_EQ(resp->error().code(), wire::INVALID_PARAMETER);
+  EXPECT_NE(resp->error().message().find("position_bits"), std::string::npos);
+}
+
 TEST_F(ServerTest, PipelinedRequestsAnswerById) {
   auto c = NewDataset("p");
   std::mt19937_64 rng(3);
