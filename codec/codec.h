@@ -56,9 +56,8 @@ struct EncodeOptions {
   int levels = 0;
   // Parents per progressive chunk.
   int chunk = 16384;
-  // Pairing effort: 1 takes candidates from k-d tree neighbours in the finest levels (fewer
-  // bits), 0 from the space-filling curve alone (about twice as fast; servers coding on the
-  // fly use it).
+  // Pairing effort: 1 takes candidates from k-d tree neighbours (fewer bits), 0 from the
+  // space-filling curve alone (faster; servers coding on the fly use it).
   int effort = 1;
 };
 

@@ -8,8 +8,9 @@
 // to the bit, so an independent decoder can be written from the document alone.
 //
 // Integers are binarised Exp-Golomb style with adaptive contexts: a zero flag, a sign, the
-// length of the magnitude in unary (one adaptive bit per length), the two bits below the
-// leading one adaptive per length, the rest as equiprobable bits.
+// length of the magnitude in unary (one adaptive bit per length); below the leading one, for
+// magnitudes of up to 6 bits every bit in a binary tree of contexts per length, for longer ones
+// the next two bits adaptive and the rest as equiprobable bits.
 #ifndef HVDB_CODEC_RANGE_CODER_H_
 #define HVDB_CODEC_RANGE_CODER_H_
 
@@ -151,14 +152,25 @@ struct IntModel {
   BitModel len[kMaxLen];    // unary length of the magnitude: bit i = "longer than i+1 bits"
   BitModel second[kMaxLen]; // the bit below the leading one, per length
   BitModel third[kMaxLen][2];  // the next bit, per length and second bit
+  // Short magnitudes (bit length <= kTreeLen + 1): every bit below the leading one, in a
+  // binary tree per length (the whole distribution inside each length class).
+  static constexpr int kTreeLen = 5;
+  BitModel tree[kTreeLen + 1][1 << kTreeLen];
 };
 
-// Magnitude m >= 1: its bit length in unary, the next two bits modelled, the rest direct.
+// Magnitude m >= 1: its bit length in unary, then the bits below the leading one (above).
 inline void EncodeMagnitude(RangeEncoder& rc, IntModel& m, uint64_t mag) {
   int k = std::bit_width(mag) - 1;  // 0..63
   for (int i = 0; i < k; ++i) rc.Bit(m.len[i], 1);
   if (k < IntModel::kMaxLen - 1) rc.Bit(m.len[k], 0);
-  if (k >= 1) {
+  if (k >= 1 && k <= IntModel::kTreeLen) {
+    unsigned node = 1;
+    for (int i = k - 1; i >= 0; --i) {
+      const unsigned bit = static_cast<unsigned>((mag >> i) & 1);
+      rc.Bit(m.tree[k][node], bit);
+      node = (node << 1) | bit;
+    }
+  } else if (k >= 1) {
     const unsigned b2 = static_cast<unsigned>((mag >> (k - 1)) & 1);
     rc.Bit(m.second[k], b2);
     if (k >= 2) {
@@ -172,7 +184,11 @@ inline uint64_t DecodeMagnitude(RangeDecoder& rc, IntModel& m) {
   int k = 0;
   while (k < IntModel::kMaxLen - 1 && rc.Bit(m.len[k])) ++k;
   uint64_t mag = 1;
-  if (k >= 1) {
+  if (k >= 1 && k <= IntModel::kTreeLen) {
+    unsigned node = 1;
+    for (int i = 0; i < k; ++i) node = (node << 1) | rc.Bit(m.tree[k][node]);
+    mag = node;
+  } else if (k >= 1) {
     const unsigned b2 = rc.Bit(m.second[k]);
     mag = (mag << 1) | b2;
     if (k >= 2) {
