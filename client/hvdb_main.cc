@@ -838,8 +838,9 @@ Cli::Cli(CLI::App& app) : app_(app) {
   import_cmd_->add_flag("--keep-ids", import_.keep_ids,
                         "Keep the files' point ids (default: the engine assigns new ones)");
   import_cmd_->add_flag("--json", import_.json, "Print a JSON summary");
-  import_cmd_->footer("Files may be PLY or hvdb7 streams (from hvdb export or hvdb-codec); "
-                      "temporal streams must follow the frame they were coded against.");
+  import_cmd_->footer("Files may be PLY, hvdb7 streams (hvdb export, hvdb-codec) or Draco files "
+                      "(hvdb export --codec draco); temporal hvdb7 streams must follow the frame "
+                      "they were coded against.");
 
   export_cmd_ = app.add_subcommand(
       "export", "Write frames as files DIR/NAME_FFFFFF.hv7 (or .drc, .ply), one per frame");
@@ -1445,6 +1446,21 @@ Result<std::vector<Point>> ReadStreamFrame(const std::string& path, const ply::R
   return pts;
 }
 
+// A frame from a Draco file (hvdb export --codec draco), placed as ReadStreamFrame does.
+Result<std::vector<Point>> ReadDracoFrame(const std::string& path, const ply::ReadOptions& ro) {
+  Result<std::vector<Point>> pts = client::ReadDracoFile(path);
+  if (!pts.ok()) return pts.status();
+  const float sigma2 = static_cast<float>(ro.default_sigma * ro.default_sigma);
+  for (Point& p : *pts) {
+    p.x = static_cast<float>(p.x * ro.scale);
+    p.y = static_cast<float>(p.y * ro.scale);
+    p.z = static_cast<float>(p.z * ro.scale);
+    p.cov = {sigma2, 0, 0, sigma2, 0, sigma2};  // Draco files carry no covariances
+    p.frame = ro.frame;
+  }
+  return pts;
+}
+
 int Cli::CmdExport() {
   const ExportArgs& a = export_;
   client::ExportOptions o;
@@ -1499,8 +1515,9 @@ int Cli::CmdImport() {
     ro.force_frame = true;
     ro.default_sigma = a.sigma;
     Result<std::vector<Point>> pts =
-        client::IsHvdb7File(a.files[i]) ? ReadStreamFrame(a.files[i], ro, &reference)
-                                        : ply::ReadPly(a.files[i], ro);
+        client::IsHvdb7File(a.files[i])   ? ReadStreamFrame(a.files[i], ro, &reference)
+        : client::IsDracoFile(a.files[i]) ? ReadDracoFrame(a.files[i], ro)
+                                          : ply::ReadPly(a.files[i], ro);
     if (!pts.ok()) {
       bar.Clear();
       return Fail(pts.status());

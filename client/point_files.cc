@@ -77,18 +77,40 @@ Result<std::unique_ptr<ply::PointWriter>> OpenCompressedWriter(
   return std::unique_ptr<ply::PointWriter>(new CompressedWriter(path, codec, options, reference));
 }
 
-bool IsHvdb7File(const std::string& path) {
+namespace {
+
+bool StartsWith(const std::string& path, const std::string& magic) {
   std::ifstream f(path, std::ios::binary);
-  char magic[4] = {};
-  return f.read(magic, 4) && std::string(magic, 4) == "HV7C";
+  std::string head(magic.size(), '\0');
+  return f.read(head.data(), static_cast<std::streamsize>(head.size())) && head == magic;
+}
+
+Status ReadWhole(const std::string& path, std::string* data) {
+  std::ifstream f(path, std::ios::binary);
+  if (!f) return Status::IOError(path + ": cannot open for reading");
+  data->assign((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+  if (f.bad()) return Status::IOError(path + ": read failed");
+  return Status::OK();
+}
+
+}  // namespace
+
+bool IsHvdb7File(const std::string& path) { return StartsWith(path, "HV7C"); }
+bool IsDracoFile(const std::string& path) { return StartsWith(path, "DRACO"); }
+
+Result<std::vector<Point>> ReadDracoFile(const std::string& path) {
+  std::string data;
+  HVDB_RETURN_IF_ERROR(ReadWhole(path, &data));
+  std::vector<Point> pts;
+  Status st = wire::DecodeDraco(data, &pts);
+  if (!st.ok()) return Status(st.code(), path + ": " + st.message());
+  return pts;
 }
 
 Result<std::vector<Point>> ReadHvdb7File(const std::string& path,
                                          const codec::Reference* reference) {
-  std::ifstream f(path, std::ios::binary);
-  if (!f) return Status::IOError(path + ": cannot open for reading");
-  std::string data((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
-  if (f.bad()) return Status::IOError(path + ": read failed");
+  std::string data;
+  HVDB_RETURN_IF_ERROR(ReadWhole(path, &data));
   std::vector<Point> pts;
   codec::DecodeOptions o;
   o.reference = reference;

@@ -27,6 +27,11 @@ Result<std::unique_ptr<ply::PointWriter>> OpenCompressedWriter(
 // True when the file starts like an hvdb7 stream.
 bool IsHvdb7File(const std::string& path);
 
+// True when the file starts like a Draco file ("DRACO").
+bool IsDracoFile(const std::string& path);
+// Reads a Draco file written by OpenCompressedWriter (hvdb export --codec draco).
+Result<std::vector<Point>> ReadDracoFile(const std::string& path);
+
 // Reads an hvdb7 stream into points (decoded against `reference` if it is temporal).
 Result<std::vector<Point>> ReadHvdb7File(const std::string& path,
                                          const codec::Reference* reference = nullptr);

@@ -1291,6 +1291,16 @@ TEST_F(HvdbCliTest, CompressedExportImportAndWire) {
   EXPECT_EQ(ca, cb);
   EXPECT_NEAR(sa / a->size(), sb / b->size(), 4e-6);
 
+  // Draco files export and import too (positions at 16 bits, colours, ids, frames).
+  r = Run("export walk " + Quote(Path("drc")) + " --codec draco");
+  ASSERT_EQ(r.code, 0) << r.err;
+  ASSERT_EQ(Run("create viadraco --fps 30").code, 0);
+  r = Run("import viadraco --frame 0 " + Quote(Path("drc/walk_000000.drc")) + " " +
+          Quote(Path("drc/walk_000001.drc")));
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("imported " + std::to_string(a->size()) + " points"), std::string::npos)
+      << r.out;
+
   // Compressed query output, read back by the library.
   r = Run("window walk" + box + " --codec hvdb7 --qp 20 --out " + Quote(Path("w.hv7")));
   ASSERT_EQ(r.code, 0) << r.err;
