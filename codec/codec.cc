@@ -102,8 +102,6 @@ Status CheckOverrun(const DecIOs& ios) {
 template <typename IO>
 void CodeChunk(std::array<std::unique_ptr<IO>, kGroups>& ios, Models& md, LevelState& L,
                uint32_t attrs, const TemporalIndex* temporal, size_t b, size_t e) {
-  CodePositions(*ios[0], md, L, b, e);
-  if (temporal) temporal->Hints(L, b, e);
   std::vector<int> groups;
   for (int g = 1; g < kGroups; ++g) {
     if (Coded(attrs, g)) groups.push_back(g);
@@ -111,7 +109,20 @@ void CodeChunk(std::array<std::unique_ptr<IO>, kGroups>& ios, Models& md, LevelS
   auto run = [&](size_t first, size_t step) {
     for (size_t j = first; j < groups.size(); j += step) CodeGroup(*ios[groups[j]], md, groups[j], L, b, e);
   };
-  if (groups.size() >= 2 && e - b >= 4096 && std::thread::hardware_concurrency() > 1) {
+  const bool threads = !groups.empty() && e - b >= 4096 && std::thread::hardware_concurrency() > 1;
+  // The encoder's groups need the orientation its position pass chooses, and temporal
+  // groups the decoded positions; otherwise a decoder reads the groups while it reads the
+  // positions (the positions are the longest pass).
+  if (threads && !IO::kEncode && !temporal) {
+    std::thread t([&] { run(0, 2); });
+    CodePositions(*ios[0], md, L, b, e);
+    run(1, 2);
+    t.join();
+    return;
+  }
+  CodePositions(*ios[0], md, L, b, e);
+  if (temporal) temporal->Hints(L, b, e);
+  if (threads && groups.size() >= 2) {
     std::thread t([&] { run(1, 2); });
     run(0, 2);
     t.join();

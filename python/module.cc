@@ -307,10 +307,12 @@ class Database {
     if (cache_mb < 8) Throw(Status::InvalidArgument("cache_mb: must be >= 8"));
     return Database(client::MakeEmbeddedBackend(dir, cache_mb << 20));
   }
-  static Database Connect(const std::string& address, const std::string& token) {
+  static Database Connect(const std::string& address, const std::string& token,
+                          const std::string& wire) {
     client::RemoteOptions o;
     o.address = address;
     o.token = token;
+    o.wire = wire;
     Database db(Take(client::MakeRemoteBackend(o)));
     // Connects now, so that a wrong address fails here and not at the first query.
     Take(db.Call([](client::Backend& b) { return b.ListDatasets(); }));
@@ -623,7 +625,7 @@ PYBIND11_MODULE(_hvdb, m) {
 
   py::class_<Database>(m, "_Database")
       .def_static("open", &Database::Open, "dir"_a, "cache_mb"_a)
-      .def_static("connect", &Database::Connect, "address"_a, "token"_a)
+      .def_static("connect", &Database::Connect, "address"_a, "token"_a, "wire"_a)
       .def_property_readonly("remote", &Database::remote)
       .def_property_readonly("where", &Database::where)
       .def("close", &Database::Close)

@@ -322,14 +322,18 @@ def open(path="./data", cache_mb=256):  # noqa: A001 (as hvdb.open, like io.open
     return Database(_hvdb._Database.open(str(path), int(cache_mb)))
 
 
-def connect(address="127.0.0.1:7878", token=None):
+def connect(address="127.0.0.1:7878", token=None, wire="records"):
     """The hvdb-server at HOST:PORT (or unix:PATH). token: the server's access token
-    (default: $HVDB_TOKEN). Raises Unavailable when it cannot be reached."""
+    (default: $HVDB_TOKEN). wire: how query results travel: "records" (the stored records;
+    shared memory on this machine), "columns", "draco" or "hvdb7" (compressed, docs/CODEC.md).
+    Raises Unavailable when it cannot be reached."""
     import os
     if token is None:
         token = os.environ.get("HVDB_TOKEN", "")
+    if wire not in ("records", "columns", "draco", "hvdb7"):
+        raise InvalidArgument(f"wire: {wire!r} is not records, columns, draco or hvdb7")
     try:
-        return Database(_hvdb._Database.connect(str(address), str(token)))
+        return Database(_hvdb._Database.connect(str(address), str(token), str(wire)))
     except IOError as e:
         raise Unavailable(f"cannot reach hvdb-server at {address}: {e}") from None
 

@@ -120,15 +120,16 @@ def env(request, seeded_dir, tmp_path):
         def cli(*args, check=True):
             return run_cli(*args, server=server.address, check=check)
 
-        env_obj = Env(state["db"], cli, reopen, "server")
+        env_obj = Env(state["db"], cli, reopen, "server", server.address)
         yield env_obj
         state["db"].close()
         server.stop()
 
 
 class Env:
-    def __init__(self, db, cli, reopen, mode):
+    def __init__(self, db, cli, reopen, mode, address=None):
         self.db, self.cli, self._reopen, self.mode = db, cli, reopen, mode
+        self.address = address  # the server's, in server mode
 
     def reopen(self):
         self.db = self._reopen()

@@ -272,3 +272,20 @@ def test_an_inserted_array_is_copied(env):
             tx.insert(buf)
     got = db.window(DATASET, x=(6.9, 7.1))
     assert sorted(got["frame"].tolist()) == [1, 2, 3]
+
+
+def test_compressed_wire_gives_the_same_frame(env):
+    """wire="hvdb7": the server codes each batch (docs/CODEC.md); the decoded frame equals the
+    records one but for positions on the stream's 16-bit grid (< 2 m / 2^16 per axis)."""
+    if env.mode != "server":
+        with pytest.raises(hvdb.InvalidArgument):
+            hvdb.connect("127.0.0.1:1", wire="gzip")
+        return
+    plain = np.sort(env.db.frame(DATASET, frame=3), order="id")
+    with hvdb.connect(env.address, wire="hvdb7") as db:
+        coded = np.sort(db.frame(DATASET, frame=3), order="id")
+    assert len(coded) == len(plain) > 50000
+    assert (coded["id"] == plain["id"]).all()
+    assert (coded["color"] == plain["color"]).all()
+    assert (coded["label"] == plain["label"]).all()
+    assert np.abs(coded["position"] - plain["position"]).max() < 2.0 / 2**16
