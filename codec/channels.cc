@@ -125,10 +125,13 @@ void Quantizer::ToPoint(const int64_t* c, Point* p) const {
                       : static_cast<float>(origin[a] + static_cast<double>(c[a]) * step);
   }
   uint8_t flags = Has(8) ? static_cast<uint8_t>(c[18]) : 0;
+  // Decoded values of a valid stream are small; clamping first keeps any stream's arithmetic
+  // defined (a corrupt one that passed its checksums decodes to wrong values, never to UB).
+  auto small = [](int64_t v) { return std::clamp<int64_t>(v, -(int64_t{1} << 20), int64_t{1} << 20); };
   if (Has(1)) {
-    int y = static_cast<int>(c[3] << LumaShift(qc));
-    int co = static_cast<int>(c[4] * (int64_t{1} << ChromaShift(qc)));
-    int cg = static_cast<int>(c[5] * (int64_t{1} << ChromaShift(qc)));
+    int y = static_cast<int>(small(c[3]) * (int64_t{1} << LumaShift(qc)));
+    int co = static_cast<int>(small(c[4]) * (int64_t{1} << ChromaShift(qc)));
+    int cg = static_cast<int>(small(c[5]) * (int64_t{1} << ChromaShift(qc)));
     int t = y - (cg >> 1);
     int g = cg + t;
     int b = t - (co >> 1);
@@ -140,7 +143,7 @@ void Quantizer::ToPoint(const int64_t* c, Point* p) const {
   if (Has(2)) {
     int s = 16 - qn;
     for (int i = 0; i < 2; ++i) {
-      int64_t v = c[6 + i] * (int64_t{1} << s);
+      int64_t v = small(c[6 + i]) * (int64_t{1} << s);
       p->normal_oct[i] = static_cast<int16_t>(std::clamp<int64_t>(v, -32767, 32767));
     }
   } else {
@@ -156,10 +159,11 @@ void Quantizer::ToPoint(const int64_t* c, Point* p) const {
       double l11 = std::exp2(std::clamp(dq(c[9]), -60.0, 60.0));
       double l22 = std::exp2(std::clamp(dq(c[10]), -60.0, 60.0));
       double l10 = dq(c[11]) * l00, l20 = dq(c[12]) * l00, l21 = dq(c[13]) * l11;
-      p->cov = {static_cast<float>(l00 * l00), static_cast<float>(l10 * l00),
-                static_cast<float>(l20 * l00), static_cast<float>(l10 * l10 + l11 * l11),
-                static_cast<float>(l20 * l10 + l21 * l11),
-                static_cast<float>(l20 * l20 + l21 * l21 + l22 * l22)};
+      auto f = [](double v) {  // a corrupt stream must not overflow the conversion
+        return static_cast<float>(std::clamp(v, -3.0e38, 3.0e38));
+      };
+      p->cov = {f(l00 * l00), f(l10 * l00), f(l20 * l00), f(l10 * l10 + l11 * l11),
+                f(l20 * l10 + l21 * l11), f(l20 * l20 + l21 * l21 + l22 * l22)};
     }
   } else {
     flags &= static_cast<uint8_t>(~kFlagHasCovariance);
