@@ -245,10 +245,15 @@ Status CheckOptions(std::span<const Point> points, const EncodeOptions& o) {
   if (o.effort < 0 || o.effort > 1) return Status::InvalidArgument("effort must be 0 or 1");
   if ((o.attributes & ~kAllAttributes) != 0) return Status::InvalidArgument("unknown attribute bits");
   if (points.size() >= kNoChild) return Status::InvalidArgument("at most 2^32 - 2 points per stream");
+  const bool log_cov = (o.attributes & kCovariance) && o.qcov > 0;
   for (const Point& p : points) {
     if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) {
       return Status::InvalidArgument("point " + std::to_string(p.id) +
                                      " has a non-finite position; the coder takes finite points");
+    }
+    if (log_cov && !std::all_of(p.cov.begin(), p.cov.end(), [](float v) { return std::isfinite(v); })) {
+      return Status::InvalidArgument("point " + std::to_string(p.id) +
+                                     " has a non-finite covariance (code it exactly with qcov 0)");
     }
   }
   return Status::OK();
