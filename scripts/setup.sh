@@ -16,6 +16,7 @@ PACKAGES=(
   clang libclang-rt-14-dev liburing-dev
   python3 python3-numpy pybind11-dev python3-pytest python3-open3d
   chromium chromium-driver python3-selenium
+  librados-dev ceph-mon ceph-osd ceph-mgr ceph-common uuid-runtime
 )
 # The web viewer's JavaScript dependencies come from the npm registry (web/package-lock.json);
 # Debian's npm unless a Node.js with its own npm is installed already.

@@ -12,7 +12,11 @@ int main(int argc, char** argv) {
   bool no_sync = false;
   CLI::App app{"hvdb-server: serves hvdb datasets over the hvdb wire protocol (docs/PROTOCOL.md)"};
   app.set_config("--config", "", "read options from an INI/TOML file (keys = long option names)");
-  app.add_option("--data", c.data_dir, "data directory")->capture_default_str();
+  app.add_option("--data", c.data_dir, "data directory (with --store rados:...: its name prefix in the pool)")
+      ->capture_default_str();
+  app.add_option("--store", c.store,
+                 "where the data lives: files under --data (default), or rados:POOL?conf=FILE "
+                 "for a Ceph RADOS pool (created if missing; docs/FORMAT.md)");
   app.add_option("--listen", c.listen,
                  "address to listen on, repeatable: HOST:PORT (port 0: any free port; a "
                  "non-loopback address needs --token-file) or unix:PATH (the local fast path; "

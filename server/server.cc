@@ -1,5 +1,7 @@
 #include "server/server.h"
 
+#include "storage/rados_env.h"
+
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <sys/un.h>
@@ -160,8 +162,22 @@ Result<std::unique_ptr<Server>> Server::Create(const Config& config) {
   opts.cache_bytes = config.cache_mb << 20;
   opts.sync = config.sync;
   opts.max_slice_frames = config.max_slice_frames;
-  HVDB_ASSIGN_OR_RETURN(auto db, Database::Open(config.data_dir, opts));
-  std::unique_ptr<Server> s(new Server(config, std::move(db)));
+  std::unique_ptr<Env> store_env;
+  if (!config.store.empty()) {
+    RadosSpec spec;
+    HVDB_RETURN_IF_ERROR(ParseRadosSpec(config.store, &spec));
+    HVDB_ASSIGN_OR_RETURN(store_env, OpenRadosEnv(spec));
+    opts.env = store_env.get();
+    // The data directory is a name prefix in the pool; the Unix socket still needs a folder.
+    if (!local_socket.empty()) {
+      std::error_code ec;
+      std::filesystem::create_directories(std::filesystem::path(local_socket).parent_path(), ec);
+    }
+  }
+  auto opened = Database::Open(config.data_dir, opts);
+  if (!opened.ok()) return opened.status();
+  std::unique_ptr<Server> s(new Server(config, std::move(opened).value()));
+  s->store_env_ = std::move(store_env);
   s->tokens_ = std::move(tokens);
   s->require_token_ = !s->tokens_.empty();
   s->tcp_listen_ = tcp_listen;

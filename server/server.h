@@ -35,6 +35,9 @@ void SetLogLevel(LogLevel level);
 
 struct Config {
   std::string data_dir = "./data";
+  // Where the data lives: "" for files under data_dir, or "rados:POOL?conf=FILE" for a Ceph
+  // RADOS pool (storage/rados_env.h), data_dir then being the name prefix in the pool.
+  std::string store;
   // Addresses to listen on: HOST:PORT (port 0: any free port, printed at start) and at most
   // one unix:PATH (the local fast path; "unix:" alone is DATA_DIR/hvdb.sock). Loopback TCP
   // clients are told the Unix socket's path and switch to it.
@@ -112,6 +115,7 @@ class Server {
   void AcceptUnix();
 
   Config config_;
+  std::unique_ptr<Env> store_env_;  // the RADOS store (outlives db_), null for files
   std::unique_ptr<Database> db_;
   boost::asio::io_context io_;
   boost::asio::thread_pool workers_;

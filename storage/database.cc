@@ -67,9 +67,13 @@ Result<std::unique_ptr<Database>> Database::Open(const std::string& dir, const O
   db->lock_ = std::move(locked).value();
   HVDB_ASSIGN_OR_RETURN(auto names, env->ListDir(dir));
   for (const std::string& n : names) {
-    // Leftovers of a create or drop cut short by a crash.
-    if (n.ends_with(".creating") || n.ends_with(".dropping")) {
-      HVDB_RETURN_IF_ERROR(env->RemoveTree(dir + "/" + n));
+    // Leftovers of a create or drop cut short by a crash (without atomic directory renames:
+    // a dataset's directory without its MANIFEST).
+    const std::string sub = dir + "/" + n;
+    if (n.ends_with(".creating") || n.ends_with(".dropping") ||
+        (!env->AtomicDirRename() && ValidateDatasetName(n).ok() && !env->Exists(sub + "/MANIFEST") &&
+         env->ListDir(sub).ok())) {
+      HVDB_RETURN_IF_ERROR(env->RemoveTree(sub));
     }
   }
   db->pool_ = std::make_unique<BufferPool>(opts.cache_bytes, opts.block_size);
@@ -120,6 +124,11 @@ Status Database::DropDataset(const std::string& name) {
   std::string path = dir_ + "/" + name;
   if (!env_->Exists(path + "/MANIFEST")) return Status::NotFound("no dataset '" + name + "'");
   std::erase_if(open_, [&](const auto& e) { return e.first == name; });
+  if (!env_->AtomicDirRename()) {
+    // Its MANIFEST first: the dataset is gone at that step, the rest is deleted after.
+    HVDB_RETURN_IF_ERROR(env_->Remove(path + "/MANIFEST"));
+    return env_->RemoveTree(path);
+  }
   // Rename first: the drop is atomic, and a crash mid-delete leaves only a .dropping folder.
   std::string gone = path + ".dropping";
   HVDB_RETURN_IF_ERROR(env_->Rename(path, gone));

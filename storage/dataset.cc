@@ -199,9 +199,17 @@ Result<std::unique_ptr<DatasetImpl>> DatasetImpl::Create(const std::string& dir,
     return Status::InvalidArgument("space/time scale must be > 0");
   }
   Env* env = opts.env ? opts.env : Env::Default();
-  if (env->Exists(dir)) return Status::AlreadyExists("dataset '" + info.name + "' already exists");
+  const bool atomic = env->AtomicDirRename();
+  if (env->Exists(dir)) {
+    if (atomic || env->Exists(dir + "/MANIFEST")) {
+      return Status::AlreadyExists("dataset '" + info.name + "' already exists");
+    }
+    HVDB_RETURN_IF_ERROR(env->RemoveTree(dir));  // a create cut short: no MANIFEST yet
+  }
   // Build in a temporary directory and rename it into place: a crash leaves no half dataset.
-  std::string tmp = dir + ".creating";
+  // Without atomic directory renames (RADOS) it is built in place: its MANIFEST, written last
+  // and atomically, is what makes a directory a dataset.
+  std::string tmp = atomic ? dir + ".creating" : dir;
   HVDB_RETURN_IF_ERROR(env->RemoveTree(tmp));
   HVDB_RETURN_IF_ERROR(env->CreateDirs(tmp + "/frames"));
   HVDB_RETURN_IF_ERROR(env->CreateDirs(tmp + "/trees"));
@@ -210,8 +218,10 @@ Result<std::unique_ptr<DatasetImpl>> DatasetImpl::Create(const std::string& dir,
   stored.last_lsn = 0;
   HVDB_RETURN_IF_ERROR(WriteFileAtomic(env, tmp + "/MANIFEST", EncodeManifest(stored, opts)));
   HVDB_RETURN_IF_ERROR(env->SyncDir(tmp));
-  HVDB_RETURN_IF_ERROR(env->Rename(tmp, dir));
-  HVDB_RETURN_IF_ERROR(env->SyncDir(ParentDir(dir)));
+  if (atomic) {
+    HVDB_RETURN_IF_ERROR(env->Rename(tmp, dir));
+    HVDB_RETURN_IF_ERROR(env->SyncDir(ParentDir(dir)));
+  }
   return Open(dir, opts, pool);
 }
 

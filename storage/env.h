@@ -89,6 +89,10 @@ class Env {
   virtual bool Exists(const std::string& path) = 0;
   // An exclusive lock on `path` (created if absent); fails if another process holds it.
   virtual Result<std::unique_ptr<FileLock>> Lock(const std::string& path) = 0;
+  // Whether Rename moves a directory (and all below it) atomically, as POSIX rename does. A
+  // store without it (RADOS) gets datasets created in place and dropped by removing their
+  // MANIFEST first (storage/database.cc).
+  virtual bool AtomicDirRename() const { return true; }
   // Writes a whole new immutable file (a tree). sync: all or nothing and durable when it
   // returns (path.tmp, sync, rename, sync of the directory); else straight to `path`, unsynced.
   // The default does it with the calls above; the POSIX Env bypasses the page cache (O_DIRECT)

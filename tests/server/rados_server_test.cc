@@ -1,0 +1,176 @@
+// hvdb-server on a RADOS pool (--store rados:POOL?conf=FILE) against the real one-node cluster
+// of the CTest fixture `ceph`: the CLI works through it as on files; a second server on the
+// same data is refused while the first holds the lease; after kill -9 of the first the second
+// takes over once the lease runs out, with every acknowledged commit there.
+#include <signal.h>
+#include <fcntl.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <string>
+#include <thread>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+namespace {
+
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+
+const std::string kFrames = HVDB_SHARED_DATA "/cmu-panoptic-kinoptic-171026-pose3/kinoptic_ptclouds/";
+
+struct ShRun {
+  int code = -1;
+  std::string out;
+};
+
+ShRun Sh(const std::string& cmd) {
+  ShRun r;
+  FILE* p = popen((cmd + " 2>&1").c_str(), "r");
+  if (!p) return r;
+  char buf[4096];
+  size_t n;
+  while ((n = fread(buf, 1, sizeof buf, p)) > 0) r.out.append(buf, n);
+  int st = pclose(p);
+  r.code = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+  return r;
+}
+
+// A server process on the pool; Start returns "" or why it did not come up.
+class RadosServer {
+ public:
+  RadosServer(std::string name, std::string store, std::string data, std::string work)
+      : name_(std::move(name)), store_(std::move(store)), data_(std::move(data)),
+        work_(std::move(work)) {}
+  ~RadosServer() { Kill(SIGTERM); }
+  std::string Start() {
+    const std::string tag = name_ + std::to_string(++starts_);
+    const std::string port_file = work_ + "/port-" + tag;
+    const std::string log = work_ + "/server-" + tag + ".log";
+    pid_ = fork();
+    if (pid_ == 0) {
+      int fd = ::open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+      dup2(fd, 1);
+      dup2(fd, 2);
+      execl(HVDB_SERVER_PATH, HVDB_SERVER_PATH, "--store", store_.c_str(), "--data", data_.c_str(),
+            "--listen", "127.0.0.1:0", "--listen", ("unix:" + work_ + "/s-" + tag).c_str(),
+            "--port-file", port_file.c_str(), static_cast<char*>(nullptr));
+      _exit(127);
+    }
+    for (int i = 0; i < 200; ++i) {
+      int st;
+      if (waitpid(pid_, &st, WNOHANG) == pid_) {
+        pid_ = -1;
+        std::ifstream in(log);
+        return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+      }
+      std::ifstream pf(port_file);
+      if (pf >> port_) return "";
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+    return "no port file after 20 s";
+  }
+  void Kill(int sig) {
+    if (pid_ > 0) {
+      kill(pid_, sig);
+      int st;
+      waitpid(pid_, &st, 0);
+      pid_ = -1;
+    }
+  }
+  std::string Address() const { return "127.0.0.1:" + std::to_string(port_); }
+
+ private:
+  std::string name_, store_, data_, work_;
+  pid_t pid_ = -1;
+  int port_ = 0;
+  int starts_ = 0;
+};
+
+class RadosServerTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const char* conf = std::getenv("HVDB_CEPH_CONF");
+    ASSERT_NE(conf, nullptr) << "run through CTest: the fixture `ceph` starts the cluster";
+    // A short lease, so that the failover below takes seconds.
+    store_ = std::string("rados:hvdb-server-tests?conf=") + conf + "&lease=5";
+    data_ = "srv-" + std::to_string(std::random_device{}());
+    std::string t = (fs::temp_directory_path() / "hvdb_rados_server_XXXXXX").string();
+    ASSERT_NE(mkdtemp(t.data()), nullptr);
+    work_ = t;
+  }
+  void TearDown() override { fs::remove_all(work_); }
+  ShRun Cli(const std::string& address, const std::string& args) {
+    return Sh(std::string(HVDB_CLI_PATH) + " --server " + address + " " + args);
+  }
+  std::string store_, data_, work_;
+};
+
+TEST_F(RadosServerTest, ServesAndFailsOverAfterKill9) {
+  RadosServer a("a", store_, data_, work_);
+  ASSERT_EQ(a.Start(), "");
+  ShRun r = Cli(a.Address(), "create walk --fps 30");
+  ASSERT_EQ(r.code, 0) << r.out;
+  r = Cli(a.Address(), "import walk --frame 0 --units-scale 0.01 " + kFrames +
+                           "ptcloud_hd00000380.ply " + kFrames + "ptcloud_hd00000381.ply --json");
+  ASSERT_EQ(r.code, 0) << r.out;
+  const uint64_t imported = json::parse(r.out)["points"].get<uint64_t>();
+  r = Cli(a.Address(), "edit walk --delete-box -9 9 -1.0 -0.9 -9 9 0 1");
+  ASSERT_EQ(r.code, 0) << r.out;
+  r = Cli(a.Address(), "describe walk --json");
+  ASSERT_EQ(r.code, 0) << r.out;
+  const json before = json::parse(r.out);
+  EXPECT_LT(before["points"].get<uint64_t>(), imported);
+  r = Cli(a.Address(), "window walk --box -9 9 -9 9 -9 9 0 1 --json");
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_EQ(json::parse(r.out)["points"], before["points"]);
+
+  // A second server on the same data is refused while the first holds the lease.
+  RadosServer b("b", store_, data_, work_);
+  std::string why = b.Start();
+  EXPECT_NE(why.find("in use by another hvdb process"), std::string::npos) << why;
+
+  // The writer dies without a word; once its lease has run out, the other takes over and
+  // has every acknowledged commit.
+  a.Kill(SIGKILL);
+  auto t0 = std::chrono::steady_clock::now();
+  std::string started = "not tried";
+  while (std::chrono::steady_clock::now() - t0 < std::chrono::seconds(30)) {
+    started = b.Start();
+    if (started.empty()) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  }
+  ASSERT_EQ(started, "") << "no failover within 30 s";
+  r = Cli(b.Address(), "describe walk --json");
+  ASSERT_EQ(r.code, 0) << r.out;
+  const json after = json::parse(r.out);
+  EXPECT_EQ(after["points"], before["points"]);
+  EXPECT_EQ(after["last_lsn"], before["last_lsn"]);
+  r = Cli(b.Address(), "window walk --box -9 9 -9 9 -9 9 0 1 --json");
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_EQ(json::parse(r.out)["points"], before["points"]);
+  // And it takes writes.
+  r = Cli(b.Address(), "undo walk " + std::to_string(before["last_lsn"].get<uint64_t>()));
+  EXPECT_EQ(r.code, 0) << r.out;
+  r = Cli(b.Address(), "describe walk --json");
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_EQ(json::parse(r.out)["points"].get<uint64_t>(), imported);
+}
+
+TEST_F(RadosServerTest, BadStoreIsAClearError) {
+  ShRun r = Sh(std::string(HVDB_SERVER_PATH) + " --store rados:p --data x --listen 127.0.0.1:0");
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.out.find("conf=FILE"), std::string::npos) << r.out;
+  r = Sh(std::string(HVDB_SERVER_PATH) + " --store rados:p?conf=/nonexistent.conf --data x "
+         "--listen 127.0.0.1:0");
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.out.find("/nonexistent.conf"), std::string::npos) << r.out;
+}
+
+}  // namespace
