@@ -1,0 +1,188 @@
+// rados-bench: the RADOS store (storage/rados_env.h) next to the local store in the same run,
+// through the same engine: bulk load, a full frame cold and warm, random windows cold and
+// warm, and inserts (median commit time). The cluster is the one-node cluster of
+// scripts/ceph-dev.sh on this machine (--start-cluster DIR starts and stops one), so the
+// figures show the cost of the object protocol on one machine, not a cluster's throughput
+// (bench/README.md says what N OSD hosts should give). Writes JSON.
+#include <CLI/CLI.hpp>
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "bench/util.h"
+#include "storage/database.h"
+#include "storage/rados_env.h"
+
+namespace {
+
+using namespace hvdb;
+using namespace hvdb::bench;
+using nlohmann::json;
+
+double Median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v.empty() ? 0 : v[v.size() / 2];
+}
+
+struct Config {
+  size_t points_per_frame = 1000000;
+  uint32_t frames = 4;
+  int windows = 1000;
+  int inserts = 100;
+  size_t insert_points = 1000;
+  int reps = 3;
+};
+
+json RunStore(const std::string& name, Env* env, const std::string& dir, const Config& c) {
+  Log("%s: %s", name.c_str(), dir.c_str());
+  Options o;
+  o.env = env;
+  o.cache_bytes = 512u << 20;
+  auto open = [&] {
+    auto db = Check(Database::Open(dir, o), "open " + dir);
+    return db;
+  };
+  auto db = open();
+  DatasetInfo info;
+  info.name = "b";
+  info.fps = 30;
+  auto ds = Check(db->CreateDataset(info), "create");
+  // Bulk load.
+  std::vector<double> load;
+  uint64_t bytes = 0;
+  for (uint32_t f = 0; f < c.frames; ++f) {
+    auto pts = UniformPoints(c.points_per_frame, 100 + f, f);
+    bytes += pts.size() * kPointRecordSize;
+    Timer t;
+    Check(ds->BulkLoad(f, std::move(pts)), "bulk load");
+    load.push_back(t.Ms());
+  }
+  double load_ms = 0;
+  for (double v : load) load_ms += v;
+  auto frame_query = [&](Dataset& d, uint32_t f) {
+    Timer t;
+    auto r = RunQuery(d, Region(FrameWindow(f, 30)), QueryOptions{});
+    if (r.points != c.points_per_frame) Die("frame query returned " + std::to_string(r.points));
+    return t.Ms();
+  };
+  std::mt19937_64 rng(7);
+  std::uniform_real_distribution<double> u(0, 0.95);
+  std::vector<Window> wins(c.windows);
+  for (Window& w : wins) {
+    for (int a = 0; a < 3; ++a) w.lo[a] = u(rng), w.hi[a] = w.lo[a] + 0.05;
+    uint32_t f = static_cast<uint32_t>(rng() % c.frames);
+    w.lo[3] = w.hi[3] = f / 30.0;
+  }
+  auto windows = [&](Dataset& d) {
+    Timer t;
+    uint64_t n = 0;
+    for (const Window& w : wins) n += RunQuery(d, Region(w), QueryOptions{}).points;
+    if (n == 0) Die("windows returned nothing");
+    return t.Ms();
+  };
+  // Cold: the database reopened (its buffer pool gone; local files evicted from the page cache).
+  std::vector<double> frame_cold, frame_warm, win_cold, win_warm;
+  for (int r = 0; r < c.reps; ++r) {
+    ds.reset();
+    db.reset();
+    if (!env) Evict(dir);
+    db = open();
+    ds = Check(db->GetDataset("b"), "get");
+    frame_cold.push_back(frame_query(*ds, static_cast<uint32_t>(r) % c.frames));
+    frame_warm.push_back(frame_query(*ds, static_cast<uint32_t>(r) % c.frames));
+  }
+  for (int r = 0; r < c.reps; ++r) {
+    ds.reset();
+    db.reset();
+    if (!env) Evict(dir);
+    db = open();
+    ds = Check(db->GetDataset("b"), "get");
+    win_cold.push_back(windows(*ds));
+    win_warm.push_back(windows(*ds));
+  }
+  std::vector<double> commits;
+  for (int i = 0; i < c.inserts; ++i) {
+    auto pts = UniformPoints(c.insert_points, 1000 + i, static_cast<uint32_t>(i) % c.frames);
+    Transaction t;
+    t.Insert(pts);
+    Timer tm;
+    Check(ds->Commit(t), "commit");
+    commits.push_back(tm.Ms());
+  }
+  const double frame_mb = c.points_per_frame * kPointRecordSize / 1e6;
+  json j = {{"bulk_load_ms", load_ms},
+            {"bulk_load_mpts_s", c.frames * c.points_per_frame / load_ms / 1e3},
+            {"bulk_load_mb_s", bytes / 1e3 / load_ms},
+            {"frame_cold_ms", Median(frame_cold)},
+            {"frame_cold_mb_s", frame_mb / Median(frame_cold) * 1e3},
+            {"frame_warm_ms", Median(frame_warm)},
+            {"frame_warm_mb_s", frame_mb / Median(frame_warm) * 1e3},
+            {"windows_cold_per_s", c.windows / Median(win_cold) * 1e3},
+            {"windows_warm_per_s", c.windows / Median(win_warm) * 1e3},
+            {"commit_ms_median", Median(commits)}};
+  ds.reset();
+  (void)db->DropDataset("b");
+  Log("%s: %s", name.c_str(), j.dump().c_str());
+  return j;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"rados-bench: the RADOS store next to the local store, same engine, same run"};
+  std::string out = "rados.json", conf, start_dir, scratch = "/tmp/hvdb-rados-bench";
+  bool quick = false;
+  Config c;
+  app.add_option("--out", out, "JSON output")->capture_default_str();
+  app.add_option("--ceph-conf", conf, "ceph.conf of a running cluster");
+  app.add_option("--start-cluster", start_dir,
+                 "start a one-node cluster in this folder (scripts/ceph-dev.sh) and stop it after");
+  app.add_option("--scratch", scratch, "folder of the local store")->capture_default_str();
+  app.add_option("--points", c.points_per_frame, "points per frame")->capture_default_str();
+  app.add_option("--frames", c.frames, "frames")->capture_default_str();
+  app.add_flag("--quick", quick, "small sizes (CI smoke run)");
+  CLI11_PARSE(app, argc, argv);
+  if (quick) c = Config{50000, 2, 100, 10, 1000, 1};
+  if (conf.empty() == start_dir.empty()) {
+    std::fprintf(stderr, "rados-bench: give --ceph-conf FILE or --start-cluster DIR\n");
+    return 2;
+  }
+  const std::string script = std::string(HVDB_SOURCE_DIR) + "/scripts/ceph-dev.sh";
+  if (!start_dir.empty()) {
+    if (std::system(("bash " + script + " start " + start_dir).c_str()) != 0) Die("cluster start");
+    conf = start_dir + "/ceph.conf";
+  }
+  RadosSpec spec;
+  spec.pool = "hvdb-bench";
+  spec.conf = conf;
+  auto env = Check(OpenRadosEnv(spec), "connect");
+  RemoveAll(scratch);
+  MakeDirs(scratch);
+  json local = RunStore("local", nullptr, scratch + "/db", c);
+  json rados = RunStore("rados", env.get(), "bench-" + std::to_string(std::random_device{}()), c);
+  env.reset();
+  if (!start_dir.empty()) (void)std::system(("bash " + script + " stop " + start_dir).c_str());
+  RemoveAll(scratch);
+  json ratios;
+  for (auto& [k, v] : local.items()) ratios[k] = rados[k].get<double>() / v.get<double>();
+  json j = {{"benchmark", "rados"},
+            {"quick", quick},
+            {"points_per_frame", c.points_per_frame},
+            {"frames", c.frames},
+            {"windows", c.windows},
+            {"inserts", c.inserts},
+            {"insert_points", c.insert_points},
+            {"local", local},
+            {"rados", rados},
+            {"rados_over_local", ratios},
+            {"note", "one-node cluster on this machine (memstore OSD): the object protocol's "
+                     "cost, not a cluster's throughput"}};
+  std::ofstream(out) << j.dump(2) << "\n";
+  std::printf("%s\n", j.dump(2).c_str());
+  return 0;
+}
