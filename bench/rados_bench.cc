@@ -180,7 +180,7 @@ int main(int argc, char** argv) {
             {"local", local},
             {"rados", rados},
             {"rados_over_local", ratios},
-            {"note", "one-node cluster on this machine (memstore OSD): the object protocol's "
+            {"note", "one-node cluster on this machine (BlueStore on a file): the object path's "
                      "cost, not a cluster's throughput"}};
   std::ofstream(out) << j.dump(2) << "\n";
   std::printf("%s\n", j.dump(2).c_str());

@@ -1,19 +1,20 @@
 #!/usr/bin/env bash
 # A one-node Ceph cluster for development and tests, with every file in DIR:
 #
-#   scripts/ceph-dev.sh start DIR   # one monitor, one manager, one OSD on memstore; writes
-#                                   # DIR/ceph.conf and prints it; loopback only
-#   scripts/ceph-dev.sh stop DIR    # stops the daemons; nothing of the cluster keeps running
+#   scripts/ceph-dev.sh start DIR      # one monitor, one manager, one OSD (BlueStore on a
+#                                      # sparse 4 GiB file); writes DIR/ceph.conf; loopback only
+#   scripts/ceph-dev.sh stop DIR       # stops the daemons; nothing of the cluster keeps running
 #   scripts/ceph-dev.sh status DIR
+#   scripts/ceph-dev.sh osd-stop DIR   # stops (kills) the OSD, as a failure would
+#   scripts/ceph-dev.sh osd-start DIR  # starts it again; its data is still there
 #
-# No authentication (the daemons bind 127.0.0.1 only), replication size 1, the OSD's data in
-# memory (memstore, 2 GiB): a real RADOS cluster for tests of hvdb's RADOS store, not a
-# production layout. Needs Debian's ceph-mon, ceph-osd, ceph-mgr and ceph-common (scripts/
+# No authentication (the daemons bind 127.0.0.1 only), replication size 1: a real RADOS
+# cluster for tests of hvdb's RADOS store, not a production layout. Needs Debian's ceph-mon, ceph-osd, ceph-mgr and ceph-common (scripts/
 # setup.sh installs them). After ceph's own vstart.sh, which does the same from a source tree.
 set -euo pipefail
 
 usage() {
-  sed -n '2,11p' "$0" | sed 's/^# \{0,1\}//'
+  sed -n '2,13p' "$0" | sed 's/^# \{0,1\}//'
   exit 2
 }
 [ $# -eq 2 ] || usage
@@ -31,7 +32,9 @@ pids() {
 
 stop() {
   local p left
-  for p in $(pids); do kill "$p" 2>/dev/null || true; done
+  for p in $(pids); do
+    if kill -0 "$p" 2>/dev/null; then kill "$p"; fi
+  done
   # Daemons flush and exit within seconds; whatever is left after 20 s is killed.
   for _ in $(seq 1 40); do
     left=""
@@ -39,7 +42,9 @@ stop() {
     [ -z "$left" ] && break
     sleep 0.5
   done
-  for p in $left; do kill -9 "$p" 2>/dev/null || true; done
+  for p in $left; do
+    if kill -0 "$p" 2>/dev/null; then kill -9 "$p"; fi
+  done
   rm -f "$dir"/run/*.pid
 }
 
@@ -82,8 +87,13 @@ mon allow pool delete = true
 mon data avail warn = 1
 mon data avail crit = 0
 osd crush chooseleaf type = 0
-osd objectstore = memstore
-memstore device bytes = 2147483648
+osd objectstore = bluestore
+bluestore block create = true
+bluestore block size = 4294967296
+bluestore block db create = false
+bluestore block wal create = false
+bluestore fsck on mkfs = false
+bluestore cache size = 268435456
 osd op num shards = 1
 osd op num threads per shard = 2
 run dir = $dir/run
@@ -133,9 +143,34 @@ EOF
   exit 1
 }
 
+wait_osd() {  # $1: "up" or "down"
+  for _ in $(seq 1 120); do
+    if [ "$1" = up ]; then
+      ceph -c "$conf" --connect-timeout 5 osd stat 2>/dev/null | grep -q "1 up" && return 0
+    else
+      ceph -c "$conf" --connect-timeout 5 osd stat 2>/dev/null | grep -q "0 up" && return 0
+    fi
+    sleep 0.5
+  done
+  echo "ceph-dev.sh: the OSD is not $1 after 60 s" >&2
+  return 1
+}
+
 case "$cmd" in
   start) start ;;
   stop) stop ;;
+  osd-stop)
+    kill -9 "$(cat "$dir/run/osd.0.pid")"
+    rm -f "$dir/run/osd.0.pid"
+    # Tell the monitor at once instead of waiting for its heartbeat grace.
+    if ! ceph -c "$conf" --connect-timeout 10 osd down 0 >/dev/null 2>&1; then
+      echo "ceph-dev.sh: the monitor was not told; it marks the OSD down after its grace" >&2
+    fi
+    ;;
+  osd-start)
+    ceph-osd -c "$conf" -i 0 2>>"$dir/log/setup.log"
+    wait_osd up
+    ;;
   status) ceph -c "$conf" --connect-timeout 5 -s ;;
   *) usage ;;
 esac

@@ -453,9 +453,13 @@ Status ParseRadosSpec(const std::string& store, RadosSpec* spec) {
         int s = std::atoi(v.c_str());
         if (s < 3 || s > 3600) return Status::InvalidArgument("store: lease must be 3..3600 s");
         spec->lock_lease = std::chrono::seconds(s);
+      } else if (k == "timeout") {
+        int s = std::atoi(v.c_str());
+        if (s < 1 || s > 3600) return Status::InvalidArgument("store: timeout must be 1..3600 s");
+        spec->op_timeout = std::chrono::seconds(s);
       } else if (!k.empty()) {
         return Status::InvalidArgument("store '" + store + "': unknown parameter '" + k +
-                                       "' (conf, lease)");
+                                       "' (conf, lease, timeout)");
       }
       i = amp + 1;
     }
@@ -480,9 +484,10 @@ Result<std::unique_ptr<Env>> OpenRadosEnv(const RadosSpec& spec) {
   };
   if ((r = rados_conf_read_file(cluster, spec.conf.c_str())) < 0) return fail("read " + spec.conf, r);
   // Fail operations the cluster cannot serve instead of waiting for ever.
-  rados_conf_set(cluster, "client_mount_timeout", "15");
-  rados_conf_set(cluster, "rados_mon_op_timeout", "30");
-  rados_conf_set(cluster, "rados_osd_op_timeout", "30");
+  const std::string timeout = std::to_string(spec.op_timeout.count());
+  rados_conf_set(cluster, "client_mount_timeout", timeout.c_str());
+  rados_conf_set(cluster, "rados_mon_op_timeout", timeout.c_str());
+  rados_conf_set(cluster, "rados_osd_op_timeout", timeout.c_str());
   rados_conf_set(cluster, "log_to_stderr", "false");
   if ((r = rados_connect(cluster)) < 0) return fail("connect to the cluster of " + spec.conf, r);
   if (rados_pool_lookup(cluster, spec.pool.c_str()) < 0) {

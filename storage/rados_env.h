@@ -26,13 +26,14 @@ struct RadosSpec {
   std::string pool;
   std::string conf;  // ceph.conf of the cluster
   std::chrono::seconds lock_lease{20};  // a lock not renewed for this long is free again
+  std::chrono::seconds op_timeout{30};  // an operation the cluster cannot serve fails after this
 };
 
-// "rados:POOL?conf=FILE" (FILE relative to the working directory) -> spec.
+// "rados:POOL?conf=FILE[&lease=S][&timeout=S]" (FILE relative to the working directory).
 Status ParseRadosSpec(const std::string& store, RadosSpec* spec);
 
 // Connects to the cluster (creating the pool if it is missing). Operations that cannot reach
-// the cluster fail after ~30 s with IOError naming the object instead of hanging.
+// the cluster fail after spec.op_timeout with IOError naming the object instead of hanging.
 Result<std::unique_ptr<Env>> OpenRadosEnv(const RadosSpec& spec);
 
 }  // namespace hvdb
