@@ -187,8 +187,11 @@ class RadosLock : public FileLock {
     }
     cv_.notify_all();
     renewer_.join();
+    // A clean release: the next holder has nobody to fence.
+    (void)rados_rmxattr(io_, oid_.c_str(), kHolderXattr);
     (void)rados_unlock(io_, oid_.c_str(), kName, cookie_.c_str());
   }
+  static constexpr const char* kHolderXattr = "hvdb.holder";
   static constexpr const char* kName = "hvdb";
 
  private:
@@ -360,10 +363,50 @@ class RadosEnv : public Env {
                                  " s after its holder stops renewing it)");
     }
     if (r < 0) return Err("lock " + oid, r);
+    Status fenced = FencePreviousHolder(oid);
+    if (!fenced.ok()) {
+      (void)rados_unlock(io_, oid.c_str(), RadosLock::kName, cookie.c_str());
+      return fenced;
+    }
     HVDB_RETURN_IF_ERROR(AddEntry(oid));
     return std::unique_ptr<FileLock>(new RadosLock(io_, oid, cookie, spec_.lock_lease));
   }
 
+ private:
+  // Fencing: the lock's object names its holder's client address (xattr). A holder whose lease
+  // ran out may only be paused (a stalled process, a partitioned host) and could write again
+  // when it wakes; the new holder has the cluster refuse that client's every op (the OSD
+  // blocklist, as RBD's exclusive lock does) before it writes anything itself.
+  Status FencePreviousHolder(const std::string& oid) {
+    char* mine = nullptr;
+    int r = rados_getaddrs(cluster_, &mine);
+    if (r < 0) return Err("own address", r);
+    std::string own = mine;
+    rados_buffer_free(mine);
+    char prev[1024];
+    int n = rados_getxattr(io_, oid.c_str(), RadosLock::kHolderXattr, prev, sizeof prev - 1);
+    if (n > 0) {
+      std::string holder(prev, static_cast<size_t>(n));
+      if (holder != own) {
+        // "[v2:127.0.0.1:0/1234,v1:...]": one entry names the client instance.
+        std::string addr = holder;
+        addr.erase(std::remove(addr.begin(), addr.end(), '['), addr.end());
+        addr.erase(std::remove(addr.begin(), addr.end(), ']'), addr.end());
+        addr = addr.substr(0, addr.find(','));
+        if (addr.compare(0, 3, "v2:") == 0 || addr.compare(0, 3, "v1:") == 0) addr = addr.substr(3);
+        r = rados_blocklist_add(cluster_, addr.data(), 3600);
+        if (r < 0) {
+          return Err("lock " + oid + ": cannot fence the previous holder " + holder +
+                     " (refusing to take over while it might still write)", r);
+        }
+      }
+    }
+    r = rados_setxattr(io_, oid.c_str(), RadosLock::kHolderXattr, own.data(), own.size());
+    if (r < 0) return Err("lock " + oid + ": recording the holder", r);
+    return Status::OK();
+  }
+
+ public:
   Status WriteNewFile(const std::string& path, std::string_view data, bool) override {
     std::string oid = Normalize(path);
     HVDB_RETURN_IF_ERROR(WriteWhole(oid, data));

@@ -84,6 +84,7 @@ class RadosServer {
       pid_ = -1;
     }
   }
+  void Signal(int sig) { kill(pid_, sig); }
   std::string Address() const { return "127.0.0.1:" + std::to_string(port_); }
 
  private:
@@ -161,6 +162,38 @@ TEST_F(RadosServerTest, ServesAndFailsOverAfterKill9) {
   r = Cli(b.Address(), "describe walk --json");
   ASSERT_EQ(r.code, 0) << r.out;
   EXPECT_EQ(json::parse(r.out)["points"].get<uint64_t>(), imported);
+}
+
+// Fencing: a writer that was only paused (SIGSTOP: a stalled process, a partitioned host) while
+// its lease ran out and another server took over must not write when it wakes.
+TEST_F(RadosServerTest, APausedWriterIsFencedAfterTakeover) {
+  RadosServer a("a", store_, data_, work_);
+  ASSERT_EQ(a.Start(), "");
+  ASSERT_EQ(Cli(a.Address(), "create walk --fps 30").code, 0);
+  ShRun r = Cli(a.Address(), "import walk --frame 0 --units-scale 0.01 " + kFrames +
+                                 "ptcloud_hd00000380.ply --json");
+  ASSERT_EQ(r.code, 0) << r.out;
+  const uint64_t points = json::parse(r.out)["points"].get<uint64_t>();
+  a.Signal(SIGSTOP);
+  RadosServer b("b", store_, data_, work_);
+  auto t0 = std::chrono::steady_clock::now();
+  std::string started = "not tried";
+  while (std::chrono::steady_clock::now() - t0 < std::chrono::seconds(30)) {
+    started = b.Start();
+    if (started.empty()) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  }
+  ASSERT_EQ(started, "") << "no takeover within 30 s";
+  a.Signal(SIGCONT);
+  // The old writer wakes up and tries to commit: the cluster refuses it.
+  r = Cli(a.Address(), "edit walk --delete-box -9 9 -1.0 -0.9 -9 9 0 1");
+  EXPECT_EQ(r.code, 1) << r.out;
+  r = Cli(b.Address(), "describe walk --json");
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_EQ(json::parse(r.out)["points"].get<uint64_t>(), points);
+  EXPECT_EQ(json::parse(r.out)["last_lsn"].get<uint64_t>(), 0u);
+  r = Cli(b.Address(), "edit walk --delete-box -9 9 -1.0 -0.9 -9 9 0 1");
+  EXPECT_EQ(r.code, 0) << r.out;
 }
 
 // The OSD fails under a serving server: queries and commits fail after the store's timeout with
