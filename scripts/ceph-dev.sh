@@ -60,8 +60,9 @@ start() {
     }
   done
   if [ -f "$conf" ] && [ -n "$(pids)" ]; then
-    echo "ceph-dev.sh: a cluster already runs in $dir (stop it first)" >&2
-    exit 1
+    # A start always gives a fresh cluster (a test run cut short may have left one running).
+    echo "ceph-dev.sh: stopping the cluster that still runs in $dir" >&2
+    stop
   fi
   rm -rf "$dir"
   mkdir -p "$dir"/{mon.a,osd.0,mgr.x,run,log}
