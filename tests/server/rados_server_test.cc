@@ -7,6 +7,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -14,6 +15,7 @@
 #include <random>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -162,6 +164,56 @@ TEST_F(RadosServerTest, ServesAndFailsOverAfterKill9) {
   r = Cli(b.Address(), "describe walk --json");
   ASSERT_EQ(r.code, 0) << r.out;
   EXPECT_EQ(json::parse(r.out)["points"].get<uint64_t>(), imported);
+}
+
+// kill -9 while commits stream in: every acknowledged commit is there after the failover, and
+// the one in flight is there whole or not at all.
+TEST_F(RadosServerTest, Kill9DuringCommitsLosesNothingAcknowledged) {
+  RadosServer a("a", store_, data_, work_);
+  ASSERT_EQ(a.Start(), "");
+  ASSERT_EQ(Cli(a.Address(), "create walk --fps 30").code, 0);
+  const std::string ply = kFrames + "ptcloud_hd00000380.ply";
+  ShRun first = Cli(a.Address(), "import walk --frame 0 --units-scale 0.01 " + ply + " --json");
+  ASSERT_EQ(first.code, 0) << first.out;
+  const uint64_t per_frame = json::parse(first.out)["points"].get<uint64_t>();
+  std::vector<uint32_t> acknowledged = {0};
+  std::atomic<bool> stop{false};
+  std::thread writer([&] {
+    for (uint32_t f = 1; f < 200 && !stop; ++f) {
+      ShRun r = Cli(a.Address(), "import walk --frame " + std::to_string(f) +
+                                     " --units-scale 0.01 " + ply);
+      if (r.code != 0) break;  // the server is gone
+      acknowledged.push_back(f);
+    }
+  });
+  std::this_thread::sleep_for(std::chrono::milliseconds(1500));
+  a.Kill(SIGKILL);
+  stop = true;
+  writer.join();
+  ASSERT_GE(acknowledged.size(), 2u) << "no commit was acknowledged before the kill";
+
+  RadosServer b("b", store_, data_, work_);
+  auto t0 = std::chrono::steady_clock::now();
+  std::string started = "not tried";
+  while (std::chrono::steady_clock::now() - t0 < std::chrono::seconds(30)) {
+    started = b.Start();
+    if (started.empty()) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  }
+  ASSERT_EQ(started, "") << "no failover within 30 s";
+  const uint32_t last = acknowledged.back();
+  for (uint32_t f = 0; f <= last + 1; ++f) {
+    // Frame f's time f/30 s, within a third of a frame either side.
+    const std::string t0s = std::to_string((f - 0.3) / 30.0), t1s = std::to_string((f + 0.3) / 30.0);
+    ShRun r = Cli(b.Address(), "window walk --box -9 9 -9 9 -9 9 " + t0s + " " + t1s + " --json");
+    ASSERT_EQ(r.code, 0) << r.out;
+    const uint64_t n = json::parse(r.out)["points"].get<uint64_t>();
+    if (f <= last) {
+      EXPECT_EQ(n, per_frame) << "acknowledged frame " << f;
+    } else {
+      EXPECT_TRUE(n == 0 || n == per_frame) << "frame in flight half there: " << n;
+    }
+  }
 }
 
 // Fencing: a writer that was only paused (SIGSTOP: a stalled process, a partitioned host) while
