@@ -86,22 +86,21 @@ json RunStore(const std::string& name, Env* env, const std::string& dir, const C
     return t.Ms();
   };
   // Cold: the database reopened (its buffer pool gone; local files evicted from the page cache).
-  std::vector<double> frame_cold, frame_warm, win_cold, win_warm;
-  for (int r = 0; r < c.reps; ++r) {
+  auto reopen_cold = [&] {
     ds.reset();
     db.reset();
     if (!env) Evict(dir);
     db = open();
     ds = Check(db->GetDataset("b"), "get");
+  };
+  std::vector<double> frame_cold, frame_warm, win_cold, win_warm;
+  for (int r = 0; r < c.reps; ++r) {
+    reopen_cold();
     frame_cold.push_back(frame_query(*ds, static_cast<uint32_t>(r) % c.frames));
     frame_warm.push_back(frame_query(*ds, static_cast<uint32_t>(r) % c.frames));
   }
   for (int r = 0; r < c.reps; ++r) {
-    ds.reset();
-    db.reset();
-    if (!env) Evict(dir);
-    db = open();
-    ds = Check(db->GetDataset("b"), "get");
+    reopen_cold();
     win_cold.push_back(windows(*ds));
     win_warm.push_back(windows(*ds));
   }

@@ -1430,12 +1430,8 @@ int Cli::CmdDescribe() {
 // A frame from an hvdb7 stream (hvdb export), placed as a PLY file would be: scaled, at the
 // import's frame, ids kept only on request (by the caller). *reference holds the stream's
 // decoded points afterwards, for the next file if it was coded temporally.
-Result<std::vector<Point>> ReadStreamFrame(const std::string& path, const ply::ReadOptions& ro,
-                                           codec::Reference* reference) {
-  Result<std::vector<Point>> pts =
-      client::ReadHvdb7File(path, reference->points.empty() ? nullptr : reference);
-  if (!pts.ok()) return pts.status();
-  reference->points = *pts;
+// Scales positions and covariances by the import's units and puts the points in its frame.
+void PlaceFrame(const ply::ReadOptions& ro, std::vector<Point>* pts) {
   for (Point& p : *pts) {
     p.x = static_cast<float>(p.x * ro.scale);
     p.y = static_cast<float>(p.y * ro.scale);
@@ -1443,6 +1439,15 @@ Result<std::vector<Point>> ReadStreamFrame(const std::string& path, const ply::R
     for (float& c : p.cov) c = static_cast<float>(c * ro.scale * ro.scale);
     p.frame = ro.frame;
   }
+}
+
+Result<std::vector<Point>> ReadStreamFrame(const std::string& path, const ply::ReadOptions& ro,
+                                           codec::Reference* reference) {
+  Result<std::vector<Point>> pts =
+      client::ReadHvdb7File(path, reference->points.empty() ? nullptr : reference);
+  if (!pts.ok()) return pts.status();
+  reference->points = *pts;
+  PlaceFrame(ro, &*pts);
   return pts;
 }
 
@@ -1450,14 +1455,10 @@ Result<std::vector<Point>> ReadStreamFrame(const std::string& path, const ply::R
 Result<std::vector<Point>> ReadDracoFrame(const std::string& path, const ply::ReadOptions& ro) {
   Result<std::vector<Point>> pts = client::ReadDracoFile(path);
   if (!pts.ok()) return pts.status();
+  PlaceFrame(ro, &*pts);
+  // Draco files carry no covariances: the import's default.
   const float sigma2 = static_cast<float>(ro.default_sigma * ro.default_sigma);
-  for (Point& p : *pts) {
-    p.x = static_cast<float>(p.x * ro.scale);
-    p.y = static_cast<float>(p.y * ro.scale);
-    p.z = static_cast<float>(p.z * ro.scale);
-    p.cov = {sigma2, 0, 0, sigma2, 0, sigma2};  // Draco files carry no covariances
-    p.frame = ro.frame;
-  }
+  for (Point& p : *pts) p.cov = {sigma2, 0, 0, sigma2, 0, sigma2};
   return pts;
 }
 

@@ -436,31 +436,35 @@ class RadosEnv : public Env {
 
   // Directory entries: omap keys of the parent's "DIR/" object (a subdirectory's key ends
   // in '/').
+  struct Entry {
+    std::string parent, key;
+  };
+  static Entry EntryOf(const std::string& name) {
+    const bool dir = name.back() == '/';
+    std::string plain = dir ? name.substr(0, name.size() - 1) : name;
+    return {ParentDir(plain), BaseName(plain) + (dir ? "/" : "")};
+  }
   Status AddEntry(const std::string& name) {
-    std::string plain = name.back() == '/' ? name.substr(0, name.size() - 1) : name;
-    std::string parent = ParentDir(plain);
-    std::string key = BaseName(plain) + (name.back() == '/' ? "/" : "");
-    const char* keys[] = {key.c_str()};
+    Entry e = EntryOf(name);
+    const char* keys[] = {e.key.c_str()};
     const char* vals[] = {""};
     size_t lens[] = {0};
     rados_write_op_t op = rados_create_write_op();
     rados_write_op_create(op, LIBRADOS_CREATE_IDEMPOTENT, nullptr);
     rados_write_op_omap_set(op, keys, vals, lens, 1);
-    int r = rados_write_op_operate(op, io_, DirObject(parent).c_str(), nullptr, 0);
+    int r = rados_write_op_operate(op, io_, DirObject(e.parent).c_str(), nullptr, 0);
     rados_release_write_op(op);
-    if (r < 0) return Err("add " + name + " to " + parent, r);
+    if (r < 0) return Err("add " + name + " to " + e.parent, r);
     return Status::OK();
   }
   Status RemoveEntry(const std::string& name) {
-    std::string plain = name.back() == '/' ? name.substr(0, name.size() - 1) : name;
-    std::string parent = ParentDir(plain);
-    std::string key = BaseName(plain) + (name.back() == '/' ? "/" : "");
-    const char* keys[] = {key.c_str()};
+    Entry e = EntryOf(name);
+    const char* keys[] = {e.key.c_str()};
     rados_write_op_t op = rados_create_write_op();
     rados_write_op_omap_rm_keys(op, keys, 1);
-    int r = rados_write_op_operate(op, io_, DirObject(parent).c_str(), nullptr, 0);
+    int r = rados_write_op_operate(op, io_, DirObject(e.parent).c_str(), nullptr, 0);
     rados_release_write_op(op);
-    if (r < 0 && r != -ENOENT) return Err("remove " + name + " from " + parent, r);
+    if (r < 0 && r != -ENOENT) return Err("remove " + name + " from " + e.parent, r);
     return Status::OK();
   }
 

@@ -1,7 +1,5 @@
 // The hvdb-codec command line, run as a user would: encode, info, decode (whole and a
 // progressive prefix), compare, temporal coding with --reference, and its errors.
-#include <sys/wait.h>
-
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -10,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include "client/ply.h"
+#include "tests/run_command.h"
 
 namespace {
 
@@ -17,21 +16,10 @@ namespace fs = std::filesystem;
 
 const std::string kFrames = HVDB_SHARED_DATA "/cmu-panoptic-kinoptic-171026-pose3/kinoptic_ptclouds/";
 
-struct CliRun {
-  int code = -1;
-  std::string out;
-};
+using CliRun = hvdb::testing::CommandRun;
 
 CliRun Cli(const std::string& args) {
-  CliRun r;
-  FILE* p = popen((std::string(HVDB_CODEC_CLI) + " " + args + " 2>&1").c_str(), "r");
-  if (!p) return r;
-  char buf[4096];
-  size_t n;
-  while ((n = fread(buf, 1, sizeof buf, p)) > 0) r.out.append(buf, n);
-  int st = pclose(p);
-  r.code = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
-  return r;
+  return hvdb::testing::RunCommand(std::string(HVDB_CODEC_CLI) + " " + args);
 }
 
 class HvdbCodecCliTest : public ::testing::Test {

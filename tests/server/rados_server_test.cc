@@ -20,6 +20,8 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include "tests/run_command.h"
+
 namespace {
 
 namespace fs = std::filesystem;
@@ -27,22 +29,9 @@ using json = nlohmann::json;
 
 const std::string kFrames = HVDB_SHARED_DATA "/cmu-panoptic-kinoptic-171026-pose3/kinoptic_ptclouds/";
 
-struct ShRun {
-  int code = -1;
-  std::string out;
-};
-
-ShRun Sh(const std::string& cmd) {
-  ShRun r;
-  FILE* p = popen((cmd + " 2>&1").c_str(), "r");
-  if (!p) return r;
-  char buf[4096];
-  size_t n;
-  while ((n = fread(buf, 1, sizeof buf, p)) > 0) r.out.append(buf, n);
-  int st = pclose(p);
-  r.code = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
-  return r;
-}
+using ShRun = hvdb::testing::CommandRun;
+using hvdb::testing::RunCommand;
+ShRun Sh(const std::string& cmd) { return RunCommand(cmd); }
 
 // A server process on the pool; Start returns "" or why it did not come up.
 class RadosServer {
@@ -85,6 +74,17 @@ class RadosServer {
       waitpid(pid_, &st, 0);
       pid_ = -1;
     }
+  }
+  // Tries Start until it succeeds (the previous holder's lease running out) or `limit` passes.
+  std::string StartWithin(std::chrono::seconds limit) {
+    auto t0 = std::chrono::steady_clock::now();
+    std::string why = "not tried";
+    while (std::chrono::steady_clock::now() - t0 < limit) {
+      why = Start();
+      if (why.empty()) break;
+      std::this_thread::sleep_for(std::chrono::milliseconds(500));
+    }
+    return why;
   }
   void Signal(int sig) { kill(pid_, sig); }
   std::string Address() const { return "127.0.0.1:" + std::to_string(port_); }
@@ -142,13 +142,7 @@ TEST_F(RadosServerTest, ServesAndFailsOverAfterKill9) {
   // The writer dies without a word; once its lease has run out, the other takes over and
   // has every acknowledged commit.
   a.Kill(SIGKILL);
-  auto t0 = std::chrono::steady_clock::now();
-  std::string started = "not tried";
-  while (std::chrono::steady_clock::now() - t0 < std::chrono::seconds(30)) {
-    started = b.Start();
-    if (started.empty()) break;
-    std::this_thread::sleep_for(std::chrono::milliseconds(500));
-  }
+  const std::string started = b.StartWithin(std::chrono::seconds(30));
   ASSERT_EQ(started, "") << "no failover within 30 s";
   r = Cli(b.Address(), "describe walk --json");
   ASSERT_EQ(r.code, 0) << r.out;
@@ -193,13 +187,7 @@ TEST_F(RadosServerTest, Kill9DuringCommitsLosesNothingAcknowledged) {
   ASSERT_GE(acknowledged.size(), 2u) << "no commit was acknowledged before the kill";
 
   RadosServer b("b", store_, data_, work_);
-  auto t0 = std::chrono::steady_clock::now();
-  std::string started = "not tried";
-  while (std::chrono::steady_clock::now() - t0 < std::chrono::seconds(30)) {
-    started = b.Start();
-    if (started.empty()) break;
-    std::this_thread::sleep_for(std::chrono::milliseconds(500));
-  }
+  const std::string started = b.StartWithin(std::chrono::seconds(30));
   ASSERT_EQ(started, "") << "no failover within 30 s";
   const uint32_t last = acknowledged.back();
   for (uint32_t f = 0; f <= last + 1; ++f) {
@@ -228,13 +216,7 @@ TEST_F(RadosServerTest, APausedWriterIsFencedAfterTakeover) {
   const uint64_t points = json::parse(r.out)["points"].get<uint64_t>();
   a.Signal(SIGSTOP);
   RadosServer b("b", store_, data_, work_);
-  auto t0 = std::chrono::steady_clock::now();
-  std::string started = "not tried";
-  while (std::chrono::steady_clock::now() - t0 < std::chrono::seconds(30)) {
-    started = b.Start();
-    if (started.empty()) break;
-    std::this_thread::sleep_for(std::chrono::milliseconds(500));
-  }
+  const std::string started = b.StartWithin(std::chrono::seconds(30));
   ASSERT_EQ(started, "") << "no takeover within 30 s";
   a.Signal(SIGCONT);
   // The old writer wakes up and tries to commit: the cluster refuses it.
