@@ -1291,6 +1291,11 @@ TEST_F(HvdbCliTest, CompressedExportImportAndWire) {
   EXPECT_EQ(ca, cb);
   EXPECT_NEAR(sa / a->size(), sb / b->size(), 4e-6);
 
+  r = Run("export walk " + Quote(Path("bad")) + " --codec draco --temporal");
+  EXPECT_EQ(r.code, 2);  // temporal coding is hvdb7's
+  EXPECT_NE(r.err.find("--temporal is for --codec hvdb7"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(Path("bad")));
+
   // Draco files export and import too (positions at 16 bits, colours, ids, frames).
   r = Run("export walk " + Quote(Path("drc")) + " --codec draco");
   ASSERT_EQ(r.code, 0) << r.err;
