@@ -500,6 +500,7 @@ ErrorCode ToWire(StatusCode code) {
     case StatusCode::kPermissionDenied: return PERMISSION_DENIED;
     case StatusCode::kOverloaded: return OVERLOADED;
     case StatusCode::kUnsupported: return UNSUPPORTED;
+    case StatusCode::kNotLeader: return NOT_LEADER;
   }
   return INTERNAL;
 }
@@ -518,6 +519,7 @@ StatusCode FromWire(ErrorCode code) {
     case ALREADY_EXISTS: return StatusCode::kAlreadyExists;
     case UNSUPPORTED: return StatusCode::kUnsupported;
     case IO_ERROR: return StatusCode::kIOError;
+    case NOT_LEADER: return StatusCode::kNotLeader;
     default: return StatusCode::kInternal;
   }
 }

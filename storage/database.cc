@@ -1,6 +1,12 @@
 #include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstring>
+#include <random>
 
 #include "storage/buffer_pool.h"
+#include "storage/coding.h"
+#include "storage/crc32c.h"
 #include "storage/dataset_impl.h"
 #include "storage/env.h"
 
@@ -60,24 +66,155 @@ Result<std::unique_ptr<Database>> Database::Open(const std::string& dir, const O
   HVDB_RETURN_IF_ERROR(env->CreateDirs(dir));
   std::string lock = dir + "/LOCK";
   auto locked = env->Lock(lock);
-  if (!locked.ok()) {
+  if (!locked.ok() && opts.follow) {
+    db->follower_ = true;
+    HVDB_RETURN_IF_ERROR(db->Refresh());  // reads LEADER
+  } else if (!locked.ok()) {
     return Status::IOError(dir + " is in use by another hvdb process (" + lock +
                            " is locked); stop it or use its server");
-  }
-  db->lock_ = std::move(locked).value();
-  HVDB_ASSIGN_OR_RETURN(auto names, env->ListDir(dir));
-  for (const std::string& n : names) {
-    // Leftovers of a create or drop cut short by a crash (without atomic directory renames:
-    // a dataset's directory without its MANIFEST).
-    const std::string sub = dir + "/" + n;
-    if (n.ends_with(".creating") || n.ends_with(".dropping") ||
-        (!env->AtomicDirRename() && ValidateDatasetName(n).ok() && !env->Exists(sub + "/MANIFEST") &&
-         env->ListDir(sub).ok())) {
-      HVDB_RETURN_IF_ERROR(env->RemoveTree(sub));
-    }
+  } else {
+    db->lock_ = std::move(locked).value();
+    HVDB_RETURN_IF_ERROR(db->RemoveLeftovers());
+    HVDB_RETURN_IF_ERROR(db->WriteLeader(""));
   }
   db->pool_ = std::make_unique<BufferPool>(opts.cache_bytes, opts.block_size);
   return db;
+}
+
+Status Database::RemoveLeftovers() {
+  HVDB_ASSIGN_OR_RETURN(auto names, env_->ListDir(dir_));
+  for (const std::string& n : names) {
+    // Leftovers of a create or drop cut short by a crash (without atomic directory renames:
+    // a dataset's directory without its MANIFEST).
+    const std::string sub = dir_ + "/" + n;
+    if (n.ends_with(".creating") || n.ends_with(".dropping") ||
+        (!env_->AtomicDirRename() && ValidateDatasetName(n).ok() &&
+         !env_->Exists(sub + "/MANIFEST") && env_->ListDir(sub).ok())) {
+      HVDB_RETURN_IF_ERROR(env_->RemoveTree(sub));
+    }
+  }
+  return Status::OK();
+}
+
+// ---------------------------------------------------------------------------------------------
+// Writer and followers (docs/FORMAT.md, "LEADER")
+
+namespace {
+
+constexpr char kLeaderMagic[8] = {'H', 'V', 'D', 'B', 'L', 'D', 'R', '\0'};
+
+struct LeaderRecord {
+  uint64_t epoch = 0;
+  std::string address;
+};
+
+Result<LeaderRecord> DecodeLeader(const std::string& data, const std::string& what) {
+  const auto* p = reinterpret_cast<const uint8_t*>(data.data());
+  if (data.size() < 28 || std::memcmp(p, kLeaderMagic, 8) != 0 ||
+      crc32c::Unmask(DecodeLE<uint32_t>(p + data.size() - 4)) !=
+          crc32c::Value(p, data.size() - 4)) {
+    return Status::Corruption(what + ": not a LEADER file, or damaged");
+  }
+  Reader r(p + 8, data.size() - 12);
+  uint32_t version = 0;
+  LeaderRecord rec;
+  if (!r.Get(&version) || version != 1 || !r.Get(&rec.epoch) || !r.GetString(&rec.address)) {
+    return Status::Corruption(what + ": unsupported version or bad fields");
+  }
+  return rec;
+}
+
+}  // namespace
+
+Status Database::WriteLeader(const std::string& address) {
+  std::lock_guard<std::mutex> l(mu_);
+  if (epoch_ == 0) {
+    // A new epoch per writer: followers that see it change reload everything, as a new
+    // writer's recovery may have cut a torn log tail or removed unlisted trees.
+    std::random_device rd;
+    epoch_ = (uint64_t{rd()} << 32 | rd()) ^
+             static_cast<uint64_t>(std::chrono::steady_clock::now().time_since_epoch().count());
+    epoch_ |= 1;
+  }
+  Writer w;
+  w.PutBytes(kLeaderMagic, 8);
+  w.Put<uint32_t>(1);
+  w.Put<uint64_t>(epoch_);
+  w.PutString(address);
+  w.Put<uint32_t>(crc32c::Mask(crc32c::Value(w.data().data(), w.data().size())));
+  HVDB_RETURN_IF_ERROR(WriteFileAtomic(env_, dir_ + "/LEADER", w.data()));
+  leader_ = address;
+  return Status::OK();
+}
+
+Status Database::SetLeaderAddress(const std::string& address) {
+  if (follower_) return Status::NotLeader("a follower cannot publish itself as the writer");
+  return WriteLeader(address);
+}
+
+std::string Database::Leader() const {
+  std::lock_guard<std::mutex> l(mu_);
+  return leader_;
+}
+
+Status Database::Refresh() {
+  if (!follower_) return Status::OK();
+  bool full = false;
+  const std::string path = dir_ + "/LEADER";
+  if (env_->Exists(path)) {
+    auto data = ReadWholeFile(env_, path);
+    // Absent or mid-replacement: the next call reads it.
+    if (data.ok()) {
+      HVDB_ASSIGN_OR_RETURN(LeaderRecord rec, DecodeLeader(*data, path));
+      std::lock_guard<std::mutex> l(mu_);
+      full = rec.epoch != epoch_;
+      epoch_ = rec.epoch;
+      leader_ = rec.address;
+    }
+  }
+  std::vector<std::pair<std::string, std::shared_ptr<Dataset>>> open;
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    open = open_;
+  }
+  Status first;
+  for (auto& [name, ds] : open) {
+    if (!env_->Exists(dir_ + "/" + name + "/MANIFEST")) {  // dropped by the writer
+      std::lock_guard<std::mutex> l(mu_);
+      std::erase_if(open_, [&](const auto& e) { return e.second == ds; });
+      continue;
+    }
+    Status st = ds->impl()->Refresh(full);
+    if (!st.ok() && first.ok()) first = st;
+  }
+  return first;
+}
+
+Result<bool> Database::TryPromote() {
+  if (!follower_) return true;
+  auto locked = env_->Lock(dir_ + "/LOCK");
+  if (!locked.ok()) return false;
+  lock_ = std::move(locked).value();
+  HVDB_RETURN_IF_ERROR(RemoveLeftovers());
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    epoch_ = 0;  // ours is new
+  }
+  HVDB_RETURN_IF_ERROR(WriteLeader(""));
+  std::lock_guard<std::mutex> l(mu_);
+  for (auto it = open_.begin(); it != open_.end();) {
+    Status st = it->second->impl()->Promote();
+    if (!st.ok()) {
+      // Reopened (and its recovery error reported) by the next GetDataset.
+      std::fprintf(stderr, "hvdb: %s: taking over as the writer: %s\n", it->first.c_str(),
+                   st.ToString().c_str());
+      it = open_.erase(it);
+    } else {
+      ++it;
+    }
+  }
+  follower_ = false;
+  return true;
 }
 
 std::vector<std::string> Database::ListDatasets() const {
@@ -91,8 +228,14 @@ std::vector<std::string> Database::ListDatasets() const {
   return out;
 }
 
+static Status FollowerRefuses(const std::string& what) {
+  return Status::NotLeader(what + ": this process only reads the data directory; another "
+                                  "process holds it and is the one that writes it");
+}
+
 Result<std::shared_ptr<Dataset>> Database::CreateDataset(const DatasetInfo& info) {
   HVDB_RETURN_IF_ERROR(ValidateDatasetName(info.name));
+  if (follower_) return FollowerRefuses("create of dataset '" + info.name + "'");
   std::lock_guard<std::mutex> l(mu_);
   HVDB_ASSIGN_OR_RETURN(auto impl,
                         DatasetImpl::Create(dir_ + "/" + info.name, info, opts_, pool_.get()));
@@ -112,7 +255,7 @@ Result<std::shared_ptr<Dataset>> Database::GetDataset(const std::string& name) {
     return Status::NotFound("no dataset '" + name + "' in " + dir_ +
                             " (list them with `hvdb datasets`)");
   }
-  HVDB_ASSIGN_OR_RETURN(auto impl, DatasetImpl::Open(path, opts_, pool_.get()));
+  HVDB_ASSIGN_OR_RETURN(auto impl, DatasetImpl::Open(path, opts_, pool_.get(), follower_));
   auto ds = std::make_shared<Dataset>(std::move(impl));
   open_.emplace_back(name, ds);
   return ds;
@@ -120,6 +263,7 @@ Result<std::shared_ptr<Dataset>> Database::GetDataset(const std::string& name) {
 
 Status Database::DropDataset(const std::string& name) {
   HVDB_RETURN_IF_ERROR(ValidateDatasetName(name));
+  if (follower_) return FollowerRefuses("drop of dataset '" + name + "'");
   std::lock_guard<std::mutex> l(mu_);
   std::string path = dir_ + "/" + name;
   if (!env_->Exists(path + "/MANIFEST")) return Status::NotFound("no dataset '" + name + "'");

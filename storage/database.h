@@ -44,6 +44,12 @@ struct Options {
   // reaches 8x this. In [64, 4 Mi].
   uint32_t t0_points = 64u << 10;
   Env* env = nullptr;  // all file I/O (storage/env.h); null: the POSIX Env::Default()
+  // When another process holds the data directory: open it as a follower (read-only; see
+  // Database::Refresh) instead of failing.
+  bool follow = false;
+  // Tree files a checkpoint or bulk load replaced stay this long before they are deleted, so
+  // that followers' queries on the state they last read can finish (0: deleted at once).
+  uint32_t retired_grace_ms = 0;
 };
 
 // One camera of the recording rig, for view-dependent rendering.
@@ -221,10 +227,26 @@ class Dataset {
   std::unique_ptr<DatasetImpl> impl_;
 };
 
-// A data directory. One process opens a directory at a time (an advisory lock enforces it).
+// A data directory. One process writes a directory at a time: it holds the directory's lock
+// (a file lock, or a RADOS lock with a lease) and its LEADER file says where it serves. Other
+// processes may open it as followers (Options::follow): they read what the writer made durable,
+// catch up with its commits on Refresh() and refuse writes with NotLeader; TryPromote() makes
+// a follower the writer once the lock is free (the writer died or closed).
 class Database {
  public:
   static Result<std::unique_ptr<Database>> Open(const std::string& dir, const Options& opts = {});
+  bool follower() const { return follower_.load(); }
+  // Follower: reads the writer's new commits, bulk loads and checkpoints (its log, frame states
+  // and LEADER file) into the open datasets, each commit whole (snapshot isolation); forgets
+  // dropped datasets. A writer: nothing to do.
+  Status Refresh();
+  // Follower: takes the directory's lock if it is free, recovers every open dataset from the
+  // log and becomes the writer (true). False while another process holds it.
+  Result<bool> TryPromote();
+  // Writer: publishes where clients should send writes (LEADER file), e.g. "10.0.0.5:7878".
+  Status SetLeaderAddress(const std::string& address);
+  // The writer's published address ("" if none), as last read.
+  std::string Leader() const;
   ~Database();
   Database(const Database&) = delete;
   Database& operator=(const Database&) = delete;
@@ -239,10 +261,15 @@ class Database {
 
  private:
   Database(std::string dir, Options opts);
+  Status RemoveLeftovers();  // writer, at open: creates and drops a crash cut short
+  Status WriteLeader(const std::string& address);
   std::string dir_;
   Options opts_;
   Env* env_;
   std::unique_ptr<FileLock> lock_;
+  std::atomic<bool> follower_{false};
+  uint64_t epoch_ = 0;   // the LEADER file's epoch: a new one each time a writer opens (mu_)
+  std::string leader_;   // its address (mu_)
   std::unique_ptr<BufferPool> pool_;
   mutable std::mutex mu_;
   std::vector<std::pair<std::string, std::shared_ptr<Dataset>>> open_;

@@ -179,6 +179,7 @@ DatasetImpl::~DatasetImpl() {
   if (merger_.joinable()) merger_.join();
   // A clean close leaves nothing to replay; a failure here only means a longer next open.
   if (wal_ != nullptr) (void)CheckpointLocked();
+  ReleaseBuried(/*all=*/true);
 }
 
 std::string DatasetImpl::TreePath(uint32_t frame, uint64_t seq) const {
@@ -226,7 +227,8 @@ Result<std::unique_ptr<DatasetImpl>> DatasetImpl::Create(const std::string& dir,
 }
 
 Result<std::unique_ptr<DatasetImpl>> DatasetImpl::Open(const std::string& dir,
-                                                       const Options& opts, BufferPool* pool) {
+                                                       const Options& opts, BufferPool* pool,
+                                                       bool follower) {
   Env* env = opts.env ? opts.env : Env::Default();
   HVDB_ASSIGN_OR_RETURN(std::string data, ReadWholeFile(env, dir + "/MANIFEST"));
   HVDB_ASSIGN_OR_RETURN(ManifestContents m, DecodeManifest(data, dir + "/MANIFEST"));
@@ -238,13 +240,83 @@ Result<std::unique_ptr<DatasetImpl>> DatasetImpl::Open(const std::string& dir,
   Options o = opts;
   o.lod_levels = m.lod_levels;  // a dataset keeps the level count it was built with
   std::unique_ptr<DatasetImpl> ds(new DatasetImpl(dir, o, pool, m.info));
-  HVDB_RETURN_IF_ERROR(ds->Recover());
-  ds->merger_ = std::thread([p = ds.get()] { p->MergerLoop(); });
-  ds->WakeMerger();  // frames whose T0 overflowed before the crash
+  ds->follower_ = follower;
+  if (follower) {
+    HVDB_RETURN_IF_ERROR(ds->Reload());
+  } else {
+    Loaded l;
+    HVDB_RETURN_IF_ERROR(ds->Load(/*writer=*/true, {}, &l));
+    HVDB_RETURN_IF_ERROR(ds->Start(std::move(l), /*writer=*/true));
+    ds->StartMerger();
+  }
   return ds;
 }
 
-Status DatasetImpl::Recover() {
+Status DatasetImpl::Start(Loaded l, bool writer) {
+  {
+    std::lock_guard<std::mutex> lk(mu_);
+    frames_ = std::move(l.frames);
+    last_lsn_ = l.last_lsn;
+  }
+  next_id_ = l.next_id;
+  next_seq_ = l.next_seq;
+  if (!writer) {
+    follow_start_ = l.wal_start;
+    follow_offset_ = l.wal_exists ? l.wal_bytes : 0;
+    wal_bytes_ = follow_offset_;
+    return Status::OK();
+  }
+  dirty_ = std::move(l.dirty);
+  wal_start_lsn_ = l.wal_start;
+  HVDB_ASSIGN_OR_RETURN(wal_, WalWriter::Open(env_, dir_ + "/wal.log", wal_start_lsn_,
+                                              l.wal_bytes, l.wal_exists));
+  wal_bytes_ = wal_->size();
+  return Status::OK();
+}
+
+void DatasetImpl::StartMerger() {
+  merger_ = std::thread([this] { MergerLoop(); });
+  WakeMerger();  // frames whose T0 overflowed before the crash
+}
+
+Result<std::shared_ptr<FrameVersion>> DatasetImpl::LoadFrameState(const std::string& path,
+                                                                  const FrameMap& reuse,
+                                                                  uint64_t* next_id_out) {
+  HVDB_ASSIGN_OR_RETURN(std::string data, ReadWholeFile(env_, path));
+  HVDB_ASSIGN_OR_RETURN(FrameStateRecord rec, DecodeFrameState(data, path));
+  auto v = std::make_shared<FrameVersion>();
+  v->frame = rec.frame;
+  v->applied_lsn = rec.applied_lsn;
+  auto known = reuse.find(rec.frame);
+  for (size_t s = 0; s < rec.tree_seqs.size(); ++s) {
+    TreeSlot slot;
+    if (rec.tree_seqs[s] != 0) {
+      // A follower reloading shares the trees it has open (and their cached blocks).
+      if (known != reuse.end()) {
+        for (const TreeSlot& o : known->second->slots) {
+          if (o.tree && o.tree->header().tree_seq == rec.tree_seqs[s]) slot.tree = o.tree;
+        }
+      }
+      if (!slot.tree) {
+        HVDB_ASSIGN_OR_RETURN(slot.tree, KdTree::Open(env_, TreePath(rec.frame, rec.tree_seqs[s]),
+                                                      pool_));
+        slot.tree->MarkDurable();
+      }
+      if (!rec.dead[s].empty()) {
+        slot.dead = std::make_shared<const std::vector<uint64_t>>(std::move(rec.dead[s]));
+      }
+    }
+    v->slots.push_back(std::move(slot));
+  }
+  // Ids of points deleted since are never issued again.
+  uint64_t next_id = rec.next_id;
+  for (const Point& p : rec.t0) next_id = std::max(next_id, p.id + 1);
+  v->t0.Append(std::move(rec.t0));
+  if (next_id_out) *next_id_out = next_id;
+  return v;
+}
+
+Status DatasetImpl::Load(bool writer, const FrameMap& reuse, Loaded* out) {
   const std::string frames_dir = dir_ + "/frames", trees_dir = dir_ + "/trees";
   HVDB_ASSIGN_OR_RETURN(auto tree_files, env_->ListDir(trees_dir));
   HVDB_ASSIGN_OR_RETURN(auto frame_files, env_->ListDir(frames_dir));
@@ -254,37 +326,23 @@ Status DatasetImpl::Recover() {
   for (const std::string& name : frame_files) {
     std::string path = frames_dir + "/" + name;
     if (name.ends_with(".tmp")) {
-      HVDB_RETURN_IF_ERROR(env_->Remove(path));  // a state write cut short by a crash
+      // A state write cut short by a crash (or, to a follower, one in progress).
+      if (writer) HVDB_RETURN_IF_ERROR(env_->Remove(path));
       continue;
     }
     if (!name.ends_with(".fst")) continue;
-    HVDB_ASSIGN_OR_RETURN(std::string data, ReadWholeFile(env_, path));
-    HVDB_ASSIGN_OR_RETURN(FrameStateRecord rec, DecodeFrameState(data, path));
-    auto v = std::make_shared<FrameVersion>();
-    v->frame = rec.frame;
-    v->applied_lsn = rec.applied_lsn;
-    for (size_t s = 0; s < rec.tree_seqs.size(); ++s) {
-      TreeSlot slot;
-      if (rec.tree_seqs[s] != 0) {
-        std::string tname = TreeFileName(rec.frame, rec.tree_seqs[s]);
-        HVDB_ASSIGN_OR_RETURN(slot.tree, KdTree::Open(env_, trees_dir + "/" + tname, pool_));
-        slot.tree->MarkDurable();
-        referenced.insert(tname);
-        max_id = std::max(max_id, slot.tree->header().max_id);
-        max_seq = std::max(max_seq, rec.tree_seqs[s]);
-        if (!rec.dead[s].empty()) {
-          slot.dead = std::make_shared<const std::vector<uint64_t>>(std::move(rec.dead[s]));
-        }
-      }
-      v->slots.push_back(std::move(slot));
+    uint64_t next_id = 0;
+    HVDB_ASSIGN_OR_RETURN(auto v, LoadFrameState(path, reuse, &next_id));
+    for (const TreeSlot& slot : v->slots) {
+      if (!slot.tree) continue;
+      referenced.insert(TreeFileName(v->frame, slot.tree->header().tree_seq));
+      max_id = std::max(max_id, slot.tree->header().max_id);
+      max_seq = std::max(max_seq, slot.tree->header().tree_seq);
     }
-    for (const Point& p : rec.t0) max_id = std::max(max_id, p.id);
-    // Ids of points deleted since are never issued again.
-    if (rec.next_id > 0) max_id = std::max(max_id, rec.next_id - 1);
-    v->t0.Append(std::move(rec.t0));
+    if (next_id > 0) max_id = std::max(max_id, next_id - 1);
     persisted_lsn[v->frame] = v->applied_lsn;
     max_applied = std::max(max_applied, v->applied_lsn);
-    frames_[v->frame] = std::move(v);
+    out->frames[v->frame] = std::move(v);
   }
   // Tree files no frame lists: outputs of rebuilds cut short, or inputs of finished ones.
   for (const std::string& name : tree_files) {
@@ -292,58 +350,59 @@ Status DatasetImpl::Recover() {
     uint64_t seq;
     bool is_tree = ParseTreeFileName(name, &f, &seq);
     if (is_tree) max_seq = std::max(max_seq, seq);
-    if ((is_tree && !referenced.count(name)) || name.ends_with(".tmp")) {
+    if (writer && ((is_tree && !referenced.count(name)) || name.ends_with(".tmp"))) {
       HVDB_RETURN_IF_ERROR(env_->Remove(trees_dir + "/" + name));
     }
   }
-  next_seq_ = max_seq + 1;
+  out->next_seq = max_seq + 1;
 
   // Redo the log.
   const std::string wal_path = dir_ + "/wal.log";
-  bool exists = env_->Exists(wal_path);
+  const bool exists = env_->Exists(wal_path);
   WalContents wal;
   if (exists) {
     HVDB_ASSIGN_OR_RETURN(wal, ReadWal(env_, wal_path));
   }
   uint64_t last = max_applied;
   if (exists) last = std::max(last, wal.start_lsn - 1);
-  HVDB_ASSIGN_OR_RETURN(auto all_files, env_->ListDir(dir_));
-  for (const std::string& name : all_files) {
-    // Archived segments: wal-<start lsn>.log; their records are all in the frame states.
-    if (name.starts_with("wal-") && name.ends_with(".log")) {
-      HVDB_ASSIGN_OR_RETURN(WalContents old, ReadWal(env_, dir_ + "/" + name));
-      if (!old.records.empty()) last = std::max(last, old.records.back().lsn);
+  if (writer || !exists) {
+    HVDB_ASSIGN_OR_RETURN(auto all_files, env_->ListDir(dir_));
+    for (const std::string& name : all_files) {
+      // Archived segments: wal-<start lsn>.log; their records are all in the frame states.
+      if (name.starts_with("wal-") && name.ends_with(".log")) {
+        HVDB_ASSIGN_OR_RETURN(WalContents old, ReadWal(env_, dir_ + "/" + name));
+        if (!old.records.empty()) last = std::max(last, old.records.back().lsn);
+      }
     }
   }
   for (const TxnRecord& rec : wal.records) {
+    last = std::max(last, rec.lsn);
+    if (rec.bulk) continue;  // its frame state is durable; the marker is for followers
     for (const FrameEffect& step : rec.frames) {
       auto pl = persisted_lsn.find(step.frame);
       if (pl != persisted_lsn.end() && rec.lsn <= pl->second) continue;
-      auto it = frames_.find(step.frame);
+      auto it = out->frames.find(step.frame);
       FrameVersion empty;
       empty.frame = step.frame;
-      const FrameVersion& base = it == frames_.end() ? empty : *it->second;
+      const FrameVersion& base = it == out->frames.end() ? empty : *it->second;
       auto applied = ApplyStep(base, step, rec.lsn);
       if (!applied.ok()) {
         return Status::Corruption(wal_path + ": redo of record " + std::to_string(rec.lsn) +
                                   " failed: " + applied.status().message());
       }
-      frames_[step.frame] = std::move(applied).value();
-      dirty_.insert(step.frame);
-      for (const Point& p : step.added) max_id = std::max(max_id, p.id);
+      out->frames[step.frame] = std::move(applied).value();
+      out->dirty.insert(step.frame);
     }
     for (const FrameEffect& step : rec.frames) {
       for (const Point& p : step.removed) max_id = std::max(max_id, p.id);
       for (const Point& p : step.added) max_id = std::max(max_id, p.id);
     }
-    last = std::max(last, rec.lsn);
   }
-  last_lsn_ = last;
-  next_id_ = max_id + 1;
-  wal_start_lsn_ = exists ? wal.start_lsn : last + 1;
-  HVDB_ASSIGN_OR_RETURN(wal_, WalWriter::Open(env_, wal_path, wal_start_lsn_, wal.valid_bytes,
-                                              exists));
-  wal_bytes_ = wal_->size();
+  out->last_lsn = last;
+  out->next_id = max_id + 1;
+  out->wal_exists = exists;
+  out->wal_start = exists ? wal.start_lsn : last + 1;
+  out->wal_bytes = wal.valid_bytes;
   return Status::OK();
 }
 

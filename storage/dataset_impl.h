@@ -16,6 +16,7 @@
 #ifndef HVDB_STORAGE_DATASET_IMPL_H_
 #define HVDB_STORAGE_DATASET_IMPL_H_
 
+#include <chrono>
 #include <condition_variable>
 #include <deque>
 #include <map>
@@ -61,8 +62,9 @@ class DatasetImpl {
   static Result<std::unique_ptr<DatasetImpl>> Create(const std::string& dir,
                                                      const DatasetInfo& info,
                                                      const Options& opts, BufferPool* pool);
+  // follower: read-only, for a directory another process writes (database.h).
   static Result<std::unique_ptr<DatasetImpl>> Open(const std::string& dir, const Options& opts,
-                                                   BufferPool* pool);
+                                                   BufferPool* pool, bool follower = false);
   ~DatasetImpl();
 
   DatasetInfo Info() const;
@@ -76,6 +78,12 @@ class DatasetImpl {
   // Blocks until no frame's T0 is over its capacity (tests and benchmarks); after a failed
   // merge, until a retry fails too.
   Status WaitForMerges();
+  // Follower (dataset_follow.cc): applies the writer's log records appended since the last
+  // call, or, when `full`, on a checkpoint or a gap, reloads the frame states and the log.
+  Status Refresh(bool full);
+  // Follower: recovers from the files as a writer opening them would and becomes the writer.
+  // The caller holds the directory's lock.
+  Status Promote();
 
   // Resolves a region to frames (for queries: temporal LOD and the slice frame bound).
   Result<RegionPlan> Plan(const Region& region, int lod, bool temporal_lod) const;
@@ -88,8 +96,29 @@ class DatasetImpl {
   struct Merge;
   class Working;
 
+  // What the files say: frame states with wal.log redone over them.
+  struct Loaded {
+    FrameMap frames;
+    std::set<uint32_t> dirty;  // frames whose state file lags the log
+    uint64_t last_lsn = 0, next_id = 1, next_seq = 1;
+    bool wal_exists = false;
+    uint64_t wal_start = 1, wal_bytes = 0;  // wal.log's first LSN and valid prefix
+  };
+
   DatasetImpl(std::string dir, Options opts, BufferPool* pool, DatasetInfo info);
-  Status Recover();
+  // Reads the files into *out. writer: also removes what a crash left (temporary files, tree
+  // files no state lists); a follower changes nothing. Open trees in `reuse` are shared.
+  Status Load(bool writer, const FrameMap& reuse, Loaded* out);
+  Result<std::shared_ptr<FrameVersion>> LoadFrameState(const std::string& path,
+                                                       const FrameMap& reuse,
+                                                       uint64_t* next_id = nullptr);
+  // Publishes `l` and, for a writer, opens wal.log for appending.
+  Status Start(Loaded l, bool writer);
+  void StartMerger();
+  Result<bool> FollowLog();  // false: needs a full reload
+  Status Reload();
+  void Bury(const std::shared_ptr<KdTree>& tree);  // a replaced tree: deleted after the grace
+  void ReleaseBuried(bool all);
   Status WriteManifest() const;
   Result<CommitInfo> Submit(WriteRequest* w);
   void LeadGroup(std::vector<WriteRequest*>& group);
@@ -138,6 +167,13 @@ class DatasetImpl {
   // Trees the state files on disk still list but no version does: deleted once the frame's
   // next state is durable.
   std::map<uint32_t, std::vector<std::shared_ptr<KdTree>>> retired_;
+  std::atomic<bool> follower_{false};
+  // A follower's place in wal.log (follow_mu_; Refresh and Promote hold it).
+  std::mutex follow_mu_;
+  uint64_t follow_start_ = 0, follow_offset_ = 0;
+  // Replaced trees kept until their deadline (Options::retired_grace_ms).
+  std::mutex grave_mu_;
+  std::deque<std::pair<std::chrono::steady_clock::time_point, std::shared_ptr<KdTree>>> graves_;
   std::atomic<uint64_t> next_id_{1};
   std::atomic<uint64_t> next_seq_{1};
   std::atomic<uint64_t> merges_{0}, checkpoints_{0};

@@ -70,7 +70,17 @@ void DatasetImpl::WakeMerger() {
 void DatasetImpl::MergerLoop() {
   std::unique_lock<std::mutex> l(merge_mu_);
   for (;;) {
-    merge_cv_.wait(l, [&] { return merge_stop_ || merge_wake_; });
+    if (opts_.retired_grace_ms > 0) {
+      // Also wakes to delete replaced trees whose grace ran out.
+      merge_cv_.wait_for(l, std::chrono::milliseconds(500),
+                         [&] { return merge_stop_ || merge_wake_; });
+      l.unlock();
+      ReleaseBuried(/*all=*/false);
+      l.lock();
+      if (!merge_stop_ && !merge_wake_) continue;
+    } else {
+      merge_cv_.wait(l, [&] { return merge_stop_ || merge_wake_; });
+    }
     if (merge_stop_) return;
     merge_wake_ = false;
     const bool checkpoint = checkpoint_wanted_;
@@ -225,7 +235,15 @@ Status DatasetImpl::BulkLocked(uint32_t frame, std::vector<Point>* points) {
   while (nv.slots.size() <= i) nv.slots.emplace_back();
   nv.slots[i] = TreeSlot{tree, nullptr};
   nv.t0 = PointBuffer();
-  // Not logged: durable once the state listing the tree is.
+  // Durable once the state listing the tree is. A bulk load is no transaction (it takes no
+  // LSN); the log gets a marker carrying the last transaction's LSN, for followers, which
+  // re-read the state it names.
+  uint64_t lsn;
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    lsn = last_lsn_;
+  }
+  nv.applied_lsn = lsn;
   Status st = PersistFrame(nv);
   if (!st.ok()) {
     if (tree) tree->MarkObsolete();
@@ -235,7 +253,21 @@ Status DatasetImpl::BulkLocked(uint32_t frame, std::vector<Point>* points) {
     std::lock_guard<std::mutex> l(mu_);
     frames_[frame] = std::make_shared<const FrameVersion>(std::move(nv));
   }
-  for (auto& t : merged) t->MarkObsolete();  // the durable state no longer lists them
+  for (auto& t : merged) Bury(t);  // the durable state no longer lists them
+  TxnRecord marker;
+  marker.lsn = lsn;
+  marker.bulk = true;
+  marker.frames.emplace_back();
+  marker.frames[0].frame = frame;
+  st = wal_->Append({marker});
+  if (st.ok() && opts_.sync) st = wal_->Sync();
+  wal_bytes_ = wal_->size();
+  if (!st.ok()) {
+    // The load is durable: an error would invite a retry that loads the points twice.
+    // Followers see it at their next full reload (a checkpoint, or a new writer).
+    std::fprintf(stderr, "hvdb: %s: frame %u loaded, but its log marker failed: %s\n",
+                 info_.name.c_str(), frame, st.ToString().c_str());
+  }
   return Status::OK();
 }
 
@@ -255,7 +287,7 @@ Status DatasetImpl::PersistFrame(const FrameVersion& v) {
   }
   auto it = retired_.find(v.frame);
   if (it != retired_.end()) {
-    for (auto& t : it->second) t->MarkObsolete();
+    for (auto& t : it->second) Bury(t);
     retired_.erase(it);
   }
   dirty_.erase(v.frame);

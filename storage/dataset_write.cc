@@ -324,6 +324,10 @@ Status DatasetImpl::Checkpoint() {
 
 Result<CommitInfo> DatasetImpl::Submit(WriteRequest* w) {
   using Kind = WriteRequest::Kind;
+  if (follower_.load()) {
+    return Status::NotLeader("dataset '" + info_.name + "' is only read here: another process "
+                             "holds its data directory and is the one that writes it");
+  }
   if ((w->kind == Kind::kTxn || w->kind == Kind::kRevert) && backlog_.load()) {
     // Back-pressure: while some T0 holds 8x its capacity the merger is behind; wait for it
     // rather than let memory grow without bound. A merger that keeps failing fails the commit.
@@ -547,7 +551,7 @@ Result<TxnRecord> DatasetImpl::FindRecord(uint64_t lsn) const {
   for (const std::string& n : logs) {
     HVDB_ASSIGN_OR_RETURN(WalContents c, ReadWal(env_, dir_ + "/" + n));
     for (TxnRecord& r : c.records) {
-      if (r.lsn == lsn) return std::move(r);
+      if (r.lsn == lsn && !r.bulk) return std::move(r);
     }
   }
   return Status::NotFound("transaction " + std::to_string(lsn) +

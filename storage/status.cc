@@ -18,6 +18,7 @@ const char* StatusCodeName(StatusCode code) {
     case StatusCode::kPermissionDenied: return "PermissionDenied";
     case StatusCode::kOverloaded: return "Overloaded";
     case StatusCode::kUnsupported: return "Unsupported";
+    case StatusCode::kNotLeader: return "NotLeader";
   }
   return "Unknown";
 }

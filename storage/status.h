@@ -27,6 +27,7 @@ enum class StatusCode : unsigned char {
   kPermissionDenied = 9,  // the caller's role does not allow it (server)
   kOverloaded = 10,       // too many requests or connections; retry later (server)
   kUnsupported = 11,      // a version, capability or request this build does not have
+  kNotLeader = 12,        // a follower refuses writes; the message names the writer
 };
 
 const char* StatusCodeName(StatusCode code);
@@ -48,6 +49,7 @@ class Status {
   static Status PermissionDenied(std::string m) { return {StatusCode::kPermissionDenied, std::move(m)}; }
   static Status Overloaded(std::string m) { return {StatusCode::kOverloaded, std::move(m)}; }
   static Status Unsupported(std::string m) { return {StatusCode::kUnsupported, std::move(m)}; }
+  static Status NotLeader(std::string m) { return {StatusCode::kNotLeader, std::move(m)}; }
   // errno mapped in one place: "context: strerror(err)".
   static Status FromErrno(const std::string& context, int err);
 

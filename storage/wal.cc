@@ -10,6 +10,7 @@ namespace hvdb {
 static constexpr char kWalMagic[8] = {'H', 'V', 'D', 'B', 'W', 'A', 'L', '\0'};
 static constexpr uint32_t kWalVersion = 1;
 static constexpr uint8_t kTypeTxn = 1;
+static constexpr uint8_t kTypeBulk = 2;
 static constexpr uint32_t kMaxRecord = 1u << 30;
 
 static void PutPoints(Writer* w, const std::vector<Point>& pts) {
@@ -69,6 +70,54 @@ Result<TxnRecord> DecodeTxnPayload(const std::string& payload, uint64_t lsn) {
   return t;
 }
 
+static Result<TxnRecord> DecodePayload(uint8_t type, const std::string& payload, uint64_t lsn) {
+  if (type == kTypeTxn) return DecodeTxnPayload(payload, lsn);
+  if (type != kTypeBulk) {
+    return Status::Corruption("log record " + std::to_string(lsn) + ": unknown type " +
+                              std::to_string(type));
+  }
+  if (payload.size() != 4) {
+    return Status::Corruption("log record " + std::to_string(lsn) + ": bad bulk-load marker");
+  }
+  TxnRecord t;
+  t.lsn = lsn;
+  t.bulk = true;
+  t.frames.emplace_back();
+  t.frames[0].frame = DecodeLE<uint32_t>(reinterpret_cast<const uint8_t*>(payload.data()));
+  return t;
+}
+
+Result<uint64_t> DecodeWalHeader(const uint8_t* p, size_t size, const std::string& what) {
+  if (size < kWalHeaderSize || std::memcmp(p, kWalMagic, 8) != 0) {
+    return Status::Corruption(what + ": bad magic");
+  }
+  if (crc32c::Unmask(DecodeLE<uint32_t>(p + 24)) != crc32c::Value(p, 24)) {
+    return Status::Corruption(what + ": header checksum mismatch");
+  }
+  uint32_t version = DecodeLE<uint32_t>(p + 8);
+  if (version != kWalVersion) {
+    return Status::Corruption(what + ": unsupported log version " + std::to_string(version));
+  }
+  return DecodeLE<uint64_t>(p + 16);
+}
+
+size_t ReadWalTail(const uint8_t* p, size_t size, std::vector<TxnRecord>* out) {
+  size_t pos = 0;
+  while (size - pos >= kWalRecordHeaderSize) {
+    if (crc32c::Unmask(DecodeLE<uint32_t>(p + pos)) != crc32c::Value(p + pos + 4, 17)) break;
+    uint32_t len = DecodeLE<uint32_t>(p + pos + 4);
+    if (kWalRecordHeaderSize + size_t{len} > size - pos) break;
+    const uint8_t* payload = p + pos + kWalRecordHeaderSize;
+    if (crc32c::Unmask(DecodeLE<uint32_t>(p + pos + 17)) != crc32c::Value(payload, len)) break;
+    auto rec = DecodePayload(p[pos + 16], std::string(reinterpret_cast<const char*>(payload), len),
+                             DecodeLE<uint64_t>(p + pos + 8));
+    if (!rec.ok()) break;
+    out->push_back(std::move(rec).value());
+    pos += kWalRecordHeaderSize + len;
+  }
+  return pos;
+}
+
 Result<WalContents> ReadWal(Env* env, const std::string& path) {
   HVDB_ASSIGN_OR_RETURN(std::string data, ReadWholeFile(env, path));
   WalContents out;
@@ -78,15 +127,7 @@ Result<WalContents> ReadWal(Env* env, const std::string& path) {
     out.torn_tail = !data.empty();
     return out;
   }
-  if (std::memcmp(p, kWalMagic, 8) != 0) return Status::Corruption(path + ": bad magic");
-  if (crc32c::Unmask(DecodeLE<uint32_t>(p + 24)) != crc32c::Value(p, 24)) {
-    return Status::Corruption(path + ": header checksum mismatch");
-  }
-  uint32_t version = DecodeLE<uint32_t>(p + 8);
-  if (version != kWalVersion) {
-    return Status::Corruption(path + ": unsupported log version " + std::to_string(version));
-  }
-  out.start_lsn = DecodeLE<uint64_t>(p + 16);
+  HVDB_ASSIGN_OR_RETURN(out.start_lsn, DecodeWalHeader(p, data.size(), path));
   auto all_zero = [&](size_t from) {
     for (size_t i = from; i < data.size(); ++i) {
       if (p[i] != 0) return false;
@@ -126,14 +167,17 @@ Result<WalContents> ReadWal(Env* env, const std::string& path) {
       }
       return corrupt(pos, "checksum mismatch, with valid-looking data after it");
     }
-    if (type != kTypeTxn) return corrupt(pos, "unknown type " + std::to_string(type));
-    if (lsn <= expect_lsn) {
+    if (type != kTypeTxn && type != kTypeBulk) {
+      return corrupt(pos, "unknown type " + std::to_string(type));
+    }
+    // A transaction's LSN is above the one before; a bulk-load marker repeats it.
+    if (type == kTypeBulk ? lsn < expect_lsn : lsn <= expect_lsn) {
       return corrupt(pos, "sequence number " + std::to_string(lsn) + " is not above " +
                               std::to_string(expect_lsn));
     }
     expect_lsn = lsn;
     HVDB_ASSIGN_OR_RETURN(TxnRecord t,
-                          DecodeTxnPayload(data.substr(pos + kWalRecordHeaderSize, len), lsn));
+                          DecodePayload(type, data.substr(pos + kWalRecordHeaderSize, len), lsn));
     out.records.push_back(std::move(t));
     pos = end;
   }
@@ -169,7 +213,12 @@ Status WalWriter::Append(const std::vector<TxnRecord>& records) {
   for (const TxnRecord& t : records) {
     const size_t at = out.size();
     out.resize(at + kWalRecordHeaderSize);
-    AppendTxnPayload(t, &out);
+    if (t.bulk) {
+      out.resize(out.size() + 4);
+      EncodeLE(reinterpret_cast<uint8_t*>(out.data() + out.size() - 4), t.frames.at(0).frame);
+    } else {
+      AppendTxnPayload(t, &out);
+    }
     const size_t len = out.size() - at - kWalRecordHeaderSize;
     if (len > kMaxRecord) {
       return Status::LimitExceeded("transaction too large for one log record (" +
@@ -178,7 +227,7 @@ Status WalWriter::Append(const std::vector<TxnRecord>& records) {
     auto* h = reinterpret_cast<uint8_t*>(out.data() + at);
     EncodeLE(h + 4, static_cast<uint32_t>(len));
     EncodeLE(h + 8, t.lsn);
-    h[16] = kTypeTxn;
+    h[16] = t.bulk ? kTypeBulk : kTypeTxn;
     EncodeLE(h + 17, crc32c::Mask(crc32c::Value(h + kWalRecordHeaderSize, len)));
     EncodeLE(h, crc32c::Mask(crc32c::Value(h + 4, 17)));
   }

@@ -24,6 +24,10 @@ struct TxnRecord {
   uint64_t lsn = 0;
   uint64_t reverts = 0;  // non-zero: this transaction undid transaction `reverts`
   std::vector<FrameEffect> frames;
+  // A bulk load's marker (record type 2): frames[0].frame's state file was replaced; no
+  // points. Its lsn is the last transaction's (the state's applied LSN), not a new one.
+  // Recovery skips it; followers re-read that state.
+  bool bulk = false;
 };
 
 Result<TxnRecord> DecodeTxnPayload(const std::string& payload, uint64_t lsn);
@@ -38,6 +42,14 @@ struct WalContents {
 // Reads a log file. A torn last record (a crash mid-append) ends the log; a bad record with
 // valid data after it is Corruption.
 Result<WalContents> ReadWal(Env* env, const std::string& path);
+
+// For a follower tailing a log another process appends to: decodes the records in
+// data[0..size), which starts at a record boundary, up to the first record that is not
+// complete (or not yet intact) and returns the bytes consumed. Never an error: what is not
+// whole yet is read again on the next call.
+size_t ReadWalTail(const uint8_t* data, size_t size, std::vector<TxnRecord>* out);
+// The first LSN a log file may hold, from its 28-byte header; Corruption if it is not one.
+Result<uint64_t> DecodeWalHeader(const uint8_t* data, size_t size, const std::string& what);
 
 class WalWriter {
  public:
