@@ -398,6 +398,8 @@ class RemoteBackend final : public Backend {
     s.bytes_out = last->bytes_out();
     s.cache_hit_rate = last->cache_hit_rate();
     s.cache_capacity_bytes = last->cache_capacity_bytes();
+    s.role = last->role();
+    s.leader = last->leader();
     for (const wire::LatencySummary& l : last->requests()) {
       s.requests.push_back({l.kind(), l.count(), l.p50_ms(), l.p95_ms(), l.p99_ms()});
     }

@@ -55,6 +55,8 @@ struct ServerCounters {
   uint64_t bytes_in = 0, bytes_out = 0;
   double cache_hit_rate = 0;  // 0..1
   uint64_t cache_capacity_bytes = 0;
+  std::string role;    // "writer", or "reader" (follows the writer; refuses writes)
+  std::string leader;  // where the writer listens, as it published it
 };
 
 struct StatsReport {

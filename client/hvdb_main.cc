@@ -2311,6 +2311,8 @@ int Cli::CmdStats() {
                             {"p99_ms", l.p99_ms}});
       }
       out["server"] = {{"address", db().where()},
+                       {"role", v.role},
+                       {"leader", v.leader},
                        {"connections_open", v.connections_open},
                        {"connections_total", v.connections_total},
                        {"bytes_in", v.bytes_in},
@@ -2322,6 +2324,10 @@ int Cli::CmdStats() {
                   v.connections_open == 1 ? "" : "s",
                   static_cast<unsigned long long>(v.connections_total), Bytes(v.bytes_in).c_str(),
                   Bytes(v.bytes_out).c_str());
+      if (!v.role.empty()) {
+        std::printf("role: %s%s%s\n", v.role.c_str(), v.leader.empty() ? "" : "; the writer is at ",
+                    v.leader.c_str());
+      }
       std::printf("cache: %.0f MiB, hit rate %.1f%%\n",
                   static_cast<double>(v.cache_capacity_bytes) / (1 << 20),
                   100 * v.cache_hit_rate);

@@ -17,6 +17,17 @@ int main(int argc, char** argv) {
   app.add_option("--store", c.store,
                  "where the data lives: files under --data (default), or rados:POOL?conf=FILE "
                  "for a Ceph RADOS pool (created if missing; docs/FORMAT.md)");
+  bool follow = false;
+  app.add_flag("--follow", follow,
+               "when another server writes the data: serve reads, follow its commits and take "
+               "over when it is gone (its lease ends), instead of refusing to start; always on "
+               "with --store rados:...");
+  app.add_option("--follow-interval-ms", c.follow_interval_ms,
+                 "how often a reading server looks for the writer's new commits")
+      ->capture_default_str()->check(CLI::Range(10u, 60000u));
+  app.add_option("--advertise", c.advertise,
+                 "HOST:PORT that clients should send writes to while this server is the writer "
+                 "(default: the TCP --listen address)");
   app.add_option("--listen", c.listen,
                  "address to listen on, repeatable: HOST:PORT (port 0: any free port; a "
                  "non-loopback address needs --token-file) or unix:PATH (the local fast path; "
@@ -63,6 +74,7 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"error", "warn", "info", "debug"}));
   CLI11_PARSE(app, argc, argv);
   c.sync = !no_sync;
+  c.follow = follow || !c.store.empty();
   hvdb::server::SetLogLevel(log_level == "error"  ? hvdb::server::LogLevel::kError
                             : log_level == "warn" ? hvdb::server::LogLevel::kWarn
                             : log_level == "debug" ? hvdb::server::LogLevel::kDebug

@@ -46,7 +46,53 @@ Server::Server(Config config, std::unique_ptr<Database> db)
 
 Server::~Server() {
   Stop();
+  {
+    std::lock_guard<std::mutex> l(follow_mu_);
+    follow_stop_ = true;
+  }
+  follow_cv_.notify_all();
+  if (follower_.joinable()) follower_.join();
   workers_.join();
+}
+
+Status Server::NotLeader(const std::string& what) const {
+  const std::string leader = db_->Leader();
+  return Status::NotLeader(what + ": this server only reads (it follows the writer's commits); "
+                           "send writes to the writer" +
+                           (leader.empty() ? std::string(" (its address is not known yet)")
+                                           : " at " + leader));
+}
+
+void Server::FollowLoop() {
+  using Clock = std::chrono::steady_clock;
+  auto next_takeover = Clock::now();
+  std::string last_error;
+  std::unique_lock<std::mutex> l(follow_mu_);
+  while (!follow_cv_.wait_for(l, std::chrono::milliseconds(config_.follow_interval_ms),
+                              [this] { return follow_stop_; })) {
+    l.unlock();
+    Status st = db_->Refresh();
+    if (!st.ok() && st.ToString() != last_error) {
+      Log(LogLevel::kWarn, "following the writer: " + st.ToString() + " (retrying)");
+    }
+    last_error = st.ok() ? "" : st.ToString();
+    // The lock is free once the writer closed, or its lease ran out after it died.
+    if (Clock::now() >= next_takeover) {
+      next_takeover = Clock::now() + std::chrono::seconds(1);
+      auto took = db_->TryPromote();
+      if (!took.ok()) {
+        Log(LogLevel::kError, "taking over as the writer failed: " + took.status().ToString());
+      } else if (*took) {
+        Status pub = db_->SetLeaderAddress(advertise_);
+        Log(LogLevel::kInfo, "took over as the writer of " + config_.data_dir +
+                                 " (the previous writer is gone); clients send writes to " +
+                                 advertise_ + (pub.ok() ? "" : " (not published: " +
+                                                                  pub.ToString() + ")"));
+        return;
+      }
+    }
+    l.lock();
+  }
 }
 
 std::string DefaultWebRoot() {
@@ -162,6 +208,10 @@ Result<std::unique_ptr<Server>> Server::Create(const Config& config) {
   opts.cache_bytes = config.cache_mb << 20;
   opts.sync = config.sync;
   opts.max_slice_frames = config.max_slice_frames;
+  opts.follow = config.follow;
+  // Trees a checkpoint replaces outlive it by this much, for the queries of reading servers
+  // that still read the state before it.
+  opts.retired_grace_ms = config.follow ? 30000 : 0;
   std::unique_ptr<Env> store_env;
   if (!config.store.empty()) {
     RadosSpec spec;
@@ -183,6 +233,21 @@ Result<std::unique_ptr<Server>> Server::Create(const Config& config) {
   s->tcp_listen_ = tcp_listen;
   s->local_socket_ = local_socket;
   HVDB_RETURN_IF_ERROR(s->Listen());
+  s->advertise_ = config.advertise;
+  if (s->advertise_.empty()) {
+    s->advertise_ = !tcp_listen.empty()
+                        ? tcp_listen.substr(0, tcp_listen.rfind(':') + 1) + std::to_string(s->port_)
+                        : "unix:" + local_socket;
+  }
+  if (!s->db_->follower()) {
+    HVDB_RETURN_IF_ERROR(s->db_->SetLeaderAddress(s->advertise_));
+  } else {
+    const std::string leader = s->db_->Leader();
+    Log(LogLevel::kInfo, "another server writes " + config.data_dir +
+                             (leader.empty() ? "" : " (at " + leader + ")") +
+                             ": serving reads and following its commits until it is gone");
+    s->follower_ = std::thread([p = s.get()] { p->FollowLoop(); });
+  }
   if (!config.http_listen.empty()) {
     HVDB_ASSIGN_OR_RETURN(
         s->http_, HttpFrontend::Create(s.get(), http_host, http_port,

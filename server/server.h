@@ -11,6 +11,7 @@
 
 #include <atomic>
 #include <chrono>
+#include <condition_variable>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -38,6 +39,14 @@ struct Config {
   // Where the data lives: "" for files under data_dir, or "rados:POOL?conf=FILE" for a Ceph
   // RADOS pool (storage/rados_env.h), data_dir then being the name prefix in the pool.
   std::string store;
+  // When another server holds the data (its write lease): serve reads, follow that writer's
+  // commits every follow_interval_ms, refuse writes with NOT_LEADER naming it, and take over
+  // once its lease ends, instead of refusing to start. On by default with a RADOS store.
+  bool follow = false;
+  uint32_t follow_interval_ms = 100;
+  // Where this server tells clients to send writes while it is the writer ("": its TCP
+  // --listen address with the bound port).
+  std::string advertise;
   // Addresses to listen on: HOST:PORT (port 0: any free port, printed at start) and at most
   // one unix:PATH (the local fast path; "unix:" alone is DATA_DIR/hvdb.sock). Loopback TCP
   // clients are told the Unix socket's path and switch to it.
@@ -96,6 +105,9 @@ class Server {
   // For sessions.
   const Config& config() const { return config_; }
   Database& db() { return *db_; }
+  // "writer" or "reader", and the writer's address; NotLeader naming it, for a refused write.
+  std::string role() const { return db_->follower() ? "reader" : "writer"; }
+  Status NotLeader(const std::string& what) const;
   boost::asio::thread_pool& workers() { return workers_; }
   boost::asio::io_context& io() { return io_; }
   ServerStats& stats() { return stats_; }
@@ -111,6 +123,8 @@ class Server {
   Server(Config config, std::unique_ptr<Database> db);
   Status Listen();
   Status ListenUnix(const std::string& path);
+  // While a reader: refreshes from the writer's files and tries to take over (server.cc).
+  void FollowLoop();
   void Accept();
   void AcceptUnix();
 
@@ -128,6 +142,11 @@ class Server {
   std::unique_ptr<HttpFrontend> http_;
   std::map<std::string, Role> tokens_;
   bool require_token_ = false;
+  std::string advertise_;
+  std::thread follower_;
+  std::mutex follow_mu_;
+  std::condition_variable follow_cv_;
+  bool follow_stop_ = false;
   uint16_t port_ = 0;
   ServerStats stats_;
   std::mutex mu_;

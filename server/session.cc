@@ -164,6 +164,9 @@ void Session::Dispatch(wire::Request req) {
     return SendError(id, Status::PermissionDenied(std::string(KindOf(req)) +
                                                   " needs a read-write token"));
   }
+  if (Writes(req) && server_->db().follower()) {
+    return SendError(id, server_->NotLeader(KindOf(req)));
+  }
   auto op = std::make_shared<Op>();
   op->id = id;
   op->kind = KindOf(req);
@@ -253,6 +256,8 @@ void Session::Dispatch(wire::Request req) {
         st->set_connections_total(s->stats().connections_total);
         st->set_bytes_in(s->stats().bytes_in);
         st->set_bytes_out(s->stats().bytes_out);
+        st->set_role(s->role());
+        st->set_leader(s->db().Leader());
         CacheStats c = s->db().Cache();
         st->set_cache_capacity_bytes(c.capacity_bytes);
         uint64_t lookups = c.hits + c.misses;
