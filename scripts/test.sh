@@ -15,7 +15,7 @@ cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=Debug -DHVDB_SANITIZE=ON -D
 cmake --build build-asan --target storage_tests server_tests codec_tests
 ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
   ctest --test-dir build-asan --output-on-failure -j2 --timeout 900 \
-  -R '^(Crc32c|Point|BufferPool|Lod|KdTree|Hyperslice|Wal|Dataset|Follower|Crash|Corruption|FaultInjection|Server|HttpServer|WsCodec|WebPath|OriginAllowed|CodecTest)' \
+  -R '^(Crc32c|Point|BufferPool|Lod|KdTree|Hyperslice|Wal|Dataset|FollowerTest|Crash|Corruption|FaultInjection|Server|HttpServer|WsCodec|WebPath|OriginAllowed|CodecTest)' \
   -E 'SlowReaderDoesNotGrowServerMemory|AClientThatNeverReleasesHoldsOnlyItsRing|ClientsKilledWhileHoldingSlotsLeakNothing'
 
 # Fuzz the decoders with clang's libFuzzer, 20 seconds each: the frame and message decoder of

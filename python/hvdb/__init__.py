@@ -27,7 +27,7 @@ __all__ = [
     "points", "read_ply", "write_ply", "normals", "times", "to_open3d", "from_open3d",
     "Error", "NotFound", "InvalidArgument", "Corruption", "IOError", "Unavailable",
     "LimitExceeded", "AlreadyExists", "Cancelled", "Internal", "PermissionDenied", "Overloaded",
-    "Unsupported",
+    "Unsupported", "NotLeader",
 ]
 
 # ---- The point record -----------------------------------------------------------------------
@@ -114,9 +114,14 @@ class Unsupported(Error):
     code = "Unsupported"
 
 
+class NotLeader(Error):
+    """A write sent to a reading server; the message names the writer's address."""
+    code = "NotLeader"
+
+
 _CLASSES = {c.code: c for c in (NotFound, InvalidArgument, Corruption, IOError, LimitExceeded,
                                 AlreadyExists, Cancelled, Internal, PermissionDenied, Overloaded,
-                                Unsupported)}
+                                Unsupported, NotLeader)}
 
 
 def _raise_status(code, message):

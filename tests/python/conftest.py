@@ -47,18 +47,21 @@ def seeded_dir(tmp_path_factory, panoptic_files):
 class Server:
     """A real hvdb-server on a free port (and its Unix socket: the local fast path)."""
 
-    def __init__(self, data_dir):
+    def __init__(self, data_dir, name="server", follow=False):
+        """follow: a second server on the same data, reading and following the first."""
         self.data_dir = data_dir
+        self.name, self.follow = name, follow
         self.proc = None
         self.start()
 
     def start(self):
-        port_file = os.path.join(self.data_dir, "port")
+        port_file = os.path.join(self.data_dir, self.name + ".port")
         if os.path.exists(port_file):
             os.remove(port_file)
         self.proc = subprocess.Popen(
-            [SERVER, "--data", self.data_dir, "--listen", "127.0.0.1:0", "--listen", "unix:",
-             "--port-file", port_file, "--log-level", "warn"],
+            [SERVER, "--data", self.data_dir, "--listen", "127.0.0.1:0",
+             "--listen", "unix:" + os.path.join(self.data_dir, self.name + ".sock"),
+             "--port-file", port_file, "--log-level", "warn"] + (["--follow"] if self.follow else []),
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         deadline = time.time() + 30
         while time.time() < deadline:

@@ -1,13 +1,15 @@
 """The Python client against the `hvdb` command line and the engine's rules, in both modes
 (embedded and through a real hvdb-server), on the real Panoptic sequence."""
 import csv
+import shutil
+import time
 import threading
 
 import numpy as np
 import pytest
 
 import hvdb
-from conftest import DATASET
+from conftest import DATASET, Server
 
 FPS = 30.0
 
@@ -289,3 +291,31 @@ def test_compressed_wire_gives_the_same_frame(env):
     assert (coded["color"] == plain["color"]).all()
     assert (coded["label"] == plain["label"]).all()
     assert np.abs(coded["position"] - plain["position"]).max() < 2.0 / 2**16
+
+
+def test_a_reading_server_follows_the_writer_and_refuses_writes(seeded_dir, tmp_path):
+    """Two servers on one data directory: the second serves reads, follows the first's
+    commits and refuses writes with NotLeader naming the first."""
+    d = str(tmp_path / "data")
+    shutil.copytree(seeded_dir, d)
+    writer = Server(d, name="writer")
+    reader = Server(d, name="reader", follow=True)
+    w, r = hvdb.connect(writer.address), hvdb.connect(reader.address)
+    try:
+        assert r.info(DATASET)["point_count"] == w.info(DATASET)["point_count"]
+        new = hvdb.points(np.array([[5.0, 5.0, 5.0], [5.1, 5.0, 5.0]]), frame=2)
+        with pytest.raises(hvdb.NotLeader, match=writer.address):
+            with r.transaction(DATASET) as tx:
+                tx.insert(new)
+        with w.transaction(DATASET) as tx:
+            tx.insert(new)
+        deadline = time.time() + 10
+        while r.info(DATASET)["last_lsn"] < tx.lsn and time.time() < deadline:
+            time.sleep(0.05)
+        assert r.info(DATASET)["last_lsn"] == tx.lsn
+        assert len(r.window(DATASET, x=(4.9, 5.2))) == 2
+    finally:
+        w.close()
+        r.close()
+        reader.stop()
+        writer.stop()
