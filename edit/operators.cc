@@ -260,7 +260,7 @@ constexpr uint32_t kClipVersion = 1;
 
 Status ClipboardStore::Put(const std::string& name, const std::vector<Point>& points) {
   HVDB_RETURN_IF_ERROR(ValidateDatasetName(name));  // same rules: a safe file name
-  HVDB_RETURN_IF_ERROR(Env::Default()->CreateDirs(dir_));
+  HVDB_RETURN_IF_ERROR(env_->CreateDirs(dir_));
   Writer w;
   w.PutBytes(kClipMagic, 8);
   w.Put<uint32_t>(kClipVersion);
@@ -269,14 +269,14 @@ Status ClipboardStore::Put(const std::string& name, const std::vector<Point>& po
   EncodePoints(points, reinterpret_cast<uint8_t*>(recs.data()));
   w.PutBytes(recs.data(), recs.size());
   w.Put<uint32_t>(crc32c::Mask(crc32c::Value(w.data().data(), w.data().size())));
-  return WriteFileAtomic(Env::Default(), dir_ + "/" + name + ".hvc", w.data());
+  return WriteFileAtomic(env_, dir_ + "/" + name + ".hvc", w.data());
 }
 
 Result<std::vector<Point>> ClipboardStore::Get(const std::string& name) const {
   HVDB_RETURN_IF_ERROR(ValidateDatasetName(name));
   const std::string path = dir_ + "/" + name + ".hvc";
-  if (!Env::Default()->Exists(path)) return Status::NotFound("no clipboard '" + name + "'");
-  HVDB_ASSIGN_OR_RETURN(std::string data, ReadWholeFile(Env::Default(), path));
+  if (!env_->Exists(path)) return Status::NotFound("no clipboard '" + name + "'");
+  HVDB_ASSIGN_OR_RETURN(std::string data, ReadWholeFile(env_, path));
   const auto* p = reinterpret_cast<const uint8_t*>(data.data());
   if (data.size() < 24 || std::memcmp(p, kClipMagic, 8) != 0 ||
       crc32c::Unmask(DecodeLE<uint32_t>(p + data.size() - 4)) != crc32c::Value(p, data.size() - 4)) {
@@ -293,7 +293,7 @@ Result<std::vector<Point>> ClipboardStore::Get(const std::string& name) const {
 
 std::vector<std::string> ClipboardStore::List() const {
   std::vector<std::string> out;
-  auto names = Env::Default()->ListDir(dir_);
+  auto names = env_->ListDir(dir_);
   if (!names.ok()) return out;
   for (const std::string& n : *names) {
     if (n.ends_with(".hvc")) out.push_back(n.substr(0, n.size() - 4));

@@ -73,13 +73,17 @@ Result<GraphCutReply> GraphCutSelect(Dataset& ds, const GraphCutRequest& req);
 // survive sessions and are shared by the server and the embedded CLI.
 class ClipboardStore {
  public:
-  explicit ClipboardStore(std::string data_dir) : dir_(std::move(data_dir) + "/clipboards") {}
+  // env: the data directory's store (a server's RADOS pool, so that all its servers share
+  // clipboards); null: the POSIX files.
+  explicit ClipboardStore(std::string data_dir, Env* env = nullptr)
+      : dir_(std::move(data_dir) + "/clipboards"), env_(env ? env : Env::Default()) {}
   Status Put(const std::string& name, const std::vector<Point>& points);
   Result<std::vector<Point>> Get(const std::string& name) const;
   std::vector<std::string> List() const;
 
  private:
   std::string dir_;
+  Env* env_;
 };
 
 // Copies the points carrying `bit` (within `region`, if given) to the clipboard; with `cut`,

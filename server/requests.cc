@@ -112,7 +112,7 @@ wire::Response RunEditOperator(Server* s, uint64_t id, const wire::Request& req)
   Dataset& d = **ds;
   wire::Response r;
   r.set_id(id);
-  edit::ClipboardStore clipboards(s->config().data_dir);
+  edit::ClipboardStore clipboards(s->config().data_dir, s->db().options().env);
   if (req.has_select()) {
     const wire::SelectRequest& q = req.select();
     edit::SelectRequest sr;

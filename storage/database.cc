@@ -12,6 +12,9 @@
 
 namespace hvdb {
 
+// DIR/clipboards holds the editing operators' clipboards (edit::ClipboardStore), not a dataset.
+static constexpr char kClipboardsDir[] = "clipboards";
+
 Status ValidateDatasetName(const std::string& name) {
   if (name.empty() || name.size() > 64 || name[0] == '.') {
     return Status::InvalidArgument("dataset name '" + name +
@@ -87,6 +90,7 @@ Status Database::RemoveLeftovers() {
     // Leftovers of a create or drop cut short by a crash (without atomic directory renames:
     // a dataset's directory without its MANIFEST).
     const std::string sub = dir_ + "/" + n;
+    if (n == kClipboardsDir) continue;  // the editing operators' clipboards (edit/)
     if (n.ends_with(".creating") || n.ends_with(".dropping") ||
         (!env_->AtomicDirRename() && ValidateDatasetName(n).ok() &&
          !env_->Exists(sub + "/MANIFEST") && env_->ListDir(sub).ok())) {
@@ -236,6 +240,10 @@ static Status FollowerRefuses(const std::string& what) {
 Result<std::shared_ptr<Dataset>> Database::CreateDataset(const DatasetInfo& info) {
   HVDB_RETURN_IF_ERROR(ValidateDatasetName(info.name));
   if (follower_) return FollowerRefuses("create of dataset '" + info.name + "'");
+  if (info.name == kClipboardsDir) {
+    return Status::InvalidArgument("dataset name 'clipboards' is reserved (the folder of the "
+                                   "editing operators' clipboards)");
+  }
   std::lock_guard<std::mutex> l(mu_);
   HVDB_ASSIGN_OR_RETURN(auto impl,
                         DatasetImpl::Create(dir_ + "/" + info.name, info, opts_, pool_.get()));

@@ -113,6 +113,10 @@ TEST_F(FollowerServerTest, ReaderFollowsRefusesWritesAndTakesOverAfterKill9) {
   ASSERT_EQ(r.code, 0) << r.out;
   r = Cli(a->Address(), "edit walk --paste " + kPly + " --frame 5 --units-scale 0.01");
   ASSERT_EQ(r.code, 0) << r.out;
+  // A clipboard lives with the data: the server that takes over pastes it.
+  ASSERT_EQ(Cli(a->Address(), "select walk --bit 3 --box -9 9 -9 9 -9 9 0.1 0.2").code, 0);
+  const json copied = Json(a->Address(), "copy walk --bit 3 --clipboard c1");
+  ASSERT_GT(copied["points"].get<uint64_t>(), 0u);
   const json before = Json(a->Address(), "describe walk");
   ASSERT_TRUE(CaughtUp(b->Address(), before["last_lsn"], before["points"]))
       << Json(b->Address(), "describe walk").dump();
@@ -127,7 +131,9 @@ TEST_F(FollowerServerTest, ReaderFollowsRefusesWritesAndTakesOverAfterKill9) {
   EXPECT_EQ(after["last_lsn"], before["last_lsn"]);
   EXPECT_EQ(Points(b->Address()), before["points"].get<uint64_t>());
   // And it takes writes, which a server started next follows.
-  r = Cli(b->Address(), "undo walk " + std::to_string(before["last_lsn"].get<uint64_t>()));
+  const json pasted = Json(b->Address(), "paste walk --clipboard c1 --translate 0 0 1 0");
+  EXPECT_EQ(pasted["inserted"], copied["points"]);
+  r = Cli(b->Address(), "undo walk " + std::to_string(pasted["lsn"].get<uint64_t>()));
   EXPECT_EQ(r.code, 0) << r.out;
   auto c = Server("c");
   ASSERT_EQ(c->Start(), "");
