@@ -99,6 +99,13 @@ TEST_F(FollowerServerTest, ReaderFollowsRefusesWritesAndTakesOverAfterKill9) {
   json d = Json(a->Address(), "describe walk");
   ASSERT_TRUE(CaughtUp(b->Address(), d["last_lsn"], d["points"]));
   EXPECT_EQ(Points(b->Address()), d["points"].get<uint64_t>());
+  // Every read serves there: a hyperslice, a render.
+  EXPECT_EQ(Json(b->Address(), "slice walk --normal 0 0 0 1 --offset 0 --thickness 0.001")["points"],
+            Json(a->Address(), "slice walk --normal 0 0 0 1 --offset 0 --thickness 0.001")["points"]);
+  r = Cli(b->Address(), "render walk --box -9 9 -9 9 -9 9 0 0 --look-at -0.4 -0.9 -3 -0.4 -0.9 0 "
+                        "--fov 40 --size 160 120 --out " + work_ + "/reader.png");
+  EXPECT_EQ(r.code, 0) << r.out;
+  EXPECT_GT(fs::file_size(work_ + "/reader.png"), 1000u);
 
   // Writes on the reader are refused, naming the writer; nothing of them lands.
   r = Cli(b->Address(), "edit walk --delete-box -9 9 -1.0 -0.9 -9 9 0 1");
