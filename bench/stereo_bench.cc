@@ -1,5 +1,6 @@
 // stereo-bench: hvdb's stereo matcher (ingest/stereo.h, thesis 3.3-3.5) against OpenCV's
-// semi-global matcher (cv::StereoSGBM) on the Middlebury 2014 quarter-size training scenes,
+// semi-global matcher (cv::StereoSGBM) on the Middlebury 2014 quarter-size training scenes and
+// the 2001-2006 scenes,
 // both on the same pairs in the same run: bad-pixel rates on non-occluded pixels, density and
 // time per pair. Writes JSON (bench/README.md schema: name, unit, median, min, max,
 // repetitions, params).
@@ -86,6 +87,105 @@ Scores Score(const cv::Mat& d, const cv::Mat& gt, const cv::Mat& mask) {
   return s;
 }
 
+// One evaluated pair: rectified left/right, ground-truth disparity of the left view (px, CV_32F)
+// and the pixels evaluated (255: non-occluded, with ground truth).
+struct Pair {
+  std::string set, name;
+  cv::Mat left, right, gt, mask;
+  int ndisp = 0;
+};
+
+// Middlebury 2014 (quarter size): im0/im1.png, disp0GT.pfm, mask0nocc.png, calib.txt's ndisp.
+std::vector<Pair> Load2014(const std::string& data) {
+  std::vector<Pair> out;
+  std::error_code ec;
+  std::vector<std::string> names;
+  for (const auto& e : fs::directory_iterator(data, ec)) {
+    if (e.is_directory() && fs::exists(e.path() / "disp0GT.pfm")) names.push_back(e.path().filename());
+  }
+  std::sort(names.begin(), names.end());
+  for (const std::string& scene : names) {
+    const std::string dir = data + "/" + scene + "/";
+    Pair p{"2014", scene, cv::imread(dir + "im0.png", cv::IMREAD_COLOR),
+           cv::imread(dir + "im1.png", cv::IMREAD_COLOR), {},
+           cv::imread(dir + "mask0nocc.png", cv::IMREAD_GRAYSCALE), ReadNdisp(dir + "calib.txt")};
+    auto gt = hvdb::ingest::ReadPfm(dir + "disp0GT.pfm");
+    if (p.left.empty() || p.right.empty() || p.mask.empty() || !gt.ok() || p.ndisp <= 0) {
+      std::fprintf(stderr, "stereo-bench: cannot read scene %s (%s)\n", dir.c_str(),
+                   gt.ok() ? "images, mask or calib.txt ndisp" : gt.status().ToString().c_str());
+      std::exit(1);
+    }
+    p.gt = *gt;
+    out.push_back(std::move(p));
+  }
+  return out;
+}
+
+// Middlebury 2001-2006 (the shared folder's README): per year its file names and the grey
+// scale k of the 8-bit ground truth (0: unknown). The evaluated pixels are Tsukuba's nonocc.png,
+// elsewhere those whose left and right ground truth agree within 1 px (the occlusion test the
+// Middlebury masks were made with), so both sets are scored on non-occluded pixels.
+std::vector<Pair> Load2001to2006(const std::string& data) {
+  struct Layout {
+    const char *left, *right, *gt_left, *gt_right;
+    float k;
+  };
+  const Layout layouts[] = {{"imL.png", "imR.png", "truedisp.pgm", nullptr, 16},  // Tsukuba
+                            {"im2.ppm", "im6.ppm", "disp2.pgm", "disp6.pgm", 8},  // 2001
+                            {"im2.jpg", "im6.ppm", "disp2.pgm", "disp6.pgm", 8},  // bull
+                            {"imL.png", "imR.png", "disp2.png", "disp6.png", 4},  // 2003
+                            {"view1.png", "view5.png", "disp1.png", "disp5.png", 3}};  // 2005/6
+  std::vector<Pair> out;
+  std::error_code ec;
+  std::vector<std::string> names;
+  for (const auto& e : fs::directory_iterator(data, ec)) {
+    if (e.is_directory()) names.push_back(e.path().filename());
+  }
+  std::sort(names.begin(), names.end());
+  for (const std::string& scene : names) {
+    const std::string dir = data + "/" + scene + "/";
+    const Layout* lay = nullptr;
+    for (const Layout& l : layouts) {
+      if (fs::exists(dir + l.left) && fs::exists(dir + l.gt_left)) lay = &l;
+    }
+    if (!lay) continue;
+    Pair p;
+    p.set = "2001-2006";
+    p.name = scene;
+    p.left = cv::imread(dir + lay->left, cv::IMREAD_COLOR);
+    p.right = cv::imread(dir + lay->right, cv::IMREAD_COLOR);
+    cv::Mat gl = cv::imread(dir + lay->gt_left, cv::IMREAD_GRAYSCALE), gr;
+    if (lay->gt_right) gr = cv::imread(dir + lay->gt_right, cv::IMREAD_GRAYSCALE);
+    if (p.left.empty() || p.right.empty() || gl.empty() || (lay->gt_right && gr.empty())) {
+      std::fprintf(stderr, "stereo-bench: cannot read scene %s\n", dir.c_str());
+      std::exit(1);
+    }
+    gl.convertTo(p.gt, CV_32F, 1.0 / lay->k);
+    cv::Mat nonocc = lay->gt_right ? cv::Mat() : cv::imread(dir + "nonocc.png", cv::IMREAD_GRAYSCALE);
+    p.mask = cv::Mat::zeros(gl.size(), CV_8U);
+    float dmax = 0;
+    for (int y = 0; y < gl.rows; ++y) {
+      for (int x = 0; x < gl.cols; ++x) {
+        if (gl.at<uint8_t>(y, x) == 0) continue;  // no ground truth
+        const float d = p.gt.at<float>(y, x);
+        dmax = std::max(dmax, d);
+        bool visible;
+        if (!nonocc.empty()) {
+          visible = nonocc.at<uint8_t>(y, x) == 255;
+        } else {
+          const int xr = static_cast<int>(std::lround(x - d));
+          visible = xr >= 0 && gr.at<uint8_t>(y, xr) != 0 &&
+                    std::abs(gr.at<uint8_t>(y, xr) / lay->k - d) <= 1.0f;
+        }
+        if (visible) p.mask.at<uint8_t>(y, x) = 255;
+      }
+    }
+    p.ndisp = static_cast<int>(std::ceil(dmax)) + 2;  // the scene's range, as calib.txt gives it
+    out.push_back(std::move(p));
+  }
+  return out;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -103,39 +203,45 @@ int main(int argc, char** argv) {
   app.add_option("--window", window, "hvdb matching window")->capture_default_str();
   app.add_option("--threads", threads, "hvdb threads (0 = all); OpenCV uses its default pool")
       ->capture_default_str();
+  std::string data_old = std::string(HVDB_SHARED_DATA) + "/middlebury-stereo-2001-2006";
+  app.add_option("--data-2001-2006", data_old,
+                 "folder of the Middlebury 2001-2006 scenes (\"\": leave them out)")
+      ->capture_default_str();
+  std::string subpixel = "parabola";
+  app.add_option("--subpixel", subpixel,
+                 "hvdb's subpixel step: none, parabola (S4's fit) or lm (S5, Levenberg-Marquardt)")
+      ->capture_default_str()->check(CLI::IsMember({"none", "parabola", "lm"}));
   CLI11_PARSE(app, argc, argv);
   if (quick) reps = 1;
 
-  std::vector<std::string> scenes;
-  std::error_code ec;
-  for (const auto& e : fs::directory_iterator(data, ec)) {
-    if (e.is_directory() && fs::exists(e.path() / "disp0GT.pfm")) scenes.push_back(e.path().filename());
-  }
-  if (ec || scenes.empty()) {
+  std::vector<Pair> pairs = Load2014(data);
+  if (pairs.empty()) {
     std::fprintf(stderr, "stereo-bench: no Middlebury scenes under %s\n", data.c_str());
     return 1;
   }
-  std::sort(scenes.begin(), scenes.end());
-  if (quick) scenes = {std::find(scenes.begin(), scenes.end(), "Teddy") != scenes.end()
-                           ? std::string("Teddy") : scenes.front()};
+  if (quick) {
+    auto teddy = std::find_if(pairs.begin(), pairs.end(), [](const Pair& p) { return p.name == "Teddy"; });
+    pairs = {teddy != pairs.end() ? *teddy : pairs.front()};
+  } else if (!data_old.empty()) {
+    std::vector<Pair> old = Load2001to2006(data_old);
+    if (old.empty()) {
+      std::fprintf(stderr, "stereo-bench: no Middlebury 2001-2006 scenes under %s\n",
+                   data_old.c_str());
+      return 1;
+    }
+    pairs.insert(pairs.end(), old.begin(), old.end());
+  }
 
   const auto started = Clock::now();
   nlohmann::json figures = nlohmann::json::array(), table = nlohmann::json::array();
   std::map<std::string, std::vector<double>> summary;  // per-matcher metric over scenes
-  std::printf("%-12s %5s | %-30s | %-30s\n", "scene", "ndisp", "hvdb bad1/bad2/dens/ms",
+  std::printf("%-9s %-12s %5s | %-30s | %-30s\n", "set", "scene", "ndisp", "hvdb bad1/bad2/dens/ms",
               "SGBM bad1/bad2/dens/ms");
-  for (const std::string& scene : scenes) {
-    const std::string dir = data + "/" + scene + "/";
-    cv::Mat l = cv::imread(dir + "im0.png", cv::IMREAD_COLOR);
-    cv::Mat r = cv::imread(dir + "im1.png", cv::IMREAD_COLOR);
-    cv::Mat mask = cv::imread(dir + "mask0nocc.png", cv::IMREAD_GRAYSCALE);
-    auto gt = hvdb::ingest::ReadPfm(dir + "disp0GT.pfm");
-    const int ndisp = ReadNdisp(dir + "calib.txt");
-    if (l.empty() || r.empty() || mask.empty() || !gt.ok() || ndisp <= 0) {
-      std::fprintf(stderr, "stereo-bench: cannot read scene %s (%s)\n", dir.c_str(),
-                   gt.ok() ? "images, mask or calib.txt ndisp" : gt.status().ToString().c_str());
-      return 1;
-    }
+  for (const Pair& pair : pairs) {
+    const std::string& scene = pair.name;
+    const cv::Mat &l = pair.left, &r = pair.right, &mask = pair.mask;
+    const cv::Mat* gt = &pair.gt;
+    const int ndisp = pair.ndisp;
 
     // hvdb: S1-S5 with the default parameters over the scene's disparity range.
     hvdb::ingest::StereoParams p;
@@ -143,6 +249,7 @@ int main(int argc, char** argv) {
     p.num_disparities = ndisp;
     p.window = window;
     p.threads = threads;
+    hvdb::ingest::ParseSubpixel(subpixel, &p.subpixel);
     std::vector<double> ours_ms, st_cost, st_agg, st_min, st_wta, st_check, st_sub;
     cv::Mat ours;
     for (int i = 0; i < reps; ++i) {
@@ -183,11 +290,11 @@ int main(int argc, char** argv) {
     }
 
     const Scores so = Score(ours, *gt, mask), ss = Score(theirs, *gt, mask);
-    nlohmann::json params = {{"scene", scene}, {"width", l.cols}, {"height", l.rows},
-                             {"ndisp", ndisp}};
+    nlohmann::json params = {{"set", pair.set}, {"scene", scene}, {"width", l.cols},
+                             {"height", l.rows}, {"ndisp", ndisp}};
     nlohmann::json ours_params = params, sgbm_params = params;
     ours_params["matcher"] = {{"window", window}, {"multi_window", p.multi_window},
-                              {"cross_check", p.cross_check}, {"subpixel", p.subpixel},
+                              {"cross_check", p.cross_check}, {"subpixel", subpixel},
                               {"threads", threads}, {"input", "grey"}};
     sgbm_params["matcher"] = {{"mode", "SGBM_3WAY"}, {"num_disparities", ndisp16},
                               {"block_size", bs}, {"P1", 8 * cn * bs * bs},
@@ -195,7 +302,7 @@ int main(int argc, char** argv) {
                               {"disp12_max_diff", 1}, {"speckle_window", 100},
                               {"speckle_range", 32}, {"opencv_threads", cv::getNumThreads()},
                               {"input", "colour"}};
-    const std::string pre = "stereo." + scene + ".";
+    const std::string pre = "stereo." + (pair.set == "2014" ? "" : pair.set + ".") + scene + ".";
     figures.push_back(Figure(pre + "hvdb.time", "ms", ours_ms, ours_params));
     figures.push_back(Figure(pre + "sgbm.time", "ms", sgbm_ms, sgbm_params));
     for (const auto& [stage, v] : std::vector<std::pair<std::string, std::vector<double>>>{
@@ -209,14 +316,19 @@ int main(int argc, char** argv) {
       figures.push_back(Figure(pre + who + ".bad2", "%", {s.bad2}, ps));
       figures.push_back(Figure(pre + who + ".density", "%", {s.density}, ps));
       figures.push_back(Figure(pre + who + ".bad2_valid", "%", {s.bad2_valid}, ps));
-      summary[std::string(who) + ".bad1"].push_back(s.bad1);
-      summary[std::string(who) + ".bad2"].push_back(s.bad2);
-      summary[std::string(who) + ".density"].push_back(s.density);
-      summary[std::string(who) + ".bad2_valid"].push_back(s.bad2_valid);
+      for (const std::string& scope : {std::string(), pair.set + "."}) {
+        summary[scope + who + ".bad1"].push_back(s.bad1);
+        summary[scope + who + ".bad2"].push_back(s.bad2);
+        summary[scope + who + ".density"].push_back(s.density);
+        summary[scope + who + ".bad2_valid"].push_back(s.bad2_valid);
+      }
     }
     const double om = Median(ours_ms), sm = Median(sgbm_ms);
-    summary["hvdb.time"].push_back(om);
-    summary["sgbm.time"].push_back(sm);
+    for (const std::string& scope : {std::string(), pair.set + "."}) {
+      summary[scope + "hvdb.time"].push_back(om);
+      summary[scope + "sgbm.time"].push_back(sm);
+      summary[scope + "hvdb.time.x_sgbm"].push_back(om / sm);
+    }
     figures.push_back({{"name", pre + "hvdb.time.x_sgbm"}, {"unit", "ratio"}, {"median", om / sm},
                        {"min", *std::min_element(ours_ms.begin(), ours_ms.end()) /
                                    *std::max_element(sgbm_ms.begin(), sgbm_ms.end())},
@@ -225,7 +337,7 @@ int main(int argc, char** argv) {
                        {"repetitions", reps},
                        {"params", {{"numerator", pre + "hvdb.time"}, {"denominator", pre + "sgbm.time"},
                                    {"numerator_median", om}, {"denominator_median", sm}}}});
-    table.push_back({{"scene", scene}, {"width", l.cols}, {"height", l.rows}, {"ndisp", ndisp},
+    table.push_back({{"set", pair.set}, {"scene", scene}, {"width", l.cols}, {"height", l.rows}, {"ndisp", ndisp},
                      {"hvdb", {{"bad1", so.bad1}, {"bad2", so.bad2}, {"density", so.density},
                                {"bad2_valid", so.bad2_valid}, {"ms", om},
                                {"stages_ms", {{"cost", Median(st_cost)}, {"aggregate", Median(st_agg)},
@@ -234,8 +346,8 @@ int main(int argc, char** argv) {
                                               {"subpixel", Median(st_sub)}}}}},
                      {"sgbm", {{"bad1", ss.bad1}, {"bad2", ss.bad2}, {"density", ss.density},
                                {"bad2_valid", ss.bad2_valid}, {"ms", sm}}}});
-    std::printf("%-12s %5d | %5.1f %5.1f %5.1f %7.0f ms | %5.1f %5.1f %5.1f %7.0f ms\n",
-                scene.c_str(), ndisp, so.bad1, so.bad2, so.density, om, ss.bad1, ss.bad2,
+    std::printf("%-9s %-12s %5d | %5.1f %5.1f %5.1f %7.0f ms | %5.1f %5.1f %5.1f %7.0f ms\n",
+                pair.set.c_str(), scene.c_str(), ndisp, so.bad1, so.bad2, so.density, om, ss.bad1, ss.bad2,
                 ss.density, sm);
     std::fflush(stdout);
   }
@@ -245,14 +357,16 @@ int main(int argc, char** argv) {
     double s = 0;
     for (double x : v) s += x;
     means[k] = s / v.size();
-    figures.push_back(Figure("stereo.mean." + k, k.ends_with("time") ? "ms" : "%",
+    figures.push_back(Figure("stereo.mean." + k,
+                             k.ends_with("time") ? "ms" : k.ends_with("x_sgbm") ? "ratio" : "%",
                              {s / v.size()}, {{"scenes", v.size()}, {"over", "scenes, plain mean"}}));
   }
-  std::printf("%-18s | %5.1f %5.1f %5.1f %7.0f ms | %5.1f %5.1f %5.1f %7.0f ms\n", "mean",
+  std::printf("%-28s | %5.1f %5.1f %5.1f %7.0f ms | %5.1f %5.1f %5.1f %7.0f ms (time %.2fx SGBM's)\n", "mean",
               means["hvdb.bad1"].get<double>(), means["hvdb.bad2"].get<double>(),
               means["hvdb.density"].get<double>(), means["hvdb.time"].get<double>(),
               means["sgbm.bad1"].get<double>(), means["sgbm.bad2"].get<double>(),
-              means["sgbm.density"].get<double>(), means["sgbm.time"].get<double>());
+              means["sgbm.density"].get<double>(), means["sgbm.time"].get<double>(),
+              means["hvdb.time.x_sgbm"].get<double>());
 
   std::ostringstream cmd;
   for (int i = 0; i < argc; ++i) cmd << (i ? " " : "") << argv[i];
@@ -262,8 +376,12 @@ int main(int argc, char** argv) {
       {"duration_s", std::chrono::duration<double>(Clock::now() - started).count()},
       {"machine", {{"nproc", std::thread::hardware_concurrency()},
                    {"opencv", CV_VERSION}, {"opencv_threads", cv::getNumThreads()}}},
-      {"metric_notes", "bad1/bad2: % of non-occluded pixels (mask0nocc 255) with |d - GT| > 1/2 px, "
-                       "invalid pixels counted as bad; density: % valid; bad2_valid: bad2 among valid"},
+      {"metric_notes", "bad1/bad2: % of non-occluded pixels (2014: mask0nocc 255; 2001-2006: "
+                       "Tsukuba's nonocc.png, else left and right ground truth agreeing within "
+                       "1 px) with |d - GT| > 1/2 px, invalid pixels counted as bad; density: % "
+                       "valid; bad2_valid: bad2 among valid; time.x_sgbm: mean of per-scene "
+                       "ratios"},
+      {"data_2001_2006", data_old},
       {"means", means}, {"scenes", table}, {"figures", figures}};
   std::ofstream(out) << doc.dump(2) << "\n";
   std::printf("wrote %s\n", out.c_str());

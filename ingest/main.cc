@@ -34,7 +34,8 @@ void RegisterRun(CLI::App& app, int* rc) {
     size_t cache_mb = 256;
     IngestOptions o;
     double y = 0.40, uv = 0.15;
-    bool no_photo = false, no_subpixel = false, quiet = false;
+    bool no_photo = false, quiet = false;
+    std::string subpixel = "lm";
   };
   auto a = std::make_shared<Args>();
   cmd->add_option("recording", a->rec, "recording directory (with recording.yml)")->required();
@@ -53,7 +54,10 @@ void RegisterRun(CLI::App& app, int* rc) {
   cmd->add_option("--min-disparity", a->o.stereo.min_disparity, "stereo: smallest disparity (px)")->capture_default_str();
   cmd->add_option("--num-disparities", a->o.stereo.num_disparities, "stereo: disparities searched")->capture_default_str();
   cmd->add_option("--window", a->o.stereo.window, "stereo: matching window side (odd)")->capture_default_str();
-  cmd->add_flag("--no-subpixel", a->no_subpixel, "stereo: integer disparities only");
+  cmd->add_option("--subpixel", a->subpixel,
+                  "stereo: none (integer disparities), parabola (through the costs around the "
+                  "winner) or lm (Levenberg-Marquardt on disparity and its gradients)")
+      ->capture_default_str()->check(CLI::IsMember({"none", "parabola", "lm"}));
   cmd->add_flag("--no-photo-consistency", a->no_photo, "keep every point (no outlier removal)");
   cmd->add_option("--y-threshold", a->y, "photo-consistency: max luminance deviation (0..1)")->capture_default_str();
   cmd->add_option("--uv-threshold", a->uv, "photo-consistency: max chrominance deviation (0..1)")->capture_default_str();
@@ -85,7 +89,7 @@ void RegisterRun(CLI::App& app, int* rc) {
       backend = std::move(b).value();
     }
     IngestOptions o = a->o;
-    o.stereo.subpixel = !a->no_subpixel;
+    ParseSubpixel(a->subpixel, &o.stereo.subpixel);  // checked by CLI11
     o.photo_consistency = !a->no_photo;
     o.photo.max_dy = a->y;
     o.photo.max_du = o.photo.max_dv = a->uv;

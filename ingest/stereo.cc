@@ -283,7 +283,7 @@ Result<DisparityMap> Match(const std::vector<cv::Mat>& lefts_in, const std::vect
   // S5 works on the intensities, S1-S4 on the zero-mean signal (see Prefilter).
   std::vector<cv::Mat> lf(nframes), rf(nframes), zl(nframes), zr(nframes);
   for (int f = 0; f < nframes; ++f) {
-    if (params.subpixel) {
+    if (params.subpixel == Subpixel::kLevenbergMarquardt) {
       lefts[f].convertTo(lf[f], CV_32F);
       rights[f].convertTo(rf[f], CV_32F);
     }
@@ -301,155 +301,176 @@ Result<DisparityMap> Match(const std::vector<cv::Mat>& lefts_in, const std::vect
   DisparityMap out;
   StereoTiming& tm = out.timing;
 
-  // S1 (averaged over frames for spacetime: a constant-disparity spacetime window).
-  Volume a, b;
-  a.Resize(H, W, dp);
-  b.Resize(H, W, dp);
-  auto t0 = Clock::now();
-  ParallelBands(H, threads, [&](int y0, int y1) {
-    CostRowWorkspace ws;
-    for (int y = y0; y < y1; ++y) {
-      uint16_t* row = a.Row(y);
-      for (int f = 0; f < nframes; ++f) {
-        CostRow(zl[f].ptr<uint8_t>(y), zr[f].ptr<uint8_t>(y), W, dmin, dp, ws, row, f > 0);
-      }
-      if (nframes > 1) {
-        for (size_t i = 0; i < static_cast<size_t>(W) * dp; ++i) {
-          row[i] = static_cast<uint16_t>((row[i] + nframes / 2) / nframes);
-        }
-      }
-    }
-  });
-  auto t1 = Clock::now();
-  tm.cost_ms = Ms(t0, t1);
-
-  // S2: box filter per layer, horizontal (a -> b) then vertical (b -> a) running sums. The
-  // vertical sum can pass 2^16 for large windows: it is kept in uint32 and shifted down to fit.
+  // S1-S4 and the cross-check, streamed in bands of rows: each band computes the cost rows it
+  // needs (its rows plus 2r above and below, for the vertical box and minimum filters), so
+  // a band's volumes (~(B + 4r) rows x W x dp) stay in cache and are reused band after band,
+  // instead of two whole-image volumes (~115 MB at Middlebury 2014 Q) that were faulted in,
+  // zeroed and freed on every call (a third of the time). Every stage is row-local after the
+  // two vertical filters, so bands are independent; threads take them in turn. Stage times are
+  // the threads' summed times divided by the thread count.
   int shift = 0;
   while ((static_cast<int64_t>(params.window) * params.window * kMaxPixelCost >> shift) > 65535) ++shift;
-  ParallelBands(H, threads, [&](int y0, int y1) {
-    std::vector<uint16_t> acc;
-    for (int y = y0; y < y1; ++y) BoxRow(a.Row(y), W, dp, r, b.Row(y), acc);
-  });
-  ParallelBands(H, threads, [&](int y0, int y1) {
-    const size_t n = static_cast<size_t>(W) * dp;
-    std::vector<uint32_t> acc(n, 0);
-    for (int i = y0 - r; i <= y0 + r; ++i) {
-      const uint16_t* p = b.Row(std::clamp(i, 0, H - 1));
-      for (size_t k = 0; k < n; ++k) acc[k] += p[k];
-    }
-    for (int y = y0; y < y1; ++y) {
-      if (y > y0) {
-        const uint16_t* add = b.Row(std::min(y + r, H - 1));
-        const uint16_t* sub = b.Row(std::max(y - r - 1, 0));
-        for (size_t k = 0; k < n; ++k) acc[k] += static_cast<uint32_t>(add[k]) - sub[k];
-      }
-      uint16_t* o = a.Row(y);
-      for (size_t k = 0; k < n; ++k) o[k] = static_cast<uint16_t>(acc[k] >> shift);
-    }
-  });
-  auto t2 = Clock::now();
-  tm.aggregate_ms = Ms(t1, t2);
-
-  // S3: eq. 3.32, the best of all windows containing the pixel = erosion of each layer with
-  // the window; separable: horizontal min (a -> b), vertical min (b -> a).
-  if (params.multi_window && r > 0) {
-    ParallelBands(H, threads, [&](int y0, int y1) {
-      for (int y = y0; y < y1; ++y) MinRow(a.Row(y), W, dp, r, b.Row(y));
-    });
-    ParallelBands(H, threads, [&](int y0, int y1) {
-      const size_t n = static_cast<size_t>(W) * dp;
-      for (int y = y0; y < y1; ++y) {
-        uint16_t* o = a.Row(y);
-        const int lo = std::max(y - r, 0), hi = std::min(y + r, H - 1);
-        std::copy(b.Row(lo), b.Row(lo) + n, o);
-        for (int i = lo + 1; i <= hi; ++i) {
-          const uint16_t* p = b.Row(i);
-          for (size_t k = 0; k < n; ++k) o[k] = std::min(o[k], p[k]);
-        }
-      }
-    });
-  }
-  auto t3 = Clock::now();
-  tm.min_filter_ms = Ms(t2, t3);
-
-  // S4: winner-takes-all over the D real layers (padding layers ignored), plus the parabola
-  // through the costs at k-1, k, k+1 (S5's starting point and fallback).
-  cv::Mat kl(H, W, CV_16S), dpar(H, W, CV_32F);
-  ParallelBands(H, threads, [&](int y0, int y1) {
-    for (int y = y0; y < y1; ++y) {
-      const uint16_t* row = a.Row(y);
-      int16_t* ko = kl.ptr<int16_t>(y);
-      float* po = dpar.ptr<float>(y);
-      for (int x = 0; x < W; ++x) {
-        const uint16_t* c = row + static_cast<size_t>(x) * dp;
-        int best = 0;
-        uint16_t bc = c[0];
-        for (int k = 1; k < D; ++k) {
-          if (c[k] < bc) bc = c[k], best = k;
-        }
-        ko[x] = static_cast<int16_t>(best);
-        float off = 0;
-        if (best > 0 && best < D - 1) {
-          const float cm = c[best - 1], c0 = c[best], cp = c[best + 1];
-          const float den = cm - 2 * c0 + cp;
-          if (den > 0) off = std::clamp(0.5f * (cm - cp) / den, -0.5f, 0.5f);
-        }
-        po[x] = static_cast<float>(dmin + best) + off;
-      }
-    }
-  });
-  auto t4 = Clock::now();
-  tm.wta_ms = Ms(t3, t4);
-
-  // Left-right check (3.5.1): the right view's WTA from the same volume (right pixel xr and
-  // layer k see left pixel xr + dmin + k). Matches outside the right image are invalid too.
-  cv::Mat valid(H, W, CV_8U);
-  ParallelBands(H, threads, [&](int y0, int y1) {
+  const bool min_filter = params.multi_window && r > 0;
+  const int band = 32;
+  const int bands = (H + band - 1) / band;
+  cv::Mat kl(H, W, CV_16S), dpar(H, W, CV_32F), valid(H, W, CV_8U);
+  std::atomic<int> next_band{0};
+  std::atomic<int64_t> ns[5] = {0, 0, 0, 0, 0};  // cost, aggregate, min, wta, check
+  const int nthreads = std::max(1, std::min(threads, bands));
+  ParallelBands(nthreads, nthreads, [&](int, int) {
+    CostRowWorkspace ws;
+    Volume cost, agg;  // this thread's band volumes, reused
+    std::vector<uint16_t> acc16, tmp;
+    std::vector<uint32_t> acc;
     std::vector<int> kr(W);
-    for (int y = y0; y < y1; ++y) {
-      const uint16_t* row = a.Row(y);
-      const int16_t* kly = kl.ptr<int16_t>(y);
-      uint8_t* vo = valid.ptr<uint8_t>(y);
-      if (params.cross_check) {
-        for (int xr = 0; xr < W; ++xr) {
-          int best = -1;
-          uint16_t bc = std::numeric_limits<uint16_t>::max();
-          const int kmin = std::max(0, -(xr + dmin));
-          const int kmax = std::min(D - 1, W - 1 - xr - dmin);
-          for (int k = kmin; k <= kmax; ++k) {
-            const uint16_t c = row[static_cast<size_t>(xr + dmin + k) * dp + k];
-            if (c < bc) bc = c, best = k;
+    const size_t n = static_cast<size_t>(W) * dp;
+    auto lap = [](Clock::time_point& t, std::atomic<int64_t>& into) {
+      const auto now = Clock::now();
+      into += std::chrono::duration_cast<std::chrono::nanoseconds>(now - t).count();
+      t = now;
+    };
+    for (int bi = next_band++; bi < bands; bi = next_band++) {
+      const int y0 = bi * band, y1 = std::min(H, y0 + band);
+      // Rows of the aggregated volume [a0, a1) and of the cost volume [c0, c1) this band needs.
+      const int a0 = min_filter ? std::max(0, y0 - r) : y0;
+      const int a1 = min_filter ? std::min(H, y1 + r) : y1;
+      const int c0 = std::max(0, a0 - r), c1 = std::min(H, a1 + r);
+      cost.Resize(c1 - c0, W, dp);
+      agg.Resize(std::max(a1 - a0, y1 - y0), W, dp);
+      auto t = Clock::now();
+      // S1 (averaged over frames for spacetime: a constant-disparity spacetime window).
+      for (int y = c0; y < c1; ++y) {
+        uint16_t* row = cost.Row(y - c0);
+        for (int f = 0; f < nframes; ++f) {
+          CostRow(zl[f].ptr<uint8_t>(y), zr[f].ptr<uint8_t>(y), W, dmin, dp, ws, row, f > 0);
+        }
+        if (nframes > 1) {
+          for (size_t i = 0; i < n; ++i) row[i] = static_cast<uint16_t>((row[i] + nframes / 2) / nframes);
+        }
+      }
+      lap(t, ns[0]);
+      // S2: box filter per layer: horizontal in place (through a row), then vertical running
+      // sums (cost -> agg; kept in uint32 and shifted down, as the sum may pass 2^16).
+      tmp.resize(n);
+      for (int y = c0; y < c1; ++y) {
+        BoxRow(cost.Row(y - c0), W, dp, r, tmp.data(), acc16);
+        std::copy(tmp.begin(), tmp.end(), cost.Row(y - c0));
+      }
+      acc.assign(n, 0);
+      auto crow = [&](int i) { return cost.Row(std::clamp(i, 0, H - 1) - c0); };
+      for (int i = a0 - r; i <= a0 + r; ++i) {
+        const uint16_t* p = crow(i);
+        for (size_t k = 0; k < n; ++k) acc[k] += p[k];
+      }
+      for (int y = a0; y < a1; ++y) {
+        if (y > a0) {
+          const uint16_t* add = crow(y + r);
+          const uint16_t* sub = crow(y - r - 1);
+          for (size_t k = 0; k < n; ++k) acc[k] += static_cast<uint32_t>(add[k]) - sub[k];
+        }
+        uint16_t* o = agg.Row(y - a0);
+        for (size_t k = 0; k < n; ++k) o[k] = static_cast<uint16_t>(acc[k] >> shift);
+      }
+      lap(t, ns[1]);
+      // S3: eq. 3.32, the best of all windows containing the pixel = erosion of each layer
+      // with the window; separable: horizontal min in place, vertical min (agg -> cost rows).
+      auto final_row = [&](int y) -> const uint16_t* { return agg.Row(y - a0); };
+      std::function<const uint16_t*(int)> fin = final_row;
+      if (min_filter) {
+        for (int y = a0; y < a1; ++y) {
+          MinRow(agg.Row(y - a0), W, dp, r, tmp.data());
+          std::copy(tmp.begin(), tmp.end(), agg.Row(y - a0));
+        }
+        for (int y = y0; y < y1; ++y) {
+          uint16_t* o = cost.Row(y - y0);  // the cost rows are spent: reused for the result
+          const int lo = std::max(y - r, 0), hi = std::min(y + r, H - 1);
+          std::copy(agg.Row(lo - a0), agg.Row(lo - a0) + n, o);
+          for (int i = lo + 1; i <= hi; ++i) {
+            const uint16_t* p = agg.Row(i - a0);
+            for (size_t k = 0; k < n; ++k) o[k] = std::min(o[k], p[k]);
           }
-          kr[xr] = best;
+        }
+        fin = [&](int y) -> const uint16_t* { return cost.Row(y - y0); };
+      }
+      lap(t, ns[2]);
+      // S4: winner-takes-all over the D real layers (padding layers ignored), plus the
+      // parabola through the costs at k-1, k, k+1 (S5's starting point and fallback).
+      for (int y = y0; y < y1; ++y) {
+        const uint16_t* row = fin(y);
+        int16_t* ko = kl.ptr<int16_t>(y);
+        float* po = dpar.ptr<float>(y);
+        for (int x = 0; x < W; ++x) {
+          const uint16_t* c = row + static_cast<size_t>(x) * dp;
+          int best = 0;
+          uint16_t bc = c[0];
+          for (int k = 1; k < D; ++k) {
+            if (c[k] < bc) bc = c[k], best = k;
+          }
+          ko[x] = static_cast<int16_t>(best);
+          float off = 0;
+          if (best > 0 && best < D - 1) {
+            const float cm = c[best - 1], c0v = c[best], cp = c[best + 1];
+            const float den = cm - 2 * c0v + cp;
+            if (den > 0) off = std::clamp(0.5f * (cm - cp) / den, -0.5f, 0.5f);
+          }
+          po[x] = static_cast<float>(dmin + best) + off;
         }
       }
-      for (int x = 0; x < W; ++x) {
-        const int xr = x - dmin - kly[x];
-        bool ok = xr >= 0 && xr < W;
-        if (ok && params.cross_check) {
-          ok = kr[xr] >= 0 && std::abs(kr[xr] - kly[x]) <= params.cross_check_tolerance;
+      lap(t, ns[3]);
+      // Left-right check (3.5.1): the right view's WTA from the same volume (right pixel xr
+      // and layer k see left pixel xr + dmin + k). Matches outside the right image are invalid.
+      for (int y = y0; y < y1; ++y) {
+        const uint16_t* row = fin(y);
+        const int16_t* kly = kl.ptr<int16_t>(y);
+        uint8_t* vo = valid.ptr<uint8_t>(y);
+        if (params.cross_check) {
+          for (int xr = 0; xr < W; ++xr) {
+            int best = -1;
+            uint16_t bc = std::numeric_limits<uint16_t>::max();
+            const int kmin = std::max(0, -(xr + dmin));
+            const int kmax = std::min(D - 1, W - 1 - xr - dmin);
+            for (int k = kmin; k <= kmax; ++k) {
+              const uint16_t c = row[static_cast<size_t>(xr + dmin + k) * dp + k];
+              if (c < bc) bc = c, best = k;
+            }
+            kr[xr] = best;
+          }
         }
-        vo[x] = ok ? 1 : 0;
+        for (int x = 0; x < W; ++x) {
+          const int xr = x - dmin - kly[x];
+          bool ok = xr >= 0 && xr < W;
+          if (ok && params.cross_check) {
+            ok = kr[xr] >= 0 && std::abs(kr[xr] - kly[x]) <= params.cross_check_tolerance;
+          }
+          vo[x] = ok ? 1 : 0;
+        }
       }
+      lap(t, ns[4]);
     }
   });
+  auto per = [&](int i) { return ns[i].load() / 1e6 / nthreads; };
+  tm.cost_ms = per(0);
+  tm.aggregate_ms = per(1);
+  tm.min_filter_ms = per(2);
+  tm.wta_ms = per(3);
+  tm.cross_check_ms = per(4);
   auto t5 = Clock::now();
-  tm.cross_check_ms = Ms(t4, t5);
-  a = Volume();  // the volume is not needed by S5: give its memory back early
-  b = Volume();
 
   const float inf = std::numeric_limits<float>::infinity();
   out.d.create(H, W, CV_32F);
   out.dx = cv::Mat::zeros(H, W, CV_32F);
   out.dy = cv::Mat::zeros(H, W, CV_32F);
   if (spacetime) out.dt = cv::Mat::zeros(H, W, CV_32F);
-  if (!params.subpixel) {
-    // Integer disparities: S5 is what makes them subpixel.
+  if (params.subpixel != Subpixel::kLevenbergMarquardt) {
+    // Integer disparities, or S4's parabola fits.
+    const bool parabola = params.subpixel == Subpixel::kParabola;
     for (int y = 0; y < H; ++y) {
+      const uint8_t* v = valid.ptr<uint8_t>(y);
+      const int16_t* k = kl.ptr<int16_t>(y);
+      const float* pf = dpar.ptr<float>(y);
+      float* o = out.d.ptr<float>(y);
       for (int x = 0; x < W; ++x) {
-        out.d.at<float>(y, x) =
-            valid.at<uint8_t>(y, x) ? static_cast<float>(dmin + kl.at<int16_t>(y, x)) : inf;
+        o[x] = !v[x] ? inf : parabola ? pf[x] : static_cast<float>(dmin + k[x]);
       }
     }
   } else {
@@ -528,6 +549,14 @@ Result<DisparityMap> Match(const std::vector<cv::Mat>& lefts_in, const std::vect
 }
 
 }  // namespace
+
+bool ParseSubpixel(const std::string& name, Subpixel* out) {
+  if (name == "none") *out = Subpixel::kNone;
+  else if (name == "parabola") *out = Subpixel::kParabola;
+  else if (name == "lm") *out = Subpixel::kLevenbergMarquardt;
+  else return false;
+  return true;
+}
 
 Status StereoParams::Validate(const cv::Size& image_size) const {
   if (image_size.width <= 0 || image_size.height <= 0) {

@@ -4,18 +4,33 @@
 //   S3 multi-window minimum filter of every layer (eq. 3.32),
 //   S4 winner-takes-all, with a left-right cross-check from the same cost volume (3.5.1),
 //   S5 subpixel refinement of (d, dx, dy[, dt]) by Levenberg-Marquardt (eqs. 3.28-3.31),
-//      masking window pixels across depth discontinuities.
+//      masking window pixels across depth discontinuities; or only the parabola through the
+//      three costs around the winner (S4), at a twentieth of the time.
 // Disparities are d = x_left - x_right (positive for points in front of the cameras), the
 // Middlebury convention.
 #ifndef HVDB_INGEST_STEREO_H_
 #define HVDB_INGEST_STEREO_H_
 
 #include <opencv2/core.hpp>
+#include <string>
 #include <vector>
 
 #include "storage/status.h"
 
 namespace hvdb::ingest {
+
+// What makes disparities subpixel.
+enum class Subpixel {
+  kNone,      // integer disparities (the winners of S4)
+  kParabola,  // the parabola through the aggregated costs at d-1, d, d+1 (as SGBM does)
+  // S5: Levenberg-Marquardt on (d, dx, dy[, dt]) over the window, with gradients: the
+  // thesis's refinement for structured-light stripes. On Middlebury's natural scenes it
+  // scores as the parabola does (bench/README.md, stereo-bench --subpixel lm) at 8x the time.
+  kLevenbergMarquardt,
+};
+
+// "none", "parabola" or "lm" (command-line spelling); false for anything else.
+bool ParseSubpixel(const std::string& name, Subpixel* out);
 
 struct StereoParams {
   int min_disparity = 0;        // disparities searched: [min_disparity, min_disparity + num_disparities)
@@ -24,7 +39,7 @@ struct StereoParams {
   bool multi_window = true;     // S3: minimum filter of eq. 3.32 with the same window
   bool cross_check = true;      // left-right check; mismatch > cross_check_tolerance => invalid
   int cross_check_tolerance = 1;
-  bool subpixel = true;         // S5: Levenberg-Marquardt refinement of (d, dx, dy[, dt])
+  Subpixel subpixel = Subpixel::kLevenbergMarquardt;
   double discontinuity_threshold = 2.0;  // px: window pixels whose coarse d differs more are masked in S5
   int threads = 0;              // 0 = all hardware threads
   Status Validate(const cv::Size& image_size) const;   // clear errors for out-of-range params
@@ -38,7 +53,7 @@ struct StereoTiming {
 
 struct DisparityMap {
   cv::Mat d;            // CV_32F, left view, pixels, x_left - x_right; +inf = invalid (occluded/unmatched)
-  cv::Mat dx, dy, dt;   // CV_32F disparity gradients from S5 (zeros when subpixel is off; dt empty unless spacetime)
+  cv::Mat dx, dy, dt;   // CV_32F disparity gradients from S5 (zeros without LM; dt empty unless spacetime)
   StereoTiming timing;
 };
 

@@ -19,7 +19,8 @@ namespace {
 struct StereoOptions {
   std::string left, right, out;
   StereoParams params;
-  bool no_subpixel = false, no_multi_window = false, no_cross_check = false;
+  std::string subpixel = "lm";
+  bool no_multi_window = false, no_cross_check = false;
 };
 
 int RunStereo(const StereoOptions& o) {
@@ -38,7 +39,7 @@ int RunStereo(const StereoOptions& o) {
   cv::Mat l, r;
   if (!load(o.left, &l) || !load(o.right, &r)) return 1;
   StereoParams p = o.params;
-  p.subpixel = !o.no_subpixel;
+  ParseSubpixel(o.subpixel, &p.subpixel);  // checked by CLI11
   p.multi_window = !o.no_multi_window;
   p.cross_check = !o.no_cross_check;
   auto res = MatchStereo(l, r, p);
@@ -92,7 +93,10 @@ void RegisterStereoCommand(CLI::App& app) {
   sub->add_option("--discontinuity-threshold", o->params.discontinuity_threshold,
                   "px: window pixels whose coarse disparity differs more are left out of S5")
       ->capture_default_str();
-  sub->add_flag("--no-subpixel", o->no_subpixel, "integer disparities (skip S5)");
+  sub->add_option("--subpixel", o->subpixel,
+                  "none (integer disparities), parabola (through the costs around the winner) "
+                  "or lm (S5: Levenberg-Marquardt on disparity and its gradients)")
+      ->capture_default_str()->check(CLI::IsMember({"none", "parabola", "lm"}));
   sub->add_flag("--no-multi-window", o->no_multi_window, "skip the minimum filter (S3)");
   sub->add_flag("--no-cross-check", o->no_cross_check, "skip the left-right check");
   sub->callback([o]() {

@@ -138,7 +138,7 @@ TEST(Stereo, ConstantSubpixelShift) {
   EXPECT_GE(s.valid, 0.95);
   // Without S5 the result is the integer WTA: off by the fractional 0.37.
   StereoParams coarse = SynthParams();
-  coarse.subpixel = false;
+  coarse.subpixel = Subpixel::kNone;
   auto c = MatchStereo(l, r, coarse);
   ASSERT_TRUE(c.ok());
   const Stats sc = Evaluate(*c, plane, 8, 24);
