@@ -1,5 +1,7 @@
 #include "edit/graph_cut.h"
 
+#include "edit/maxflow.h"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -8,12 +10,8 @@
 #include <map>
 
 #include <atomic>
-#include <iterator>
 #include <thread>
 
-#include <boost/graph/boykov_kolmogorov_max_flow.hpp>
-#include <boost/graph/compressed_sparse_row_graph.hpp>
-#include <boost/property_map/property_map.hpp>
 #include <nanoflann.hpp>
 #include <opencv2/core.hpp>
 #include <opencv2/ml.hpp>
@@ -65,47 +63,6 @@ struct FrameIndex {
 };
 
 constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
-
-// The (source, target) pairs of edges laid out by source (CSR offsets `start`), generated as
-// the graph's constructor reads them instead of stored.
-class SortedEdges {
- public:
-  using iterator_category = std::input_iterator_tag;
-  using value_type = std::pair<uint32_t, uint32_t>;
-  using difference_type = std::ptrdiff_t;
-  using pointer = const value_type*;
-  using reference = value_type;
-  SortedEdges(const uint32_t* start, const uint32_t* target, size_t nv, uint32_t p)
-      : start_(start), target_(target), nv_(nv), p_(p) {
-    Settle();
-  }
-  value_type operator*() const { return cur_; }
-  pointer operator->() const { return &cur_; }
-  SortedEdges& operator++() {
-    ++p_;
-    Settle();
-    return *this;
-  }
-  SortedEdges operator++(int) {
-    SortedEdges old = *this;
-    ++*this;
-    return old;
-  }
-  bool operator==(const SortedEdges& o) const { return p_ == o.p_; }
-  bool operator!=(const SortedEdges& o) const { return p_ != o.p_; }
-
- private:
-  void Settle() {  // the source of edge p: skip vertices without out-edges
-    while (v_ < nv_ && start_[v_ + 1] <= p_) ++v_;
-    if (v_ < nv_) cur_ = {v_, target_[p_]};
-  }
-  const uint32_t* start_;
-  const uint32_t* target_;
-  size_t nv_;
-  uint32_t p_;
-  uint32_t v_ = 0;
-  value_type cur_{0, 0};
-};
 
 // fn(lo, hi) over [0, n) in one contiguous chunk per core (independent iterations only).
 template <typename Fn>
@@ -175,6 +132,9 @@ class ColorModel {
         data.at<double>(i, j) = samples[static_cast<size_t>(i) * stride][j];
       }
     }
+    // EM starts from k-means++ centres drawn from OpenCV's thread-local generator: seeded here,
+    // so that the same strokes always give the same models and the same cut.
+    cv::theRNG() = cv::RNG(0x9e3779b97f4a7c15ULL);
     auto em = cv::ml::EM::create();
     em->setClustersNumber(k);
     em->setCovarianceMatrixType(cv::ml::EM::COV_MAT_GENERIC);
@@ -229,19 +189,36 @@ class ColorModel {
 
 }  // namespace
 
-Result<GraphCutResult> RunGraphCut(const std::vector<Point>& points, const std::vector<Seed>& seeds,
-                                   const GraphCutParams& params) {
+// ---------------------------------------------------------------------------------------------
+// The graph: built once per region of interest, cut again for every new set of strokes.
+
+struct GraphCut::State {
+  GraphCutParams params;
+  std::vector<Attr> attr;
+  std::unique_ptr<MaxFlow> flow;
+  std::vector<float> hard;  // per node: a capacity no cut through its links can reach
+  bool solved = false;
+  GraphCutResult base;      // the build's figures (neighbours, graph, arcs, betas)
+};
+
+GraphCut::GraphCut(std::unique_ptr<State> s) : s_(std::move(s)) {}
+GraphCut::~GraphCut() = default;
+size_t GraphCut::size() const { return s_->attr.size(); }
+
+Result<std::unique_ptr<GraphCut>> GraphCut::Build(const std::vector<Point>& points,
+                                                 const GraphCutParams& params) {
   const size_t n = points.size();
-  if (seeds.size() != n) return Status::InvalidArgument("graph cut: one seed per point expected");
   if (params.k < 1 || params.intra_radius <= 0 || params.inter_radius <= 0 ||
       params.beta_c < 0 || params.beta_n < 0 || params.gmm_components < 1) {
     return Status::InvalidArgument("graph cut: k, radii and components must be positive, "
                                    "betas >= 0");
   }
-  GraphCutResult res;
-  res.selected.assign(n, 0);
-  std::vector<Attr> attr(n);
-  std::vector<cv::Vec3d> fg, bg;
+  if (n >= 0xfffffff0u) return Status::LimitExceeded("graph cut: too many points");
+  auto st = std::make_unique<State>();
+  st->params = params;
+  GraphCutResult& res = st->base;
+  std::vector<Attr>& attr = st->attr;
+  attr.resize(n);
   for (size_t i = 0; i < n; ++i) {
     const Point& p = points[i];
     attr[i].c[0] = p.r / 255.f;
@@ -250,13 +227,6 @@ Result<GraphCutResult> RunGraphCut(const std::vector<Point>& points, const std::
     attr[i].has_normal = params.use_normals && (p.flags & kFlagHasNormal);
     auto nn = DecodeNormal(p.normal_oct);
     for (int j = 0; j < 3; ++j) attr[i].n[j] = attr[i].has_normal ? nn[static_cast<size_t>(j)] : 0.f;
-    cv::Vec3d c(attr[i].c[0], attr[i].c[1], attr[i].c[2]);
-    if (seeds[i] == Seed::kForeground) fg.push_back(c);
-    if (seeds[i] == Seed::kBackground) bg.push_back(c);
-  }
-  if (fg.empty() || bg.empty()) {
-    return Status::InvalidArgument("graph cut: needs at least one foreground and one background "
-                                   "stroke inside the region of interest");
   }
 
   // Neighbourhoods (a kd-tree per frame).
@@ -320,6 +290,7 @@ Result<GraphCutResult> RunGraphCut(const std::vector<Point>& points, const std::
       if (related(a, b)) arcs.push_back({std::min(a, b), std::max(a, b), false});
     }
   }
+  std::vector<uint32_t>().swap(intra);
   // Inter-frame: to the k/2 nearest in the next frame.
   const int kt = std::max(1, params.k / 2);
   for (auto it = frames.begin(); it != frames.end(); ++it) {
@@ -336,89 +307,13 @@ Result<GraphCutResult> RunGraphCut(const std::vector<Point>& points, const std::
       }
     }
   }
+  frames.clear();
   res.neighbours_ms = Ms(t0);
 
-  // Likelihood energy (eq. 9.2). Theta is the negative log of the colour posterior rather than
-  // of the raw GMM density (eq. 9.3), which can exceed 1 for peaked models and make the ratio
-  // of eq. 9.2 meaningless; the order of preferences is the same.
-  t0 = Clock::now();
-  ColorModel mf, mb;
-  HVDB_RETURN_IF_ERROR(mf.Train(fg, params.gmm_components));
-  HVDB_RETURN_IF_ERROR(mb.Train(bg, params.gmm_components));
-  std::vector<double> e1(n, 0), e0(n, 0);
-  ParallelFor(n, [&](size_t lo, size_t hi) {
-    for (size_t i = lo; i < hi; ++i) {
-      if (seeds[i] != Seed::kUnknown) continue;
-      cv::Vec3d c(attr[i].c[0], attr[i].c[1], attr[i].c[2]);
-      double lf = mf.LogLikelihood(c), lb = mb.LogLikelihood(c);
-      double post_f = 1.0 / (1.0 + std::exp(std::clamp(lb - lf, -700.0, 700.0)));
-      double theta_f = -std::log(std::max(post_f, 1e-12));
-      double theta_b = -std::log(std::max(1.0 - post_f, 1e-12));
-      e1[i] = theta_f / (theta_f + theta_b);
-      e0[i] = theta_b / (theta_f + theta_b);
-    }
-  });
-  res.gmm_ms = Ms(t0);
-
-  // The graph: source = foreground (alpha = 1), sink = background. A compressed sparse row
-  // graph built in one pass from an edge list: Boost's adjacency_list took a node and a vector
-  // per vertex and an allocation per edge (2 s to build and free for a million points).
-  t0 = Clock::now();
-  // Capacities in single precision: they lie in [0, 2] (and 1e9 for seeds); 12 bytes an edge
-  // keeps a million-point graph's ~20 M edges in cache-friendlier memory.
-  struct EdgeProp {
-    float cap = 0, res = 0;
-  };
-  using Csr = boost::compressed_sparse_row_graph<boost::directedS, boost::no_property, EdgeProp,
-                                                 boost::no_property, uint32_t, uint32_t>;
-  using Edge = boost::graph_traits<Csr>::edge_descriptor;
-  const uint32_t src = static_cast<uint32_t>(n), snk = static_cast<uint32_t>(n + 1);
-  const size_t nv = n + 2;
-  // Terminal capacities (eq. 9.2) and the seeds' hard constraints: more than any cut through
-  // a node's arcs can cost.
-  const double inf = 1e9;
-  std::vector<float> to_src(n), to_snk(n);
-  for (size_t i = 0; i < n; ++i) {
-    double s = params.lambda_d * e0[i], t = params.lambda_d * e1[i];
-    if (seeds[i] == Seed::kForeground) {
-      s = inf;
-      t = 0;
-    } else if (seeds[i] == Seed::kBackground) {
-      s = 0;
-      t = inf;
-    }
-    to_src[i] = static_cast<float>(s);
-    to_snk[i] = static_cast<float>(t);
-  }
-  // The edges sorted by source, laid out directly (each node's degree is known), so that each
-  // edge's reverse is known as it is placed and the graph is built without a sort.
-  std::vector<uint32_t> start(nv + 1, 0);
-  for (size_t i = 0; i < n; ++i) {
-    if (to_src[i] > 0) ++start[src + 1], ++start[i + 1];
-    if (to_snk[i] > 0) ++start[snk + 1], ++start[i + 1];
-  }
-  for (const Arc& a : arcs) ++start[a.a + 1], ++start[a.b + 1];
-  for (size_t v = 0; v < nv; ++v) start[v + 1] += start[v];
-  const size_t ne = start[nv];
-  std::vector<uint32_t> fill(start.begin(), start.end() - 1), target(ne), twin(ne);
-  std::vector<EdgeProp> props(ne);
-  auto place = [&](uint32_t u, uint32_t v, double cuv, double cvu) {
-    const uint32_t p = fill[u]++, q = fill[v]++;
-    target[p] = v;
-    target[q] = u;
-    props[p].cap = static_cast<float>(cuv);
-    props[q].cap = static_cast<float>(cvu);
-    twin[p] = q;
-    twin[q] = p;
-  };
-  for (size_t i = 0; i < n; ++i) {
-    const auto u = static_cast<uint32_t>(i);
-    if (to_src[i] > 0) place(src, u, to_src[i], 0);
-    if (to_snk[i] > 0) place(u, snk, to_snk[i], 0);
-  }
   // Link costs (eqs. 9.5, 9.6), on all cores. beta 0: from the data, as GrabCut does (Rother
   // et al. 2004): the root mean square of the differences over the arcs, so that a typical
   // difference costs the same in a low- and in a high-contrast capture.
+  t0 = Clock::now();
   double beta_c = params.beta_c, beta_n = params.beta_n;
   if (beta_c == 0 || beta_n == 0) {
     double sc = 0, sn = 0;
@@ -453,9 +348,26 @@ Result<GraphCutResult> RunGraphCut(const std::vector<Point>& points, const std::
       weight[x] = static_cast<float>((a.inter ? params.lambda_t : params.lambda_i) * s);
     }
   });
+  // The graph in arrays, arcs laid out by node (each node's degree is known, so each arc's
+  // reverse is known as it is placed). Terminal links are not arcs: MaxFlow keeps one signed
+  // residual per node.
+  std::vector<uint32_t> start(n + 1, 0);
+  for (const Arc& a : arcs) ++start[a.a + 1], ++start[a.b + 1];
+  for (size_t v = 0; v < n; ++v) start[v + 1] += start[v];
+  const size_t ne = start[n];
+  std::vector<uint32_t> fill(start.begin(), start.end() - 1), head(ne), twin(ne);
+  std::vector<float> cap(ne);
+  st->hard.assign(n, 1.f);
   for (size_t x = 0; x < arcs.size(); ++x) {
     const Arc& a = arcs[x];
-    place(a.a, a.b, weight[x], weight[x]);
+    const uint32_t p = fill[a.a]++, q = fill[a.b]++;
+    head[p] = a.b;
+    head[q] = a.a;
+    cap[p] = cap[q] = weight[x];
+    twin[p] = q;
+    twin[q] = p;
+    st->hard[a.a] += weight[x];
+    st->hard[a.b] += weight[x];
     if (a.inter) {
       ++res.inter_edges;
     } else {
@@ -463,33 +375,98 @@ Result<GraphCutResult> RunGraphCut(const std::vector<Point>& points, const std::
     }
   }
   std::vector<Arc>().swap(arcs);
-  // Sorted input keeps its order: edge p of the list is edge index p of the graph.
-  Csr g(boost::edges_are_sorted, SortedEdges(start.data(), target.data(), nv, 0),
-        SortedEdges(start.data(), target.data(), nv, static_cast<uint32_t>(ne)), props.begin(), nv,
-        ne);
-  std::vector<EdgeProp>().swap(props);
-  const auto eindex = boost::get(boost::edge_index, g);
-  std::vector<Edge> rev(ne);
-  for (size_t p = 0; p < ne; ++p) rev[p] = Edge(target[p], twin[p]);
+  st->flow = std::make_unique<MaxFlow>(std::move(start), std::move(head), std::move(twin),
+                                       std::move(cap));
   res.graph_ms = Ms(t0);
+  return std::unique_ptr<GraphCut>(new GraphCut(std::move(st)));
+}
+
+Result<GraphCutResult> GraphCut::Cut(const std::vector<Seed>& seeds) {
+  State& st = *s_;
+  const size_t n = st.attr.size();
+  if (seeds.size() != n) return Status::InvalidArgument("graph cut: one seed per point expected");
+  std::vector<cv::Vec3d> fg, bg;
+  for (size_t i = 0; i < n; ++i) {
+    cv::Vec3d c(st.attr[i].c[0], st.attr[i].c[1], st.attr[i].c[2]);
+    if (seeds[i] == Seed::kForeground) fg.push_back(c);
+    if (seeds[i] == Seed::kBackground) bg.push_back(c);
+  }
+  if (fg.empty() || bg.empty()) {
+    return Status::InvalidArgument("graph cut: needs at least one foreground and one background "
+                                   "stroke inside the region of interest");
+  }
+  GraphCutResult res = st.base;
+  if (st.solved) res.neighbours_ms = res.graph_ms = 0;  // reused
+  res.warm = st.solved;
+  res.selected.assign(n, 0);
+
+  // Likelihood energy (eq. 9.2). Theta is the negative log of the colour posterior rather than
+  // of the raw GMM density (eq. 9.3), which can exceed 1 for peaked models and make the ratio
+  // of eq. 9.2 meaningless; the order of preferences is the same. The models are trained on
+  // every stroke given, so a re-cut minimises the same energy a first cut with all strokes does.
+  auto t0 = Clock::now();
+  ColorModel mf, mb;
+  HVDB_RETURN_IF_ERROR(mf.Train(fg, st.params.gmm_components));
+  HVDB_RETURN_IF_ERROR(mb.Train(bg, st.params.gmm_components));
+  std::vector<float> to_src(n), to_snk(n);
+  const double ld = st.params.lambda_d;
+  ParallelFor(n, [&](size_t lo, size_t hi) {
+    for (size_t i = lo; i < hi; ++i) {
+      // The seeds' hard constraints: more than any cut through a node's links can cost.
+      if (seeds[i] == Seed::kForeground) {
+        to_src[i] = st.hard[i] + static_cast<float>(2 * ld);
+        to_snk[i] = 0;
+        continue;
+      }
+      if (seeds[i] == Seed::kBackground) {
+        to_src[i] = 0;
+        to_snk[i] = st.hard[i] + static_cast<float>(2 * ld);
+        continue;
+      }
+      cv::Vec3d c(st.attr[i].c[0], st.attr[i].c[1], st.attr[i].c[2]);
+      double lf = mf.LogLikelihood(c), lb = mb.LogLikelihood(c);
+      double post_f = 1.0 / (1.0 + std::exp(std::clamp(lb - lf, -700.0, 700.0)));
+      double theta_f = -std::log(std::max(post_f, 1e-12));
+      double theta_b = -std::log(std::max(1.0 - post_f, 1e-12));
+      // Source = foreground (alpha = 1): cutting the source link labels a point background.
+      to_src[i] = static_cast<float>(ld * theta_b / (theta_f + theta_b));
+      to_snk[i] = static_cast<float>(ld * theta_f / (theta_f + theta_b));
+    }
+  });
+  for (size_t i = 0; i < n; ++i) st.flow->SetTerminals(static_cast<uint32_t>(i), to_src[i], to_snk[i]);
+  res.gmm_ms = Ms(t0);
 
   t0 = Clock::now();
-  std::vector<Edge> pred(nv);
-  std::vector<boost::default_color_type> color(nv);
-  std::vector<long> dist(nv);
-  const auto vindex = boost::get(boost::vertex_index, g);
-  res.energy = boost::boykov_kolmogorov_max_flow(
-      g, boost::get(&EdgeProp::cap, g), boost::get(&EdgeProp::res, g),
-      boost::make_iterator_property_map(rev.begin(), eindex),
-      boost::make_iterator_property_map(pred.begin(), vindex),
-      boost::make_iterator_property_map(color.begin(), vindex),
-      boost::make_iterator_property_map(dist.begin(), vindex), vindex, src, snk);
+  const uint64_t aug0 = st.flow->augmentations();
+  st.flow->Solve();
+  st.solved = true;
+  res.augmentations = st.flow->augmentations() - aug0;
   res.maxflow_ms = Ms(t0);
-  // Nodes still connected to the source in the residual graph are black (foreground).
+  // The cut's energy (eq. 9.1), from the labels: terminal links of the side each point is not
+  // on, and links between points on different sides.
+  double energy = 0;
   for (size_t i = 0; i < n; ++i) {
-    res.selected[i] = color[i] == boost::black_color ? 1 : 0;
+    res.selected[i] = st.flow->SourceSide(static_cast<uint32_t>(i)) ? 1 : 0;
+    energy += res.selected[i] ? to_snk[i] : to_src[i];
   }
+  energy += st.flow->CutLinks([&](uint32_t v) { return res.selected[v] != 0; });
+  res.energy = energy;
   return res;
+}
+
+Result<GraphCutResult> RunGraphCut(const std::vector<Point>& points, const std::vector<Seed>& seeds,
+                                   const GraphCutParams& params) {
+  if (seeds.size() != points.size()) {
+    return Status::InvalidArgument("graph cut: one seed per point expected");
+  }
+  size_t fg = 0, bg = 0;
+  for (Seed s : seeds) fg += s == Seed::kForeground, bg += s == Seed::kBackground;
+  if (fg == 0 || bg == 0) {
+    return Status::InvalidArgument("graph cut: needs at least one foreground and one background "
+                                   "stroke inside the region of interest");
+  }
+  HVDB_ASSIGN_OR_RETURN(auto g, GraphCut::Build(points, params));
+  return g->Cut(seeds);
 }
 
 }  // namespace hvdb::edit

@@ -6,11 +6,14 @@
 // t-1). Arcs between evidently unrelated points (colour or normal difference above a threshold)
 // are left out. Foreground and background strokes seed two colour GMMs (OpenCV EM, 5 full-
 // covariance components); the energy (9.1) is minimised by Boykov-Kolmogorov max-flow
-// (Boost.Graph).
+// (edit/maxflow.h). A GraphCut keeps its graph and flow: cutting again with more strokes (the
+// thesis's workflow: paint, look, paint more) reuses the neighbourhoods and links and starts
+// from the previous flow.
 #ifndef HVDB_EDIT_GRAPH_CUT_H_
 #define HVDB_EDIT_GRAPH_CUT_H_
 
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "storage/point.h"
@@ -51,10 +54,30 @@ struct GraphCutResult {
   uint64_t intra_edges = 0, inter_edges = 0;
   double neighbours_ms = 0, gmm_ms = 0, graph_ms = 0, maxflow_ms = 0;
   double beta_c = 0, beta_n = 0;  // the betas used
+  bool warm = false;              // a re-cut: graph reused, flow continued
+  uint64_t augmentations = 0;
 };
 
-// `points` may span several frames (their frame field); `seeds` has one entry per point.
-// Needs at least one foreground and one background seed.
+class GraphCut {
+ public:
+  // Neighbourhoods and link costs of `points` (they may span several frames).
+  static Result<std::unique_ptr<GraphCut>> Build(const std::vector<Point>& points,
+                                                 const GraphCutParams& params = {});
+  ~GraphCut();
+  // Cuts with these strokes (one seed per point; at least one of each kind): colour models
+  // trained on them, terminal links set, max-flow from the previous cut's flow if any. The
+  // result is the minimum of the same energy a first cut with these seeds finds.
+  Result<GraphCutResult> Cut(const std::vector<Seed>& seeds);
+  size_t size() const;
+
+ private:
+  struct State;
+  explicit GraphCut(std::unique_ptr<State> s);
+  std::unique_ptr<State> s_;
+};
+
+// One cut: Build, then Cut. `points` may span several frames (their frame field); `seeds` has
+// one entry per point. Needs at least one foreground and one background seed.
 Result<GraphCutResult> RunGraphCut(const std::vector<Point>& points, const std::vector<Seed>& seeds,
                                    const GraphCutParams& params = {});
 

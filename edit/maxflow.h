@@ -1,0 +1,79 @@
+// Max-flow / min-cut of the graph-cut selection: the Boykov-Kolmogorov algorithm (two search
+// trees grown from the terminals, reused across augmentations) over arrays laid out by the
+// graph cut, with Kolmogorov's timestamp/distance heuristic for re-attaching orphans, and a
+// warm start for a re-cut: the previous flow is kept and the changed terminal capacities are
+// reparametrised into it (Kohli & Torr, "Dynamic graph cuts", PAMI 2007).
+//
+// Written here, not Boost's boykov_kolmogorov_max_flow (used before): a re-cut after one more
+// stroke must start from the previous flow, which Boost's interface cannot (it resets the
+// residual capacities on every call), and a flat array layout with terminal links folded into
+// one signed residual per node is what Kolmogorov's own implementation uses.
+#ifndef HVDB_EDIT_MAXFLOW_H_
+#define HVDB_EDIT_MAXFLOW_H_
+
+#include <cstddef>
+#include <cstdint>
+#include <deque>
+#include <string>
+#include <vector>
+
+namespace hvdb::edit {
+
+class MaxFlow {
+ public:
+  // Arcs of node v are [start[v], start[v + 1]); arc a goes to head[a], twin[a] is its reverse
+  // and cap[a] its capacity. n = start.size() - 1 nodes; no terminal nodes (see SetTerminals).
+  MaxFlow(std::vector<uint32_t> start, std::vector<uint32_t> head, std::vector<uint32_t> twin,
+          std::vector<float> cap);
+  size_t nodes() const { return tr_.size(); }
+  // Node v's capacities from the source (to_source) and to the sink. The first call sets them;
+  // later calls change them while keeping the flow found so far (a reparametrisation: the
+  // difference goes into v's terminal residual), so that Solve() continues from there.
+  void SetTerminals(uint32_t v, float to_source, float to_sink);
+  // Finds a maximum flow, continuing from the flow found so far.
+  void Solve();
+  // After Solve: whether v is on the source side of the minimum cut.
+  bool SourceSide(uint32_t v) const { return parent_[v] != kFree && !sink_[v]; }
+  uint64_t augmentations() const { return augmentations_; }
+  // For tests: "" when the search trees are consistent (every tree node's parent arcs lead to
+  // its terminal through residual arcs of its own tree, without cycles), else the first fault.
+  std::string CheckTrees() const;
+  // The summed capacity of the links from nodes with side(v) true to nodes with it false.
+  // Links are symmetric here (the graph cut's are), so a link's capacity is the mean of its
+  // two residuals whatever flows through it.
+  template <typename Side>
+  double CutLinks(Side&& side) const {
+    double sum = 0;
+    for (uint32_t v = 0; v + 1 < start_.size(); ++v) {
+      if (!side(v)) continue;
+      for (uint32_t a = start_[v]; a < start_[v + 1]; ++a) {
+        if (!side(head_[a])) sum += 0.5 * (static_cast<double>(rcap_[a]) + rcap_[twin_[a]]);
+      }
+    }
+    return sum;
+  }
+
+ private:
+  static constexpr uint32_t kFree = 0xffffffffu, kTerminal = 0xfffffffeu, kOrphan = 0xfffffffdu;
+  void Activate(uint32_t v);
+  void Augment(uint32_t mid);  // mid: an arc from the source tree into the sink tree
+  void Adopt(uint32_t v);
+  void Orphan(uint32_t v, bool front);
+  void StartTrees();  // a one-link pre-pass, then every node with a terminal residual a root
+
+  std::vector<uint32_t> start_, head_, twin_;
+  std::vector<float> rcap_;         // residual capacity of each arc
+  std::vector<float> tr_;           // terminal residual: > 0 from the source, < 0 to the sink
+  std::vector<float> to_src_, to_snk_;  // the capacities SetTerminals was given
+  std::vector<uint32_t> parent_;    // arc from v to its parent, or kFree / kTerminal / kOrphan
+  std::vector<uint8_t> sink_;       // tree of v: 0 source, 1 sink
+  std::vector<uint8_t> active_;     // v is in queue_
+  std::vector<uint32_t> ts_, dist_;  // Kolmogorov's heuristic: time stamp, distance to terminal
+  std::deque<uint32_t> queue_, orphans_;
+  uint32_t time_ = 0;
+  uint64_t augmentations_ = 0;
+};
+
+}  // namespace hvdb::edit
+
+#endif  // HVDB_EDIT_MAXFLOW_H_
