@@ -500,6 +500,7 @@ class RemoteBackend final : public Backend {
     out.cut.gmm_ms = r->gmm_ms();
     out.cut.graph_ms = r->graph_ms();
     out.cut.maxflow_ms = r->maxflow_ms();
+    out.cut.warm = r->recut();
     out.load_ms = r->load_ms();
     out.commit_ms = r->commit_ms();
     return out;

@@ -1920,6 +1920,7 @@ int Cli::CmdGraphCut() {
                {"intra_edges", c.intra_edges},
                {"inter_edges", c.inter_edges},
                {"lsn", r->lsn},
+               {"recut", c.warm},
                {"timings_ms",
                 {{"load", r->load_ms},
                  {"neighbours", c.neighbours_ms},
@@ -1937,8 +1938,9 @@ int Cli::CmdGraphCut() {
               static_cast<unsigned long long>(c.inter_edges));
   std::printf(
       "time: load %.1f ms, neighbours %.1f ms, GMM %.1f ms, graph %.1f ms, max-flow %.1f ms, "
-      "commit %.1f ms\n",
-      r->load_ms, c.neighbours_ms, c.gmm_ms, c.graph_ms, c.maxflow_ms, r->commit_ms);
+      "commit %.1f ms%s\n",
+      r->load_ms, c.neighbours_ms, c.gmm_ms, c.graph_ms, c.maxflow_ms, r->commit_ms,
+      c.warm ? " (a re-cut: the server's last graph and flow reused)" : "");
   if (r->lsn != 0) {
     std::printf("committed lsn %llu\n", static_cast<unsigned long long>(r->lsn));
   } else {

@@ -395,6 +395,13 @@ Result<GraphCutResult> GraphCut::Cut(const std::vector<Seed>& seeds) {
     return Status::InvalidArgument("graph cut: needs at least one foreground and one background "
                                    "stroke inside the region of interest");
   }
+  // The models must not depend on the order the points came in (a re-cut's node order is the
+  // first query's): the stroked colours sorted, then subsampled and fitted.
+  auto by_colour = [](const cv::Vec3d& a, const cv::Vec3d& b) {
+    return std::lexicographical_compare(a.val, a.val + 3, b.val, b.val + 3);
+  };
+  std::sort(fg.begin(), fg.end(), by_colour);
+  std::sort(bg.begin(), bg.end(), by_colour);
   GraphCutResult res = st.base;
   if (st.solved) res.neighbours_ms = res.graph_ms = 0;  // reused
   res.warm = st.solved;

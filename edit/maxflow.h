@@ -25,7 +25,7 @@ class MaxFlow {
   // and cap[a] its capacity. n = start.size() - 1 nodes; no terminal nodes (see SetTerminals).
   MaxFlow(std::vector<uint32_t> start, std::vector<uint32_t> head, std::vector<uint32_t> twin,
           std::vector<float> cap);
-  size_t nodes() const { return tr_.size(); }
+  size_t nodes() const { return node_.size(); }
   // Node v's capacities from the source (to_source) and to the sink. The first call sets them;
   // later calls change them while keeping the flow found so far (a reparametrisation: the
   // difference goes into v's terminal residual), so that Solve() continues from there.
@@ -33,7 +33,7 @@ class MaxFlow {
   // Finds a maximum flow, continuing from the flow found so far.
   void Solve();
   // After Solve: whether v is on the source side of the minimum cut.
-  bool SourceSide(uint32_t v) const { return parent_[v] != kFree && !sink_[v]; }
+  bool SourceSide(uint32_t v) const { return node_[v].parent != kFree && !node_[v].sink; }
   uint64_t augmentations() const { return augmentations_; }
   // For tests: "" when the search trees are consistent (every tree node's parent arcs lead to
   // its terminal through residual arcs of its own tree, without cycles), else the first fault.
@@ -47,7 +47,7 @@ class MaxFlow {
     for (uint32_t v = 0; v + 1 < start_.size(); ++v) {
       if (!side(v)) continue;
       for (uint32_t a = start_[v]; a < start_[v + 1]; ++a) {
-        if (!side(head_[a])) sum += 0.5 * (static_cast<double>(rcap_[a]) + rcap_[twin_[a]]);
+        if (!side(arc_[a].head)) sum += 0.5 * (static_cast<double>(arc_[a].rcap) + arc_[arc_[a].twin].rcap);
       }
     }
     return sum;
@@ -61,14 +61,24 @@ class MaxFlow {
   void Orphan(uint32_t v, bool front);
   void StartTrees();  // a one-link pre-pass, then every node with a terminal residual a root
 
-  std::vector<uint32_t> start_, head_, twin_;
-  std::vector<float> rcap_;         // residual capacity of each arc
-  std::vector<float> tr_;           // terminal residual: > 0 from the source, < 0 to the sink
+  // Arcs and nodes as structs: the search touches all fields of one at once (a cache line
+  // instead of three to six).
+  struct Arc {
+    uint32_t head;  // the node it goes to
+    uint32_t twin;  // the reverse arc
+    float rcap;     // residual capacity
+  };
+  struct Node {
+    float tr = 0;             // terminal residual: > 0 from the source, < 0 to the sink
+    uint32_t parent = kFree;  // arc from v to its parent, or kFree / kTerminal / kOrphan
+    uint32_t ts = 0, dist = 0;  // Kolmogorov's heuristic: time stamp, distance to terminal
+    uint8_t sink = 0;         // tree of v: 0 source, 1 sink
+    uint8_t active = 0;       // v is in queue_
+  };
+  std::vector<uint32_t> start_;
+  std::vector<Arc> arc_;
+  std::vector<Node> node_;
   std::vector<float> to_src_, to_snk_;  // the capacities SetTerminals was given
-  std::vector<uint32_t> parent_;    // arc from v to its parent, or kFree / kTerminal / kOrphan
-  std::vector<uint8_t> sink_;       // tree of v: 0 source, 1 sink
-  std::vector<uint8_t> active_;     // v is in queue_
-  std::vector<uint32_t> ts_, dist_;  // Kolmogorov's heuristic: time stamp, distance to terminal
   std::deque<uint32_t> queue_, orphans_;
   uint32_t time_ = 0;
   uint64_t augmentations_ = 0;

@@ -207,7 +207,50 @@ Result<SelectResult> Select(Dataset& ds, const SelectRequest& req) {
   return res;
 }
 
-Result<GraphCutReply> GraphCutSelect(Dataset& ds, const GraphCutRequest& req) {
+namespace {
+
+uint64_t Mix(uint64_t x) {  // splitmix64's finaliser
+  x += 0x9e3779b97f4a7c15ULL;
+  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
+  x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
+  return x ^ (x >> 31);
+}
+
+template <typename T>
+uint64_t Bits(T v) {
+  uint64_t b = 0;
+  std::memcpy(&b, &v, sizeof(T));
+  return b;
+}
+
+// Of everything the graph depends on: each point's id, frame, position, colour and normal (not
+// its label: strokes and selections change labels), in any order, and the parameters. Two
+// independent sums of per-point hashes, so that a collision needs both to collide.
+std::array<uint64_t, 2> Fingerprint(const std::vector<Point>& pts, const GraphCutParams& g) {
+  std::array<uint64_t, 2> f{Mix(pts.size()), Mix(pts.size() + 1)};
+  for (const Point& p : pts) {
+    uint64_t h = Mix(p.id);
+    h = Mix(h ^ (uint64_t{p.frame} << 32 | Bits(p.x)));
+    h = Mix(h ^ (Bits(p.y) << 32 | Bits(p.z)));
+    h = Mix(h ^ (uint64_t{p.r} << 40 | uint64_t{p.g} << 32 | uint64_t{p.b} << 24 |
+                 (p.flags & kFlagHasNormal)));
+    h = Mix(h ^ Bits(p.normal_oct));
+    f[0] += h;
+    f[1] += Mix(h ^ 0x5851f42d4c957f2dULL);
+  }
+  for (double v : {double(g.k), g.intra_radius, g.inter_radius, g.max_color_diff,
+                   g.max_normal_diff, double(g.gmm_components), g.beta_c, g.beta_n, g.lambda_d,
+                   g.lambda_i, g.lambda_t, double(g.use_normals)}) {
+    f[0] = Mix(f[0] ^ Bits(v));
+    f[1] = Mix(f[1] + Bits(v));
+  }
+  return f;
+}
+
+}  // namespace
+
+Result<GraphCutReply> GraphCutSelect(Dataset& ds, const GraphCutRequest& req,
+                                     GraphCutCache* cache) {
   HVDB_RETURN_IF_ERROR(CheckBit(req.foreground_bit, "graph cut foreground"));
   HVDB_RETURN_IF_ERROR(CheckBit(req.background_bit, "graph cut background"));
   HVDB_RETURN_IF_ERROR(CheckBit(req.out_bit, "graph cut output"));
@@ -228,7 +271,47 @@ Result<GraphCutReply> GraphCutSelect(Dataset& ds, const GraphCutRequest& req) {
   }));
   reply.roi_points = pts.size();
   reply.load_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
-  HVDB_ASSIGN_OR_RETURN(GraphCutResult cut, RunGraphCut(pts, seeds, req.params));
+  GraphCutResult cut;
+  if (cache == nullptr) {
+    HVDB_ASSIGN_OR_RETURN(cut, RunGraphCut(pts, seeds, req.params));
+  } else {
+    std::lock_guard<std::mutex> l(cache->mu_);
+    const auto fp = Fingerprint(pts, req.params);
+    // Node i of the cached graph is the point of id nodes_[..].first; the query's order
+    // differs from the last one's (a relabelled point moves within its frame's trees).
+    std::vector<uint32_t> node(pts.size());
+    bool hit = cache->graph_ && fp == cache->fingerprint_ && cache->graph_->size() == pts.size();
+    for (size_t i = 0; i < pts.size() && hit; ++i) {
+      auto it = std::lower_bound(cache->nodes_.begin(), cache->nodes_.end(),
+                                 std::make_pair(pts[i].id, uint32_t{0}));
+      hit = it != cache->nodes_.end() && it->first == pts[i].id;
+      if (hit) node[i] = it->second;
+    }
+    if (!hit) {
+      cache->graph_.reset();
+      cache->nodes_.clear();
+      if (pts.size() <= cache->max_points_) {
+        HVDB_ASSIGN_OR_RETURN(cache->graph_, GraphCut::Build(pts, req.params));
+        cache->fingerprint_ = fp;
+        cache->nodes_.reserve(pts.size());
+        for (size_t i = 0; i < pts.size(); ++i) {
+          cache->nodes_.emplace_back(pts[i].id, static_cast<uint32_t>(i));
+          node[i] = static_cast<uint32_t>(i);
+        }
+        std::sort(cache->nodes_.begin(), cache->nodes_.end());
+      }
+    }
+    if (cache->graph_) {
+      std::vector<Seed> by_node(pts.size());
+      for (size_t i = 0; i < pts.size(); ++i) by_node[node[i]] = seeds[i];
+      HVDB_ASSIGN_OR_RETURN(cut, cache->graph_->Cut(by_node));
+      std::vector<uint8_t> sel(pts.size());
+      for (size_t i = 0; i < pts.size(); ++i) sel[i] = cut.selected[node[i]];
+      cut.selected = std::move(sel);
+    } else {
+      HVDB_ASSIGN_OR_RETURN(cut, RunGraphCut(pts, seeds, req.params));  // too large to keep
+    }
+  }
   t0 = Clock::now();
   const uint32_t omask = 1u << req.out_bit;
   std::set<Key> to_set, to_clear;

@@ -8,6 +8,8 @@
 #define HVDB_EDIT_OPERATORS_H_
 
 #include <array>
+#include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
 #include <variant>
@@ -63,11 +65,31 @@ struct GraphCutRequest {
 
 struct GraphCutReply {
   uint64_t roi_points = 0, selected = 0, lsn = 0;
-  GraphCutResult cut;  // energy, edge counts and timings (selected[] cleared)
+  GraphCutResult cut;  // energy, edge counts and timings (selected[] cleared; cut.warm: a re-cut)
   double load_ms = 0, commit_ms = 0;
 };
 
-Result<GraphCutReply> GraphCutSelect(Dataset& ds, const GraphCutRequest& req);
+// The last cut's graph and flow (graph_cut.h's GraphCut), kept between requests: a cut over
+// the same points (the same region of the same data; labels may differ, as strokes and the
+// last selection change them) is a re-cut that starts from the last flow. One entry, for
+// regions of at most max_points points (the graph holds ~250 bytes a point); cuts through it
+// are serialised.
+class GraphCutCache {
+ public:
+  explicit GraphCutCache(size_t max_points = size_t{2} << 20) : max_points_(max_points) {}
+
+ private:
+  friend Result<GraphCutReply> GraphCutSelect(Dataset&, const GraphCutRequest&, GraphCutCache*);
+  std::mutex mu_;
+  size_t max_points_;
+  std::array<uint64_t, 2> fingerprint_{};  // of the points (not labels) and the parameters
+  std::vector<std::pair<uint64_t, uint32_t>> nodes_;  // (frame << 40 ^ id hash, node), sorted
+  std::unique_ptr<GraphCut> graph_;
+};
+
+// With a cache, a cut over the same points as the cached one is a re-cut.
+Result<GraphCutReply> GraphCutSelect(Dataset& ds, const GraphCutRequest& req,
+                                     GraphCutCache* cache = nullptr);
 
 // Named clipboards, kept as files DIR/clipboards/<name>.hvc (docs/FORMAT.md), so that they
 // survive sessions and are shared by the server and the embedded CLI.

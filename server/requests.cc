@@ -170,7 +170,7 @@ wire::Response RunEditOperator(Server* s, uint64_t id, const wire::Request& req)
     if (q.intra_radius() != 0) g.params.intra_radius = q.intra_radius();
     if (q.inter_radius() != 0) g.params.inter_radius = q.inter_radius();
     g.params.use_normals = !q.colour_only();
-    auto res = edit::GraphCutSelect(d, g);
+    auto res = edit::GraphCutSelect(d, g, &s->graph_cuts());
     if (!res.ok()) return ErrorResponse(id, res.status());
     auto* o = r.mutable_graph_cut();
     o->set_roi_points(res->roi_points);
@@ -185,6 +185,7 @@ wire::Response RunEditOperator(Server* s, uint64_t id, const wire::Request& req)
     o->set_graph_ms(res->cut.graph_ms);
     o->set_maxflow_ms(res->cut.maxflow_ms);
     o->set_commit_ms(res->commit_ms);
+    o->set_recut(res->cut.warm);
   } else if (req.has_copy()) {
     const wire::CopyRequest& q = req.copy();
     std::optional<hvdb::Region> region;

@@ -24,6 +24,7 @@
 
 #include <boost/asio.hpp>
 
+#include "edit/operators.h"
 #include "render/renderer_pool.h"
 #include "server/stats.h"
 #include "storage/database.h"
@@ -112,6 +113,8 @@ class Server {
   boost::asio::io_context& io() { return io_; }
   ServerStats& stats() { return stats_; }
   render::RendererPool& renders() { return renders_; }
+  // The last graph cut's graph and flow, for re-cuts after more strokes (edit/operators.h).
+  edit::GraphCutCache& graph_cuts() { return graph_cuts_; }
   // Role of a token; kNone if it is unknown (or tokens are required and none was given).
   Role Authenticate(const std::string& token) const;
   void Forget(Session* s);
@@ -134,6 +137,7 @@ class Server {
   boost::asio::io_context io_;
   boost::asio::thread_pool workers_;
   render::RendererPool renders_;
+  edit::GraphCutCache graph_cuts_;
   boost::asio::ip::tcp::acceptor acceptor_;
   boost::asio::local::stream_protocol::acceptor unix_acceptor_;
   std::string tcp_listen_;    // "" if none

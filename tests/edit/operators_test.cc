@@ -226,6 +226,63 @@ TEST_F(OperatorsTest, GraphCutSelectionAndUndo) {
   EXPECT_EQ(ReadAll(*ds_), strokes);
 }
 
+// The thesis's workflow: cut, paint one more stroke, cut again. With a cache the second cut
+// reuses the first's graph and flow (the query returns the points in another order, as the
+// first cut relabelled them) and selects exactly what a cut from scratch selects.
+TEST_F(OperatorsTest, CutAgainAfterAnotherStrokeReusesTheGraph) {
+  SelectRequest dab;
+  Window top = Everything();
+  top.lo = {0.25, 0.45, 0.28, 0};
+  top.hi = {0.35, 0.55, 1, 0};
+  dab.region = top;
+  dab.bit = 1;
+  ASSERT_TRUE(Select(*ds_, dab).ok());
+  Window floor = Everything();
+  floor.lo = {0.7, 0.0, -1, 0};
+  floor.hi = {1.0, 0.3, 0.001, 0};
+  dab.region = floor;
+  dab.bit = 2;
+  ASSERT_TRUE(Select(*ds_, dab).ok());
+  GraphCutRequest gc;
+  gc.roi = Everything();
+  gc.out_bit = 0;
+  gc.params.intra_radius = 0.05;
+  gc.params.inter_radius = 0.08;
+  GraphCutCache cache;
+  auto first = GraphCutSelect(*ds_, gc, &cache);
+  ASSERT_TRUE(first.ok()) << first.status().ToString();
+  EXPECT_FALSE(first->cut.warm);
+  // One more stroke, on the floor in the last frame.
+  Window far = Everything();
+  far.lo = {0.0, 0.7, -1, 0.2};
+  far.hi = {0.3, 1.0, 0.001, 10};
+  dab.region = far;
+  ASSERT_TRUE(Select(*ds_, dab).ok());
+  auto again = GraphCutSelect(*ds_, gc, &cache);
+  ASSERT_TRUE(again.ok()) << again.status().ToString();
+  EXPECT_TRUE(again->cut.warm);
+  EXPECT_EQ(again->cut.neighbours_ms, 0);
+  const auto warm = WithBit(ReadAll(*ds_), 0);
+  // From scratch, on the same labels.
+  auto cold = GraphCutSelect(*ds_, gc);
+  ASSERT_TRUE(cold.ok());
+  EXPECT_FALSE(cold->cut.warm);
+  EXPECT_EQ(cold->lsn, 0u) << "a cut from scratch changed the re-cut's selection";
+  EXPECT_EQ(WithBit(ReadAll(*ds_), 0), warm);
+  EXPECT_NEAR(again->cut.energy, cold->cut.energy, 1e-6 * cold->cut.energy);
+  // Other points (a moved point) are not the cached graph's: a new one is built.
+  Transaction t;
+  Selection one;
+  one.ids = {ReadAll(*ds_).begin()->first};
+  Affine4 up;
+  up.c = {0, 0, 0.001, 0};
+  t.Transform(one, up);
+  ASSERT_TRUE(ds_->Commit(t).ok());
+  auto moved = GraphCutSelect(*ds_, gc, &cache);
+  ASSERT_TRUE(moved.ok());
+  EXPECT_FALSE(moved->cut.warm);
+}
+
 TEST_F(OperatorsTest, CutPasteAndRedo) {
   auto before = ReadAll(*ds_);
   SelectRequest r;
