@@ -352,6 +352,8 @@ struct RenderArgs {
   RegionArgs region;
   int lod = 0;
   uint32_t label_mask = 0;
+  std::vector<int> highlight;  // bits drawn as an overlay
+  std::vector<float> highlight_color;
   CameraArgs camera;  // --camera, --look-at/--fov/--up; --size (any camera) in camera.size
   uint32_t dataset_camera = 0;
   std::string mode = "visibility";
@@ -1165,6 +1167,14 @@ Cli::Cli(CLI::App& app) : app_(app) {
       ->check(CLI::Range(0, 16));
   render_cmd_->add_option("--label-mask", ra.label_mask,
                           "Only points with (label & MASK) != 0 (decimal or 0x hex)");
+  render_cmd_->add_option("--highlight", ra.highlight,
+                          "Show a selection: points carrying label BIT (repeatable) drawn in "
+                          "their colour blended toward --highlight-color")
+      ->check(CLI::Range(0, 31));
+  render_cmd_->add_option("--highlight-color", ra.highlight_color,
+                          "R G B A in [0, 1] (sRGB; A: how much of it), default 1 0.45 0 0.5")
+      ->expected(4)
+      ->check(CLI::Range(0.f, 1.f));
   const std::string rcamera = "Camera (one is required, unless --path gives them)";
   CameraArgs& rc = ra.camera;
   rc.look_at_opt = render_cmd_
@@ -2103,6 +2113,10 @@ int Cli::CmdRender() {
   req.set_dataset(a.name);
   req.set_lod(static_cast<uint32_t>(a.lod));
   req.set_label_mask(a.label_mask);
+  uint32_t highlight = 0;
+  for (int b : a.highlight) highlight |= 1u << b;
+  req.set_highlight_mask(highlight);
+  for (float v : a.highlight_color) req.add_highlight_color(v);
   req.set_mode(a.mode == "probabilistic" ? wire::RENDER_PROBABILISTIC : wire::RENDER_VISIBILITY);
   req.set_view_dependent(a.view_dependent);
   req.set_renderer(a.renderer == "egl"   ? wire::RENDERER_EGL

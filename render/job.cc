@@ -122,6 +122,18 @@ Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> da
   }
   job->query_.temporal_lod = !r.no_temporal_lod();
   job->query_.label_mask = r.label_mask();
+  job->highlight_mask_ = r.highlight_mask();
+  if (r.highlight_color_size() == 4) {
+    for (int i = 0; i < 4; ++i) {
+      const float v = r.highlight_color(i);
+      if (!(v >= 0.f && v <= 1.f)) {
+        return Invalid("render.highlight_color", "values must be in [0, 1], got " + std::to_string(v));
+      }
+      job->highlight_[static_cast<size_t>(i)] = v;
+    }
+  } else if (r.highlight_color_size() != 0) {
+    return Invalid("render.highlight_color", "needs 4 values (sRGB RGBA in [0, 1]) or none");
+  }
   if (r.background_size() == 4) {
     for (int i = 0; i < 4; ++i) o.background[static_cast<size_t>(i)] = r.background(i);
   } else if (r.background_size() != 0) {
@@ -234,6 +246,17 @@ Status RenderJob::Query(const Step& step, const std::atomic<bool>* cancelled,
                                    std::to_string(limits_.max_points) +
                                    " points, the limit per image; use a coarser lod "
                                    "or a smaller region");
+    }
+    if (highlight_mask_ != 0) {
+      // The overlay: selected points' colours blended toward the highlight colour.
+      const float a = highlight_[3];
+      for (Point& p : batch.points) {
+        if ((p.label & highlight_mask_) == 0) continue;
+        uint8_t* c[3] = {&p.r, &p.g, &p.b};
+        for (int k = 0; k < 3; ++k) {
+          *c[k] = static_cast<uint8_t>(std::lround((1 - a) * *c[k] + a * 255.f * highlight_[static_cast<size_t>(k)]));
+        }
+      }
     }
     out->points.insert(out->points.end(), batch.points.begin(), batch.points.end());
   }

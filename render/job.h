@@ -15,6 +15,7 @@
 #ifndef HVDB_RENDER_JOB_H_
 #define HVDB_RENDER_JOB_H_
 
+#include <array>
 #include <atomic>
 #include <future>
 #include <memory>
@@ -88,6 +89,8 @@ class RenderJob {
   wire::ImageFormat format_ = wire::IMAGE_PNG;
   RenderOptions options_;
   QueryOptions query_;
+  uint32_t highlight_mask_ = 0;                  // the selection overlay (Render.highlight_*)
+  std::array<float, 4> highlight_{1.f, 0.45f, 0.f, 0.5f};
   std::vector<Camera> views_;
   std::vector<Region> regions_;  // one, or one per image
   std::vector<Step> steps_;

@@ -124,6 +124,48 @@ TEST_F(RenderJobTest, RendersTheRegionLikeTheRendererDoes) {
   EXPECT_EQ(reply->png().substr(1, 3), "PNG");
 }
 
+// The selection as an overlay: the points carrying the highlighted bit are drawn in their
+// colour blended toward the highlight colour, exactly as if they had that colour; the others
+// as they are.
+TEST_F(RenderJobTest, HighlightShowsASelection) {
+  // Frame 0's upper half (y > 0) selected into bit 3.
+  Selection upper;
+  Window w;
+  w.lo = {-1e9, 0, -1e9, 0};
+  w.hi = {1e9, 1e9, 1e9, 0};
+  upper.region = w;
+  Transaction t;
+  t.SetLabel(upper, 1u << 3, true);
+  ASSERT_TRUE(ds_->Commit(t).ok());
+  wire::Render req;
+  req.set_dataset("scene");
+  *req.mutable_region() = FrameRegion(0);
+  SetLookAt(req.mutable_view());
+  req.set_renderer(wire::RENDERER_CPU);
+  req.set_highlight_mask(1u << 3);
+  for (float v : {0.f, 0.f, 1.f, 1.f}) req.add_highlight_color(v);  // all blue
+  auto job = RenderJob::Create(ds_, req);
+  ASSERT_TRUE(job.ok()) << job.status().ToString();
+  auto cpu = render::MakeCpuRenderer();
+  auto img = (*job)->RenderImage(0, *cpu);
+  ASSERT_TRUE(img.ok()) << img.status().ToString();
+  auto pts = FramePoints(0);
+  for (Point& p : pts) {
+    if (p.y >= 0) p.r = 0, p.g = 0, p.b = 255;
+  }
+  auto want = cpu->Render(pts, TheLookAt(), {});
+  ASSERT_TRUE(want.ok());
+  EXPECT_GE(render::Psnr(render::ToSrgb8(*img), render::ToSrgb8(*want)), 50);
+  auto plain = cpu->Render(FramePoints(0), TheLookAt(), {});
+  EXPECT_LT(render::Psnr(render::ToSrgb8(*img), render::ToSrgb8(*plain)), 30);
+  // Colours outside [0, 1], or not four of them, are refused naming the field.
+  req.set_highlight_color(0, 2.f);
+  EXPECT_EQ(RenderJob::Create(ds_, req).status().message().rfind("render.highlight_color:", 0), 0u);
+  req.clear_highlight_color();
+  req.add_highlight_color(1.f);
+  EXPECT_EQ(RenderJob::Create(ds_, req).status().message().rfind("render.highlight_color:", 0), 0u);
+}
+
 TEST_F(RenderJobTest, SequencesFollowFramesAndCameras) {
   wire::Render req;
   req.set_dataset("scene");
