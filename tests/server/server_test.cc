@@ -650,6 +650,16 @@ TEST_F(ServerTest, EditingOperatorsThroughTheServer) {
   for (uint64_t id : chosen) tp += sphere.count(id);
   EXPECT_GE(double(tp) / chosen.size(), 0.95);
   EXPECT_GE(double(tp) / sphere.size(), 0.95);
+  EXPECT_FALSE(cut->recut());
+  // One more stroke (the floor in frame 1), cut again: the server reuses its graph and flow.
+  Window floor1 = floor;
+  floor1.lo[3] = floor1.hi[3] = 1 / kFps;
+  ASSERT_TRUE(select(floor1, 2).ok());
+  auto again = c->GraphCut(gc);
+  ASSERT_TRUE(again.ok()) << again.status().ToString();
+  EXPECT_TRUE(again->recut());
+  EXPECT_EQ(again->neighbours_ms(), 0);
+  chosen = Ids(All(*c, "e", Everything(), sel));
   // Cut to a clipboard, paste one frame later and 1 m away, undo the cut.
   wire::CopyRequest cp;
   cp.set_dataset("e");
