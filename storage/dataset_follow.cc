@@ -41,9 +41,12 @@ Result<bool> DatasetImpl::FollowLog() {
   const uint64_t size = (*file)->size();
   if (size < kWalHeaderSize) return true;  // being created
   uint8_t head[kWalHeaderSize];
-  HVDB_RETURN_IF_ERROR((*file)->Read(0, kWalHeaderSize, head));
-  HVDB_ASSIGN_OR_RETURN(uint64_t start, DecodeWalHeader(head, kWalHeaderSize, path));
-  if (start != follow_start_ || size < follow_offset_) return false;  // rotated
+  // A read that fails, or a header that is not one, raced a rotation (on RADOS the object can
+  // go between its stat and its read): the reload reads the files again, and reports what is
+  // really wrong with them.
+  if (!(*file)->Read(0, kWalHeaderSize, head).ok()) return false;
+  auto start = DecodeWalHeader(head, kWalHeaderSize, path);
+  if (!start.ok() || *start != follow_start_ || size < follow_offset_) return false;
   const uint64_t from = std::max<uint64_t>(follow_offset_, kWalHeaderSize);
   if (size == from) return true;
   std::string tail(size - from, '\0');

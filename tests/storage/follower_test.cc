@@ -243,10 +243,19 @@ TEST_F(FollowerTest, QueriesSeeWholeCommitsOnly) {
       }
     }
   });
+  struct Join {  // the writer thread ends before the test does, whatever fails
+    std::atomic<bool>& stop;
+    std::thread& t;
+    ~Join() {
+      stop = true;
+      if (t.joinable()) t.join();
+    }
+  } join{stop, writer};
   uint32_t last_seen = 0;
   int answers = 0;
   while (written < 60 && !HasFailure()) {
-    ASSERT_TRUE(follower_db_->Refresh().ok());
+    Status st = follower_db_->Refresh();
+    ASSERT_TRUE(st.ok()) << st.ToString();
     QueryOptions qo;
     qo.label_mask = 1u << 20;
     auto c = f_->Query(testing::EverythingWindow(), qo);
