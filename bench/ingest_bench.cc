@@ -83,11 +83,22 @@ void RunGenerated(const std::string& scratch, bool quick, nlohmann::json& figure
                                  {"window", opt.stereo.window},
                                  {"num_disparities", opt.stereo.num_disparities}};
   std::vector<double> abs_err_all, valid_pct, bad1, bad05, stereo_ms, rmse, med3d, p90_3d;
+  // The same with the spacetime matcher over the frame and its neighbours (thesis 3.4: the
+  // stripe patterns change every frame), next to single-frame stereo on the same pairs.
+  std::vector<double> st_err_all, st_valid, st_bad1, st_ms, st_med3d, st_rmse;
   const FrameProcessor proc = Check(FrameProcessor::Make(rec, opt), "frame processor");
+  std::vector<FrameInput> all;
+  for (int f = 0; f < rec.frames; ++f) all.push_back(Check(LoadFrame(rec, f), "load frame"));
+  struct Score {
+    std::vector<double> err;
+    size_t nonocc = 0, valid = 0, b1 = 0, b05 = 0;
+  };
   for (int f = 0; f < rec.frames; ++f) {
     const SyntheticScene scene(g.seed, f, g.fps);
-    const FrameInput in = Check(LoadFrame(rec, f), "load frame");
-    for (const StereoView& v : in.stereo) {
+    const FrameInput& in = all[static_cast<size_t>(f)];
+    const int lo = std::max(0, f - 1), hi = std::min(rec.frames - 1, f + 1);
+    for (size_t j = 0; j < in.stereo.size(); ++j) {
+      const StereoView& v = in.stereo[j];
       const Brick& b = rec.calibration.bricks[static_cast<size_t>(v.brick)];
       const Rectification r = Check(PrepareRectification(rec.calibration.cameras[b.left],
                                                          rec.calibration.cameras[b.right]),
@@ -96,64 +107,100 @@ void RunGenerated(const std::string& scratch, bool quick, nlohmann::json& figure
       Rectify(r, v.left, v.right, &l, &rr);
       const DisparityMap dm = Check(MatchStereo(l, rr, opt.stereo), "match");
       stereo_ms.push_back(dm.timing.total_ms);
+      std::vector<cv::Mat> ls, rs;
+      for (int k = lo; k <= hi; ++k) {
+        const StereoView& wv = all[static_cast<size_t>(k)].stereo[j];
+        cv::Mat lk, rk;
+        Rectify(r, wv.left, wv.right, &lk, &rk);
+        ls.push_back(lk);
+        rs.push_back(rk);
+      }
+      const DisparityMap ds =
+          ls.size() > 1 ? Check(MatchSpacetime(ls, rs, static_cast<size_t>(f - lo), opt.stereo),
+                                "spacetime match")
+                        : dm;
+      st_ms.push_back(ds.timing.total_ms);
       const cv::Vec3d Or = rec.calibration.cameras[b.right].Centre();
       const double fx = r.left.K(0, 0);
-      size_t nonocc = 0, valid = 0, b1 = 0, b05 = 0;
-      std::vector<double> err;
-      for (int y = 0; y < l.rows; ++y) {
-        for (int x = 0; x < l.cols; ++x) {
-          const Ray ray = CameraRay(r.left, {static_cast<double>(x), static_cast<double>(y)});
-          auto hit = scene.Intersect(ray);
-          if (!hit) continue;
-          const cv::Vec3d pc = r.left.R * hit->position + r.left.T;
-          const double d_gt = r.baseline * fx / pc[2];
-          if (d_gt < opt.stereo.min_disparity + 1 ||
-              d_gt > opt.stereo.min_disparity + opt.stereo.num_disparities - 2 || x - d_gt < 1)
-            continue;
-          const Ray to_right{Or, hit->position - Or};
-          if (scene.Occluded(to_right, 1e-6, 1 - 1e-4)) continue;  // occluded in the right view
-          ++nonocc;
-          const float d = dm.d.at<float>(y, x);
-          if (!std::isfinite(d)) continue;
-          ++valid;
-          const double e = std::abs(d - d_gt);
-          err.push_back(e);
-          b1 += e > 1;
-          b05 += e > 0.5;
+      auto score = [&](const DisparityMap& m) {
+        Score sc;
+        for (int y = 0; y < l.rows; ++y) {
+          for (int x = 0; x < l.cols; ++x) {
+            const Ray ray = CameraRay(r.left, {static_cast<double>(x), static_cast<double>(y)});
+            auto hit = scene.Intersect(ray);
+            if (!hit) continue;
+            const cv::Vec3d pc = r.left.R * hit->position + r.left.T;
+            const double d_gt = r.baseline * fx / pc[2];
+            if (d_gt < opt.stereo.min_disparity + 1 ||
+                d_gt > opt.stereo.min_disparity + opt.stereo.num_disparities - 2 || x - d_gt < 1)
+              continue;
+            const Ray to_right{Or, hit->position - Or};
+            if (scene.Occluded(to_right, 1e-6, 1 - 1e-4)) continue;  // occluded in the right view
+            ++sc.nonocc;
+            const float d = m.d.at<float>(y, x);
+            if (!std::isfinite(d)) continue;
+            ++sc.valid;
+            const double e = std::abs(d - d_gt);
+            sc.err.push_back(e);
+            sc.b1 += e > 1;
+            sc.b05 += e > 0.5;
+          }
         }
-      }
-      abs_err_all.insert(abs_err_all.end(), err.begin(), err.end());
-      valid_pct.push_back(100.0 * valid / std::max<size_t>(1, nonocc));
-      bad1.push_back(100.0 * b1 / std::max<size_t>(1, valid));
-      bad05.push_back(100.0 * b05 / std::max<size_t>(1, valid));
-      std::printf("generated frame %d brick %d: median |d - d_gt| %.3f px, valid %.1f%% of %zu "
-                  "non-occluded, bad>1px %.2f%%, %.0f ms\n",
-                  f, v.brick, Quantile(err, 0.5), valid_pct.back(), nonocc, bad1.back(),
-                  dm.timing.total_ms);
+        return sc;
+      };
+      const Score one = score(dm), st = score(ds);
+      abs_err_all.insert(abs_err_all.end(), one.err.begin(), one.err.end());
+      valid_pct.push_back(100.0 * one.valid / std::max<size_t>(1, one.nonocc));
+      bad1.push_back(100.0 * one.b1 / std::max<size_t>(1, one.valid));
+      bad05.push_back(100.0 * one.b05 / std::max<size_t>(1, one.valid));
+      st_err_all.insert(st_err_all.end(), st.err.begin(), st.err.end());
+      st_valid.push_back(100.0 * st.valid / std::max<size_t>(1, st.nonocc));
+      st_bad1.push_back(100.0 * st.b1 / std::max<size_t>(1, st.valid));
+      std::printf("generated frame %d brick %d: median |d - d_gt| %.3f px (spacetime, %zu frames: "
+                  "%.3f px), valid %.1f%% (%.1f%%) of %zu non-occluded, bad>1px %.2f%% (%.2f%%), "
+                  "%.0f ms (%.0f ms)\n",
+                  f, v.brick, Quantile(one.err, 0.5), ls.size(), Quantile(st.err, 0.5),
+                  valid_pct.back(), st_valid.back(), one.nonocc, bad1.back(), st_bad1.back(),
+                  dm.timing.total_ms, ds.timing.total_ms);
     }
-    // 3D error of the merged, cleaned points.
+    // 3D error of the merged, cleaned points, single-frame and spacetime.
+    auto error3d = [&](const std::vector<Point>& pts) {
+      std::vector<double> e3;
+      for (const Point& p : pts) {
+        const CameraModel& c = rec.calibration.cameras[p.camera];
+        const cv::Vec3d o = c.Centre(), P(p.x, p.y, p.z);
+        auto hit = scene.Intersect(Ray{o, P - o});
+        if (!hit) {
+          e3.push_back(1.0);  // a point in front of nothing: counted as a 1 m error
+          continue;
+        }
+        e3.push_back(cv::norm(hit->position - P));
+      }
+      return e3;
+    };
     FrameReport rep;
     const std::vector<Point> pts = Check(proc.Process(in, &rep), "process frame");
-    std::vector<double> e3;
-    for (const Point& p : pts) {
-      const CameraModel& c = rec.calibration.cameras[p.camera];
-      const cv::Vec3d o = c.Centre(), P(p.x, p.y, p.z);
-      auto hit = scene.Intersect(Ray{o, P - o});
-      if (!hit) {
-        e3.push_back(1.0);  // a point in front of nothing: counted as a 1 m error
-        continue;
-      }
-      e3.push_back(cv::norm(hit->position - P));
-    }
+    std::vector<double> e3 = error3d(pts);
     double s = 0;
     for (double e : e3) s += e * e;
     rmse.push_back(std::sqrt(s / std::max<size_t>(1, e3.size())));
     med3d.push_back(Quantile(e3, 0.5));
     p90_3d.push_back(Quantile(e3, 0.9));
+    std::vector<const FrameInput*> window;
+    for (int k = lo; k <= hi; ++k) window.push_back(&all[static_cast<size_t>(k)]);
+    FrameReport rep_st;
+    const std::vector<Point> pts_st =
+        Check(proc.Process(in, &rep_st, window, static_cast<size_t>(f - lo)), "process spacetime");
+    std::vector<double> e3s = error3d(pts_st);
+    double ss = 0;
+    for (double e : e3s) ss += e * e;
+    st_rmse.push_back(std::sqrt(ss / std::max<size_t>(1, e3s.size())));
+    st_med3d.push_back(Quantile(e3s, 0.5));
     std::printf("generated frame %d: %zu points, %llu outliers removed, 3D error RMSE %.2f mm, "
-                "median %.2f mm, p90 %.2f mm\n",
+                "median %.2f mm, p90 %.2f mm; spacetime: %zu points, median %.2f mm\n",
                 f, pts.size(), static_cast<unsigned long long>(rep.outliers_removed),
-                rmse.back() * 1e3, med3d.back() * 1e3, p90_3d.back() * 1e3);
+                rmse.back() * 1e3, med3d.back() * 1e3, p90_3d.back() * 1e3, pts_st.size(),
+                st_med3d.back() * 1e3);
   }
   figures.push_back(Figure("generated.disparity.median_abs_error", "px",
                            {Quantile(abs_err_all, 0.5)}, params));
@@ -170,6 +217,17 @@ void RunGenerated(const std::string& scratch, bool quick, nlohmann::json& figure
   figures.push_back(Figure("generated.points.rmse_3d", "mm", mm(rmse), params));
   figures.push_back(Figure("generated.points.median_3d", "mm", mm(med3d), params));
   figures.push_back(Figure("generated.points.p90_3d", "mm", mm(p90_3d), params));
+  nlohmann::json sp = params;
+  sp["spacetime"] = "the frame and one on either side (two at the ends), thesis 3.4";
+  figures.push_back(Figure("generated.spacetime.disparity.median_abs_error", "px",
+                           {Quantile(st_err_all, 0.5)}, sp));
+  figures.push_back(Figure("generated.spacetime.disparity.valid_nonoccluded", "%", st_valid, sp));
+  figures.push_back(Figure("generated.spacetime.disparity.bad_1px", "%", st_bad1, sp));
+  figures.push_back(Figure("generated.spacetime.stereo_time", "ms", st_ms, sp));
+  figures.push_back(Figure("generated.spacetime.points.median_3d", "mm", mm(st_med3d), sp));
+  figures.push_back(Figure("generated.spacetime.points.rmse_3d", "mm", mm(st_rmse), sp));
+  std::printf("generated: median |d - d_gt| %.3f px single-frame, %.3f px spacetime\n",
+              Quantile(abs_err_all, 0.5), Quantile(st_err_all, 0.5));
 }
 
 // ---- 2. real sequences -----------------------------------------------------------------------

@@ -437,6 +437,8 @@ Status WriteRecordingYaml(const GeneratorOptions& o, const std::string& path) {
     fs << "frames" << o.frames;
     fs << "fps" << o.fps;
     fs << "first_frame" << 0;
+    // Its stripe patterns change every frame: a spacetime window of one frame on either side.
+    if (o.frames > 1) fs << "spacetime" << 1;
     fs << "generator" << "{";
     fs << "name" << "hvdb-ingest generate";
     fs << "seed" << std::to_string(o.seed);

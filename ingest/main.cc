@@ -54,6 +54,11 @@ void RegisterRun(CLI::App& app, int* rc) {
   cmd->add_option("--min-disparity", a->o.stereo.min_disparity, "stereo: smallest disparity (px)")->capture_default_str();
   cmd->add_option("--num-disparities", a->o.stereo.num_disparities, "stereo: disparities searched")->capture_default_str();
   cmd->add_option("--window", a->o.stereo.window, "stereo: matching window side (odd)")->capture_default_str();
+  cmd->add_option("--spacetime", a->o.spacetime,
+                  "stereo: frames on either side matched together with each frame (the spacetime "
+                  "matcher, thesis 3.4, for projector patterns that change over time); default: "
+                  "the recording's `spacetime` (0: single-frame stereo)")
+      ->check(CLI::Range(0, 8));
   cmd->add_option("--subpixel", a->subpixel,
                   "stereo: none (integer disparities), parabola (through the costs around the "
                   "winner) or lm (Levenberg-Marquardt on disparity and its gradients)")

@@ -163,7 +163,14 @@ Result<FrameProcessor> FrameProcessor::Make(const Recording& rec, const IngestOp
   return p;
 }
 
-Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameReport* rep) const {
+int FrameProcessor::spacetime() const {
+  if (rec_->kind != RecordingKind::kStereo) return 0;
+  return opt_.spacetime >= 0 ? opt_.spacetime : rec_->spacetime;
+}
+
+Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameReport* rep,
+                                                   const std::vector<const FrameInput*>& window,
+                                                   size_t centre) const {
   const Recording& rec = *rec_;
   const Calibration& cal = rec.calibration;
   std::vector<Point> points;
@@ -192,15 +199,40 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
     return WriteDepthExr((path / (camera + ".depth.exr")).string(), depth);
   };
   if (rec.kind == RecordingKind::kStereo) {
-    for (const StereoView& v : in.stereo) {
+    if (window.size() > 1 && (centre >= window.size() || window[centre] != &in)) {
+      return Status::InvalidArgument("spacetime window: its centre is not the frame processed");
+    }
+    for (size_t j = 0; j < in.stereo.size(); ++j) {
+      const StereoView& v = in.stereo[j];
       const Brick& b = cal.bricks[static_cast<size_t>(v.brick)];
       const Rectification& r = *rect_[static_cast<size_t>(v.brick)];
       auto t0 = Clock::now();
       cv::Mat l, rr;
       Rectify(r, v.left, v.right, &l, &rr);
+      // The spacetime window: the same brick's rectified pairs of the frames around.
+      std::vector<cv::Mat> lefts, rights;
+      for (size_t w = 0; w < window.size() && window.size() > 1; ++w) {
+        if (w == centre) {
+          lefts.push_back(l);
+          rights.push_back(rr);
+          continue;
+        }
+        const auto& around = window[w]->stereo;
+        if (j >= around.size() || around[j].brick != v.brick) {
+          return Status::InvalidArgument("spacetime window: frame " +
+                                         std::to_string(window[w]->index) +
+                                         " lacks brick " + std::to_string(v.brick));
+        }
+        cv::Mat lw, rw;
+        Rectify(r, around[j].left, around[j].right, &lw, &rw);
+        lefts.push_back(lw);
+        rights.push_back(rw);
+      }
       rep->stage_ms["rectify"] += MsSince(t0);
       t0 = Clock::now();
-      HVDB_ASSIGN_OR_RETURN(DisparityMap dm, MatchStereo(l, rr, opt_.stereo));
+      HVDB_ASSIGN_OR_RETURN(DisparityMap dm,
+                            lefts.size() > 1 ? MatchSpacetime(lefts, rights, centre, opt_.stereo)
+                                             : MatchStereo(l, rr, opt_.stereo));
       rep->stage_ms["stereo"] += MsSince(t0);
       t0 = Clock::now();
       const double fx = r.left.K(0, 0);
@@ -326,10 +358,32 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
       const int i = pending[k];
       FrameReport& fr = reports[static_cast<size_t>(i - opt.first)];
       auto t0 = Clock::now();
-      Result<FrameInput> in = LoadFrame(rec, i);
+      // With the spacetime matcher, the frames on either side too (within the recording).
+      const int st = proc.spacetime();
+      const int lo = std::max(0, i - st), hi = std::min(rec.frames - 1, i + st);
+      std::vector<FrameInput> loaded;
+      Status load_error;
+      for (int w = lo; w <= hi && load_error.ok(); ++w) {
+        Result<FrameInput> f = LoadFrame(rec, w);
+        if (f.ok()) {
+          loaded.push_back(std::move(f).value());
+        } else {
+          load_error = f.status();
+        }
+      }
       fr.stage_ms["load"] = MsSince(t0);
-      Done d{i, in.ok() ? proc.Process(*in, &fr) : Result<std::vector<Point>>(in.status()),
-             in.ok() ? in->bytes_read : 0};
+      std::vector<const FrameInput*> window;
+      for (const FrameInput& f : loaded) window.push_back(&f);
+      const size_t centre = static_cast<size_t>(i - lo);
+      uint64_t bytes = 0;
+      for (const FrameInput& f : loaded) bytes += f.bytes_read;
+      Done d{i,
+             load_error.ok()
+                 ? proc.Process(*window[centre], &fr, window.size() > 1 ? window
+                                                                        : std::vector<const FrameInput*>{},
+                                centre)
+                 : Result<std::vector<Point>>(load_error),
+             bytes};
       std::lock_guard lk(mu);
       ready.push_back(std::move(d));
       cv_ready.notify_all();

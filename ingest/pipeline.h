@@ -39,6 +39,10 @@ struct IngestOptions {
   int workers = 0;             // 0 = hardware threads
   int max_in_flight = 0;       // finished frames waiting for the committer; 0 = workers + 1
   StereoParams stereo;         // threads = 0: hardware threads / workers
+  // stereo: frames on either side matched together with each frame by the spacetime matcher
+  // (thesis 3.4; for projector patterns that change over time); -1: the recording's
+  // `spacetime` (0 when it declares none: single-frame stereo).
+  int spacetime = -1;
   int stride = 1;              // depth: take every stride-th pixel
   bool normals = true;
   bool photo_consistency = true;
@@ -74,7 +78,13 @@ Status EnsureDataset(client::Backend& backend, const Recording& recording,
 class FrameProcessor {
  public:
   static Result<FrameProcessor> Make(const Recording& recording, const IngestOptions& options);
-  Result<std::vector<Point>> Process(const FrameInput& input, FrameReport* report) const;
+  // window: for the spacetime matcher, the frames around `input` in frame order (`input` itself
+  // at `centre`); empty: single-frame stereo.
+  Result<std::vector<Point>> Process(const FrameInput& input, FrameReport* report,
+                                     const std::vector<const FrameInput*>& window = {},
+                                     size_t centre = 0) const;
+  // The frames on either side each frame is matched with (0: none).
+  int spacetime() const;
 
  private:
   const Recording* rec_ = nullptr;

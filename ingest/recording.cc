@@ -136,6 +136,13 @@ Result<Recording> OpenRecording(const std::string& dir) {
     else if (kind == "depth") r.kind = RecordingKind::kDepth;
     else if (kind == "ply") r.kind = RecordingKind::kPly;
     else return Status::InvalidArgument(yml + ": kind must be stereo, depth or ply, not '" + kind + "'");
+    if (r.kind == RecordingKind::kStereo && !f["spacetime"].empty()) {
+      f["spacetime"] >> r.spacetime;
+      if (r.spacetime < 0 || r.spacetime > 8) {
+        return Status::InvalidArgument(yml + ": spacetime must be 0..8 frames on either side, got " +
+                                       std::to_string(r.spacetime));
+      }
+    }
     if (r.kind == RecordingKind::kPly) {
       r.ply = ReadString(f["ply"]);
       if (r.ply.empty()) r.ply = "frames/{frame:06d}.ply";
@@ -231,6 +238,7 @@ Status SaveRecording(const Recording& r) {
     if (!f.isOpened()) return Status::IOError(yml + ": cannot write");
     f << "format" << "hvdb-recording" << "version" << 1 << "kind" << KindName(r.kind) << "frames"
       << r.frames << "fps" << r.fps << "first_frame" << r.first_frame << "frame_step" << r.frame_step;
+    if (r.kind == RecordingKind::kStereo && r.spacetime > 0) f << "spacetime" << r.spacetime;
     if (r.kind == RecordingKind::kPly) {
       if (!r.ply.empty()) f << "ply" << r.ply;
       f << "ply_scale" << r.ply_scale;

@@ -52,6 +52,9 @@ struct Recording {
   std::vector<int> depth_invalid{0};   // png16/inverse8: raw values meaning "no depth"
   double z_near = 0, z_far = 0;        // inverse8: depth range
   double world_scale = 1.0;            // depth: positions multiplied by this (model units -> m)
+  // stereo: the projector patterns change from frame to frame, so the spacetime matcher
+  // (thesis 3.4) may match each frame together with `spacetime` frames on either side.
+  int spacetime = 0;
 
   int SourceFrame(int i) const { return first_frame + i * frame_step; }
   // The path of a pattern at ingest frame i for a camera.

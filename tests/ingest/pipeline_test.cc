@@ -154,6 +154,32 @@ TEST(Pipeline, GeneratedStereoRecordingGivesAccuratePoints) {
   EXPECT_LT(med, 0.15);
   EXPECT_LT(p90, 0.8);
 
+  // The generator's stripes change every frame (its recording.yml says spacetime: 1): frame 1,
+  // the last, matched together with frame 0 by the spacetime matcher (thesis 3.4).
+  EXPECT_EQ(proc->spacetime(), 1);
+  auto f0 = LoadFrame(*rec, 0);
+  ASSERT_TRUE(f0.ok());
+  FrameReport rep_st;
+  rep_st.dataset_frame = 1;
+  auto st = proc->Process(*in, &rep_st, {&*f0, &*in}, 1);
+  ASSERT_TRUE(st.ok()) << st.status().ToString();
+  std::vector<double> est = DepthErrors(dir / "rec", rec->calibration, *st, 1);
+  for (size_t i = 0; i < est.size(); ++i) {
+    const Point& p = (*st)[i];
+    double z = 0;
+    rec->calibration.cameras[p.camera].Project(cv::Vec3d(p.x, p.y, p.z), &z);
+    est[i] *= fB / (z * z);
+  }
+  std::erase_if(est, [](double x) { return std::isnan(x); });
+  ASSERT_GT(est.size(), st->size() / 2);
+  const double med_st = Quantile(est, 0.5), p90_st = Quantile(est, 0.9);
+  std::printf("spacetime (2 frames): median %.3f, p90 %.3f over %zu points\n", med_st, p90_st,
+              est.size());
+  EXPECT_LT(med_st, 0.15);
+  EXPECT_LT(p90_st, 0.8);
+  // A window whose centre is not the frame processed is refused.
+  EXPECT_FALSE(proc->Process(*in, &rep_st, {&*f0, &*in}, 0).ok());
+
   // The ingested frame rendered (CPU EWA splatting) from each brick's own colour camera looks
   // like that camera's image: PSNR over the pixels the splats cover fully. Measured 18.0 and
   // 18.3 dB (seed 11, 240x180); the render issue's goal is 25 dB: not met yet (see the ingest

@@ -43,6 +43,18 @@ TEST(Recording, GeneratedStereoRecordingLoads) {
   EXPECT_EQ(f->stereo[0].left.size(), cv::Size(96, 72));
   EXPECT_GT(f->bytes_read, 0u);
   EXPECT_FALSE(LoadFrame(*rec, 2).ok());
+  // Its stripes change every frame: it declares a spacetime window, which survives a save.
+  EXPECT_EQ(rec->spacetime, 1);
+  ASSERT_TRUE(SaveRecording(*rec).ok());
+  auto again = OpenRecording(dir / "rec");
+  ASSERT_TRUE(again.ok());
+  EXPECT_EQ(again->spacetime, 1);
+  again->spacetime = 20;
+  ASSERT_TRUE(SaveRecording(*again).ok());
+  auto bad = OpenRecording(dir / "rec");
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.status().message().find("spacetime must be 0..8"), std::string::npos)
+      << bad.status().ToString();
 }
 
 TEST(Recording, MissingAndMismatchedFilesNameTheFile) {
