@@ -182,8 +182,9 @@ Status Database::Refresh() {
     open = open_;
   }
   Status first;
-  for (auto& [name, ds] : open) {
-    if (!env_->Exists(dir_ + "/" + name + "/MANIFEST")) {  // dropped by the writer
+  for (const auto& entry : open) {
+    const std::shared_ptr<Dataset>& ds = entry.second;
+    if (!env_->Exists(dir_ + "/" + entry.first + "/MANIFEST")) {  // dropped by the writer
       std::lock_guard<std::mutex> l(mu_);
       std::erase_if(open_, [&](const auto& e) { return e.second == ds; });
       continue;
