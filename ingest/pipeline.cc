@@ -298,14 +298,16 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
                                const IngestOptions& options_in) {
   IngestOptions opt = options_in;
   if (opt.dataset.empty()) return Status::InvalidArgument("no dataset given");
-  if (opt.workers <= 0) opt.workers = HardwareThreads();
-  if (opt.max_in_flight <= 0) opt.max_in_flight = opt.workers + 1;
-  if (opt.stereo.threads <= 0) opt.stereo.threads = std::max(1, HardwareThreads() / opt.workers);
   if (opt.first < 0 || opt.first >= rec.frames)
     return Status::InvalidArgument("--first " + std::to_string(opt.first) +
                                    " is outside the recording's frames 0.." +
                                    std::to_string(rec.frames - 1));
   const int last = opt.count < 0 ? rec.frames : std::min(rec.frames, opt.first + opt.count);
+  // By default no more workers than frames: a single frame's stages (stereo, photo-consistency)
+  // then get the cores an idle worker would hold (the 8-camera SJTU frame: 2x on two cores).
+  if (opt.workers <= 0) opt.workers = std::clamp(last - opt.first, 1, HardwareThreads());
+  if (opt.max_in_flight <= 0) opt.max_in_flight = opt.workers + 1;
+  if (opt.stereo.threads <= 0) opt.stereo.threads = std::max(1, HardwareThreads() / opt.workers);
   HVDB_RETURN_IF_ERROR(EnsureDataset(backend, rec, opt.dataset));
   HVDB_ASSIGN_OR_RETURN(FrameProcessor proc, FrameProcessor::Make(rec, opt));
 
