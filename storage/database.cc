@@ -165,16 +165,13 @@ Status Database::Refresh() {
   if (!follower_) return Status::OK();
   bool full = false;
   const std::string path = dir_ + "/LEADER";
-  if (env_->Exists(path)) {
-    auto data = ReadWholeFile(env_, path);
-    // Absent or mid-replacement: the next call reads it.
-    if (data.ok()) {
-      HVDB_ASSIGN_OR_RETURN(LeaderRecord rec, DecodeLeader(*data, path));
-      std::lock_guard<std::mutex> l(mu_);
-      full = rec.epoch != epoch_;
-      epoch_ = rec.epoch;
-      leader_ = rec.address;
-    }
+  // One read per look; absent (no writer yet) or mid-replacement: the next call reads it.
+  if (auto data = ReadWholeFile(env_, path); data.ok()) {
+    HVDB_ASSIGN_OR_RETURN(LeaderRecord rec, DecodeLeader(*data, path));
+    std::lock_guard<std::mutex> l(mu_);
+    full = rec.epoch != epoch_;
+    epoch_ = rec.epoch;
+    leader_ = rec.address;
   }
   std::vector<std::pair<std::string, std::shared_ptr<Dataset>>> open;
   {

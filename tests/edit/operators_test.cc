@@ -75,6 +75,31 @@ class OperatorsTest : public ::testing::Test {
     }
     ASSERT_GT(sphere_.size(), 100u);
   }
+  // Graph-cut strokes: a dab on the sphere in frame 0 (bit 1), one on the plane (bit 2).
+  void PaintStrokes() {
+    SelectRequest dab;
+    Window top = Everything();
+    top.lo = {0.25, 0.45, 0.28, 0};
+    top.hi = {0.35, 0.55, 1, 0};
+    dab.region = top;
+    dab.bit = 1;
+    ASSERT_TRUE(Select(*ds_, dab).ok());
+    Window floor = Everything();
+    floor.lo = {0.7, 0.0, -1, 0};
+    floor.hi = {1.0, 0.3, 0.001, 0};
+    dab.region = floor;
+    dab.bit = 2;
+    ASSERT_TRUE(Select(*ds_, dab).ok());
+  }
+  // A cut over everything from those strokes into bit 0.
+  static GraphCutRequest SphereCut() {
+    GraphCutRequest gc;
+    gc.roi = Everything();
+    gc.out_bit = 0;
+    gc.params.intra_radius = 0.05;  // this scene is sampled every 2 cm
+    gc.params.inter_radius = 0.08;
+    return gc;
+  }
   testing::TempDir dir_;
   std::unique_ptr<Database> db_;
   std::shared_ptr<Dataset> ds_;
@@ -192,26 +217,10 @@ TEST_F(OperatorsTest, PaintbrushNearestAndMedianDepth) {
 
 TEST_F(OperatorsTest, GraphCutSelectionAndUndo) {
   auto before = ReadAll(*ds_);
-  // Strokes: a dab on the sphere in frame 0 (bit 1), two on the plane (bit 2).
-  SelectRequest dab;
-  Window top = Everything();
-  top.lo = {0.25, 0.45, 0.28, 0};
-  top.hi = {0.35, 0.55, 1, 0};
-  dab.region = top;
-  dab.bit = 1;
-  ASSERT_TRUE(Select(*ds_, dab).ok());
-  Window floor = Everything();
-  floor.lo = {0.7, 0.0, -1, 0};
-  floor.hi = {1.0, 0.3, 0.001, 0};
-  dab.region = floor;
-  dab.bit = 2;
-  ASSERT_TRUE(Select(*ds_, dab).ok());
+  PaintStrokes();
+  if (HasFatalFailure()) return;
   auto strokes = ReadAll(*ds_);
-  GraphCutRequest gc;
-  gc.roi = Everything();
-  gc.out_bit = 0;
-  gc.params.intra_radius = 0.05;  // this scene is sampled every 2 cm
-  gc.params.inter_radius = 0.08;
+  const GraphCutRequest gc = SphereCut();
   auto res = GraphCutSelect(*ds_, gc);
   ASSERT_TRUE(res.ok()) << res.status().ToString();
   EXPECT_EQ(res->roi_points, before.size());
@@ -230,24 +239,11 @@ TEST_F(OperatorsTest, GraphCutSelectionAndUndo) {
 // reuses the first's graph and flow (the query returns the points in another order, as the
 // first cut relabelled them) and selects exactly what a cut from scratch selects.
 TEST_F(OperatorsTest, CutAgainAfterAnotherStrokeReusesTheGraph) {
+  PaintStrokes();
+  if (HasFatalFailure()) return;
   SelectRequest dab;
-  Window top = Everything();
-  top.lo = {0.25, 0.45, 0.28, 0};
-  top.hi = {0.35, 0.55, 1, 0};
-  dab.region = top;
-  dab.bit = 1;
-  ASSERT_TRUE(Select(*ds_, dab).ok());
-  Window floor = Everything();
-  floor.lo = {0.7, 0.0, -1, 0};
-  floor.hi = {1.0, 0.3, 0.001, 0};
-  dab.region = floor;
   dab.bit = 2;
-  ASSERT_TRUE(Select(*ds_, dab).ok());
-  GraphCutRequest gc;
-  gc.roi = Everything();
-  gc.out_bit = 0;
-  gc.params.intra_radius = 0.05;
-  gc.params.inter_radius = 0.08;
+  const GraphCutRequest gc = SphereCut();
   GraphCutCache cache;
   auto first = GraphCutSelect(*ds_, gc, &cache);
   ASSERT_TRUE(first.ok()) << first.status().ToString();

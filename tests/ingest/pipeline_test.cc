@@ -139,14 +139,19 @@ TEST(Pipeline, GeneratedStereoRecordingGivesAccuratePoints) {
   // In disparity terms (|dz| fB / z^2, f and B of the brick's grey pair): the matcher's
   // subpixel accuracy survives depth, warping and point making.
   const double fB = rec->calibration.cameras[rec->calibration.bricks[0].left].K(0, 0) * 0.12;
-  std::vector<double> err = DepthErrors(dir / "rec", rec->calibration, *pts, 1);
-  for (size_t i = 0; i < err.size(); ++i) {
-    const Point& p = (*pts)[i];
-    double z = 0;
-    rec->calibration.cameras[p.camera].Project(cv::Vec3d(p.x, p.y, p.z), &z);
-    err[i] *= fB / (z * z);
-  }
-  std::erase_if(err, [](double x) { return std::isnan(x); });
+  // Depth errors of points of frame 1 in disparity pixels, points without truth left out.
+  auto disparity_errors = [&](const std::vector<Point>& points) {
+    std::vector<double> e = DepthErrors(dir / "rec", rec->calibration, points, 1);
+    for (size_t i = 0; i < e.size(); ++i) {
+      const Point& p = points[i];
+      double z = 0;
+      rec->calibration.cameras[p.camera].Project(cv::Vec3d(p.x, p.y, p.z), &z);
+      e[i] *= fB / (z * z);
+    }
+    std::erase_if(e, [](double x) { return std::isnan(x); });
+    return e;
+  };
+  std::vector<double> err = disparity_errors(*pts);
   ASSERT_GT(err.size(), pts->size() / 2);
   const double med = Quantile(err, 0.5), p90 = Quantile(err, 0.9);
   std::printf("depth error vs ground truth, in disparity pixels: median %.3f, p90 %.3f over %zu points\n",
@@ -163,14 +168,7 @@ TEST(Pipeline, GeneratedStereoRecordingGivesAccuratePoints) {
   rep_st.dataset_frame = 1;
   auto st = proc->Process(*in, &rep_st, {&*f0, &*in}, 1);
   ASSERT_TRUE(st.ok()) << st.status().ToString();
-  std::vector<double> est = DepthErrors(dir / "rec", rec->calibration, *st, 1);
-  for (size_t i = 0; i < est.size(); ++i) {
-    const Point& p = (*st)[i];
-    double z = 0;
-    rec->calibration.cameras[p.camera].Project(cv::Vec3d(p.x, p.y, p.z), &z);
-    est[i] *= fB / (z * z);
-  }
-  std::erase_if(est, [](double x) { return std::isnan(x); });
+  std::vector<double> est = disparity_errors(*st);
   ASSERT_GT(est.size(), st->size() / 2);
   const double med_st = Quantile(est, 0.5), p90_st = Quantile(est, 0.9);
   std::printf("spacetime (2 frames): median %.3f, p90 %.3f over %zu points\n", med_st, p90_st,
