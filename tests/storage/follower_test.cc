@@ -175,6 +175,32 @@ TEST_F(FollowerTest, PublishesTheWritersAddress) {
   EXPECT_EQ(follower_db_->SetLeaderAddress("x").code(), StatusCode::kNotLeader);
 }
 
+// A damaged LEADER file: a follower refuses to open (or refresh) with an error naming it, and
+// the writer and its data are untouched.
+TEST_F(FollowerTest, ADamagedLeaderFileIsAClearError) {
+  Options o = Opts();
+  Env* env = o.env ? o.env : Env::Default();
+  const std::string leader = dir_.path() + "/LEADER";
+  auto good = ReadWholeFile(env, leader);
+  ASSERT_TRUE(good.ok()) << good.status().ToString();
+  std::string bad = *good;
+  bad[bad.size() / 2] ^= 0x40;
+  ASSERT_TRUE(WriteFileAtomic(env, leader, bad).ok());
+  Status st = follower_db_->Refresh();
+  EXPECT_EQ(st.code(), StatusCode::kCorruption) << st.ToString();
+  EXPECT_NE(st.message().find("LEADER"), std::string::npos) << st.ToString();
+  o.follow = true;
+  auto another = Database::Open(dir_.path(), o);
+  ASSERT_FALSE(another.ok());
+  EXPECT_NE(another.status().message().find("LEADER"), std::string::npos);
+  // The writer goes on, and publishing its address repairs the file.
+  Transaction t;
+  t.Insert(RandomPoints(rng_, 10, 1));
+  ASSERT_TRUE(w_->Commit(t).ok());
+  ASSERT_TRUE(writer_->SetLeaderAddress("127.0.0.1:7001").ok());
+  ExpectSame();
+}
+
 TEST_F(FollowerTest, TakesOverOnceTheWriterIsGone) {
   auto promoted = follower_db_->TryPromote();
   ASSERT_TRUE(promoted.ok());
