@@ -4,11 +4,12 @@
 // each point to its k nearest neighbours within `intra_radius` in its frame; inter-frame arcs
 // join it to its k/2 nearest within `inter_radius` in frame t+1 (and so, from the other side,
 // t-1). Arcs between evidently unrelated points (colour or normal difference above a threshold)
-// are left out. Foreground and background strokes seed two colour GMMs (OpenCV EM, 5 full-
-// covariance components); the energy (9.1) is minimised by Boykov-Kolmogorov max-flow
-// (edit/maxflow.h). A GraphCut keeps its graph and flow: cutting again with more strokes (the
-// thesis's workflow: paint, look, paint more) reuses the neighbourhoods and links and starts
-// from the previous flow.
+// can be left out. Foreground and background strokes seed two colour GMMs (edit/color_model.h,
+// 5 full-covariance components); the energy (9.1) is minimised by Boykov-Kolmogorov max-flow
+// (edit/maxflow.h), first within blocks of the scene on all cores. A GraphCut keeps its graph
+// and flow: cutting again with more strokes (the thesis's workflow: paint, look, paint more)
+// reuses the neighbourhoods and links, the model of the kind of stroke that did not change,
+// and starts from the previous flow.
 #ifndef HVDB_EDIT_GRAPH_CUT_H_
 #define HVDB_EDIT_GRAPH_CUT_H_
 

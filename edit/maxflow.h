@@ -25,13 +25,28 @@ class MaxFlow {
   // and cap[a] its capacity. n = start.size() - 1 nodes; no terminal nodes (see SetTerminals).
   MaxFlow(std::vector<uint32_t> start, std::vector<uint32_t> head, std::vector<uint32_t> twin,
           std::vector<float> cap);
+  struct Arc {
+    uint32_t head;  // the node it goes to
+    uint32_t twin;  // the reverse arc
+    float rcap;     // residual capacity
+    // The reverse arc's residual capacity, kept here too: a sink tree grows through reverse
+    // residuals, and reading them from the twin was a cache miss per arc (two thirds of the
+    // search's time on issue 15's real scene).
+    float rrev;
+  };
+  // The same with the arcs laid out already (rcap = capacity, rrev = the twin's capacity).
+  MaxFlow(std::vector<uint32_t> start, std::vector<Arc> arcs);
   size_t nodes() const { return node_.size(); }
   // Node v's capacities from the source (to_source) and to the sink. The first call sets them;
   // later calls change them while keeping the flow found so far (a reparametrisation: the
   // difference goes into v's terminal residual), so that Solve() continues from there.
   void SetTerminals(uint32_t v, float to_source, float to_sink);
-  // Finds a maximum flow, continuing from the flow found so far.
+  // Finds a maximum flow, continuing from the flow found so far: first within each block of
+  // each level (below) on all cores, then over the whole graph.
   void Solve();
+  // Levels of blocks of consecutive nodes, finest first, each given as the sorted first nodes
+  // of its blocks (the first 0). None by default: the whole graph at once.
+  void set_levels(std::vector<std::vector<uint32_t>> levels) { levels_ = std::move(levels); }
   // After Solve: whether v is on the source side of the minimum cut.
   bool SourceSide(uint32_t v) const { return node_[v].parent != kFree && !node_[v].sink; }
   uint64_t augmentations() const { return augmentations_; }
@@ -47,7 +62,7 @@ class MaxFlow {
     for (uint32_t v = 0; v + 1 < start_.size(); ++v) {
       if (!side(v)) continue;
       for (uint32_t a = start_[v]; a < start_[v + 1]; ++a) {
-        if (!side(arc_[a].head)) sum += 0.5 * (static_cast<double>(arc_[a].rcap) + arc_[arc_[a].twin].rcap);
+        if (!side(arc_[a].head)) sum += 0.5 * (static_cast<double>(arc_[a].rcap) + arc_[a].rrev);
       }
     }
     return sum;
@@ -55,23 +70,37 @@ class MaxFlow {
 
  private:
   static constexpr uint32_t kFree = 0xffffffffu, kTerminal = 0xfffffffeu, kOrphan = 0xfffffffdu;
-  void Activate(uint32_t v);
-  void Augment(uint32_t mid);  // mid: an arc from the source tree into the sink tree
-  void Adopt(uint32_t v);
-  void Orphan(uint32_t v, bool front);
-  void StartTrees();  // a one-link pre-pass, then every node with a terminal residual a root
+  // One search: the nodes [lo, hi) with the arcs among them (a block, or the whole graph),
+  // its queue of active nodes, its orphans and its clock for Kolmogorov's time stamps.
+  struct Search {
+    uint32_t lo = 0, hi = 0;
+    uint32_t head = kFree, tail = kFree;  // active nodes, a list through Node::next
+    std::deque<uint32_t> orphans;
+    uint32_t time = 0;
+    bool Has(uint32_t v) const { return v - lo < hi - lo; }
+  };
+  uint64_t Run(Search& s);  // max-flow within s; returns the augmentations
+  void Activate(Search& s, uint32_t v);
+  void PopActive(Search& s);
+  void Augment(Search& s, uint32_t mid);  // mid: an arc from the source tree into the sink tree
+  void Adopt(Search& s, uint32_t v);
+  void Orphan(Search& s, uint32_t v, bool front);
+  void StartTrees(Search& s);  // a one-link pre-pass, then every node with a terminal residual a root
 
   // Arcs and nodes as structs: the search touches all fields of one at once (a cache line
   // instead of three to six).
-  struct Arc {
-    uint32_t head;  // the node it goes to
-    uint32_t twin;  // the reverse arc
-    float rcap;     // residual capacity
-  };
+  void Push(uint32_t a, float b) {  // b units along arc a
+    Arc& t = arc_[arc_[a].twin];
+    arc_[a].rcap -= b;
+    arc_[a].rrev += b;
+    t.rcap += b;
+    t.rrev -= b;
+  }
   struct Node {
     float tr = 0;             // terminal residual: > 0 from the source, < 0 to the sink
     uint32_t parent = kFree;  // arc from v to its parent, or kFree / kTerminal / kOrphan
     uint32_t ts = 0, dist = 0;  // Kolmogorov's heuristic: time stamp, distance to terminal
+    uint32_t next = 0;        // the next active node, while active
     uint8_t sink = 0;         // tree of v: 0 source, 1 sink
     uint8_t active = 0;       // v is in queue_
   };
@@ -79,8 +108,7 @@ class MaxFlow {
   std::vector<Arc> arc_;
   std::vector<Node> node_;
   std::vector<float> to_src_, to_snk_;  // the capacities SetTerminals was given
-  std::deque<uint32_t> queue_, orphans_;
-  uint32_t time_ = 0;
+  std::vector<std::vector<uint32_t>> levels_;
   uint64_t augmentations_ = 0;
 };
 

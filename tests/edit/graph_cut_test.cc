@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <random>
 
 #include "tests/edit/scene.h"
 
@@ -128,6 +129,48 @@ TEST(GraphCutTest, NeedsBothKindsOfStroke) {
   EXPECT_TRUE(RunGraphCut(pts, seeds, bad).status().IsInvalidArgument());
 }
 
+// A stroke of a single point on each side is enough (a one-point colour model used to throw
+// inside OpenCV's EM).
+TEST(GraphCutTest, OnePointStrokes) {
+  auto scene = testing::MovingSphereScene(2, 0.02);
+  std::vector<Point> pts;
+  for (const auto& s : scene) pts.push_back(s.p);
+  std::vector<Seed> seeds(pts.size(), Seed::kUnknown);
+  size_t fg = 0, bg = 0;
+  for (size_t i = 0; i < scene.size(); ++i) {
+    if (scene[i].sphere && (fg == 0 || pts[i].z > pts[fg].z)) fg = i;
+    if (!scene[i].sphere) bg = i;
+  }
+  seeds[fg] = Seed::kForeground;
+  seeds[bg] = Seed::kBackground;
+  auto r = RunGraphCut(pts, seeds);
+  ASSERT_TRUE(r.ok()) << r.status().ToString();
+  EXPECT_EQ(r->selected[fg], 1);
+  EXPECT_EQ(r->selected[bg], 0);
+}
+
+// The points' order does not matter: nodes are numbered by place, the models trained on the
+// stroked colours sorted. Shuffled input, the same selection and energy.
+TEST(GraphCutTest, TheInputOrderDoesNotMatter) {
+  auto scene = testing::MovingSphereScene(3, 0.015);
+  std::vector<Point> pts;
+  for (const auto& s : scene) pts.push_back(s.p);
+  auto seeds = Strokes(scene);
+  std::vector<size_t> perm(pts.size());
+  for (size_t i = 0; i < perm.size(); ++i) perm[i] = i;
+  std::mt19937 rng(25);
+  std::shuffle(perm.begin(), perm.end(), rng);
+  std::vector<Point> shuffled(pts.size());
+  std::vector<Seed> shuffled_seeds(pts.size());
+  for (size_t i = 0; i < perm.size(); ++i) shuffled[i] = pts[perm[i]], shuffled_seeds[i] = seeds[perm[i]];
+  auto a = RunGraphCut(pts, seeds);
+  auto b = RunGraphCut(shuffled, shuffled_seeds);
+  ASSERT_TRUE(a.ok() && b.ok());
+  EXPECT_NEAR(a->energy, b->energy, 1e-6 * a->energy);
+  size_t differ = 0;
+  for (size_t i = 0; i < perm.size(); ++i) differ += a->selected[perm[i]] != b->selected[i];
+  EXPECT_EQ(differ, 0u);
+}
 
 }  // namespace
 }  // namespace hvdb::edit

@@ -147,5 +147,29 @@ TEST(MaxFlowTest, WarmCutAfterTerminalChangesIsMinimum) {
   }
 }
 
+// Blocks solved on all cores first, then coarser blocks, then the whole graph (what the graph
+// cut does on a large region): the same minimum, cold and after terminal changes.
+TEST(MaxFlowTest, BlocksThenWholeGraphIsMinimum) {
+  std::mt19937 rng(1125);
+  std::uniform_int_distribution<int> term(0, 12);
+  for (int round = 0; round < 40; ++round) {
+    Graph g = RandomGraph(rng, 30 + round % 5, 20 + round % 3);
+    const uint32_t n = static_cast<uint32_t>(g.n);
+    auto f = Make(g);
+    f->set_levels({{0, n / 6, n / 3, n / 2, 2 * n / 3, 5 * n / 6}, {0, n / 2}});
+    for (size_t v = 0; v < g.n; ++v) f->SetTerminals(static_cast<uint32_t>(v), g.src[v], g.snk[v]);
+    f->Solve();
+    EXPECT_EQ(f->CheckTrees(), "");
+    EXPECT_DOUBLE_EQ(CutCost(g, Sides(*f, g.n)), Oracle(g)) << "round " << round;
+    for (size_t v = 0; v < g.n; v += 3) {
+      g.src[v] = static_cast<float>(term(rng));
+      f->SetTerminals(static_cast<uint32_t>(v), g.src[v], g.snk[v]);
+    }
+    f->Solve();
+    EXPECT_EQ(f->CheckTrees(), "");
+    EXPECT_DOUBLE_EQ(CutCost(g, Sides(*f, g.n)), Oracle(g)) << "round " << round << ", warm";
+  }
+}
+
 }  // namespace
 }  // namespace hvdb::edit
