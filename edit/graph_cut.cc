@@ -2,12 +2,12 @@
 
 #include "edit/color_model.h"
 #include "edit/maxflow.h"
+#include "edit/neighbours.h"
 
 #include <algorithm>
 #include <array>
 #include <chrono>
 #include <cmath>
-#include <cstdio>
 #include <limits>
 #include <numbers>
 #include <map>
@@ -15,7 +15,6 @@
 #include <atomic>
 #include <thread>
 
-#include <nanoflann.hpp>
 
 namespace hvdb::edit {
 
@@ -44,24 +43,6 @@ double NormalDiff(const Attr& a, const Attr& b) {
   for (int i = 0; i < 3; ++i) d += (a.n[i] - b.n[i]) * (a.n[i] - b.n[i]);
   return std::sqrt(d) / 2.0;  // in [0, 1]
 }
-
-// One frame's points in a kd-tree (nanoflann: header-only, and its k-nearest search fills
-// caller-owned arrays, where FLANN's radius search allocated two vectors per query: that was
-// a third of a million-point cut).
-struct Cloud {
-  std::vector<float> coords;  // x y z per point
-  size_t kdtree_get_point_count() const { return coords.size() / 3; }
-  float kdtree_get_pt(uint32_t i, size_t d) const { return coords[3 * i + d]; }
-  template <class BBox>
-  bool kdtree_get_bbox(BBox&) const { return false; }
-};
-using KdIndex = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Cloud>,
-                                                    Cloud, 3, uint32_t>;
-struct FrameIndex {
-  std::vector<uint32_t> members;  // indices into the input
-  Cloud cloud;
-  std::unique_ptr<KdIndex> index;
-};
 
 constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
 constexpr uint32_t kMaxFlowPiece = 1u << 14;
@@ -95,42 +76,6 @@ void ParallelChunks(size_t n, size_t chunk, Fn&& fn) {
   for (size_t t = 1; t < std::min(threads, chunks); ++t) pool.emplace_back(work);
   work();
   for (auto& th : pool) th.join();
-}
-
-// For every point of `source`, the input indices of its up to k nearest points of `target`
-// within `radius` (itself excluded), nearest first, in out[k * j ...] for source member j
-// (kNone where there are fewer). On all cores: the queries are independent.
-void Nearest(const FrameIndex& target, const FrameIndex& source, int k, double radius,
-             std::vector<uint32_t>* out) {
-  const size_t m = source.members.size();
-  const size_t kk = static_cast<size_t>(k);
-  out->assign(m * kk, kNone);
-  const float r2 = static_cast<float>(radius * radius);
-  // Within a frame each point finds itself too: one more.
-  const size_t want = &target == &source ? kk + 1 : kk;
-  auto work = [&](size_t lo, size_t hi) {
-    std::vector<uint32_t> idx(want);
-    std::vector<float> d2(want);
-    for (size_t t = lo; t < hi; ++t) {
-      // Queries in the tree's leaf order: each starts near where the last ended (cache).
-      const size_t j = source.index->vAcc[t];
-      const float* q = &source.cloud.coords[3 * j];
-      nanoflann::KNNResultSet<float, uint32_t> rs(want);
-      rs.init(idx.data(), d2.data());
-      // The worst distance starts at the radius, not infinity: the search prunes by it from
-      // the first node (half the time of a plain k-nearest search on these surfaces).
-      d2[want - 1] = r2;
-      target.index->findNeighbors(rs, q, nanoflann::SearchParams());
-      const size_t found = rs.size();
-      size_t w = 0;
-      for (size_t h = 0; h < found && w < kk; ++h) {
-        uint32_t b = target.members[idx[h]];
-        if (b == source.members[j]) continue;
-        (*out)[j * kk + w++] = b;
-      }
-    }
-  };
-  ParallelFor(m, work);
 }
 
 // The distinct 24-bit colours of the points (sorted) and each node's index among them: a radix
@@ -194,63 +139,70 @@ size_t GraphCut::size() const { return s_->attr.size(); }
 Result<std::unique_ptr<GraphCut>> GraphCut::Build(const std::vector<Point>& points,
                                                  const GraphCutParams& params) {
   const size_t n = points.size();
-  if (params.k < 1 || params.intra_radius <= 0 || params.inter_radius <= 0 ||
+  if (params.k < 1 || params.k > 64 || !(params.intra_radius > 0) || !(params.inter_radius > 0) ||
+      !std::isfinite(params.intra_radius) || !std::isfinite(params.inter_radius) ||
       params.beta_c < 0 || params.beta_n < 0 || params.gmm_components < 1) {
-    return Status::InvalidArgument("graph cut: k, radii and components must be positive, "
+    return Status::InvalidArgument("graph cut: k must be 1..64, radii and components positive, "
                                    "betas >= 0");
   }
   if (n >= 0xfffffff0u) return Status::LimitExceeded("graph cut: too many points");
   auto st = std::make_unique<State>();
   st->params = params;
   GraphCutResult& res = st->base;
-  // Neighbourhoods (a kd-tree per frame).
+  // Neighbourhoods: a grid per frame (edit/neighbours.h), all on one lattice so that a frame's
+  // points can be looked up in the next frame's grid. Cells of the smaller radius (one ring of
+  // cells around a point covers it), but no smaller than a quarter of the larger.
   auto t0 = Clock::now();
-  std::map<uint32_t, FrameIndex> frames;
-  for (size_t i = 0; i < n; ++i) frames[points[i].frame].members.push_back(static_cast<uint32_t>(i));
+  std::map<uint32_t, std::vector<uint32_t>> members;  // frame -> input indices
+  std::array<float, 3> origin = {0, 0, 0}, top = {0, 0, 0};
+  for (size_t i = 0; i < n; ++i) {
+    const Point& p = points[i];
+    members[p.frame].push_back(static_cast<uint32_t>(i));
+    if (i == 0) origin = top = {p.x, p.y, p.z};
+    origin = {std::min(origin[0], p.x), std::min(origin[1], p.y), std::min(origin[2], p.z)};
+    top = {std::max(top[0], p.x), std::max(top[1], p.y), std::max(top[2], p.z)};
+  }
+  // (and no more than 2^16 cells along an axis: edit/neighbours.h's coordinates are 17-bit)
+  const double extent = std::max({top[0] - origin[0], top[1] - origin[1], top[2] - origin[2]});
+  const float cell = static_cast<float>(
+      std::max({std::min(params.intra_radius, params.inter_radius),
+                std::max(params.intra_radius, params.inter_radius) / 4, extent / (1 << 16)}));
+  std::vector<std::unique_ptr<PointGrid>> grids(members.size());
+  std::vector<uint32_t> frame_of;  // grid index -> frame
+  for (const auto& [f, m] : members) frame_of.push_back(f);
   {
-    // The frames' trees are independent: built on all cores.
-    std::vector<FrameIndex*> todo;
-    for (auto& [f, fi] : frames) todo.push_back(&fi);
     std::atomic<size_t> next{0};
     auto build = [&] {
-      for (size_t t; (t = next++) < todo.size();) {
-        FrameIndex& fi = *todo[t];
-        fi.cloud.coords.resize(fi.members.size() * 3);
-        for (size_t j = 0; j < fi.members.size(); ++j) {
-          const Point& p = points[fi.members[j]];
-          fi.cloud.coords[3 * j] = p.x;
-          fi.cloud.coords[3 * j + 1] = p.y;
-          fi.cloud.coords[3 * j + 2] = p.z;
+      for (size_t g; (g = next++) < grids.size();) {
+        const std::vector<uint32_t>& m = members[frame_of[g]];
+        std::vector<float> xyz(m.size() * 3);
+        for (size_t j = 0; j < m.size(); ++j) {
+          const Point& p = points[m[j]];
+          xyz[3 * j] = p.x, xyz[3 * j + 1] = p.y, xyz[3 * j + 2] = p.z;
         }
-        fi.index = std::make_unique<KdIndex>(3, fi.cloud,
-                                             nanoflann::KDTreeSingleIndexAdaptorParams(10));
+        grids[g] = std::make_unique<PointGrid>(xyz, origin, cell);
       }
     };
     std::vector<std::thread> pool;
     const size_t threads = std::clamp<size_t>(std::thread::hardware_concurrency(), 1, 16);
-    for (size_t t = 1; t < std::min(threads, todo.size()); ++t) pool.emplace_back(build);
+    for (size_t t = 1; t < std::min(threads, grids.size()); ++t) pool.emplace_back(build);
     build();
     for (auto& th : pool) th.join();
   }
-  // Nodes are numbered frame by frame in the kd-trees' leaf order, whatever order the points
+  // Nodes are numbered frame by frame in the grids' order (by place), whatever order the points
   // came in: neighbours get nearby numbers, so the graph's arrays are walked with few cache
   // misses, and MaxFlow's blocks of consecutive nodes are compact pieces of the scene.
   std::vector<uint32_t>& order = st->order;
   order.resize(n);
-  std::vector<uint32_t> frame_start;  // first node of each frame, then n
-  {
-    uint32_t next = 0;
-    for (auto& [f, fi] : frames) {
-      frame_start.push_back(next);
-      std::vector<uint32_t> node(fi.members.size());
-      for (uint32_t leaf : fi.index->vAcc) {
-        order[next] = fi.members[leaf];
-        node[leaf] = next++;
-      }
-      fi.members = std::move(node);  // from here on: node numbers
-    }
-    frame_start.push_back(next);
+  std::vector<uint32_t> frame_start;  // first node of each grid's frame, then n
+  for (size_t g = 0; g < grids.size(); ++g) {
+    const uint32_t first = frame_start.empty() ? 0 : frame_start.back() + static_cast<uint32_t>(grids[g - 1]->size());
+    frame_start.push_back(first);
+    const std::vector<uint32_t>& m = members[frame_of[g]];
+    for (size_t j = 0; j < grids[g]->size(); ++j) order[first + j] = m[grids[g]->input(j)];
   }
+  frame_start.push_back(static_cast<uint32_t>(n));
+  members.clear();
   std::vector<Attr>& attr = st->attr;
   attr.resize(n);
   for (size_t v = 0; v < n; ++v) {
@@ -277,20 +229,22 @@ Result<std::unique_ptr<GraphCut>> GraphCut::Build(const std::vector<Point>& poin
   const size_t k = static_cast<size_t>(params.k);
   const size_t kt = static_cast<size_t>(std::max(1, params.k / 2));
   std::vector<uint32_t> intra(n * k, kNone), inter(n * kt, kNone);
-  for (auto it = frames.begin(); it != frames.end(); ++it) {
-    const FrameIndex& fi = it->second;
+  for (size_t g = 0; g < grids.size(); ++g) {
+    // Grid positions to node numbers: the frame's first node plus the position.
+    auto copy = [&](const std::vector<uint32_t>& near, size_t per, uint32_t target_first,
+                    std::vector<uint32_t>* to) {
+      for (size_t j = 0; j < near.size(); ++j) {
+        if (near[j] != PointGrid::kNone) (*to)[frame_start[g] * per + j] = target_first + near[j];
+      }
+    };
     std::vector<uint32_t> near;
-    Nearest(fi, fi, params.k, params.intra_radius, &near);
-    for (size_t j = 0; j < fi.members.size(); ++j) {
-      std::copy_n(&near[j * k], k, &intra[fi.members[j] * k]);
-    }
-    auto next = frames.find(it->first + 1);
-    if (next == frames.end()) continue;
-    Nearest(next->second, fi, static_cast<int>(kt), params.inter_radius, &near);
-    for (size_t j = 0; j < fi.members.size(); ++j) {
-      std::copy_n(&near[j * kt], kt, &inter[fi.members[j] * kt]);
-    }
+    grids[g]->Nearest(*grids[g], params.k, static_cast<float>(params.intra_radius), &near);
+    copy(near, k, frame_start[g], &intra);
+      if (g + 1 == grids.size() || frame_of[g + 1] != frame_of[g] + 1) continue;
+    grids[g + 1]->Nearest(*grids[g], static_cast<int>(kt), static_cast<float>(params.inter_radius), &near);
+    copy(near, kt, frame_start[g + 1], &inter);
   }
+  grids.clear();
   auto lists = [&](uint32_t b, uint32_t a) {
     const uint32_t* l = &intra[b * k];
     return std::find(l, l + k, a) != l + k;
@@ -319,7 +273,6 @@ Result<std::unique_ptr<GraphCut>> GraphCut::Build(const std::vector<Point>& poin
   });
   std::vector<uint32_t>().swap(intra);
   std::vector<uint32_t>().swap(inter);
-  frames.clear();
   std::vector<Arc> arcs;
   {
     size_t total = 0;
