@@ -26,6 +26,7 @@
 #include <vector>
 
 #include "client/backend.h"
+#include "bench/real_recordings.h"
 #include "ingest/generator.h"
 #include "ingest/pipeline.h"
 #include "ingest/rectify.h"
@@ -238,28 +239,10 @@ struct RealSet {
   bool poses = false;
 };
 
-void WriteYaml(const std::string& path, const std::string& text) {
-  std::ofstream(path) << "%YAML:1.0\n---\n" << text;
-}
-
-std::string Matrix(int rows, int cols, const std::vector<double>& v) {
-  std::ostringstream o;
-  o << "!!opencv-matrix\n      rows: " << rows << "\n      cols: " << cols << "\n      dt: d\n      data: [ ";
-  for (size_t i = 0; i < v.size(); ++i) o << (i ? ", " : "") << v[i];
-  o << " ]\n";
-  return o.str();
-}
-
-std::string CameraYaml(const std::string& name, int w, int h, double fx, double fy, double cx,
-                       double cy, const std::vector<double>& R, const std::vector<double>& T) {
-  std::ostringstream o;
-  o << "   - name: " << name << "\n     width: " << w << "\n     height: " << h
-    << "\n     K: " << Matrix(3, 3, {fx, 0, cx, 0, fy, cy, 0, 0, 1}) << "     R: " << Matrix(3, 3, R)
-    << "     T: " << Matrix(3, 1, T) << "     reprojection_error: 0.5\n";
-  return o.str();
-}
-
-const std::vector<double> kEye{1, 0, 0, 0, 1, 0, 0, 0, 1}, kZero{0, 0, 0};
+using hvdb::bench::CameraYaml;
+using hvdb::bench::kEye;
+using hvdb::bench::kZero;
+using hvdb::bench::WriteYaml;
 
 std::vector<RealSet> DescribeRealSets(const std::string& scratch, bool quick) {
   std::vector<RealSet> sets;
@@ -297,36 +280,9 @@ std::vector<RealSet> DescribeRealSets(const std::string& scratch, bool quick) {
   }
   {  // SJTU 10-camera stage, one frame; cameras 3 and 6 are held out of the shared copy.
     RealSet s{"sjtu", scratch + "/rec-sjtu", false};
-    fs::create_directories(s.dir);
-    const std::string src = kData + "/sjtu-fvv-multiview-rgbd/";
-    std::ifstream in(src + "para_cameras.txt");
-    double zmin = 0, zmax = 0;
-    in >> zmin >> zmax;
-    std::string cams = "cameras:\n", files = "cameras:\n", key;
-    for (int c = 0; c < 10; ++c) {
-      int id = 0, w = 0, h = 0;
-      double fx, fy, cx, cy, C[3];
-      std::vector<double> R(9);
-      in >> key >> id >> key >> w >> h >> key >> fx >> fy >> cx >> cy >> key;
-      for (double& r : R) in >> r;
-      in >> key >> C[0] >> C[1] >> C[2];
-      if (id == 3 || id == 6) continue;
-      // X_cam = R (X - C): T = -R C.
-      std::vector<double> T{-(R[0] * C[0] + R[1] * C[1] + R[2] * C[2]),
-                            -(R[3] * C[0] + R[4] * C[1] + R[5] * C[2]),
-                            -(R[6] * C[0] + R[7] * C[1] + R[8] * C[2])};
-      const std::string name = "cam" + std::to_string(id);
-      cams += CameraYaml(name, w, h, fx, fy, cx, cy, R, T);
-      files += "   - { name: " + name + ", colour: \"" + src + "frame_0/images/" +
-               std::to_string(id) + ".png\", depth: \"" + src + "frame_0/depths/" +
-               std::to_string(id) + ".png\" }\n";
+    if (auto st = hvdb::bench::WriteSjtuRecording(kData, s.dir); !st.ok()) {
+      std::fprintf(stderr, "ingest-bench: %s\n", st.ToString().c_str());
     }
-    WriteYaml(s.dir + "/calibration.yml", cams);
-    std::ostringstream o;
-    o << "format: \"hvdb-recording\"\nversion: 1\nkind: \"depth\"\nframes: 1\nfps: 30\n"
-         "depth_encoding: \"inverse8\"\ndepth_invalid: [ 0 ]\nz_near: "
-      << zmin << "\nz_far: " << zmax << "\nworld_scale: 0.37\n" << files;
-    WriteYaml(s.dir + "/recording.yml", o.str());
     sets.push_back(s);
   }
   {  // Panoptic point-cloud video: 16 binary PLY frames in centimetres.

@@ -187,6 +187,10 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
   // Camera models (pinhole versions for the depth views) must outlive the colour views below.
   std::vector<CameraModel> colour_models;
   std::vector<cv::Mat> colour_images;
+  // The depth maps the points came from, for the geometric consistency test.
+  std::vector<CameraModel> depth_models;
+  std::vector<cv::Mat> depth_maps;
+  std::vector<uint16_t> depth_ids;
   double valid = 0;
   size_t views = 0;
   auto write_depth = [&](const std::string& camera, const cv::Mat& depth) -> Status {
@@ -245,12 +249,15 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
       HVDB_RETURN_IF_ERROR(write_depth(colour.name, w.depth));
       DepthView dv;
       dv.camera = &colour;
-      dv.depth = w.depth;
+      dv.depth = opt_.edge_radius > 0 ? RemoveDepthEdges(w.depth, opt_.edge_jump, opt_.edge_radius) : w.depth;
       dv.sigma_z = w.carried;
       dv.colour = Undistort(cal.cameras[static_cast<size_t>(b.colour)], v.colour);
       dv.camera_id = static_cast<uint16_t>(b.colour);
       std::vector<Point> pts = PointsFromDepth(dv, po);
       points.insert(points.end(), pts.begin(), pts.end());
+      depth_models.push_back(colour);
+      depth_maps.push_back(dv.depth);
+      depth_ids.push_back(dv.camera_id);
       colour_models.push_back(cal.cameras[static_cast<size_t>(b.colour)]);
       colour_images.push_back(v.colour);
       rep->stage_ms["points"] += MsSince(t0);
@@ -262,18 +269,36 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
       DepthView dv;
       dv.camera = &pin;
       dv.depth = Undistort(v.model, v.depth, /*nearest=*/true);  // never blend across edges
+      if (opt_.edge_radius > 0) dv.depth = RemoveDepthEdges(dv.depth, opt_.edge_jump, opt_.edge_radius);
       dv.colour = Undistort(v.model, v.colour);
       dv.camera_id = static_cast<uint16_t>(v.camera);
       valid += ValidPct(dv.depth);
       ++views;
       std::vector<Point> pts = PointsFromDepth(dv, po);
       points.insert(points.end(), pts.begin(), pts.end());
+      depth_models.push_back(pin);
+      depth_maps.push_back(dv.depth);
+      depth_ids.push_back(dv.camera_id);
       colour_models.push_back(v.model);
       colour_images.push_back(v.colour);
       rep->stage_ms["points"] += MsSince(t0);
     }
   }
   rep->valid_depth_pct = views ? valid / static_cast<double>(views) : 0;
+  if (opt_.geometric_consistency && depth_maps.size() > 1 && !points.empty()) {
+    auto t0 = Clock::now();
+    std::vector<DepthMapView> dm;
+    for (size_t i = 0; i < depth_maps.size(); ++i) dm.push_back({&depth_models[i], depth_maps[i], depth_ids[i]});
+    GeometricConsistencyOptions go = opt_.geometric;
+    if (go.threads == 0) go.threads = std::max(1, HardwareThreads() / std::max(1, opt_.workers));
+    std::vector<uint8_t> keep = GeometricConsistencyMask(points, dm, go);
+    size_t out = 0;
+    for (size_t i = 0; i < points.size(); ++i)
+      if (keep[i]) points[out++] = points[i];
+    rep->outliers_removed += points.size() - out;
+    points.resize(out);
+    rep->stage_ms["geometry"] += MsSince(t0);
+  }
   if (opt_.photo_consistency && !points.empty()) {
     auto t0 = Clock::now();
     std::vector<ColourView> cv_views;
@@ -286,7 +311,7 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
     size_t out = 0;
     for (size_t i = 0; i < points.size(); ++i)
       if (keep[i]) points[out++] = points[i];
-    rep->outliers_removed = points.size() - out;
+    rep->outliers_removed += points.size() - out;
     points.resize(out);
     rep->stage_ms["photo"] += MsSince(t0);
   }

@@ -25,6 +25,7 @@
 #include <nlohmann/json.hpp>
 
 #include "client/backend.h"
+#include "ingest/geometric_consistency.h"
 #include "ingest/photo_consistency.h"
 #include "ingest/points.h"
 #include "ingest/recording.h"
@@ -45,6 +46,13 @@ struct IngestOptions {
   int spacetime = -1;
   int stride = 1;              // depth: take every stride-th pixel
   bool normals = true;
+  // Depth samples within this many pixels of a depth jump (> edge_jump of the depth) are
+  // dropped before making points: mixed pixels at silhouettes (0: keep them).
+  int edge_radius = 2;
+  double edge_jump = 0.05;
+  // Cross-view geometric consistency before photo-consistency (ingest/geometric_consistency.h).
+  bool geometric_consistency = true;
+  GeometricConsistencyOptions geometric;
   bool photo_consistency = true;
   PhotoConsistencyOptions photo;
   bool skip_bad_frames = false;  // a bad frame is reported and skipped instead of stopping

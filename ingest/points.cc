@@ -6,6 +6,8 @@
 #include <limits>
 #include <thread>
 
+#include <opencv2/imgproc.hpp>
+
 namespace hvdb::ingest {
 
 namespace {
@@ -49,7 +51,9 @@ std::vector<Point> PointsFromDepth(const DepthView& view, const PointOptions& op
   const cv::Vec3d m1(M(0, 0), M(1, 0), M(2, 0)), m2(M(0, 1), M(1, 1), M(2, 1)),
       m3(M(0, 2), M(1, 2), M(2, 2));
   const cv::Vec3d O = cam.Centre();
-  const double sigma_xy = 1.0 + options.sigma_c;  // 5.2: pixel size plus calibration error
+  // 5.2: pixel size plus calibration error. A sample taken every stride-th pixel stands for a
+  // stride x stride block: its footprint is that wide, or the samples leave gaps between them.
+  const double sigma_xy = options.stride + options.sigma_c;
   const double jump = options.max_relative_jump;
   const int stride = options.stride;
   const int rows = (depth.rows + stride - 1) / stride;  // sampled rows
@@ -196,6 +200,38 @@ cv::Mat DepthSigmaFromDisparity(const cv::Mat& disparity, const cv::Mat& dispari
       o[x] = static_cast<float>(scale / (dv * dv) * (g + sigma_c));  // eq. 5.8
     }
   }
+  return out;
+}
+
+}  // namespace hvdb::ingest
+
+namespace hvdb::ingest {
+
+cv::Mat RemoveDepthEdges(const cv::Mat& depth, double max_relative_jump, int radius) {
+  if (depth.empty() || depth.type() != CV_32FC1 || radius < 1) return depth.clone();
+  cv::Mat out = depth.clone();
+  const int w = depth.cols, h = depth.rows;
+  // A pixel within `radius` of a jump is dropped: on both sides of a silhouette the sensor (or
+  // the matcher) mixes foreground and background, and such samples float between the two.
+  // First mark the jumps between 4-neighbours, then dilate the marks by `radius - 1`.
+  cv::Mat edge(h, w, CV_8U, cv::Scalar(0));
+  for (int y = 0; y < h; ++y) {
+    const float* row = depth.ptr<float>(y);
+    const float* below = y + 1 < h ? depth.ptr<float>(y + 1) : nullptr;
+    for (int x = 0; x < w; ++x) {
+      const float z = row[x];
+      if (!ValidDepth(z)) continue;
+      auto jump = [&](float zn) {
+        return !ValidDepth(zn) ? false : std::abs(zn - z) > max_relative_jump * std::min(z, zn);
+      };
+      if (x + 1 < w && jump(row[x + 1])) edge.at<uint8_t>(y, x) = edge.at<uint8_t>(y, x + 1) = 1;
+      if (below && jump(below[x])) edge.at<uint8_t>(y, x) = edge.at<uint8_t>(y + 1, x) = 1;
+    }
+  }
+  if (radius > 1) {
+    cv::dilate(edge, edge, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * radius - 1, 2 * radius - 1)));
+  }
+  out.setTo(0.0f, edge);
   return out;
 }
 

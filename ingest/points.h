@@ -75,6 +75,12 @@ std::vector<Point> PointsFromDepth(const DepthView& view, const PointOptions& op
 // (CV_32F, d > 0 px valid; <= 0, NaN or inf invalid) and its x-gradient (CV_32F, same size;
 // a non-finite gradient counts as 0). Invalid pixels get +inf, which PointsFromDepth treats as
 // no sample. Returns CV_32F of the disparity's size (empty when the inputs do not match).
+// Mixed pixels at depth edges: a copy of `depth` (CV_32F, <= 0 / NaN / inf = none) with every
+// pixel within `radius` pixels of a jump between neighbours of more than `max_relative_jump`
+// of the nearer depth set to 0. At a silhouette the samples on both sides blend foreground
+// and background (a sensor's footprint, a matcher's window) and land between the two.
+cv::Mat RemoveDepthEdges(const cv::Mat& depth, double max_relative_jump, int radius);
+
 cv::Mat DepthSigmaFromDisparity(const cv::Mat& disparity, const cv::Mat& disparity_dx,
                                 double baseline, double fx, double sigma_c);
 

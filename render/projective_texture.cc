@@ -1,0 +1,181 @@
+#include "render/projective_texture.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <thread>
+
+#include "render/splat.h"
+
+namespace hvdb::render {
+
+namespace {
+
+struct Vec3 {
+  double x, y, z;
+};
+
+// A camera's pose and projection for per-pixel use.
+struct Pose {
+  const Camera* cam;
+  double R[9];  // camera_from_world rotation (row-major)
+  Vec3 centre;
+
+  explicit Pose(const Camera& c) : cam(&c) {
+    const auto& m = c.world_from_camera;
+    for (int i = 0; i < 3; ++i) {
+      for (int j = 0; j < 3; ++j) R[3 * i + j] = m[4 * j + i];  // transpose of the rotation
+    }
+    centre = {m[3], m[7], m[11]};
+  }
+  // World point -> pixel (with distortion) and camera z; false behind the camera.
+  bool Project(const Vec3& X, double* u, double* v, double* z) const {
+    const double dx = X.x - centre.x, dy = X.y - centre.y, dz = X.z - centre.z;
+    const double xc = R[0] * dx + R[1] * dy + R[2] * dz;
+    const double yc = R[3] * dx + R[4] * dy + R[5] * dz;
+    const double zc = R[6] * dx + R[7] * dy + R[8] * dz;
+    if (!(zc > 0)) return false;
+    double x = xc / zc, y = yc / zc;
+    const auto& d = cam->distortion;
+    if (d[0] != 0 || d[1] != 0 || d[2] != 0 || d[3] != 0 || d[4] != 0) {
+      const double r2 = x * x + y * y;
+      const double radial = 1 + r2 * (d[0] + r2 * (d[1] + r2 * d[4]));
+      const double xd = x * radial + 2 * d[2] * x * y + d[3] * (r2 + 2 * x * x);
+      const double yd = y * radial + d[2] * (r2 + 2 * y * y) + 2 * d[3] * x * y;
+      x = xd, y = yd;
+    }
+    *u = cam->fx * x + cam->cx;
+    *v = cam->fy * y + cam->cy;
+    *z = zc;
+    return true;
+  }
+  // Pixel centre (u, v) at camera depth z -> world point (the inverse of Project; distortion
+  // undone by fixed-point iteration, as OpenCV's undistortPoints does).
+  Vec3 Unproject(double u, double v, double z) const {
+    double x = (u - cam->cx) / cam->fx, y = (v - cam->cy) / cam->fy;
+    const auto& d = cam->distortion;
+    if (d[0] != 0 || d[1] != 0 || d[2] != 0 || d[3] != 0 || d[4] != 0) {
+      const double x0 = x, y0 = y;
+      for (int it = 0; it < 8; ++it) {
+        const double r2 = x * x + y * y;
+        const double radial = 1 + r2 * (d[0] + r2 * (d[1] + r2 * d[4]));
+        const double ex = 2 * d[2] * x * y + d[3] * (r2 + 2 * x * x);
+        const double ey = d[2] * (r2 + 2 * y * y) + 2 * d[3] * x * y;
+        x = (x0 - ex) / radial;
+        y = (y0 - ey) / radial;
+      }
+    }
+    const double xc = x * z, yc = y * z;
+    // world = R^T (xc, yc, z) + centre; R^T's rows are R's columns.
+    return {R[0] * xc + R[3] * yc + R[6] * z + centre.x, R[1] * xc + R[4] * yc + R[7] * z + centre.y,
+            R[2] * xc + R[5] * yc + R[8] * z + centre.z};
+  }
+};
+
+double Angle(const Vec3& a, const Vec3& b) {
+  const double na = std::sqrt(a.x * a.x + a.y * a.y + a.z * a.z);
+  const double nb = std::sqrt(b.x * b.x + b.y * b.y + b.z * b.z);
+  if (!(na > 0) || !(nb > 0)) return 0;
+  return std::acos(std::clamp((a.x * b.x + a.y * b.y + a.z * b.z) / (na * nb), -1.0, 1.0));
+}
+
+}  // namespace
+
+Status ProjectiveTexture(const Camera& camera, std::span<const TextureView> views,
+                         const TextureOptions& o, Image* image, TextureStats* stats) {
+  if (image == nullptr || image->width != camera.width || image->height != camera.height ||
+      image->depth.size() != image->pixels() || image->rgba.size() != 4 * image->pixels() ||
+      image->coverage.size() != image->pixels()) {
+    return Status::InvalidArgument("projective texture: the image must be rendered from this camera");
+  }
+  if (o.max_views < 1 || !(o.visibility_tolerance > 0)) {
+    return Status::InvalidArgument("projective texture: max_views >= 1 and visibility_tolerance > 0");
+  }
+  for (const TextureView& v : views) {
+    const size_t n = size_t{v.camera.width} * v.camera.height;
+    if (v.rgb.size() != 3 * n || v.depth.size() != n) {
+      return Status::InvalidArgument("projective texture: a view's photo or depth does not match its camera");
+    }
+    HVDB_RETURN_IF_ERROR(v.camera.Validate());
+  }
+  const Pose target(camera);
+  std::vector<Pose> sources;
+  for (const TextureView& v : views) sources.emplace_back(v.camera);
+  const auto& lin = internal::SrgbTable();
+  const unsigned threads = o.threads ? o.threads : std::max(1u, std::thread::hardware_concurrency());
+  std::vector<uint64_t> with_depth(image->height, 0), textured(image->height, 0);
+  internal::ParallelFor(image->height, threads, [&](size_t y) {
+    struct Candidate {
+      double angle;
+      size_t view;
+      double u, v;
+    };
+    std::vector<Candidate> seen;
+    for (uint32_t x = 0; x < image->width; ++x) {
+      const size_t px = y * image->width + x;
+      const float z = image->depth[px];
+      if (!std::isfinite(z)) continue;
+      ++with_depth[y];
+      const Vec3 X = target.Unproject(x, static_cast<double>(y), z);
+      const Vec3 to_target{target.centre.x - X.x, target.centre.y - X.y, target.centre.z - X.z};
+      seen.clear();
+      for (size_t s = 0; s < sources.size(); ++s) {
+        double u, v, zs;
+        if (!sources[s].Project(X, &u, &v, &zs)) continue;
+        const Camera& sc = views[s].camera;
+        if (u < 0 || v < 0 || u > sc.width - 1.0 || v > sc.height - 1.0) continue;
+        // Visible from s: s saw a surface at this point's depth (its nearest pixel).
+        const size_t sp = static_cast<size_t>(std::lround(v)) * sc.width + static_cast<size_t>(std::lround(u));
+        const float ds = views[s].depth[sp];
+        if (!std::isfinite(ds) || std::abs(zs - ds) > o.visibility_tolerance * zs) continue;
+        const Vec3 to_source{sources[s].centre.x - X.x, sources[s].centre.y - X.y, sources[s].centre.z - X.z};
+        seen.push_back({Angle(to_target, to_source), s, u, v});
+      }
+      if (seen.empty()) continue;
+      std::sort(seen.begin(), seen.end(), [](const Candidate& a, const Candidate& b) {
+        return a.angle < b.angle || (a.angle == b.angle && a.view < b.view);
+      });
+      // Buehler's penalty relative to the first view left out (or, when all are used, to the
+      // largest angle used, nudged so that the last still counts).
+      const size_t k = std::min<size_t>(seen.size(), static_cast<size_t>(o.max_views));
+      const double next = k < seen.size() ? seen[k].angle : seen[k - 1].angle * 1.5 + 1e-6;
+      double rgb[3] = {0, 0, 0}, wsum = 0;
+      for (size_t i = 0; i < k; ++i) {
+        const double a = std::max(seen[i].angle, 1e-6);
+        const double w = std::max(0.0, 1 - a / next) / a;
+        if (!(w > 0)) continue;
+        const TextureView& tv = views[seen[i].view];
+        // Bilinear in linear light.
+        const double fu = std::floor(seen[i].u), fv = std::floor(seen[i].v);
+        const double au = seen[i].u - fu, av = seen[i].v - fv;
+        const size_t x0 = static_cast<size_t>(fu), y0 = static_cast<size_t>(fv);
+        const size_t x1 = std::min<size_t>(x0 + 1, tv.camera.width - 1), y1 = std::min<size_t>(y0 + 1, tv.camera.height - 1);
+        const uint8_t* p00 = &tv.rgb[3 * (y0 * tv.camera.width + x0)];
+        const uint8_t* p01 = &tv.rgb[3 * (y0 * tv.camera.width + x1)];
+        const uint8_t* p10 = &tv.rgb[3 * (y1 * tv.camera.width + x0)];
+        const uint8_t* p11 = &tv.rgb[3 * (y1 * tv.camera.width + x1)];
+        for (int c = 0; c < 3; ++c) {
+          const double top = lin[p00[c]] * (1 - au) + lin[p01[c]] * au;
+          const double bottom = lin[p10[c]] * (1 - au) + lin[p11[c]] * au;
+          rgb[c] += w * (top * (1 - av) + bottom * av);
+        }
+        wsum += w;
+      }
+      if (!(wsum > 0)) continue;
+      ++textured[y];
+      const float cov = image->coverage[px];
+      const internal::Resolved r = internal::Composite(static_cast<float>(rgb[0] / wsum),
+                                                       static_cast<float>(rgb[1] / wsum),
+                                                       static_cast<float>(rgb[2] / wsum), cov,
+                                                       o.background);
+      for (int c = 0; c < 4; ++c) image->rgba[4 * px + static_cast<size_t>(c)] = r.rgba[c];
+    }
+  });
+  if (stats) {
+    *stats = {};
+    for (size_t y = 0; y < image->height; ++y) stats->pixels += with_depth[y], stats->textured += textured[y];
+  }
+  return Status::OK();
+}
+
+}  // namespace hvdb::render
