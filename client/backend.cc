@@ -95,6 +95,11 @@ class EmbeddedBackend final : public Backend {
     return ds->Revert(lsn);
   }
 
+  Status PutPhoto(const std::string& name, uint32_t frame, const Photo& photo) override {
+    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
+    return ds->PutPhoto(frame, photo);
+  }
+
   Result<StatsReport> Stats(const std::string& name) override {
     HVDB_ASSIGN_OR_RETURN(Database * db, Db(/*create=*/false));
     std::vector<std::string> names;
@@ -352,6 +357,16 @@ class RemoteBackend final : public Backend {
         Run<CommitInfo>(false, [&](Connection& c) { return c.Revert(name, lsn); });
     if (!r.ok()) return Explain(name, r.status());
     return r;
+  }
+
+  Status PutPhoto(const std::string& name, uint32_t frame, const Photo& photo) override {
+    // Safe to repeat: the same photo replaces itself.
+    Result<bool> r = Run<bool>(true, [&](Connection& c) -> Result<bool> {
+      HVDB_RETURN_IF_ERROR(c.PutPhoto(name, frame, photo));
+      return true;
+    });
+    if (!r.ok()) return Explain(name, r.status());
+    return Status::OK();
   }
 
   Result<StatsReport> Stats(const std::string& name) override {

@@ -573,6 +573,16 @@ Result<CommitInfo> Connection::Revert(const std::string& dataset, uint64_t lsn) 
   return info;
 }
 
+Status Connection::PutPhoto(const std::string& dataset, uint32_t frame, const Photo& photo) {
+  wire::Request req;
+  auto* p = req.mutable_put_photo();
+  p->set_dataset(dataset);
+  p->set_frame(frame);
+  wire::ToWire(photo.camera, p->mutable_camera());
+  p->set_image(photo.image);
+  return Call(&req).status();
+}
+
 Result<uint64_t> Connection::Ingest(const std::string& dataset, uint32_t frame,
                                     std::span<const Point> pts) {
   const size_t chunk = wire::kMaxBatchPoints;

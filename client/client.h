@@ -110,6 +110,7 @@ class Connection {
                                              const QueryOptions& opts = {});
   Result<CommitInfo> Commit(const std::string& dataset, const Transaction& txn);
   Result<CommitInfo> Revert(const std::string& dataset, uint64_t lsn);
+  Status PutPhoto(const std::string& dataset, uint32_t frame, const Photo& photo);
   // Bulk-loads the points into `frame`, sent in chunks of at most 1 MiB.
   Result<uint64_t> Ingest(const std::string& dataset, uint32_t frame, std::span<const Point> pts);
   Result<wire::StatsReply> Stats(const std::string& dataset = "");

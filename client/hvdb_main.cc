@@ -353,6 +353,7 @@ struct RenderArgs {
   int lod = 0;
   uint32_t label_mask = 0;
   std::vector<int> highlight;  // bits drawn as an overlay
+  bool texture = false;
   std::vector<float> highlight_color;
   CameraArgs camera;  // --camera, --look-at/--fov/--up; --size (any camera) in camera.size
   uint32_t dataset_camera = 0;
@@ -1167,6 +1168,9 @@ Cli::Cli(CLI::App& app) : app_(app) {
       ->check(CLI::Range(0, 16));
   render_cmd_->add_option("--label-mask", ra.label_mask,
                           "Only points with (label & MASK) != 0 (decimal or 0x hex)");
+  render_cmd_->add_flag("--texture", ra.texture,
+                        "colour from the frame's stored photos over the points' depth (thesis "
+                        "6.3): sharper than the points, one view of one frame");
   render_cmd_->add_option("--highlight", ra.highlight,
                           "Show a selection: points carrying label BIT (repeatable) drawn in "
                           "their colour blended toward --highlight-color")
@@ -2116,6 +2120,7 @@ int Cli::CmdRender() {
   uint32_t highlight = 0;
   for (int b : a.highlight) highlight |= 1u << b;
   req.set_highlight_mask(highlight);
+  req.set_texture(a.texture);
   for (float v : a.highlight_color) req.add_highlight_color(v);
   req.set_mode(a.mode == "probabilistic" ? wire::RENDER_PROBABILISTIC : wire::RENDER_VISIBILITY);
   req.set_view_dependent(a.view_dependent);

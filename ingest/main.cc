@@ -34,7 +34,7 @@ void RegisterRun(CLI::App& app, int* rc) {
     size_t cache_mb = 256;
     IngestOptions o;
     double y = 0.40, uv = 0.15;
-    bool no_photo = false, quiet = false;
+    bool no_photo = false, quiet = false, no_geometric = false, no_photos = false;
     std::string subpixel = "lm";
   };
   auto a = std::make_shared<Args>();
@@ -63,7 +63,14 @@ void RegisterRun(CLI::App& app, int* rc) {
                   "stereo: none (integer disparities), parabola (through the costs around the "
                   "winner) or lm (Levenberg-Marquardt on disparity and its gradients)")
       ->capture_default_str()->check(CLI::IsMember({"none", "parabola", "lm"}));
-  cmd->add_flag("--no-photo-consistency", a->no_photo, "keep every point (no outlier removal)");
+  cmd->add_flag("--no-photo-consistency", a->no_photo, "no photo-consistency outlier removal");
+  cmd->add_flag("--no-geometric-consistency", a->no_geometric,
+                "keep points that other views see through (no cross-view depth test)");
+  cmd->add_option("--edge-radius", a->o.edge_radius,
+                  "drop depth samples within this many pixels of a depth jump (mixed pixels; 0: keep)")
+      ->check(CLI::Range(0, 16))->capture_default_str();
+  cmd->add_flag("--no-photos", a->no_photos,
+                "do not store the colour images with the points (textured renders need them)");
   cmd->add_option("--y-threshold", a->y, "photo-consistency: max luminance deviation (0..1)")->capture_default_str();
   cmd->add_option("--uv-threshold", a->uv, "photo-consistency: max chrominance deviation (0..1)")->capture_default_str();
   cmd->add_option("--cache-mb", a->cache_mb, "--data: block cache in MiB")->capture_default_str();
@@ -96,6 +103,8 @@ void RegisterRun(CLI::App& app, int* rc) {
     IngestOptions o = a->o;
     ParseSubpixel(a->subpixel, &o.stereo.subpixel);  // checked by CLI11
     o.photo_consistency = !a->no_photo;
+    o.geometric_consistency = !a->no_geometric;
+    o.photos = !a->no_photos;
     o.photo.max_dy = a->y;
     o.photo.max_du = o.photo.max_dv = a->uv;
     o.progress = !a->quiet && ::isatty(2);

@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <deque>
 #include <filesystem>
+#include <fstream>
 #include <mutex>
 #include <optional>
 #include <thread>
@@ -38,6 +39,42 @@ int HardwareThreads() { return std::max(1, static_cast<int>(std::thread::hardwar
 double ValidPct(const cv::Mat& depth) {
   if (depth.empty()) return 0;
   return 100.0 * cv::countNonZero(depth > 0) / static_cast<double>(depth.total());
+}
+
+// A camera of the calibration as the dataset stores it; id: its index (Point::camera).
+CameraInfo ToCameraInfo(const CameraModel& c, uint16_t id) {
+  const render::Camera rc = c.ToRenderCamera();
+  CameraInfo ci;
+  ci.id = id;
+  ci.name = c.name;
+  ci.width = rc.width;
+  ci.height = rc.height;
+  ci.fx = rc.fx;
+  ci.fy = rc.fy;
+  ci.cx = rc.cx;
+  ci.cy = rc.cy;
+  ci.distortion = rc.distortion;
+  ci.world_from_camera = rc.world_from_camera;
+  return ci;
+}
+
+// The frame's colour photos as recorded (file bytes) with their cameras as they were for this
+// frame, for textured renders (Dataset::PutPhoto).
+Result<std::vector<Photo>> FramePhotos(const Recording& rec, const FrameInput& in) {
+  std::vector<Photo> out;
+  auto read = [&](const std::string& path, const CameraModel& model, int idx) -> Status {
+    std::ifstream f(path, std::ios::binary);
+    std::string bytes((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+    if (!f.good() && !f.eof()) return Status::IOError(path + ": cannot read the colour image");
+    out.push_back({ToCameraInfo(model, static_cast<uint16_t>(idx)), std::move(bytes)});
+    return Status::OK();
+  };
+  for (const StereoView& v : in.stereo) {
+    const int idx = rec.calibration.bricks[static_cast<size_t>(v.brick)].colour;
+    HVDB_RETURN_IF_ERROR(read(v.colour_path, rec.calibration.cameras[static_cast<size_t>(idx)], idx));
+  }
+  for (const DepthFrameView& v : in.depth) HVDB_RETURN_IF_ERROR(read(v.colour_path, v.model, v.camera));
+  return out;
 }
 
 // The window holding dataset frame f (t = f / fps, inclusive bounds) over all space.
@@ -121,20 +158,8 @@ Status EnsureDataset(client::Backend& backend, const Recording& rec, const std::
   d.fps = rec.fps;
   // The colour cameras, with the calibration's index as id (Point::camera).
   auto add = [&](int idx) {
-    const CameraModel& c = rec.calibration.cameras[static_cast<size_t>(idx)];
-    const render::Camera rc = c.ToRenderCamera();
-    CameraInfo ci;
-    ci.id = static_cast<uint16_t>(idx);
-    ci.name = c.name;
-    ci.width = rc.width;
-    ci.height = rc.height;
-    ci.fx = rc.fx;
-    ci.fy = rc.fy;
-    ci.cx = rc.cx;
-    ci.cy = rc.cy;
-    ci.distortion = rc.distortion;
-    ci.world_from_camera = rc.world_from_camera;
-    d.cameras.push_back(ci);
+    d.cameras.push_back(ToCameraInfo(rec.calibration.cameras[static_cast<size_t>(idx)],
+                                     static_cast<uint16_t>(idx)));
   };
   if (rec.kind == RecordingKind::kStereo) {
     for (const auto& b : rec.calibration.bricks) add(b.colour);
@@ -360,6 +385,7 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
     int index;
     Result<std::vector<Point>> points;
     uint64_t bytes;
+    std::vector<Photo> photos;
   };
   std::mutex mu;
   std::condition_variable cv_space, cv_ready;
@@ -410,7 +436,15 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
                                                                         : std::vector<const FrameInput*>{},
                                 centre)
                  : Result<std::vector<Point>>(load_error),
-             bytes};
+             bytes, {}};
+      if (d.points.ok() && opt.photos) {
+        auto photos = FramePhotos(rec, *window[centre]);
+        if (photos.ok()) {
+          d.photos = std::move(photos).value();
+        } else {
+          d.points = photos.status();
+        }
+      }
       std::lock_guard lk(mu);
       ready.push_back(std::move(d));
       cv_ready.notify_all();
@@ -424,7 +458,7 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
   const int total = static_cast<int>(pending.size());
   if (opt.progress) Progress(0, total, 0, false);
   while (handled < pending.size()) {
-    Done d{0, Status::Internal("unset"), 0};
+    Done d{0, Status::Internal("unset"), 0, {}};
     {
       std::unique_lock lk(mu);
       cv_ready.wait(lk, [&] { return !ready.empty(); });
@@ -434,9 +468,19 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
     FrameReport& fr = reports[static_cast<size_t>(d.index - opt.first)];
     if (d.points.ok()) {
       auto t0 = Clock::now();
+      // Photos first: a frame whose points are in is skipped when an ingest resumes, so its
+      // photos must be in already.
+      Status photos_stored;
+      for (const Photo& photo : d.photos) {
+        photos_stored = backend.PutPhoto(opt.dataset, fr.dataset_frame, photo);
+        if (!photos_stored.ok()) break;
+      }
+      if (!d.photos.empty()) fr.stage_ms["photos"] = MsSince(t0);
+      t0 = Clock::now();
       const uint64_t n = d.points->size();
-      auto loaded = n ? backend.BulkLoad(opt.dataset, fr.dataset_frame, std::move(d.points).value())
-                      : Result<uint64_t>(uint64_t{0});
+      auto loaded = !photos_stored.ok() ? Result<uint64_t>(photos_stored)
+                    : n ? backend.BulkLoad(opt.dataset, fr.dataset_frame, std::move(d.points).value())
+                        : Result<uint64_t>(uint64_t{0});
       fr.stage_ms["commit"] = MsSince(t0);
       if (!loaded.ok()) {
         failure = Status(loaded.status().code(), "frame " + std::to_string(d.index) + ": commit: " +

@@ -55,6 +55,9 @@ struct IngestOptions {
   GeometricConsistencyOptions geometric;
   bool photo_consistency = true;
   PhotoConsistencyOptions photo;
+  // Store each colour camera's image of each frame with the points (Dataset::PutPhoto), for
+  // textured renders (Render.texture).
+  bool photos = true;
   bool skip_bad_frames = false;  // a bad frame is reported and skipped instead of stopping
   std::string depth_out;       // if set: DIR/NNNNNN/<camera>.depth.exr of every depth map made
   bool progress = false;       // a progress bar on stderr

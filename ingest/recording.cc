@@ -348,6 +348,7 @@ Result<FrameInput> LoadFrame(const Recording& r, int index) {
       HVDB_ASSIGN_OR_RETURN(v.left, ReadImage(lp, cv::IMREAD_GRAYSCALE, "left grey"));
       HVDB_ASSIGN_OR_RETURN(v.right, ReadImage(rp, cv::IMREAD_GRAYSCALE, "right grey"));
       HVDB_ASSIGN_OR_RETURN(v.colour, ReadImage(cp, cv::IMREAD_COLOR, "colour"));
+      v.colour_path = cp;
       HVDB_RETURN_IF_ERROR(CheckSize(v.left, cal.cameras[brick.left].size, lp, cal.cameras[brick.left].name));
       HVDB_RETURN_IF_ERROR(CheckSize(v.right, cal.cameras[brick.right].size, rp, cal.cameras[brick.right].name));
       HVDB_RETURN_IF_ERROR(CheckSize(v.colour, cal.cameras[brick.colour].size, cp, cal.cameras[brick.colour].name));
@@ -362,6 +363,7 @@ Result<FrameInput> LoadFrame(const Recording& r, int index) {
     v.model = cal.cameras[static_cast<size_t>(v.camera)];
     const std::string cp = r.Path(cf.colour, index, cf.camera), dp = r.Path(cf.depth, index, cf.camera);
     HVDB_ASSIGN_OR_RETURN(v.colour, ReadImage(cp, cv::IMREAD_COLOR, "colour"));
+    v.colour_path = cp;
     HVDB_RETURN_IF_ERROR(CheckSize(v.colour, v.model.size, cp, cf.camera));
     HVDB_ASSIGN_OR_RETURN(v.depth, LoadDepth(r, dp, v.model.size, cf.camera));
     if (r.world_scale != 1.0) v.depth *= r.world_scale;

@@ -70,11 +70,13 @@ struct StereoView {
   int brick = 0;
   cv::Mat left, right;  // CV_8UC1
   cv::Mat colour;       // CV_8UC3 BGR
+  std::string colour_path;  // the file it came from
 };
 struct DepthFrameView {
   int camera = 0;           // index into calibration.cameras
   CameraModel model;        // the calibration's camera, with this frame's pose when given
   cv::Mat colour;           // CV_8UC3 BGR
+  std::string colour_path;  // the file it came from
   cv::Mat depth;            // CV_32F metres (0 = none)
 };
 struct FrameInput {

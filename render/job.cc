@@ -1,11 +1,42 @@
 #include "render/job.h"
 
+#include <opencv2/imgcodecs.hpp>
+
+#include "render/projective_texture.h"
+
 #include <cmath>
 #include <nlohmann/json.hpp>
 
 namespace hvdb::render {
 
 namespace {
+
+// A stored photo's bytes (PNG or JPEG) as 8-bit RGB of the expected size.
+Result<std::vector<uint8_t>> DecodeRgb8(const std::string& bytes, uint32_t width, uint32_t height,
+                                        const std::string& what) {
+  const cv::Mat raw(1, static_cast<int>(bytes.size()), CV_8U, const_cast<char*>(bytes.data()));
+  cv::Mat bgr;
+  try {
+    bgr = cv::imdecode(raw, cv::IMREAD_COLOR);
+  } catch (const cv::Exception& e) {
+    return Status::Corruption(what + ": cannot be decoded (" + e.what() + ")");
+  }
+  if (bgr.empty()) return Status::Corruption(what + ": not a PNG or JPEG image");
+  if (static_cast<uint32_t>(bgr.cols) != width || static_cast<uint32_t>(bgr.rows) != height) {
+    return Status::Corruption(what + ": the image is " + std::to_string(bgr.cols) + "x" +
+                              std::to_string(bgr.rows) + ", its camera " + std::to_string(width) +
+                              "x" + std::to_string(height));
+  }
+  std::vector<uint8_t> rgb(size_t{width} * height * 3);
+  for (int y = 0; y < bgr.rows; ++y) {
+    const cv::Vec3b* row = bgr.ptr<cv::Vec3b>(y);
+    uint8_t* out = &rgb[size_t(y) * width * 3];
+    for (int x = 0; x < bgr.cols; ++x) {
+      out[3 * x] = row[x][2], out[3 * x + 1] = row[x][1], out[3 * x + 2] = row[x][0];
+    }
+  }
+  return rgb;
+}
 
 Status Invalid(const std::string& field, const std::string& why) {
   return Status::InvalidArgument(field + ": " + why);
@@ -153,6 +184,10 @@ Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> da
     o.view_dependent = true;
     for (const CameraInfo& c : info.cameras)
       o.source_cameras.push_back({c.id, c.world_from_camera});
+  }
+  job->texture_ = r.texture();
+  if (r.texture() && r.path_size() > 0) {
+    return Invalid("render.texture", "textures a single view of one frame, not a sequence");
   }
   // Views.
   if (r.path_size() > 0) {
@@ -305,7 +340,60 @@ Status RenderJob::Draw(size_t i, Renderer& renderer, const std::atomic<bool>* ca
     o.width = std::max(1u, w / 2);
     o.height = std::max(1u, h / 2);
   }
-  return renderer.RenderInto(current_.points, view, o, &image_);
+  HVDB_RETURN_IF_ERROR(renderer.RenderInto(current_.points, view, o, &image_));
+  // The progressive preview stays a plain point rendering: a quick look.
+  if (texture_ && !steps_[i].preview) HVDB_RETURN_IF_ERROR(Texture(view, o, renderer));
+  return Status::OK();
+}
+
+Status RenderJob::Texture(const Camera& view, const RenderOptions& o, Renderer& renderer) {
+  if (current_.points.empty()) return Status::OK();  // nothing drawn, nothing to colour
+  const uint32_t frame = current_.points.front().frame;
+  for (const Point& p : current_.points) {
+    if (p.frame != frame) {
+      return Invalid("render.texture", "textures one frame; the region holds frames " +
+                                           std::to_string(frame) + " and " + std::to_string(p.frame));
+    }
+  }
+  if (frame != textured_frame_ || current_.lod != textured_lod_) {
+    sources_.clear();
+    HVDB_ASSIGN_OR_RETURN(std::vector<Photo> photos, dataset_->Photos(frame));
+    if (photos.empty()) {
+      return Status::NotFound("render.texture: dataset '" + dataset_->Info().name +
+                              "' has no photos of frame " + std::to_string(frame) +
+                              " (hvdb-ingest stores the colour cameras' images; render without "
+                              "texture to see the points)");
+    }
+    for (Photo& photo : photos) {
+      Source src;
+      src.camera = CameraFromInfo(photo.camera);
+      const std::string what = "render.texture: the photo of camera " +
+                               std::to_string(photo.camera.id) + " of frame " + std::to_string(frame);
+      HVDB_RETURN_IF_ERROR(InField(what, src.camera.Validate()));
+      HVDB_ASSIGN_OR_RETURN(src.rgb, DecodeRgb8(photo.image, src.camera.width, src.camera.height, what));
+      // What this camera sees: the same points from its pose, at its size (at half its size
+      // visibility fails more often at silhouettes and on surfaces seen at grazing angles:
+      // 26.2 dB instead of 29.6 dB on the generated recording of the ingest tests).
+      RenderOptions so = o;
+      so.view_dependent = false;
+      so.width = src.camera.width;
+      so.height = src.camera.height;
+      HVDB_RETURN_IF_ERROR(renderer.RenderInto(current_.points, src.camera, so, &src.seen));
+      sources_.push_back(std::move(src));
+    }
+    textured_frame_ = frame;
+    textured_lod_ = current_.lod;
+  }
+  std::vector<TextureView> tv;
+  for (const Source& src : sources_) {
+    tv.push_back({src.camera, src.rgb, src.seen.depth, src.seen.width, src.seen.height});
+  }
+  TextureOptions to;
+  to.background = o.background;
+  const Camera drawn = image_.width == view.width && image_.height == view.height
+                           ? view
+                           : view.Resized(image_.width, image_.height);
+  return ProjectiveTexture(drawn, tv, to, &image_);
 }
 
 Result<wire::RenderReply> RenderJob::Render(size_t i, Renderer& renderer,

@@ -82,6 +82,8 @@ class RenderJob {
   Status Query(const Step& step, const std::atomic<bool>* cancelled, Points* out) const;
   // Draws image i into image_.
   Status Draw(size_t i, Renderer& renderer, const std::atomic<bool>* cancelled);
+  // Render.texture: recolours image_ from the photos of the frame current_ shows.
+  Status Texture(const Camera& view, const RenderOptions& o, Renderer& renderer);
 
   std::shared_ptr<Dataset> dataset_;
   RenderLimits limits_;
@@ -89,6 +91,17 @@ class RenderJob {
   wire::ImageFormat format_ = wire::IMAGE_PNG;
   RenderOptions options_;
   QueryOptions query_;
+  bool texture_ = false;                         // Render.texture
+  // The photos of textured_frame_ (RGB) and what each sees (its render's depth at
+  // textured_lod_), kept for the next image of the same frame and level.
+  struct Source {
+    Camera camera;
+    std::vector<uint8_t> rgb;
+    Image seen;
+  };
+  std::vector<Source> sources_;
+  uint32_t textured_frame_ = UINT32_MAX;
+  int textured_lod_ = -1;
   uint32_t highlight_mask_ = 0;                  // the selection overlay (Render.highlight_*)
   std::array<float, 4> highlight_{1.f, 0.45f, 0.f, 0.5f};
   std::vector<Camera> views_;

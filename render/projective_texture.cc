@@ -93,7 +93,8 @@ Status ProjectiveTexture(const Camera& camera, std::span<const TextureView> view
   }
   for (const TextureView& v : views) {
     const size_t n = size_t{v.camera.width} * v.camera.height;
-    if (v.rgb.size() != 3 * n || v.depth.size() != n) {
+    const size_t nd = v.depth_width == 0 ? n : size_t{v.depth_width} * v.depth_height;
+    if (v.rgb.size() != 3 * n || v.depth.size() != nd || (v.depth_width == 0) != (v.depth_height == 0)) {
       return Status::InvalidArgument("projective texture: a view's photo or depth does not match its camera");
     }
     HVDB_RETURN_IF_ERROR(v.camera.Validate());
@@ -124,10 +125,31 @@ Status ProjectiveTexture(const Camera& camera, std::span<const TextureView> view
         if (!sources[s].Project(X, &u, &v, &zs)) continue;
         const Camera& sc = views[s].camera;
         if (u < 0 || v < 0 || u > sc.width - 1.0 || v > sc.height - 1.0) continue;
-        // Visible from s: s saw a surface at this point's depth (its nearest pixel).
-        const size_t sp = static_cast<size_t>(std::lround(v)) * sc.width + static_cast<size_t>(std::lround(u));
-        const float ds = views[s].depth[sp];
-        if (!std::isfinite(ds) || std::abs(zs - ds) > o.visibility_tolerance * zs) continue;
+        // Visible from s: s saw a surface at this point's depth (its nearest depth pixel).
+        const TextureView& tv = views[s];
+        const uint32_t dw = tv.depth_width ? tv.depth_width : sc.width;
+        const uint32_t dh = tv.depth_height ? tv.depth_height : sc.height;
+        const double du = (u + 0.5) * dw / sc.width - 0.5, dv = (v + 0.5) * dh / sc.height - 0.5;
+        // Visible unless s saw something clearly nearer all around the point: the point's
+        // depth must lie within the range of the 3x3 depth pixels around it (widened by the
+        // tolerance). A splat covering a pixel lies in front of the surface at the pixel's
+        // centre where the surface is seen at a grazing angle (its disc faces the camera that
+        // took it), so no single pixel's depth can be trusted to the tolerance there; behind an
+        // occluder all nine are nearer.
+        const long cx = std::clamp<long>(std::lround(du), 0, long(dw) - 1);
+        const long cy = std::clamp<long>(std::lround(dv), 0, long(dh) - 1);
+        float lo = std::numeric_limits<float>::infinity(), hi = -lo;
+        for (long yy = std::max(0L, cy - 1); yy <= std::min<long>(cy + 1, long(dh) - 1); ++yy) {
+          for (long xx = std::max(0L, cx - 1); xx <= std::min<long>(cx + 1, long(dw) - 1); ++xx) {
+            const float ds = tv.depth[static_cast<size_t>(yy) * dw + static_cast<size_t>(xx)];
+            if (!std::isfinite(ds)) continue;
+            lo = std::min(lo, ds);
+            hi = std::max(hi, ds);
+          }
+        }
+        const bool visible = lo <= hi && zs >= lo * (1 - o.visibility_tolerance) &&
+                             zs <= hi * (1 + o.visibility_tolerance);
+        if (!visible) continue;
         const Vec3 to_source{sources[s].centre.x - X.x, sources[s].centre.y - X.y, sources[s].centre.z - X.z};
         seen.push_back({Angle(to_target, to_source), s, u, v});
       }
@@ -135,10 +157,13 @@ Status ProjectiveTexture(const Camera& camera, std::span<const TextureView> view
       std::sort(seen.begin(), seen.end(), [](const Candidate& a, const Candidate& b) {
         return a.angle < b.angle || (a.angle == b.angle && a.view < b.view);
       });
-      // Buehler's penalty relative to the first view left out (or, when all are used, to the
-      // largest angle used, nudged so that the last still counts).
+      // Buehler's penalty relative to the first view left out (or, when all are used, to
+      // half as much again as the largest angle used), and always a little above the angles
+      // used: a view that sees the point straight along the virtual ray (angle 0) alone, or
+      // views at equal angles, must not all get weight 0.
       const size_t k = std::min<size_t>(seen.size(), static_cast<size_t>(o.max_views));
-      const double next = k < seen.size() ? seen[k].angle : seen[k - 1].angle * 1.5 + 1e-6;
+      const double next = std::max(k < seen.size() ? seen[k].angle : seen[k - 1].angle * 1.5,
+                                   seen[k - 1].angle + 1e-3);
       double rgb[3] = {0, 0, 0}, wsum = 0;
       for (size_t i = 0; i < k; ++i) {
         const double a = std::max(seen[i].angle, 1e-6);

@@ -26,7 +26,10 @@ namespace hvdb::render {
 struct TextureView {
   Camera camera;
   std::span<const uint8_t> rgb;  // 8-bit sRGB, row-major, camera.width * camera.height * 3
-  std::span<const float> depth;  // camera.width * camera.height
+  // depth_width * depth_height (0, 0: the camera's size): the depth may be rendered smaller
+  // than the photo, it only decides visibility.
+  std::span<const float> depth;
+  uint32_t depth_width = 0, depth_height = 0;
 };
 
 struct TextureOptions {

@@ -38,6 +38,7 @@ const char* KindOf(const wire::Request& r) {
     case wire::Request::kIngest: return "ingest";
     case wire::Request::kStats: return "stats";
     case wire::Request::kRender: return "render";
+    case wire::Request::kPutPhoto: return "put_photo";
     case wire::Request::kSelect: return "select";
     case wire::Request::kGraphCut: return "graph_cut";
     case wire::Request::kCopy: return "copy";
@@ -55,6 +56,7 @@ bool Writes(const wire::Request& r) {
     case wire::Request::kEdit:
     case wire::Request::kRevert:
     case wire::Request::kIngest:
+    case wire::Request::kPutPhoto:
     case wire::Request::kSelect:
     case wire::Request::kGraphCut:
     case wire::Request::kCopy:

@@ -287,6 +287,20 @@ void Session::Dispatch(wire::Request req) {
       return HandleRender(op, req.render());
     case wire::Request::kIngest:
       return HandleIngest(id, req.ingest());
+    case wire::Request::kPutPhoto:
+      return RunOnWorker(id, [s, id, req] {
+        const wire::PutPhoto& pp = req.put_photo();
+        auto ds = FindDataset(s, pp.dataset());
+        if (!ds.ok()) return DatasetError(id, ds.status());
+        auto cam = wire::FromWire(pp.camera());
+        if (!cam.ok()) return ErrorResponse(id, cam.status(), wire::INVALID_PARAMETER);
+        Status st = (*ds)->PutPhoto(pp.frame(), Photo{*cam, pp.image()});
+        if (!st.ok()) return ErrorResponse(id, st);
+        wire::Response r;
+        r.set_id(id);
+        r.mutable_ack();
+        return r;
+      });
     case wire::Request::kSelect:
     case wire::Request::kGraphCut:
     case wire::Request::kCopy:

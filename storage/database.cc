@@ -304,5 +304,7 @@ DatasetStats Dataset::Stats() const { return impl_->Stats(); }
 std::vector<std::string> Dataset::Check() const { return impl_->Check(); }
 Status Dataset::Checkpoint() { return impl_->Checkpoint(); }
 Status Dataset::WaitForMerges() { return impl_->WaitForMerges(); }
+Status Dataset::PutPhoto(uint32_t frame, const Photo& photo) { return impl_->PutPhoto(frame, photo); }
+Result<std::vector<Photo>> Dataset::Photos(uint32_t frame) const { return impl_->Photos(frame); }
 
 }  // namespace hvdb

@@ -63,6 +63,14 @@ struct CameraInfo {
   std::array<double, 16> world_from_camera{1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
 };
 
+// A photo of an acquisition camera for one frame: the camera as it was for that frame (its id
+// is the Point::camera of the points it took) and the image file's bytes as recorded (PNG or
+// JPEG, 8-bit). The render service textures splats with them (thesis 6.3).
+struct Photo {
+  CameraInfo camera;
+  std::string image;
+};
+
 struct DatasetInfo {
   std::string name;
   double fps = 30.0;
@@ -218,6 +226,11 @@ class Dataset {
   std::vector<std::string> Check() const;
   // Writes all buffered frame state and starts a new log segment.
   Status Checkpoint();
+  // Stores the photo of camera photo.camera.id for `frame` (replacing any), durably
+  // (docs/FORMAT.md "Photos"). NotLeader on a follower.
+  Status PutPhoto(uint32_t frame, const Photo& photo);
+  // The photos stored for `frame`, by camera id (none: empty). Corruption names a damaged file.
+  Result<std::vector<Photo>> Photos(uint32_t frame) const;
   // Waits until the merger has turned every full buffer T0 into a tree (benchmarks, tests).
   Status WaitForMerges();
 

@@ -75,6 +75,9 @@ class DatasetImpl {
   DatasetStats Stats() const;
   std::vector<std::string> Check() const;
   Status Checkpoint();
+  // storage/photos.cc.
+  Status PutPhoto(uint32_t frame, const Photo& photo);
+  Result<std::vector<Photo>> Photos(uint32_t frame) const;
   // Blocks until no frame's T0 is over its capacity (tests and benchmarks); after a failed
   // merge, until a retry fails too.
   Status WaitForMerges();
