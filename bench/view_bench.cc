@@ -6,7 +6,9 @@
 // h's photo: PSNR over the pixels where h's own depth map is valid (the scene, not the void
 // behind it). Next to it in the same run, the naive baseline: the nearest other camera's photo
 // forward-warped into h by its own depth map (z-buffered, one-pixel cracks filled from their
-// neighbours). Writes JSON and, per camera, the three images side by side.
+// neighbours). Writes JSON and, per camera, the three images side by side. The points and the
+// seven photos go into a dataset and are rendered through the Render request (embedded: the
+// RenderJob hvdb-server runs), plain (view-dependent splats) and textured (Render.texture).
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <chrono>
@@ -22,10 +24,10 @@
 #include <vector>
 
 #include "bench/real_recordings.h"
+#include "client/backend.h"
 #include "ingest/pipeline.h"
 #include "ingest/recording.h"
 #include "render/metrics.h"
-#include "render/projective_texture.h"
 #include "render/renderer.h"
 
 namespace {
@@ -151,7 +153,8 @@ int main(int argc, char** argv) {
     return 1;
   }
   if (!images.empty()) fs::create_directories(images);
-  auto renderer = hvdb::render::MakeCpuRenderer();
+  // Datasets of the held-out runs (removed at the end with the scratch folder).
+  auto backend = hvdb::client::MakeEmbeddedBackend(scratch + "/data", size_t{256} << 20);
   nlohmann::json figures = nlohmann::json::array();
   std::vector<double> gains;
   for (int id : held) {
@@ -186,65 +189,66 @@ int main(int argc, char** argv) {
       return 1;
     }
     const double ingest_s = Seconds(t0);
-    if (getenv("ONLY")) {
-      std::vector<hvdb::Point> kept;
-      for (const auto& p : *points) if (p.camera == atoi(getenv("ONLY"))) kept.push_back(p);
-      *points = kept;
-    }
-    // Render h's view, view-dependent blending over the seven source cameras.
-    hvdb::render::RenderOptions ro;
-    ro.view_dependent = true;
+    const size_t point_count = points->size();
+    // Into a dataset as hvdb-ingest stores it: the points, and the seven photos with their
+    // cameras; then rendered as `hvdb render` asks for it (embedded: the same RenderJob as
+    // hvdb-server), with view-dependent blending, and textured.
+    const std::string dataset = "held-out-" + name;
+    hvdb::DatasetInfo info;
+    info.name = dataset;
+    std::vector<hvdb::Photo> photos;
     for (const DepthFrameView& v : others.depth) {
-      ro.source_cameras.push_back({static_cast<uint16_t>(v.camera), v.model.ToRenderCamera().world_from_camera});
+      std::ifstream f(v.colour_path, std::ios::binary);
+      hvdb::Photo photo;
+      photo.image.assign(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>());
+      const hvdb::render::Camera rc = v.model.ToRenderCamera();
+      photo.camera = {static_cast<uint16_t>(v.camera), rec->calibration.cameras[static_cast<size_t>(v.camera)].name,
+                      rc.width, rc.height, rc.fx, rc.fy, rc.cx, rc.cy, rc.distortion, rc.world_from_camera};
+      info.cameras.push_back(photo.camera);
+      photos.push_back(std::move(photo));
     }
-    t0 = std::chrono::steady_clock::now();
-    auto img = renderer->Render(*points, target.model.ToRenderCamera(), ro);
-    if (!img.ok()) {
-      std::fprintf(stderr, "view-bench: %s\n", img.status().ToString().c_str());
+    if (auto c = backend->CreateDataset(info); !c.ok()) {
+      std::fprintf(stderr, "view-bench: %s\n", c.status().ToString().c_str());
       return 1;
     }
-    const double render_s = Seconds(t0);
-    hvdb::render::Srgb8Image ours = hvdb::render::ToSrgb8(*img);
-    if (ours.channels == 4) {  // drop alpha (the background is black and opaque)
-      hvdb::render::Srgb8Image rgb{ours.width, ours.height, 3, {}};
-      rgb.data.reserve(size_t{ours.width} * ours.height * 3);
-      for (size_t p = 0; p < ours.data.size(); p += 4) rgb.data.insert(rgb.data.end(), &ours.data[p], &ours.data[p + 3]);
-      ours = std::move(rgb);
-    }
-    // Colour from the seven photos over the points' depth (thesis 6.3): what each source sees
-    // is its own render's depth.
-    t0 = std::chrono::steady_clock::now();
-    std::vector<std::vector<uint8_t>> rgbs;
-    std::vector<hvdb::render::Image> seen;
-    std::vector<hvdb::render::TextureView> tviews;
-    for (const DepthFrameView& v : others.depth) {
-      const hvdb::render::Camera sc = v.model.ToRenderCamera();
-      auto si = renderer->Render(*points, sc, hvdb::render::RenderOptions{});
-      if (!si.ok()) {
-        std::fprintf(stderr, "view-bench: %s\n", si.status().ToString().c_str());
+    for (const hvdb::Photo& photo : photos) {
+      if (auto st = backend->PutPhoto(dataset, 0, photo); !st.ok()) {
+        std::fprintf(stderr, "view-bench: %s\n", st.ToString().c_str());
         return 1;
       }
-      seen.push_back(std::move(*si));
-      rgbs.push_back(FromMat(v.colour).data);
     }
-    for (size_t i = 0; i < others.depth.size(); ++i) {
-      tviews.push_back({others.depth[i].model.ToRenderCamera(), rgbs[i], seen[i].depth});
-    }
-    hvdb::render::Image textured = *img;
-    hvdb::render::TextureStats tstats;
-    if (auto st = hvdb::render::ProjectiveTexture(target.model.ToRenderCamera(), tviews,
-                                                  hvdb::render::TextureOptions{}, &textured, &tstats);
-        !st.ok()) {
-      std::fprintf(stderr, "view-bench: %s\n", st.ToString().c_str());
+    if (auto st = backend->BulkLoad(dataset, 0, std::move(points).value()); !st.ok()) {
+      std::fprintf(stderr, "view-bench: %s\n", st.status().ToString().c_str());
       return 1;
     }
-    const double texture_s = Seconds(t0);
-    hvdb::render::Srgb8Image tex = hvdb::render::ToSrgb8(textured);
-    if (tex.channels == 4) {
-      hvdb::render::Srgb8Image rgb{tex.width, tex.height, 3, {}};
-      for (size_t p = 0; p < tex.data.size(); p += 4) rgb.data.insert(rgb.data.end(), &tex.data[p], &tex.data[p + 3]);
-      tex = std::move(rgb);
-    }
+    double render_s = 0, texture_s = 0;
+    auto render = [&](bool texture) -> hvdb::render::Srgb8Image {
+      hvdb::wire::Render req;
+      req.set_dataset(dataset);
+      hvdb::CameraInfo ci;
+      const hvdb::render::Camera rc = target.model.ToRenderCamera();
+      ci = {0, name, rc.width, rc.height, rc.fx, rc.fy, rc.cx, rc.cy, rc.distortion, rc.world_from_camera};
+      hvdb::wire::ToWire(ci, req.mutable_view()->mutable_camera());
+      hvdb::wire::ToWire(hvdb::Region{hvdb::Window{{-1e9, -1e9, -1e9, 0}, {1e9, 1e9, 1e9, 0}}},
+                         req.mutable_region());
+      req.set_view_dependent(!texture);
+      req.set_texture(texture);
+      req.set_renderer(hvdb::wire::RENDERER_CPU);
+      std::string encoded;
+      const auto t = std::chrono::steady_clock::now();
+      hvdb::Status st = backend->Render(req, [&](const hvdb::wire::RenderReply& reply) {
+        encoded = reply.png();
+        return hvdb::Status::OK();
+      });
+      (texture ? texture_s : render_s) = Seconds(t);
+      if (!st.ok()) {
+        std::fprintf(stderr, "view-bench: render: %s\n", st.ToString().c_str());
+        std::exit(1);
+      }
+      cv::Mat bgr = cv::imdecode(cv::Mat(1, static_cast<int>(encoded.size()), CV_8U, encoded.data()), cv::IMREAD_COLOR);
+      return FromMat(bgr);
+    };
+    const hvdb::render::Srgb8Image ours = render(false), tex = render(true);
     // The naive warp of the nearest other camera.
     const DepthFrameView* nearest = nullptr;
     for (const DepthFrameView& v : others.depth) {
@@ -268,11 +272,11 @@ int main(int argc, char** argv) {
     gains.push_back(psnr_ours - psnr_warp);
     std::printf("%s: %zu points from 7 cameras (ingest %.1f s, render %.2f s, texture %.2f s): PSNR "
                 "points only %.2f dB, textured %.2f dB, warp of %s %.2f dB (%+.2f dB); SSIM %.3f vs %.3f\n",
-                name.c_str(), points->size(), ingest_s, render_s, texture_s, psnr_points, psnr_ours,
+                name.c_str(), point_count, ingest_s, render_s, texture_s, psnr_points, psnr_ours,
                 rec->calibration.cameras[static_cast<size_t>(nearest->camera)].name.c_str(),
                 psnr_warp, psnr_ours - psnr_warp, ssim_ours, ssim_warp);
     std::fflush(stdout);
-    nlohmann::json params = {{"held_out", name}, {"stride", stride}, {"points", points->size()},
+    nlohmann::json params = {{"held_out", name}, {"stride", stride}, {"points", point_count},
                              {"warped_from", rec->calibration.cameras[static_cast<size_t>(nearest->camera)].name}};
     figures.push_back({{"name", "view_psnr_ours"}, {"unit", "dB"}, {"median", psnr_ours}, {"params", params}});
     figures.push_back({{"name", "view_psnr_points_only"}, {"unit", "dB"}, {"median", psnr_points}, {"params", params}});

@@ -14,12 +14,12 @@ namespace hvdb {
 
 namespace {
 
-constexpr char kMagic[4] = {'H', 'V', 'P', 'H'};
+constexpr char kMagic[8] = {'H', 'V', 'D', 'B', 'P', 'H', 'O', '\0'};
 constexpr uint32_t kVersion = 1;
 constexpr size_t kMaxName = 255;
 // magic, version, camera id, name length, width, height, 4 intrinsics, 5 distortion, 16 pose,
 // image length; then the name, the image and the CRC.
-constexpr size_t kFixed = 4 + 4 + 2 + 2 + 4 + 4 + 8 * (4 + 5 + 16) + 8;
+constexpr size_t kFixed = 8 + 4 + 2 + 2 + 4 + 4 + 8 * (4 + 5 + 16) + 8;
 constexpr uint64_t kMaxImage = uint64_t{1} << 30;
 
 void PutF64(std::string* out, double v) {
@@ -55,7 +55,7 @@ std::string PhotoFileName(uint32_t frame, uint16_t camera) {
 std::string EncodePhoto(const Photo& photo) {
   const CameraInfo& c = photo.camera;
   const std::string name = c.name.substr(0, kMaxName);
-  std::string out(kMagic, 4);
+  std::string out(kMagic, 8);
   Put<uint32_t>(&out, kVersion);
   Put<uint16_t>(&out, c.id);
   Put<uint16_t>(&out, static_cast<uint16_t>(name.size()));
@@ -73,18 +73,18 @@ std::string EncodePhoto(const Photo& photo) {
 
 Result<Photo> DecodePhoto(const std::string& data, const std::string& what) {
   auto bad = [&](const std::string& why) { return Status::Corruption(what + ": " + why); };
-  if (data.size() < kFixed + 4 || std::memcmp(data.data(), kMagic, 4) != 0) return bad("not a photo file");
+  if (data.size() < kFixed + 4 || std::memcmp(data.data(), kMagic, 8) != 0) return bad("not a photo file");
   const auto* p = reinterpret_cast<const uint8_t*>(data.data());
-  if (DecodeLE<uint32_t>(p + 4) != kVersion) return bad("unknown version " + std::to_string(DecodeLE<uint32_t>(p + 4)));
+  if (DecodeLE<uint32_t>(p + 8) != kVersion) return bad("unknown version " + std::to_string(DecodeLE<uint32_t>(p + 8)));
   const uint32_t crc = DecodeLE<uint32_t>(p + data.size() - 4);
   if (crc32c::Unmask(crc) != crc32c::Value(data.data(), data.size() - 4)) return bad("checksum mismatch");
   Photo photo;
   CameraInfo& c = photo.camera;
-  c.id = DecodeLE<uint16_t>(p + 8);
-  const size_t name_len = DecodeLE<uint16_t>(p + 10);
-  c.width = DecodeLE<uint32_t>(p + 12);
-  c.height = DecodeLE<uint32_t>(p + 16);
-  const uint8_t* f = p + 20;
+  c.id = DecodeLE<uint16_t>(p + 12);
+  const size_t name_len = DecodeLE<uint16_t>(p + 14);
+  c.width = DecodeLE<uint32_t>(p + 16);
+  c.height = DecodeLE<uint32_t>(p + 20);
+  const uint8_t* f = p + 24;
   c.fx = GetF64(f), c.fy = GetF64(f + 8), c.cx = GetF64(f + 16), c.cy = GetF64(f + 24);
   for (size_t i = 0; i < 5; ++i) c.distortion[i] = GetF64(f + 32 + 8 * i);
   for (size_t i = 0; i < 16; ++i) c.world_from_camera[i] = GetF64(f + 72 + 8 * i);
