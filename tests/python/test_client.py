@@ -232,6 +232,10 @@ def test_render_equals_the_cli_image(env, tmp_path):
             "--size", "160", "120", "--renderer", "cpu", "--out", out)
     cli = np.asarray(o3d.io.read_image(out))
     assert np.array_equal(cli[:, :, :3], img)
+    # This dataset holds points only (a PLY recording): a textured view is a clear NotFound.
+    with pytest.raises(hvdb.NotFound, match="no photos"):
+        env.db.render(DATASET, 5 / FPS, look_at=look, size=(160, 120), renderer="cpu",
+                      texture=True)
 
 
 def test_queries_run_in_threads(env):
