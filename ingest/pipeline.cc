@@ -15,6 +15,8 @@
 #include <optional>
 #include <thread>
 
+#include <opencv2/imgcodecs.hpp>
+
 #include "ingest/generator.h"  // WriteDepthExr
 #include "ingest/rectify.h"
 
@@ -58,22 +60,38 @@ CameraInfo ToCameraInfo(const CameraModel& c, uint16_t id) {
   return ci;
 }
 
-// The frame's colour photos as recorded (file bytes) with their cameras as they were for this
-// frame, for textured renders (Dataset::PutPhoto).
+// The frame's colour photos (the recorded PNG or JPEG files' bytes) with their cameras as they
+// were for this frame, for textured renders (Dataset::PutPhoto). An image in another format,
+// or too big for one protocol frame (16 MiB by default, with room to spare), is encoded from
+// the decoded image: PNG, or JPEG at quality 95 when the PNG is still too big.
 Result<std::vector<Photo>> FramePhotos(const Recording& rec, const FrameInput& in) {
+  constexpr size_t kMaxPhotoBytes = 12u << 20;
   std::vector<Photo> out;
-  auto read = [&](const std::string& path, const CameraModel& model, int idx) -> Status {
+  auto read = [&](const std::string& path, const cv::Mat& image, const CameraModel& model,
+                  int idx) -> Status {
     std::ifstream f(path, std::ios::binary);
     std::string bytes((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
     if (!f.good() && !f.eof()) return Status::IOError(path + ": cannot read the colour image");
+    const bool png = bytes.rfind("\x89PNG", 0) == 0, jpeg = bytes.rfind("\xff\xd8\xff", 0) == 0;
+    if (!(png || jpeg) || bytes.size() > kMaxPhotoBytes) {
+      std::vector<uint8_t> enc;
+      if (!cv::imencode(".png", image, enc) || enc.size() > kMaxPhotoBytes) {
+        if (!cv::imencode(".jpg", image, enc, {cv::IMWRITE_JPEG_QUALITY, 95})) {
+          return Status::Internal(path + ": cannot encode the colour image for storage");
+        }
+      }
+      bytes.assign(enc.begin(), enc.end());
+    }
     out.push_back({ToCameraInfo(model, static_cast<uint16_t>(idx)), std::move(bytes)});
     return Status::OK();
   };
   for (const StereoView& v : in.stereo) {
     const int idx = rec.calibration.bricks[static_cast<size_t>(v.brick)].colour;
-    HVDB_RETURN_IF_ERROR(read(v.colour_path, rec.calibration.cameras[static_cast<size_t>(idx)], idx));
+    HVDB_RETURN_IF_ERROR(read(v.colour_path, v.colour, rec.calibration.cameras[static_cast<size_t>(idx)], idx));
   }
-  for (const DepthFrameView& v : in.depth) HVDB_RETURN_IF_ERROR(read(v.colour_path, v.model, v.camera));
+  for (const DepthFrameView& v : in.depth) {
+    HVDB_RETURN_IF_ERROR(read(v.colour_path, v.colour, v.model, v.camera));
+  }
   return out;
 }
 
@@ -157,7 +175,12 @@ Status EnsureDataset(client::Backend& backend, const Recording& rec, const std::
   d.name = dataset;
   d.fps = rec.fps;
   // The colour cameras, with the calibration's index as id (Point::camera).
+  Status bad;
   auto add = [&](int idx) {
+    if (idx < 0 || static_cast<size_t>(idx) >= rec.calibration.cameras.size()) {
+      bad = Status::InvalidArgument("recording: a camera it names is not in its calibration");
+      return;
+    }
     d.cameras.push_back(ToCameraInfo(rec.calibration.cameras[static_cast<size_t>(idx)],
                                      static_cast<uint16_t>(idx)));
   };
@@ -166,6 +189,7 @@ Status EnsureDataset(client::Backend& backend, const Recording& rec, const std::
   } else if (rec.kind == RecordingKind::kDepth) {
     for (const auto& f : rec.files) add(rec.calibration.Find(f.camera));
   }
+  HVDB_RETURN_IF_ERROR(bad);
   auto created = backend.CreateDataset(d);
   if (!created.ok() && created.status().code() != StatusCode::kAlreadyExists) return created.status();
   return Status::OK();

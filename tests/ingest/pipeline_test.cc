@@ -15,12 +15,14 @@
 #include <thread>
 
 #include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
 
 #include "client/backend.h"
 #include "ingest/generator.h"
 #include "protocol/wire.h"
 #include "render/metrics.h"
 #include "render/renderer.h"
+#include "storage/database.h"
 #include "tests/ingest/test_util.h"
 #include "tests/server/server_process.h"
 
@@ -403,6 +405,63 @@ TEST(Pipeline, DepthRecordingThroughTheServer) {
   Status st = (*backend)->Render(bare, [](const wire::RenderReply&) { return Status::OK(); });
   EXPECT_TRUE(st.IsNotFound()) << st.ToString();
   EXPECT_NE(st.ToString().find("no photos"), std::string::npos) << st.ToString();
+}
+
+// Colour images in a format other than PNG or JPEG are stored as PNG with the frame (and
+// decode to the recorded pixels), so that a textured render can read them.
+TEST(Pipeline, PhotosInOtherFormatsAreStoredAsPng) {
+  TempDir dir;
+  ASSERT_TRUE(GenerateRecording(Rig(1, 96, 72), dir / "rec").ok());
+  auto stereo = OpenRecording(dir / "rec");
+  ASSERT_TRUE(stereo.ok());
+  Calibration cal;
+  Recording r;
+  r.dir = dir / "depth";
+  fs::create_directories(r.dir);
+  r.kind = RecordingKind::kDepth;
+  r.frames = 1;
+  r.fps = stereo->fps;
+  cv::Mat bmp_pixels;
+  for (const Brick& b : stereo->calibration.bricks) {
+    cal.cameras.push_back(stereo->calibration.cameras[b.colour]);
+    const std::string name = cal.cameras.back().name;
+    cv::Mat im = cv::imread((dir / "rec") + "/frames/000000/" + name + ".png", cv::IMREAD_COLOR);
+    ASSERT_FALSE(im.empty());
+    ASSERT_TRUE(cv::imwrite(r.dir + "/" + name + ".bmp", im));
+    if (bmp_pixels.empty()) bmp_pixels = im;
+    CameraFiles cf;
+    cf.camera = name;
+    cf.colour = r.dir + "/{camera}.bmp";
+    cf.depth = (dir / "rec") + "/groundtruth/{frame:06d}/{camera}.depth.exr";
+    r.files.push_back(cf);
+  }
+  ASSERT_TRUE(SaveCalibration(cal, r.dir + "/calibration.yml").ok());
+  ASSERT_TRUE(SaveRecording(r).ok());
+  {
+    auto backend = client::MakeEmbeddedBackend(dir / "data", 16 << 20);
+    // Made in code without its calibration: a clear error, not a crash.
+    EXPECT_TRUE(RunIngest(r, *backend, Options("d")).status().IsInvalidArgument());
+    auto opened = OpenRecording(r.dir);
+    ASSERT_TRUE(opened.ok()) << opened.status().ToString();
+    auto rep = RunIngest(*opened, *backend, Options("d"));
+    ASSERT_TRUE(rep.ok()) << rep.status().ToString();
+    EXPECT_GT(rep->frames[0].stage_ms.count("photos"), 0u);
+  }
+  auto db = Database::Open(dir / "data");
+  ASSERT_TRUE(db.ok());
+  auto ds = (*db)->GetDataset("d");
+  ASSERT_TRUE(ds.ok());
+  auto photos = (*ds)->Photos(0);
+  ASSERT_TRUE(photos.ok());
+  ASSERT_EQ(photos->size(), stereo->calibration.bricks.size());
+  const Photo& first = (*photos)[0];
+  EXPECT_EQ(first.image.rfind("\x89PNG", 0), 0u);
+  EXPECT_EQ(first.camera.width, 96u);
+  const cv::Mat decoded = cv::imdecode(cv::Mat(1, static_cast<int>(first.image.size()), CV_8U,
+                                               const_cast<char*>(first.image.data())),
+                                       cv::IMREAD_COLOR);
+  ASSERT_EQ(decoded.size(), bmp_pixels.size());
+  EXPECT_EQ(cv::norm(decoded, bmp_pixels, cv::NORM_INF), 0);
 }
 
 TEST(Pipeline, PlyRecordingAndBadFrames) {
