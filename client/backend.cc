@@ -97,6 +97,7 @@ class EmbeddedBackend final : public Backend {
 
   Status PutPhoto(const std::string& name, uint32_t frame, const Photo& photo) override {
     HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
+    HVDB_RETURN_IF_ERROR(render::CheckPhoto(photo));
     return ds->PutPhoto(frame, photo);
   }
 

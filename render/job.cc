@@ -54,6 +54,14 @@ constexpr size_t kMaxEncodedImage = 200u << 20;
 
 }  // namespace
 
+Status CheckPhoto(const Photo& photo) {
+  const std::string what = "photo of camera " + std::to_string(photo.camera.id);
+  HVDB_RETURN_IF_ERROR(InField(what, CameraFromInfo(photo.camera).Validate()));
+  auto rgb = DecodeRgb8(photo.image, photo.camera.width, photo.camera.height, what);
+  if (!rgb.ok()) return Status::InvalidArgument(rgb.status().message());
+  return Status::OK();
+}
+
 Camera CameraFromInfo(const CameraInfo& info) {
   Camera c;
   c.width = info.width;

@@ -119,6 +119,11 @@ class RenderJob {
 // A camera of the dataset (storage's CameraInfo) as a render camera: the same fields.
 Camera CameraFromInfo(const CameraInfo& info);
 
+// Checks a photo before it is stored (hvdb-server's PutPhoto, the embedded backend's): its
+// camera is valid and its image decodes (PNG or JPEG) to the camera's size. InvalidArgument
+// saying what is wrong otherwise, so that a bad photo is refused, not stored to fail renders.
+Status CheckPhoto(const Photo& photo);
+
 // A view of a Render request as a render camera. dataset_camera ids are looked up in `info`.
 Result<Camera> ViewFromWire(const wire::View& view, const DatasetInfo& info,
                             const std::string& field);

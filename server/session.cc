@@ -5,6 +5,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "render/job.h"
 #include "server/requests.h"
 
 namespace hvdb::server {
@@ -294,7 +295,10 @@ void Session::Dispatch(wire::Request req) {
         if (!ds.ok()) return DatasetError(id, ds.status());
         auto cam = wire::FromWire(pp.camera());
         if (!cam.ok()) return ErrorResponse(id, cam.status(), wire::INVALID_PARAMETER);
-        Status st = (*ds)->PutPhoto(pp.frame(), Photo{*cam, pp.image()});
+        const Photo photo{*cam, pp.image()};
+        Status st = render::CheckPhoto(photo);
+        if (!st.ok()) return ErrorResponse(id, st, wire::INVALID_PARAMETER);
+        st = (*ds)->PutPhoto(pp.frame(), photo);
         if (!st.ok()) return ErrorResponse(id, st);
         wire::Response r;
         r.set_id(id);

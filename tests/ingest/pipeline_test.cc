@@ -388,6 +388,20 @@ TEST(Pipeline, DepthRecordingThroughTheServer) {
   std::printf("camera 0, frame 0: points only %.2f dB, textured %.2f dB\n", p_points, p_tex);
   EXPECT_GE(p_tex, 25.0);
   EXPECT_GT(p_tex, p_points + 3);
+  // A bad photo is refused, not stored: bytes that are no image, an image of another size.
+  Photo junk;
+  junk.camera = info_camera0(**backend);
+  junk.image = "not an image";
+  Status refused = (*backend)->PutPhoto("d", 0, junk);
+  EXPECT_TRUE(refused.IsInvalidArgument()) << refused.ToString();
+  {
+    std::ifstream f(dir / "points.png", std::ios::binary);  // a real PNG, of camera 0's size
+    junk.image.assign(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>());
+  }
+  junk.camera.width /= 2;
+  refused = (*backend)->PutPhoto("d", 0, junk);
+  EXPECT_TRUE(refused.IsInvalidArgument()) << refused.ToString();
+  EXPECT_NE(refused.ToString().find("its camera"), std::string::npos) << refused.ToString();
   // A frame without photos: a clear error, not a silent fallback.
   auto other = (*backend)->CreateDataset([] {
     DatasetInfo i;
