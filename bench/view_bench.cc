@@ -201,9 +201,7 @@ int main(int argc, char** argv) {
       std::ifstream f(v.colour_path, std::ios::binary);
       hvdb::Photo photo;
       photo.image.assign(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>());
-      const hvdb::render::Camera rc = v.model.ToRenderCamera();
-      photo.camera = {static_cast<uint16_t>(v.camera), rec->calibration.cameras[static_cast<size_t>(v.camera)].name,
-                      rc.width, rc.height, rc.fx, rc.fy, rc.cx, rc.cy, rc.distortion, rc.world_from_camera};
+      photo.camera = hvdb::ingest::ToCameraInfo(v.model, static_cast<uint16_t>(v.camera));
       info.cameras.push_back(photo.camera);
       photos.push_back(std::move(photo));
     }
@@ -225,10 +223,8 @@ int main(int argc, char** argv) {
     auto render = [&](bool texture) -> hvdb::render::Srgb8Image {
       hvdb::wire::Render req;
       req.set_dataset(dataset);
-      hvdb::CameraInfo ci;
-      const hvdb::render::Camera rc = target.model.ToRenderCamera();
-      ci = {0, name, rc.width, rc.height, rc.fx, rc.fy, rc.cx, rc.cy, rc.distortion, rc.world_from_camera};
-      hvdb::wire::ToWire(ci, req.mutable_view()->mutable_camera());
+      hvdb::wire::ToWire(hvdb::ingest::ToCameraInfo(target.model, static_cast<uint16_t>(target.camera)),
+                         req.mutable_view()->mutable_camera());
       hvdb::wire::ToWire(hvdb::Region{hvdb::Window{{-1e9, -1e9, -1e9, 0}, {1e9, 1e9, 1e9, 0}}},
                          req.mutable_region());
       req.set_view_dependent(!texture);

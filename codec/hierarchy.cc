@@ -17,6 +17,7 @@
 #include <cstdlib>
 
 #include "codec/internal.h"
+#include "storage/coding.h"
 
 namespace hvdb::codec {
 namespace {
@@ -36,16 +37,6 @@ struct LevelCloud {
 };
 using LevelTree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, LevelCloud>,
                                                       LevelCloud, 3, uint32_t>;
-
-uint64_t Spread(uint64_t v) {  // 21 bits -> every third bit
-  v &= 0x1FFFFF;
-  v = (v | v << 32) & 0x1F00000000FFFFull;
-  v = (v | v << 16) & 0x1F0000FF0000FFull;
-  v = (v | v << 8) & 0x100F00F00F00F00Full;
-  v = (v | v << 4) & 0x10C30C30C30C30C3ull;
-  v = (v | v << 2) & 0x1249249249249249ull;
-  return v;
-}
 
 struct Vec3 {
   double x = 0, y = 0, z = 0;
@@ -97,8 +88,7 @@ std::vector<uint32_t> CurveOrder(const Columns& cur) {
       auto rel = [&](int64_t v, int64_t l) {
         return (static_cast<uint64_t>(v) - static_cast<uint64_t>(l)) >> shift;
       };
-      uint64_t code = Spread(rel(X[i], lo[0])) | Spread(rel(Y[i], lo[1])) << 1 |
-                      Spread(rel(Z[i], lo[2])) << 2;
+      uint64_t code = Morton3(rel(X[i], lo[0]), rel(Y[i], lo[1]), rel(Z[i], lo[2]));
       keyed[i] = {code, static_cast<uint32_t>(i)};
     }
   });

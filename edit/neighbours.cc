@@ -5,6 +5,8 @@
 #include <cmath>
 #include <thread>
 
+#include "storage/coding.h"
+
 namespace hvdb::edit {
 
 namespace {
@@ -16,19 +18,8 @@ namespace {
 constexpr int kSubBits = 4;
 constexpr uint32_t kBias = 1u << 20;
 
-uint64_t Spread(uint64_t x) {  // 21 bits -> every third bit of 63
-  x &= 0x1fffff;
-  x = (x | x << 32) & 0x1f00000000ffffULL;
-  x = (x | x << 16) & 0x1f0000ff0000ffULL;
-  x = (x | x << 8) & 0x100f00f00f00f00fULL;
-  x = (x | x << 4) & 0x10c30c30c30c30c3ULL;
-  x = (x | x << 2) & 0x1249249249249249ULL;
-  return x;
-}
-
 uint64_t Key(int32_t x, int32_t y, int32_t z) {  // any coordinates below 2^21 (others: no cell)
-  return Spread(static_cast<uint32_t>(x)) | Spread(static_cast<uint32_t>(y)) << 1 |
-         Spread(static_cast<uint32_t>(z)) << 2;
+  return Morton3(static_cast<uint32_t>(x), static_cast<uint32_t>(y), static_cast<uint32_t>(z));
 }
 
 uint64_t Hash(uint64_t key) {

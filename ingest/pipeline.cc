@@ -43,7 +43,8 @@ double ValidPct(const cv::Mat& depth) {
   return 100.0 * cv::countNonZero(depth > 0) / static_cast<double>(depth.total());
 }
 
-// A camera of the calibration as the dataset stores it; id: its index (Point::camera).
+}  // namespace
+
 CameraInfo ToCameraInfo(const CameraModel& c, uint16_t id) {
   const render::Camera rc = c.ToRenderCamera();
   CameraInfo ci;
@@ -59,6 +60,8 @@ CameraInfo ToCameraInfo(const CameraModel& c, uint16_t id) {
   ci.world_from_camera = rc.world_from_camera;
   return ci;
 }
+
+namespace {
 
 // The frame's colour photos (the recorded PNG or JPEG files' bytes) with their cameras as they
 // were for this frame, for textured renders (Dataset::PutPhoto). An image in another format,

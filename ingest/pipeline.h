@@ -81,6 +81,10 @@ struct IngestReport {
   nlohmann::json ToJson() const;
 };
 
+// A camera of the calibration as the dataset stores it (its cameras, its photos); id: its index
+// in the calibration, the Point::camera of the points it took.
+CameraInfo ToCameraInfo(const CameraModel& camera, uint16_t id);
+
 // Creates the dataset when it does not exist (fps and colour cameras from the recording).
 Status EnsureDataset(client::Backend& backend, const Recording& recording,
                      const std::string& dataset);

@@ -1,4 +1,4 @@
-// Little-endian fixed-width encoding. Every on-disk and on-wire integer and float in hvdb goes
+// Little-endian fixed-width encoding, and Morton codes. Every on-disk and on-wire integer and float in hvdb goes
 // through these, so the formats in docs/FORMAT.md hold on any host byte order.
 #ifndef HVDB_STORAGE_CODING_H_
 #define HVDB_STORAGE_CODING_H_
@@ -9,6 +9,22 @@
 #include <string>
 
 namespace hvdb {
+
+// The Morton (Z-order) code of three 21-bit coordinates (higher bits are dropped): x's bits at
+// positions 0, 3, 6, ..., y's at 1, 4, ..., z's at 2, 5, .... Sorting by it keeps points that
+// are near in space mostly near in the order (codec's hierarchy, edit's neighbour grid).
+inline uint64_t Morton3(uint64_t x, uint64_t y, uint64_t z) {
+  auto spread = [](uint64_t v) {  // 21 bits -> every third bit of 63
+    v &= 0x1fffff;
+    v = (v | v << 32) & 0x1f00000000ffffULL;
+    v = (v | v << 16) & 0x1f0000ff0000ffULL;
+    v = (v | v << 8) & 0x100f00f00f00f00fULL;
+    v = (v | v << 4) & 0x10c30c30c30c30c3ULL;
+    v = (v | v << 2) & 0x1249249249249249ULL;
+    return v;
+  };
+  return spread(x) | spread(y) << 1 | spread(z) << 2;
+}
 
 template <typename T>
 inline void EncodeLE(uint8_t* dst, T v) {

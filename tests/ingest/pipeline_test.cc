@@ -11,6 +11,7 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <thread>
 
@@ -41,6 +42,29 @@ GeneratorOptions Rig(int frames, int width, int height) {
   g.supersample = 2;
   g.seed = 11;
   return g;
+}
+
+// The generated stereo recording in `rec_dir` as a depth recording in `out_dir` (the generator's
+// exact EXR depth maps, absolute path patterns) of its colour cameras, whose calibration goes
+// to *cal; colour(camera) gives a camera's colour image pattern (and may write the files).
+Recording DepthRecordingOf(const Recording& stereo, const std::string& rec_dir,
+                           const std::string& out_dir, int frames, Calibration* cal,
+                           const std::function<std::string(const std::string&)>& colour) {
+  Recording r;
+  r.dir = out_dir;
+  fs::create_directories(r.dir);
+  r.kind = RecordingKind::kDepth;
+  r.frames = frames;
+  r.fps = stereo.fps;
+  for (const Brick& b : stereo.calibration.bricks) {
+    cal->cameras.push_back(stereo.calibration.cameras[b.colour]);
+    CameraFiles cf;
+    cf.camera = cal->cameras.back().name;
+    cf.colour = colour(cf.camera);
+    cf.depth = rec_dir + "/groundtruth/{frame:06d}/{camera}.depth.exr";
+    r.files.push_back(cf);
+  }
+  return r;
 }
 
 // Camera 0 of dataset "d" as the dataset declares it.
@@ -306,20 +330,8 @@ TEST(Pipeline, DepthRecordingThroughTheServer) {
   auto stereo = OpenRecording(dir / "rec");
   ASSERT_TRUE(stereo.ok());
   Calibration cal;
-  Recording r;
-  r.dir = dir / "depth";
-  fs::create_directories(r.dir);
-  r.kind = RecordingKind::kDepth;
-  r.frames = 2;
-  r.fps = stereo->fps;
-  for (const Brick& b : stereo->calibration.bricks) {
-    cal.cameras.push_back(stereo->calibration.cameras[b.colour]);
-    CameraFiles cf;
-    cf.camera = cal.cameras.back().name;
-    cf.colour = (dir / "rec") + "/frames/{frame:06d}/{camera}.png";
-    cf.depth = (dir / "rec") + "/groundtruth/{frame:06d}/{camera}.depth.exr";
-    r.files.push_back(cf);
-  }
+  Recording r = DepthRecordingOf(*stereo, dir / "rec", dir / "depth", 2, &cal,
+                                 [&](const std::string&) { return (dir / "rec") + "/frames/{frame:06d}/{camera}.png"; });
   ASSERT_TRUE(SaveCalibration(cal, r.dir + "/calibration.yml").ok());
   ASSERT_TRUE(SaveRecording(r).ok());
   hvdb::testing::ServerProcess server(dir / "data");
@@ -429,26 +441,14 @@ TEST(Pipeline, PhotosInOtherFormatsAreStoredAsPng) {
   auto stereo = OpenRecording(dir / "rec");
   ASSERT_TRUE(stereo.ok());
   Calibration cal;
-  Recording r;
-  r.dir = dir / "depth";
-  fs::create_directories(r.dir);
-  r.kind = RecordingKind::kDepth;
-  r.frames = 1;
-  r.fps = stereo->fps;
   cv::Mat bmp_pixels;
-  for (const Brick& b : stereo->calibration.bricks) {
-    cal.cameras.push_back(stereo->calibration.cameras[b.colour]);
-    const std::string name = cal.cameras.back().name;
+  Recording r = DepthRecordingOf(*stereo, dir / "rec", dir / "depth", 1, &cal, [&](const std::string& name) {
     cv::Mat im = cv::imread((dir / "rec") + "/frames/000000/" + name + ".png", cv::IMREAD_COLOR);
-    ASSERT_FALSE(im.empty());
-    ASSERT_TRUE(cv::imwrite(r.dir + "/" + name + ".bmp", im));
+    EXPECT_FALSE(im.empty());
+    EXPECT_TRUE(cv::imwrite((dir / "depth") + "/" + name + ".bmp", im));
     if (bmp_pixels.empty()) bmp_pixels = im;
-    CameraFiles cf;
-    cf.camera = name;
-    cf.colour = r.dir + "/{camera}.bmp";
-    cf.depth = (dir / "rec") + "/groundtruth/{frame:06d}/{camera}.depth.exr";
-    r.files.push_back(cf);
-  }
+    return (dir / "depth") + "/{camera}.bmp";
+  });
   ASSERT_TRUE(SaveCalibration(cal, r.dir + "/calibration.yml").ok());
   ASSERT_TRUE(SaveRecording(r).ok());
   {
