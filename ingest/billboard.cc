@@ -1,0 +1,416 @@
+#include "ingest/billboard.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <limits>
+#include <thread>
+
+namespace hvdb::ingest {
+namespace {
+
+// A displacement that is not there, inside the filter: finite (0 * it stays 0) and far from
+// every real displacement, so the range kernel never counts it.
+constexpr float kNone = 1e30f;
+
+int Threads(int wanted) {
+  const int hw = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  return wanted > 0 ? wanted : hw;
+}
+
+// Runs fn(i) for i in [0, n) on `threads` threads, taking indices in turn.
+template <typename Fn>
+void ParallelFor(size_t n, int threads, const Fn& fn) {
+  std::atomic<size_t> next{0};
+  auto work = [&] {
+    for (size_t i; (i = next.fetch_add(1)) < n;) fn(i);
+  };
+  const int t = std::clamp<int>(threads, 1, static_cast<int>(std::max<size_t>(1, n)));
+  std::vector<std::thread> pool;
+  for (int k = 1; k < t; ++k) pool.emplace_back(work);
+  work();
+  for (auto& th : pool) th.join();
+}
+
+// The cubic B-spline (support |t| < 2).
+double BSpline(double t) {
+  t = std::abs(t);
+  if (t < 1) return (4 - 6 * t * t + 3 * t * t * t) / 6;
+  if (t < 2) return (2 - t) * (2 - t) * (2 - t) / 6;
+  return 0;
+}
+
+// Taps B(k / h) for k in [-r, r], with h = (r + 1) / 2 so that every tap is non-zero.
+std::vector<float> Taps(int r) {
+  std::vector<float> taps(static_cast<size_t>(2 * r + 1));
+  const double h = (r + 1) / 2.0;
+  for (int k = -r; k <= r; ++k) taps[static_cast<size_t>(k + r)] = static_cast<float>(BSpline(k / h));
+  return taps;
+}
+
+bool ValidDepth(float z) { return z > 0 && std::isfinite(z); }
+
+// Displacement and alpha of one billboard, padded by `pad` pixels of nothing on every side,
+// alpha zero wherever there is no displacement.
+struct Padded {
+  cv::Mat d, a;  // CV_32F
+};
+
+Padded Pad(const cv::Mat& displacement, const cv::Mat& alpha, int pad) {
+  Padded p;
+  p.d.create(displacement.rows + 2 * pad, displacement.cols + 2 * pad, CV_32F);
+  p.a.create(p.d.size(), CV_32F);
+  p.d.setTo(kNone);
+  p.a.setTo(0);
+  for (int y = 0; y < displacement.rows; ++y) {
+    const float* d = displacement.ptr<float>(y);
+    const float* a = alpha.ptr<float>(y);
+    float* pd = p.d.ptr<float>(y + pad) + pad;
+    float* pa = p.a.ptr<float>(y + pad) + pad;
+    for (int x = 0; x < displacement.cols; ++x) {
+      const bool ok = std::isfinite(d[x]) && a[x] > 0;
+      pd[x] = ok ? d[x] : kNone;
+      pa[x] = ok ? a[x] : 0;
+    }
+  }
+  return p;
+}
+
+}  // namespace
+
+Result<cv::Vec3d> FitBillboardPlane(const cv::Mat& depth, const cv::Mat& alpha,
+                                    const cv::Matx33d& K, double scale) {
+  if (depth.empty() || depth.type() != CV_32F)
+    return Status::InvalidArgument("billboard plane: depth must be CV_32F");
+  if (!alpha.empty() && (alpha.type() != CV_32F || alpha.size() != depth.size()))
+    return Status::InvalidArgument("billboard plane: alpha must be CV_32F of the depth's size");
+  if (!(scale > 0)) return Status::InvalidArgument("billboard plane: scale must be > 0");
+  struct Sample {
+    double x, y, z, w, ray;  // ray: |K^-1 (x, y, 1)|, the world length of a unit of depth
+  };
+  std::vector<Sample> s;
+  const cv::Matx33d Ki = K.inv();
+  for (int y = 0; y < depth.rows; ++y) {
+    for (int x = 0; x < depth.cols; ++x) {
+      const float z = depth.at<float>(y, x);
+      const double w = alpha.empty() ? 1.0 : alpha.at<float>(y, x);
+      if (!ValidDepth(z) || !(w > 0)) continue;
+      const cv::Vec3d r = Ki * cv::Vec3d(x, y, 1);
+      s.push_back({double(x), double(y), double(z), w, cv::norm(r)});
+    }
+  }
+  if (s.size() < 3) return Status::InvalidArgument("billboard plane: fewer than 3 depth samples");
+  // Eq. 6.4: the least-squares plane in disparity space, the start. Normal equations in
+  // coordinates centred on the samples' mean (well conditioned at any image size).
+  double mx = 0, my = 0, sw = 0;
+  for (const Sample& q : s) mx += q.w * q.x, my += q.w * q.y, sw += q.w;
+  mx /= sw, my /= sw;
+  auto solve3 = [](const cv::Matx33d& A, const cv::Vec3d& b, cv::Vec3d* out) {
+    cv::Mat x;
+    if (!cv::solve(cv::Mat(A), cv::Mat(b), x, cv::DECOMP_SVD)) return false;
+    *out = cv::Vec3d(x.at<double>(0), x.at<double>(1), x.at<double>(2));
+    const double tol = 1e-12 * std::max(1.0, cv::norm(A, cv::NORM_INF));
+    cv::Mat w;
+    cv::SVD::compute(cv::Mat(A), w);
+    return w.at<double>(2) > tol;
+  };
+  cv::Matx33d A = cv::Matx33d::zeros();
+  cv::Vec3d b(0, 0, 0);
+  for (const Sample& q : s) {
+    const cv::Vec3d g(q.x - mx, q.y - my, 1);
+    A += q.w * (g * g.t());
+    b += q.w * (scale / q.z) * g;
+  }
+  cv::Vec3d c;  // plane in centred coordinates: c0 (x - mx) + c1 (y - my) + c2
+  if (!solve3(A, b, &c)) return Status::InvalidArgument("billboard plane: the samples lie on a line");
+  auto positive = [&](const cv::Vec3d& p) {
+    for (const Sample& q : s)
+      if (!(p[0] * (q.x - mx) + p[1] * (q.y - my) + p[2] > 0)) return false;
+    return true;
+  };
+  if (!positive(c)) c = cv::Vec3d(0, 0, b[2] / A(2, 2));  // a fronto-parallel start
+  // Eq. 6.5 by Levenberg-Marquardt: residual e = |ray| (s / Pi - z), the distance along the
+  // viewing ray between the plane and the sample, in metres.
+  auto cost = [&](const cv::Vec3d& p) {
+    double e2 = 0;
+    for (const Sample& q : s) {
+      const double pi = p[0] * (q.x - mx) + p[1] * (q.y - my) + p[2];
+      const double e = q.ray * (scale / pi - q.z);
+      e2 += q.w * e * e;
+    }
+    return e2;
+  };
+  double lambda = 1e-3, e_now = cost(c);
+  for (int it = 0; it < 20; ++it) {
+    cv::Matx33d JtJ = cv::Matx33d::zeros();
+    cv::Vec3d Jte(0, 0, 0);
+    for (const Sample& q : s) {
+      const cv::Vec3d g(q.x - mx, q.y - my, 1);
+      const double pi = c.dot(g);
+      const double e = q.ray * (scale / pi - q.z);
+      const cv::Vec3d J = -q.ray * scale / (pi * pi) * g;
+      JtJ += q.w * (J * J.t());
+      Jte += q.w * e * J;
+    }
+    bool improved = false;
+    for (int tries = 0; tries < 10 && !improved; ++tries) {
+      cv::Matx33d M = JtJ;
+      for (int k = 0; k < 3; ++k) M(k, k) *= 1 + lambda;
+      cv::Vec3d step;
+      if (!solve3(M, -Jte, &step)) break;
+      const cv::Vec3d next = c + step;
+      const double e_next = positive(next) ? cost(next) : std::numeric_limits<double>::infinity();
+      if (e_next < e_now) {
+        const double rel = cv::norm(step) / std::max(1e-300, cv::norm(c));
+        c = next;
+        e_now = e_next;
+        lambda = std::max(1e-9, lambda / 10);
+        improved = true;
+        if (rel < 1e-6) it = 20;
+      } else {
+        lambda *= 10;
+      }
+    }
+    if (!improved) break;
+  }
+  // Back to pixel coordinates: Pi = c0 x + c1 y + (c2 - c0 mx - c1 my).
+  return cv::Vec3d(c[0], c[1], c[2] - c[0] * mx - c[1] * my);
+}
+
+Result<Billboard> MakeBillboard(const CameraModel& camera, const cv::Mat& depth,
+                                const cv::Mat& alpha, const cv::Mat& colour, double scale) {
+  if (depth.type() != CV_32F || depth.size() != camera.size)
+    return Status::InvalidArgument("billboard: depth must be CV_32F of the camera's size");
+  if (!colour.empty() && (colour.type() != CV_8UC3 || colour.size() != depth.size()))
+    return Status::InvalidArgument("billboard: colour must be CV_8UC3 of the depth's size");
+  Billboard bb;
+  bb.camera = camera;
+  bb.scale = scale;
+  bb.colour = colour;
+  if (alpha.empty()) {
+    bb.alpha = cv::Mat(depth.size(), CV_32F);
+    for (int y = 0; y < depth.rows; ++y)
+      for (int x = 0; x < depth.cols; ++x)
+        bb.alpha.at<float>(y, x) = ValidDepth(depth.at<float>(y, x)) ? 1.f : 0.f;
+  } else {
+    bb.alpha = alpha.clone();
+  }
+  HVDB_ASSIGN_OR_RETURN(bb.plane, FitBillboardPlane(depth, bb.alpha, camera.K, scale));
+  bb.displacement = cv::Mat(depth.size(), CV_32F);
+  for (int y = 0; y < depth.rows; ++y) {
+    for (int x = 0; x < depth.cols; ++x) {
+      const float z = depth.at<float>(y, x);
+      bb.displacement.at<float>(y, x) =
+          ValidDepth(z) ? static_cast<float>(scale / z - bb.Plane(x, y))
+                        : std::numeric_limits<float>::quiet_NaN();
+    }
+  }
+  return bb;
+}
+
+cv::Mat BillboardDisparity(const Billboard& bb, const cv::Mat& displacement, float min_alpha) {
+  const cv::Mat& D = displacement.empty() ? bb.displacement : displacement;
+  cv::Mat d(D.size(), CV_32F);
+  for (int y = 0; y < D.rows; ++y) {
+    for (int x = 0; x < D.cols; ++x) {
+      const float dv = static_cast<float>(D.at<float>(y, x) + bb.Plane(x, y));
+      const bool ok = std::isfinite(dv) && dv > 0 && bb.alpha.at<float>(y, x) >= min_alpha;
+      d.at<float>(y, x) = ok ? dv : std::numeric_limits<float>::infinity();
+    }
+  }
+  return d;
+}
+
+cv::Mat BillboardDepth(const Billboard& bb, const cv::Mat& displacement, float min_alpha) {
+  cv::Mat d = BillboardDisparity(bb, displacement, min_alpha);
+  cv::Mat z(d.size(), CV_32F);
+  for (int y = 0; y < d.rows; ++y)
+    for (int x = 0; x < d.cols; ++x) {
+      const float dv = d.at<float>(y, x);
+      z.at<float>(y, x) = std::isfinite(dv) ? static_cast<float>(bb.scale / dv) : 0.f;
+    }
+  return z;
+}
+
+Status BillboardFilterOptions::Validate() const {
+  if (radius < 1 || radius > 64)
+    return Status::InvalidArgument("billboard filter: radius " + std::to_string(radius) +
+                                   " is outside 1..64 pixels");
+  if (temporal_radius < 0 || temporal_radius > 16)
+    return Status::InvalidArgument("billboard filter: temporal radius " +
+                                   std::to_string(temporal_radius) + " is outside 0..16 frames");
+  if (!(delta_d > 0) || !std::isfinite(delta_d))
+    return Status::InvalidArgument("billboard filter: delta_d must be > 0 disparity pixels");
+  if (iterations < 1 || iterations > 10)
+    return Status::InvalidArgument("billboard filter: iterations must be 1..10");
+  return Status::OK();
+}
+
+Result<std::vector<cv::Mat>> FilterBillboards(
+    const std::vector<std::vector<const Billboard*>>& window, size_t centre,
+    const BillboardFilterOptions& o) {
+  HVDB_RETURN_IF_ERROR(o.Validate());
+  if (centre >= window.size()) return Status::InvalidArgument("billboard filter: no centre frame");
+  const std::vector<const Billboard*>& views = window[centre];
+  for (const auto& frame : window) {
+    if (frame.size() != views.size())
+      return Status::InvalidArgument("billboard filter: every frame needs the same views");
+    for (size_t v = 0; v < frame.size(); ++v) {
+      const Billboard* b = frame[v];
+      if (b == nullptr || b->displacement.empty()) continue;
+      if (b->displacement.type() != CV_32F || b->alpha.type() != CV_32F ||
+          b->alpha.size() != b->displacement.size() || b->displacement.size() != b->camera.size ||
+          !(b->scale > 0))
+        return Status::InvalidArgument("billboard filter: a malformed billboard");
+      if (views[v] != nullptr && !views[v]->displacement.empty() &&
+          b->displacement.size() != views[v]->displacement.size())
+        return Status::InvalidArgument("billboard filter: a view changes size over time");
+    }
+  }
+  const int r = o.radius, threads = Threads(o.threads);
+  const std::vector<float> bs = Taps(r);
+  const std::vector<float> bt = Taps(o.temporal_radius);
+  const int t_lo = std::max(0, static_cast<int>(centre) - o.temporal_radius);
+  const int t_hi = std::min(static_cast<int>(window.size()) - 1,
+                            static_cast<int>(centre) + o.temporal_radius);
+
+  // Intra-view sums (eq. 6.10) do not change between passes for the frames around; the centre
+  // frame's do, so each pass recomputes everything from `current`.
+  std::vector<cv::Mat> current(views.size()), out(views.size());
+  for (size_t v = 0; v < views.size(); ++v)
+    if (views[v] != nullptr && !views[v]->displacement.empty()) current[v] = views[v]->displacement;
+
+  for (int pass = 0; pass < o.iterations; ++pass) {
+    std::vector<Padded> centre_pad(views.size());
+    for (size_t v = 0; v < views.size(); ++v)
+      if (!current[v].empty()) centre_pad[v] = Pad(current[v], views[v]->alpha, r);
+    for (size_t v = 0; v < views.size(); ++v) {
+      if (current[v].empty()) continue;
+      const Billboard& bv = *views[v];
+      const int W = current[v].cols, H = current[v].rows;
+      cv::Mat num(H, W, CV_32F, cv::Scalar(0)), den(H, W, CV_32F, cv::Scalar(0));
+      // 6.2.1, the same view over space and time: sums over the regular grid, vectorised along
+      // rows (for one tap, every pixel of a row at once).
+      std::vector<Padded> around;
+      std::vector<float> around_w;
+      for (int t = t_lo; t <= t_hi; ++t) {
+        const Billboard* b = window[static_cast<size_t>(t)][v];
+        if (b == nullptr || b->displacement.empty()) continue;
+        around.push_back(t == static_cast<int>(centre) ? centre_pad[v] : Pad(b->displacement, b->alpha, r));
+        around_w.push_back(bt[static_cast<size_t>(t - static_cast<int>(centre) + o.temporal_radius)]);
+      }
+      const float dd = static_cast<float>(o.delta_d);
+      const Padded& self = centre_pad[v];
+      ParallelFor(static_cast<size_t>(H), threads, [&](size_t yi) {
+        const int y = static_cast<int>(yi);
+        const float* di = self.d.ptr<float>(y + r) + r;
+        float* pn = num.ptr<float>(y);
+        float* pd = den.ptr<float>(y);
+        for (size_t k = 0; k < around.size(); ++k) {
+          for (int dy = -r; dy <= r; ++dy) {
+            const float wy = around_w[k] * bs[static_cast<size_t>(dy + r)];
+            const float* D = around[k].d.ptr<float>(y + r + dy) + r;
+            const float* A = around[k].a.ptr<float>(y + r + dy) + r;
+            for (int dx = -r; dx <= r; ++dx) {
+              const float w = wy * bs[static_cast<size_t>(dx + r)];
+              const float* Dj = D + dx;
+              const float* Aj = A + dx;
+              for (int x = 0; x < W; ++x) {
+                const float m = std::abs(Dj[x] - di[x]) <= dd ? w * Aj[x] : 0.f;
+                pn[x] += m * Dj[x];
+                pd[x] += m;
+              }
+            }
+          }
+        }
+      });
+      // 6.2.2, the other views of this frame: each sample reprojected into v by its depth and
+      // splatted with the B-spline at its sub-pixel position (fig. 6.5). Sources are split
+      // among the threads, each with its own sums.
+      if (o.inter_view) {
+        const double h = (r + 1) / 2.0;
+        const cv::Matx33d Av = bv.camera.K * bv.camera.R;
+        const cv::Vec3d av = bv.camera.K * bv.camera.T;
+        std::vector<cv::Mat> tn(static_cast<size_t>(threads)), td(static_cast<size_t>(threads));
+        for (size_t u = 0; u < views.size(); ++u) {
+          if (u == v || current[u].empty()) continue;
+          const Billboard& bu = *views[u];
+          const cv::Matx33d Ki = bu.camera.K.inv();
+          const cv::Matx33d Rt = bu.camera.R.t();
+          const cv::Vec3d Ou = bu.camera.Centre();
+          const int Hu = current[u].rows, Wu = current[u].cols;
+          const size_t bands = static_cast<size_t>(threads);
+          ParallelFor(bands, threads, [&](size_t band) {
+            cv::Mat& n = tn[band];
+            cv::Mat& dn = td[band];
+            if (n.empty()) {
+              n = cv::Mat(H, W, CV_32F, cv::Scalar(0));
+              dn = cv::Mat(H, W, CV_32F, cv::Scalar(0));
+            }
+            const int y0 = static_cast<int>(band * Hu / bands), y1 = static_cast<int>((band + 1) * Hu / bands);
+            for (int y = y0; y < y1; ++y) {
+              const float* Du = current[u].ptr<float>(y);
+              const float* Au = bu.alpha.ptr<float>(y);
+              for (int x = 0; x < Wu; ++x) {
+                if (!std::isfinite(Du[x]) || !(Au[x] > 0)) continue;
+                const double du = Du[x] + bu.Plane(x, y);
+                if (!(du > 0)) continue;
+                const double z = bu.scale / du;
+                const cv::Vec3d X = Ou + Rt * (Ki * cv::Vec3d(x, y, 1) * z);
+                const cv::Vec3d p = Av * X + av;
+                if (!(p[2] > 0)) continue;
+                const double xv = p[0] / p[2], yv = p[1] / p[2];
+                const float dj = static_cast<float>(bv.scale / p[2] - bv.Plane(xv, yv));
+                const int ix0 = std::max(0, static_cast<int>(std::floor(xv - 2 * h)) + 1);
+                const int ix1 = std::min(W - 1, static_cast<int>(std::ceil(xv + 2 * h)) - 1);
+                const int iy0 = std::max(0, static_cast<int>(std::floor(yv - 2 * h)) + 1);
+                const int iy1 = std::min(H - 1, static_cast<int>(std::ceil(yv + 2 * h)) - 1);
+                if (ix0 > ix1 || iy0 > iy1) continue;
+                float wx[130];
+                for (int ix = ix0; ix <= ix1; ++ix)
+                  wx[ix - ix0] = static_cast<float>(BSpline((ix - xv) / h));
+                for (int iy = iy0; iy <= iy1; ++iy) {
+                  const float wy = static_cast<float>(BSpline((iy - yv) / h)) * Au[x];
+                  if (wy == 0) continue;
+                  const float* di = current[v].ptr<float>(iy);
+                  float* pn = n.ptr<float>(iy);
+                  float* pd = dn.ptr<float>(iy);
+                  for (int ix = ix0; ix <= ix1; ++ix) {
+                    // NaN (no sample at the target) fails the test: nothing accumulates.
+                    const float m = std::abs(dj - di[ix]) <= dd ? wy * wx[ix - ix0] : 0.f;
+                    pn[ix] += m * dj;
+                    pd[ix] += m;
+                  }
+                }
+              }
+            }
+          });
+        }
+        for (size_t k = 0; k < tn.size(); ++k) {
+          if (tn[k].empty()) continue;
+          num += tn[k];
+          den += td[k];
+        }
+      }
+      out[v] = cv::Mat(H, W, CV_32F);
+      for (int y = 0; y < H; ++y) {
+        const float* d0 = current[v].ptr<float>(y);
+        for (int x = 0; x < W; ++x) {
+          const float q = den.at<float>(y, x);
+          out[v].at<float>(y, x) =
+              std::isfinite(d0[x]) && q > 0 ? num.at<float>(y, x) / q : d0[x];
+        }
+      }
+    }
+    current = out;
+  }
+  // Views with no displacement map come back as NaN maps of their size (or empty).
+  for (size_t v = 0; v < views.size(); ++v) {
+    if (!out[v].empty() || views[v] == nullptr) continue;
+    out[v] = cv::Mat(views[v]->camera.size, CV_32F,
+                     cv::Scalar(std::numeric_limits<float>::quiet_NaN()));
+  }
+  return out;
+}
+
+}  // namespace hvdb::ingest
