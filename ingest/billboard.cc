@@ -50,32 +50,6 @@ std::vector<float> Taps(int r) {
 
 bool ValidDepth(float z) { return z > 0 && std::isfinite(z); }
 
-// Displacement and alpha of one billboard, padded by `pad` pixels of nothing on every side,
-// alpha zero wherever there is no displacement.
-struct Padded {
-  cv::Mat d, a;  // CV_32F
-};
-
-Padded Pad(const cv::Mat& displacement, const cv::Mat& alpha, int pad) {
-  Padded p;
-  p.d.create(displacement.rows + 2 * pad, displacement.cols + 2 * pad, CV_32F);
-  p.a.create(p.d.size(), CV_32F);
-  p.d.setTo(kNone);
-  p.a.setTo(0);
-  for (int y = 0; y < displacement.rows; ++y) {
-    const float* d = displacement.ptr<float>(y);
-    const float* a = alpha.ptr<float>(y);
-    float* pd = p.d.ptr<float>(y + pad) + pad;
-    float* pa = p.a.ptr<float>(y + pad) + pad;
-    for (int x = 0; x < displacement.cols; ++x) {
-      const bool ok = std::isfinite(d[x]) && a[x] > 0;
-      pd[x] = ok ? d[x] : kNone;
-      pa[x] = ok ? a[x] : 0;
-    }
-  }
-  return p;
-}
-
 }  // namespace
 
 Result<cv::Vec3d> FitBillboardPlane(const cv::Mat& depth, const cv::Mat& alpha,
@@ -246,6 +220,87 @@ Status BillboardFilterOptions::Validate() const {
   return Status::OK();
 }
 
+namespace {
+
+// One layer of samples on the filtered view's pixel grid: the view itself at some frame, or
+// another view reprojected. d: displacement relative to the filtered view's plane (kNone
+// where there is none), a: alpha (0 where there is none), w: the layer's weight.
+struct Layer {
+  cv::Mat d, a;
+  float w = 1;
+};
+
+Layer GridLayer(const Billboard& b, const Billboard& target, float w) {
+  Layer l{cv::Mat(b.displacement.size(), CV_32F), cv::Mat(b.displacement.size(), CV_32F), w};
+  const bool rebase = &b != &target;
+  for (int y = 0; y < l.d.rows; ++y) {
+    const float* d = b.displacement.ptr<float>(y);
+    const float* a = b.alpha.ptr<float>(y);
+    float* ld = l.d.ptr<float>(y);
+    float* la = l.a.ptr<float>(y);
+    for (int x = 0; x < l.d.cols; ++x) {
+      const bool ok = std::isfinite(d[x]) && a[x] > 0;
+      // Frames around are re-based on this frame's plane (d - Pi_centre): a billboard of a
+      // whole view is refitted every frame, and a moving plane would shift what is static.
+      ld[x] = !ok ? kNone
+                  : rebase ? static_cast<float>(d[x] + b.Plane(x, y) - target.Plane(x, y)) : d[x];
+      la[x] = ok ? a[x] : 0.f;
+    }
+  }
+  return l;
+}
+
+// Another view's samples (displacements `du` of billboard bu) reprojected into `bv` by their
+// depth, each to its nearest pixel (fig. 6.5's projection; the B-spline is then applied on the
+// grid, off by at most half a pixel of a kernel 11 pixels wide). Where several land on one
+// pixel the front-most wins, with those within delta_d of it (the rest are hidden there).
+Layer WarpedLayer(const Billboard& bu, const cv::Mat& du, const Billboard& bv, float delta_d) {
+  const int W = bv.camera.size.width, H = bv.camera.size.height;
+  struct Sample {
+    int pixel;
+    float d, a;
+  };
+  std::vector<Sample> samples;
+  const cv::Matx33d Ki = bu.camera.K.inv(), Rt = bu.camera.R.t();
+  const cv::Vec3d Ou = bu.camera.Centre();
+  const cv::Matx33d Av = bv.camera.K * bv.camera.R;
+  const cv::Vec3d av = bv.camera.K * bv.camera.T;
+  cv::Mat front(H, W, CV_32F, cv::Scalar(-std::numeric_limits<float>::infinity()));
+  for (int y = 0; y < du.rows; ++y) {
+    const float* D = du.ptr<float>(y);
+    const float* A = bu.alpha.ptr<float>(y);
+    for (int x = 0; x < du.cols; ++x) {
+      if (!std::isfinite(D[x]) || !(A[x] > 0)) continue;
+      const double disp = D[x] + bu.Plane(x, y);
+      if (!(disp > 0)) continue;
+      const cv::Vec3d X = Ou + Rt * (Ki * cv::Vec3d(x, y, 1) * (bu.scale / disp));
+      const cv::Vec3d p = Av * X + av;
+      if (!(p[2] > 0)) continue;
+      const double xv = p[0] / p[2], yv = p[1] / p[2];
+      const int ix = static_cast<int>(std::lround(xv)), iy = static_cast<int>(std::lround(yv));
+      if (ix < 0 || iy < 0 || ix >= W || iy >= H) continue;
+      const float dv = static_cast<float>(bv.scale / p[2]);
+      samples.push_back({iy * W + ix, static_cast<float>(dv - bv.Plane(xv, yv)), A[x]});
+      float& f = front.at<float>(iy, ix);
+      f = std::max(f, dv - static_cast<float>(bv.Plane(ix, iy)));
+    }
+  }
+  cv::Mat sd(H, W, CV_32F, cv::Scalar(0)), sa(H, W, CV_32F, cv::Scalar(0));
+  for (const Sample& q : samples) {
+    if (q.d < reinterpret_cast<const float*>(front.data)[q.pixel] - delta_d) continue;
+    reinterpret_cast<float*>(sd.data)[q.pixel] += q.a * q.d;
+    reinterpret_cast<float*>(sa.data)[q.pixel] += q.a;
+  }
+  Layer l{cv::Mat(H, W, CV_32F), sa, 1.f};
+  for (int k = 0; k < W * H; ++k) {
+    const float a = reinterpret_cast<const float*>(sa.data)[k];
+    reinterpret_cast<float*>(l.d.data)[k] = a > 0 ? reinterpret_cast<const float*>(sd.data)[k] / a : kNone;
+  }
+  return l;
+}
+
+}  // namespace
+
 Result<std::vector<cv::Mat>> FilterBillboards(
     const std::vector<std::vector<const Billboard*>>& window, size_t centre,
     const BillboardFilterOptions& o) {
@@ -270,135 +325,93 @@ Result<std::vector<cv::Mat>> FilterBillboards(
   const int r = o.radius, threads = Threads(o.threads);
   const std::vector<float> bs = Taps(r);
   const std::vector<float> bt = Taps(o.temporal_radius);
+  const float dd = static_cast<float>(o.delta_d);
   const int t_lo = std::max(0, static_cast<int>(centre) - o.temporal_radius);
   const int t_hi = std::min(static_cast<int>(window.size()) - 1,
                             static_cast<int>(centre) + o.temporal_radius);
 
-  // Intra-view sums (eq. 6.10) do not change between passes for the frames around; the centre
-  // frame's do, so each pass recomputes everything from `current`.
   std::vector<cv::Mat> current(views.size()), out(views.size());
   for (size_t v = 0; v < views.size(); ++v)
     if (views[v] != nullptr && !views[v]->displacement.empty()) current[v] = views[v]->displacement;
 
   for (int pass = 0; pass < o.iterations; ++pass) {
-    std::vector<Padded> centre_pad(views.size());
-    for (size_t v = 0; v < views.size(); ++v)
-      if (!current[v].empty()) centre_pad[v] = Pad(current[v], views[v]->alpha, r);
     for (size_t v = 0; v < views.size(); ++v) {
       if (current[v].empty()) continue;
       const Billboard& bv = *views[v];
       const int W = current[v].cols, H = current[v].rows;
-      cv::Mat num(H, W, CV_32F, cv::Scalar(0)), den(H, W, CV_32F, cv::Scalar(0));
-      // 6.2.1, the same view over space and time: sums over the regular grid, vectorised along
-      // rows (for one tap, every pixel of a row at once).
-      std::vector<Padded> around;
-      std::vector<float> around_w;
+      // The layers: this view over the frames around (6.2.1), the other views of this frame
+      // reprojected (6.2.2, from the last pass's displacements).
+      std::vector<Layer> layers;
       for (int t = t_lo; t <= t_hi; ++t) {
         const Billboard* b = window[static_cast<size_t>(t)][v];
         if (b == nullptr || b->displacement.empty()) continue;
-        around.push_back(t == static_cast<int>(centre) ? centre_pad[v] : Pad(b->displacement, b->alpha, r));
-        around_w.push_back(bt[static_cast<size_t>(t - static_cast<int>(centre) + o.temporal_radius)]);
+        const float w = bt[static_cast<size_t>(t - static_cast<int>(centre) + o.temporal_radius)];
+        if (t == static_cast<int>(centre)) {
+          Billboard self = bv;
+          self.displacement = current[v];
+          layers.push_back(GridLayer(self, self, w));
+        } else {
+          layers.push_back(GridLayer(*b, bv, w));
+        }
       }
-      const float dd = static_cast<float>(o.delta_d);
-      const Padded& self = centre_pad[v];
-      ParallelFor(static_cast<size_t>(H), threads, [&](size_t yi) {
-        const int y = static_cast<int>(yi);
-        const float* di = self.d.ptr<float>(y + r) + r;
-        float* pn = num.ptr<float>(y);
-        float* pd = den.ptr<float>(y);
-        for (size_t k = 0; k < around.size(); ++k) {
-          for (int dy = -r; dy <= r; ++dy) {
-            const float wy = around_w[k] * bs[static_cast<size_t>(dy + r)];
-            const float* D = around[k].d.ptr<float>(y + r + dy) + r;
-            const float* A = around[k].a.ptr<float>(y + r + dy) + r;
-            for (int dx = -r; dx <= r; ++dx) {
-              const float w = wy * bs[static_cast<size_t>(dx + r)];
-              const float* Dj = D + dx;
-              const float* Aj = A + dx;
-              for (int x = 0; x < W; ++x) {
-                const float m = std::abs(Dj[x] - di[x]) <= dd ? w * Aj[x] : 0.f;
-                pn[x] += m * Dj[x];
-                pd[x] += m;
-              }
+      if (o.inter_view)
+        for (size_t u = 0; u < views.size(); ++u)
+          if (u != v && !current[u].empty()) layers.push_back(WarpedLayer(*views[u], current[u], bv, dd));
+      // The centre values the range kernel compares with (kNone where there are none).
+      const cv::Mat ci = GridLayer(Billboard{bv.camera, bv.scale, bv.plane, current[v], bv.alpha, {}},
+                                   bv, 1).d;
+      // Eq. 6.12 with the B-spline applied separably, as eq. 6.10 allows on the grid: along x
+      // with the range kernel against the centre pixel of the row, then along y with it
+      // against the centre pixel of the column (so a sample counts when it is within delta_d
+      // of a pixel of the target's column that is within delta_d of the target: k_R(j, i)
+      // becomes k_R(j, m) k_R(m, i)). (2r+1) * 2 taps per layer instead of (2r+1)^2.
+      cv::Mat num(H, W, CV_32F, cv::Scalar(0)), den(H, W, CV_32F, cv::Scalar(0));
+      cv::Mat n1(H + 2 * r, W, CV_32F), q1(H + 2 * r, W, CV_32F);
+      for (const Layer& l : layers) {
+        n1.setTo(0);
+        q1.setTo(0);
+        ParallelFor(static_cast<size_t>(H), threads, [&](size_t yi) {
+          const int y = static_cast<int>(yi);
+          const float* c = ci.ptr<float>(y);
+          const float* D = l.d.ptr<float>(y);
+          const float* A = l.a.ptr<float>(y);
+          float* pn = n1.ptr<float>(y + r);
+          float* pq = q1.ptr<float>(y + r);
+          for (int dx = -r; dx <= r; ++dx) {
+            const float w = bs[static_cast<size_t>(dx + r)];
+            const int x0 = std::max(0, -dx), x1 = std::min(W, W - dx);
+            for (int x = x0; x < x1; ++x) {
+              const float m = std::abs(D[x + dx] - c[x]) <= dd ? w * A[x + dx] : 0.f;
+              pn[x] += m * D[x + dx];
+              pq[x] += m;
             }
           }
-        }
-      });
-      // 6.2.2, the other views of this frame: each sample reprojected into v by its depth and
-      // splatted with the B-spline at its sub-pixel position (fig. 6.5). Sources are split
-      // among the threads, each with its own sums.
-      if (o.inter_view) {
-        const double h = (r + 1) / 2.0;
-        const cv::Matx33d Av = bv.camera.K * bv.camera.R;
-        const cv::Vec3d av = bv.camera.K * bv.camera.T;
-        std::vector<cv::Mat> tn(static_cast<size_t>(threads)), td(static_cast<size_t>(threads));
-        for (size_t u = 0; u < views.size(); ++u) {
-          if (u == v || current[u].empty()) continue;
-          const Billboard& bu = *views[u];
-          const cv::Matx33d Ki = bu.camera.K.inv();
-          const cv::Matx33d Rt = bu.camera.R.t();
-          const cv::Vec3d Ou = bu.camera.Centre();
-          const int Hu = current[u].rows, Wu = current[u].cols;
-          const size_t bands = static_cast<size_t>(threads);
-          ParallelFor(bands, threads, [&](size_t band) {
-            cv::Mat& n = tn[band];
-            cv::Mat& dn = td[band];
-            if (n.empty()) {
-              n = cv::Mat(H, W, CV_32F, cv::Scalar(0));
-              dn = cv::Mat(H, W, CV_32F, cv::Scalar(0));
+        });
+        ParallelFor(static_cast<size_t>(H), threads, [&](size_t yi) {
+          const int y = static_cast<int>(yi);
+          const float* c = ci.ptr<float>(y);
+          float* pn = num.ptr<float>(y);
+          float* pq = den.ptr<float>(y);
+          for (int dy = -r; dy <= r; ++dy) {
+            if (y + dy < 0 || y + dy >= H) continue;
+            const float w = l.w * bs[static_cast<size_t>(dy + r)];
+            const float* cm = ci.ptr<float>(y + dy);
+            const float* N = n1.ptr<float>(y + r + dy);
+            const float* Q = q1.ptr<float>(y + r + dy);
+            for (int x = 0; x < W; ++x) {
+              const float m = std::abs(cm[x] - c[x]) <= dd ? w : 0.f;
+              pn[x] += m * N[x];
+              pq[x] += m * Q[x];
             }
-            const int y0 = static_cast<int>(band * Hu / bands), y1 = static_cast<int>((band + 1) * Hu / bands);
-            for (int y = y0; y < y1; ++y) {
-              const float* Du = current[u].ptr<float>(y);
-              const float* Au = bu.alpha.ptr<float>(y);
-              for (int x = 0; x < Wu; ++x) {
-                if (!std::isfinite(Du[x]) || !(Au[x] > 0)) continue;
-                const double du = Du[x] + bu.Plane(x, y);
-                if (!(du > 0)) continue;
-                const double z = bu.scale / du;
-                const cv::Vec3d X = Ou + Rt * (Ki * cv::Vec3d(x, y, 1) * z);
-                const cv::Vec3d p = Av * X + av;
-                if (!(p[2] > 0)) continue;
-                const double xv = p[0] / p[2], yv = p[1] / p[2];
-                const float dj = static_cast<float>(bv.scale / p[2] - bv.Plane(xv, yv));
-                const int ix0 = std::max(0, static_cast<int>(std::floor(xv - 2 * h)) + 1);
-                const int ix1 = std::min(W - 1, static_cast<int>(std::ceil(xv + 2 * h)) - 1);
-                const int iy0 = std::max(0, static_cast<int>(std::floor(yv - 2 * h)) + 1);
-                const int iy1 = std::min(H - 1, static_cast<int>(std::ceil(yv + 2 * h)) - 1);
-                if (ix0 > ix1 || iy0 > iy1) continue;
-                float wx[130];
-                for (int ix = ix0; ix <= ix1; ++ix)
-                  wx[ix - ix0] = static_cast<float>(BSpline((ix - xv) / h));
-                for (int iy = iy0; iy <= iy1; ++iy) {
-                  const float wy = static_cast<float>(BSpline((iy - yv) / h)) * Au[x];
-                  if (wy == 0) continue;
-                  const float* di = current[v].ptr<float>(iy);
-                  float* pn = n.ptr<float>(iy);
-                  float* pd = dn.ptr<float>(iy);
-                  for (int ix = ix0; ix <= ix1; ++ix) {
-                    // NaN (no sample at the target) fails the test: nothing accumulates.
-                    const float m = std::abs(dj - di[ix]) <= dd ? wy * wx[ix - ix0] : 0.f;
-                    pn[ix] += m * dj;
-                    pd[ix] += m;
-                  }
-                }
-              }
-            }
-          });
-        }
-        for (size_t k = 0; k < tn.size(); ++k) {
-          if (tn[k].empty()) continue;
-          num += tn[k];
-          den += td[k];
-        }
+          }
+        });
       }
       out[v] = cv::Mat(H, W, CV_32F);
       for (int y = 0; y < H; ++y) {
         const float* d0 = current[v].ptr<float>(y);
         for (int x = 0; x < W; ++x) {
           const float q = den.at<float>(y, x);
-          out[v].at<float>(y, x) =
-              std::isfinite(d0[x]) && q > 0 ? num.at<float>(y, x) / q : d0[x];
+          out[v].at<float>(y, x) = std::isfinite(d0[x]) && q > 0 ? num.at<float>(y, x) / q : d0[x];
         }
       }
     }

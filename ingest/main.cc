@@ -35,7 +35,7 @@ void RegisterRun(CLI::App& app, int* rc) {
     IngestOptions o;
     double y = 0.40, uv = 0.15;
     bool no_photo = false, quiet = false, no_geometric = false, no_photos = false;
-    std::string subpixel = "lm";
+    std::string subpixel = "lm", filter = "none";
   };
   auto a = std::make_shared<Args>();
   cmd->add_option("recording", a->rec, "recording directory (with recording.yml)")->required();
@@ -59,10 +59,27 @@ void RegisterRun(CLI::App& app, int* rc) {
                   "matcher, thesis 3.4, for projector patterns that change over time); default: "
                   "the recording's `spacetime` (0: single-frame stereo)")
       ->check(CLI::Range(0, 8));
-  cmd->add_option("--subpixel", a->subpixel,
+  CLI::Option* subpixel_opt = cmd->add_option("--subpixel", a->subpixel,
                   "stereo: none (integer disparities), parabola (through the costs around the "
                   "winner) or lm (Levenberg-Marquardt on disparity and its gradients)")
       ->capture_default_str()->check(CLI::IsMember({"none", "parabola", "lm"}));
+  cmd->add_option("--filter", a->filter,
+                  "stereo: none, or billboard: each brick's depth as a billboard in its colour "
+                  "camera smoothed by the bilateral filter of thesis 6.2 over the frames around "
+                  "and the other bricks, in place of the LM (then --subpixel defaults to parabola)")
+      ->capture_default_str()->check(CLI::IsMember({"none", "billboard"}));
+  cmd->add_option("--billboard-radius", a->o.billboard.radius,
+                  "billboard filter: B-spline support radius in pixels (thesis: 10, 21 x 21)")
+      ->capture_default_str()->check(CLI::Range(1, 64));
+  cmd->add_option("--billboard-frames", a->o.billboard.temporal_radius,
+                  "billboard filter: frames on either side (thesis: 2, 5 frames in all)")
+      ->capture_default_str()->check(CLI::Range(0, 16));
+  cmd->add_option("--billboard-delta", a->o.billboard.delta_d,
+                  "billboard filter: range threshold in disparity pixels (eq. 6.8)")
+      ->capture_default_str()->check(CLI::PositiveNumber);
+  cmd->add_option("--billboard-iterations", a->o.billboard.iterations,
+                  "billboard filter: inter-view passes")
+      ->capture_default_str()->check(CLI::Range(1, 10));
   cmd->add_flag("--no-photo-consistency", a->no_photo, "no photo-consistency outlier removal");
   cmd->add_flag("--no-geometric-consistency", a->no_geometric,
                 "keep points that other views see through (no cross-view depth test)");
@@ -75,7 +92,7 @@ void RegisterRun(CLI::App& app, int* rc) {
   cmd->add_option("--uv-threshold", a->uv, "photo-consistency: max chrominance deviation (0..1)")->capture_default_str();
   cmd->add_option("--cache-mb", a->cache_mb, "--data: block cache in MiB")->capture_default_str();
   cmd->add_flag("--quiet", a->quiet, "no progress bar");
-  cmd->callback([a, rc] {
+  cmd->callback([a, rc, subpixel_opt] {
     if (a->data.empty() == a->server.empty()) {
       *rc = Fail(Status::InvalidArgument("give exactly one of --data DIR and --server HOST:PORT"));
       return;
@@ -102,6 +119,13 @@ void RegisterRun(CLI::App& app, int* rc) {
     }
     IngestOptions o = a->o;
     ParseSubpixel(a->subpixel, &o.stereo.subpixel);  // checked by CLI11
+    if (a->filter == "billboard") {
+      o.filter = IngestOptions::Filter::kBillboard;
+      // The filter replaces the LM (thesis 6.5). Its input keeps the parabola's subpixel
+      // estimate: integer disparities of a smooth surface are plateaus wider than the kernel,
+      // which no smoothing undoes (bench/README.md, "Billboards").
+      if (subpixel_opt->count() == 0) o.stereo.subpixel = Subpixel::kParabola;
+    }
     o.photo_consistency = !a->no_photo;
     o.geometric_consistency = !a->no_geometric;
     o.photos = !a->no_photos;

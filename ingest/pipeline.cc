@@ -38,6 +38,23 @@ double PeakRssMb() {
 
 int HardwareThreads() { return std::max(1, static_cast<int>(std::thread::hardware_concurrency())); }
 
+// Central differences along x of a disparity map (+inf = none); one-sided at a hole's edge,
+// 0 where neither neighbour has a disparity.
+cv::Mat DisparityDx(const cv::Mat& d) {
+  cv::Mat dx(d.size(), CV_32F, cv::Scalar(0));
+  for (int y = 0; y < d.rows; ++y) {
+    const float* r = d.ptr<float>(y);
+    float* o = dx.ptr<float>(y);
+    for (int x = 0; x < d.cols; ++x) {
+      const bool l = x > 0 && std::isfinite(r[x - 1]), c = std::isfinite(r[x]),
+                 g = x + 1 < d.cols && std::isfinite(r[x + 1]);
+      if (!c) continue;
+      o[x] = l && g ? (r[x + 1] - r[x - 1]) / 2 : l ? r[x] - r[x - 1] : g ? r[x + 1] - r[x] : 0.f;
+    }
+  }
+  return dx;
+}
+
 double ValidPct(const cv::Mat& depth) {
   if (depth.empty()) return 0;
   return 100.0 * cv::countNonZero(depth > 0) / static_cast<double>(depth.total());
@@ -203,6 +220,14 @@ Result<FrameProcessor> FrameProcessor::Make(const Recording& rec, const IngestOp
   p.rec_ = &rec;
   p.opt_ = options;
   if (p.opt_.stride < 1) return Status::InvalidArgument("stride must be >= 1");
+  if (p.opt_.filter == IngestOptions::Filter::kBillboard) {
+    if (rec.kind != RecordingKind::kStereo)
+      return Status::InvalidArgument(
+          "the billboard filter works in a stereo pair's disparity space: it needs a stereo "
+          "recording (this one is " + std::string(rec.kind == RecordingKind::kDepth ? "depth" : "PLY") +
+          "); ingest it without --filter billboard");
+    HVDB_RETURN_IF_ERROR(p.opt_.billboard.Validate());
+  }
   if (rec.kind == RecordingKind::kStereo) {
     for (const Brick& b : rec.calibration.bricks) {
       HVDB_ASSIGN_OR_RETURN(Rectification r,
@@ -213,6 +238,11 @@ Result<FrameProcessor> FrameProcessor::Make(const Recording& rec, const IngestOp
     }
   }
   return p;
+}
+
+int FrameProcessor::window_radius() const {
+  const int bb = opt_.filter == IngestOptions::Filter::kBillboard ? opt_.billboard.temporal_radius : 0;
+  return std::max(spacetime(), rec_->kind == RecordingKind::kStereo ? bb : 0);
 }
 
 int FrameProcessor::spacetime() const {
@@ -255,40 +285,51 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
     return WriteDepthExr((path / (camera + ".depth.exr")).string(), depth);
   };
   if (rec.kind == RecordingKind::kStereo) {
-    if (window.size() > 1 && (centre >= window.size() || window[centre] != &in)) {
-      return Status::InvalidArgument("spacetime window: its centre is not the frame processed");
-    }
+    std::vector<const FrameInput*> frames = window;
+    if (frames.empty()) frames = {&in}, centre = 0;
+    if (centre >= frames.size() || frames[centre] != &in)
+      return Status::InvalidArgument("frame window: its centre is not the frame processed");
+    const int st = spacetime();
+    const bool billboard = opt_.filter == IngestOptions::Filter::kBillboard;
+    // For the billboard filter, per brick: its colour camera and its depth in every frame.
+    struct BrickDepths {
+      CameraModel colour;
+      double scale = 0;
+      cv::Mat colour_image;
+      uint16_t id = 0;
+      std::vector<cv::Mat> depth;  // per frame of `frames`; empty: none
+    };
+    std::vector<BrickDepths> boards;
+    // The brick's rectified pair in frame w of the window.
+    auto pair_at = [&](size_t w, size_t j, const Rectification& r, cv::Mat* l, cv::Mat* rr) -> Status {
+      const auto& pairs = frames[w]->stereo;
+      if (j >= pairs.size() || pairs[j].brick != frames[centre]->stereo[j].brick)
+        return Status::InvalidArgument("frame window: frame " + std::to_string(frames[w]->index) +
+                                       " lacks brick " + std::to_string(frames[centre]->stereo[j].brick));
+      Rectify(r, pairs[j].left, pairs[j].right, l, rr);
+      return Status::OK();
+    };
     for (size_t j = 0; j < in.stereo.size(); ++j) {
       const StereoView& v = in.stereo[j];
       const Brick& b = cal.bricks[static_cast<size_t>(v.brick)];
       const Rectification& r = *rect_[static_cast<size_t>(v.brick)];
       auto t0 = Clock::now();
-      cv::Mat l, rr;
-      Rectify(r, v.left, v.right, &l, &rr);
-      // The spacetime window: the same brick's rectified pairs of the frames around.
+      // The spacetime matcher's window: the same brick's pairs of the frames within `st`.
       std::vector<cv::Mat> lefts, rights;
-      for (size_t w = 0; w < window.size() && window.size() > 1; ++w) {
-        if (w == centre) {
-          lefts.push_back(l);
-          rights.push_back(rr);
-          continue;
-        }
-        const auto& around = window[w]->stereo;
-        if (j >= around.size() || around[j].brick != v.brick) {
-          return Status::InvalidArgument("spacetime window: frame " +
-                                         std::to_string(window[w]->index) +
-                                         " lacks brick " + std::to_string(v.brick));
-        }
+      size_t st_centre = 0;
+      for (size_t w = 0; w < frames.size(); ++w) {
+        if (w != centre && (st == 0 || std::abs(static_cast<int>(w) - static_cast<int>(centre)) > st)) continue;
+        if (w == centre) st_centre = lefts.size();
         cv::Mat lw, rw;
-        Rectify(r, around[j].left, around[j].right, &lw, &rw);
+        HVDB_RETURN_IF_ERROR(pair_at(w, j, r, &lw, &rw));
         lefts.push_back(lw);
         rights.push_back(rw);
       }
       rep->stage_ms["rectify"] += MsSince(t0);
       t0 = Clock::now();
       HVDB_ASSIGN_OR_RETURN(DisparityMap dm,
-                            lefts.size() > 1 ? MatchSpacetime(lefts, rights, centre, opt_.stereo)
-                                             : MatchStereo(l, rr, opt_.stereo));
+                            lefts.size() > 1 ? MatchSpacetime(lefts, rights, st_centre, opt_.stereo)
+                                             : MatchStereo(lefts[0], rights[0], opt_.stereo));
       rep->stage_ms["stereo"] += MsSince(t0);
       t0 = Clock::now();
       const double fx = r.left.K(0, 0);
@@ -297,21 +338,95 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
       valid += ValidPct(depth);
       ++views;
       const CameraModel colour = Pinhole(cal.cameras[static_cast<size_t>(b.colour)]);
-      WarpedDepth w = WarpDepth(r.left, depth, sigma, colour);
+      auto colour_depth = [&](const cv::Mat& d, const cv::Mat& s) {
+        WarpedDepth w = WarpDepth(r.left, d, s, colour);
+        if (opt_.edge_radius > 0) w.depth = RemoveDepthEdges(w.depth, opt_.edge_jump, opt_.edge_radius);
+        return w;
+      };
+      WarpedDepth w = colour_depth(depth, sigma);
+      const cv::Mat colour_image = Undistort(cal.cameras[static_cast<size_t>(b.colour)], v.colour);
+      colour_models.push_back(cal.cameras[static_cast<size_t>(b.colour)]);
+      colour_images.push_back(v.colour);
+      if (billboard) {
+        // The frames around, matched on their own (single-frame stereo) for the filter.
+        BrickDepths bd{colour, colour.K(0, 0) * r.baseline, colour_image,
+                       static_cast<uint16_t>(b.colour), std::vector<cv::Mat>(frames.size())};
+        bd.depth[centre] = w.depth;
+        rep->stage_ms["points"] += MsSince(t0);
+        for (size_t f = 0; f < frames.size(); ++f) {
+          if (f == centre || std::abs(static_cast<int>(f) - static_cast<int>(centre)) >
+                                 opt_.billboard.temporal_radius)
+            continue;
+          t0 = Clock::now();
+          cv::Mat lf, rf;
+          HVDB_RETURN_IF_ERROR(pair_at(f, j, r, &lf, &rf));
+          HVDB_ASSIGN_OR_RETURN(DisparityMap df, MatchStereo(lf, rf, opt_.stereo));
+          rep->stage_ms["stereo"] += MsSince(t0);
+          t0 = Clock::now();
+          bd.depth[f] = colour_depth(DepthFromDisparity(df.d, r.baseline, fx, r.doffs), {}).depth;
+          rep->stage_ms["points"] += MsSince(t0);
+        }
+        boards.push_back(std::move(bd));
+        continue;
+      }
       HVDB_RETURN_IF_ERROR(write_depth(colour.name, w.depth));
       DepthView dv;
       dv.camera = &colour;
-      dv.depth = opt_.edge_radius > 0 ? RemoveDepthEdges(w.depth, opt_.edge_jump, opt_.edge_radius) : w.depth;
+      dv.depth = w.depth;
       dv.sigma_z = w.carried;
-      dv.colour = Undistort(cal.cameras[static_cast<size_t>(b.colour)], v.colour);
+      dv.colour = colour_image;
       dv.camera_id = static_cast<uint16_t>(b.colour);
       std::vector<Point> pts = PointsFromDepth(dv, po);
       points.insert(points.end(), pts.begin(), pts.end());
       depth_models.push_back(colour);
       depth_maps.push_back(dv.depth);
       depth_ids.push_back(dv.camera_id);
-      colour_models.push_back(cal.cameras[static_cast<size_t>(b.colour)]);
-      colour_images.push_back(v.colour);
+      rep->stage_ms["points"] += MsSince(t0);
+    }
+    if (billboard && !boards.empty()) {
+      // Thesis 6.1-6.2, 6.7: billboards of every brick in every frame, the centre frame's
+      // filtered, and points from the filtered billboards.
+      auto t0 = Clock::now();
+      std::vector<std::vector<Billboard>> bbs(frames.size(), std::vector<Billboard>(boards.size()));
+      std::vector<std::vector<const Billboard*>> ptrs(frames.size(),
+                                                      std::vector<const Billboard*>(boards.size()));
+      for (size_t f = 0; f < frames.size(); ++f) {
+        for (size_t j = 0; j < boards.size(); ++j) {
+          const BrickDepths& bd = boards[j];
+          if (bd.depth[f].empty()) continue;
+          // A view with too little depth for a plane has no billboard in that frame.
+          auto made = MakeBillboard(bd.colour, bd.depth[f], {}, f == centre ? bd.colour_image : cv::Mat(),
+                                    bd.scale);
+          if (!made.ok()) continue;
+          bbs[f][j] = std::move(made).value();
+          ptrs[f][j] = &bbs[f][j];
+        }
+      }
+      BillboardFilterOptions fo = opt_.billboard;
+      if (fo.threads == 0) fo.threads = std::max(1, HardwareThreads() / std::max(1, opt_.workers));
+      HVDB_ASSIGN_OR_RETURN(std::vector<cv::Mat> filtered, FilterBillboards(ptrs, centre, fo));
+      rep->stage_ms["billboard"] += MsSince(t0);
+      t0 = Clock::now();
+      for (size_t j = 0; j < boards.size(); ++j) {
+        const Billboard* bb = ptrs[centre][j];
+        if (bb == nullptr) continue;
+        const cv::Mat disparity = BillboardDisparity(*bb, filtered[j]);
+        const double fx = bb->camera.K(0, 0);
+        DepthView dv;
+        dv.camera = &boards[j].colour;
+        dv.depth = BillboardDepth(*bb, filtered[j]);
+        // Eq. 5.8 in the colour camera's disparity space: the filtered surface's slope.
+        dv.sigma_z = DepthSigmaFromDisparity(disparity, DisparityDx(disparity), bb->scale / fx, fx,
+                                             cal.SigmaC());
+        dv.colour = boards[j].colour_image;
+        dv.camera_id = boards[j].id;
+        HVDB_RETURN_IF_ERROR(write_depth(boards[j].colour.name, dv.depth));
+        std::vector<Point> pts = PointsFromDepth(dv, po);
+        points.insert(points.end(), pts.begin(), pts.end());
+        depth_models.push_back(boards[j].colour);
+        depth_maps.push_back(dv.depth);
+        depth_ids.push_back(dv.camera_id);
+      }
       rep->stage_ms["points"] += MsSince(t0);
     }
   } else {
@@ -438,8 +553,9 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
       const int i = pending[k];
       FrameReport& fr = reports[static_cast<size_t>(i - opt.first)];
       auto t0 = Clock::now();
-      // With the spacetime matcher, the frames on either side too (within the recording).
-      const int st = proc.spacetime();
+      // With the spacetime matcher or the billboard filter, the frames on either side too
+      // (within the recording).
+      const int st = proc.window_radius();
       const int lo = std::max(0, i - st), hi = std::min(rec.frames - 1, i + st);
       std::vector<FrameInput> loaded;
       Status load_error;

@@ -25,6 +25,7 @@
 #include <nlohmann/json.hpp>
 
 #include "client/backend.h"
+#include "ingest/billboard.h"
 #include "ingest/geometric_consistency.h"
 #include "ingest/photo_consistency.h"
 #include "ingest/points.h"
@@ -44,6 +45,14 @@ struct IngestOptions {
   // (thesis 3.4; for projector patterns that change over time); -1: the recording's
   // `spacetime` (0 when it declares none: single-frame stereo).
   int spacetime = -1;
+  // stereo: kBillboard makes each brick's depth a billboard in its colour camera and smooths
+  // it with the bilateral filter of thesis 6.2 over the frames around (temporal_radius) and
+  // the other bricks' views before making points, in place of subpixel refinement
+  // (stereo.subpixel is then best kParabola: thesis 6.5 filters integer disparities, but
+  // those of a smooth surface are plateaus wider than the kernel).
+  enum class Filter { kNone, kBillboard };
+  Filter filter = Filter::kNone;
+  BillboardFilterOptions billboard;
   int stride = 1;              // depth: take every stride-th pixel
   bool normals = true;
   // Depth samples within this many pixels of a depth jump (> edge_jump of the depth) are
@@ -93,13 +102,16 @@ Status EnsureDataset(client::Backend& backend, const Recording& recording,
 class FrameProcessor {
  public:
   static Result<FrameProcessor> Make(const Recording& recording, const IngestOptions& options);
-  // window: for the spacetime matcher, the frames around `input` in frame order (`input` itself
-  // at `centre`); empty: single-frame stereo.
+  // window: the frames around `input` in frame order (`input` itself at `centre`), as many on
+  // either side as window_radius() (fewer at the recording's ends); empty: `input` alone.
   Result<std::vector<Point>> Process(const FrameInput& input, FrameReport* report,
                                      const std::vector<const FrameInput*>& window = {},
                                      size_t centre = 0) const;
   // The frames on either side each frame is matched with (0: none).
   int spacetime() const;
+  // The frames on either side Process needs in its window: the spacetime matcher's and the
+  // billboard filter's.
+  int window_radius() const;
 
  private:
   const Recording* rec_ = nullptr;
