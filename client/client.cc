@@ -580,6 +580,13 @@ Status Connection::PutPhoto(const std::string& dataset, uint32_t frame, const Ph
   p->set_frame(frame);
   wire::ToWire(photo.camera, p->mutable_camera());
   p->set_image(photo.image);
+  if (photo.billboard.scale != 0) {
+    auto* b = p->mutable_billboard();
+    b->set_scale(photo.billboard.scale);
+    for (double v : photo.billboard.plane) b->add_plane(v);
+    b->set_displacement(photo.billboard.displacement);
+    b->set_alpha(photo.billboard.alpha);
+  }
   return Call(&req).status();
 }
 

@@ -353,7 +353,7 @@ struct RenderArgs {
   int lod = 0;
   uint32_t label_mask = 0;
   std::vector<int> highlight;  // bits drawn as an overlay
-  bool texture = false;
+  bool texture = false, billboards = false;
   std::vector<float> highlight_color;
   CameraArgs camera;  // --camera, --look-at/--fov/--up; --size (any camera) in camera.size
   uint32_t dataset_camera = 0;
@@ -1171,6 +1171,10 @@ Cli::Cli(CLI::App& app) : app_(app) {
   render_cmd_->add_flag("--texture", ra.texture,
                         "colour from the frame's stored photos over the points' depth (thesis "
                         "6.3): sharper than the points, one view of one frame");
+  render_cmd_->add_flag("--billboards", ra.billboards,
+                        "draw the frame's billboards (hvdb-ingest run --filter billboard) instead "
+                        "of its points: one view-dependent depth per pixel, colour from the "
+                        "photos (thesis 6.3); one view of one frame");
   render_cmd_->add_option("--highlight", ra.highlight,
                           "Show a selection: points carrying label BIT (repeatable) drawn in "
                           "their colour blended toward --highlight-color")
@@ -2121,6 +2125,7 @@ int Cli::CmdRender() {
   for (int b : a.highlight) highlight |= 1u << b;
   req.set_highlight_mask(highlight);
   req.set_texture(a.texture);
+  req.set_billboards(a.billboards);
   for (float v : a.highlight_color) req.add_highlight_color(v);
   req.set_mode(a.mode == "probabilistic" ? wire::RENDER_PROBABILISTIC : wire::RENDER_VISIBILITY);
   req.set_view_dependent(a.view_dependent);

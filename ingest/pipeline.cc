@@ -38,6 +38,29 @@ double PeakRssMb() {
 
 int HardwareThreads() { return std::max(1, static_cast<int>(std::thread::hardware_concurrency())); }
 
+// A filtered billboard as the dataset keeps it with its photo (docs/FORMAT.md "Photo",
+// version 2): the displacement map as 16-bit PNG of (D + 128) * 256 (0: none), alpha as 8-bit.
+Result<PhotoBillboard> EncodeBillboard(const Billboard& bb, const cv::Mat& displacement) {
+  cv::Mat d16(displacement.size(), CV_16U), a8(displacement.size(), CV_8U);
+  for (int y = 0; y < d16.rows; ++y)
+    for (int x = 0; x < d16.cols; ++x) {
+      const float d = displacement.at<float>(y, x), a = bb.alpha.at<float>(y, x);
+      d16.at<uint16_t>(y, x) = std::isfinite(d) && a > 0
+                                   ? static_cast<uint16_t>(std::clamp(std::lround((d + 128.0) * 256.0), 1L, 65535L))
+                                   : 0;
+      a8.at<uint8_t>(y, x) = static_cast<uint8_t>(std::lround(std::clamp(a, 0.f, 1.f) * 255));
+    }
+  PhotoBillboard out;
+  out.scale = bb.scale;
+  out.plane = {bb.plane[0], bb.plane[1], bb.plane[2]};
+  std::vector<uint8_t> enc;
+  if (!cv::imencode(".png", d16, enc)) return Status::Internal("billboard: cannot encode its displacement map");
+  out.displacement.assign(enc.begin(), enc.end());
+  if (!cv::imencode(".png", a8, enc)) return Status::Internal("billboard: cannot encode its alpha map");
+  out.alpha.assign(enc.begin(), enc.end());
+  return out;
+}
+
 // Central differences along x of a disparity map (+inf = none); one-sided at a hole's edge,
 // 0 where neither neighbour has a disparity.
 cv::Mat DisparityDx(const cv::Mat& d) {
@@ -102,7 +125,7 @@ Result<std::vector<Photo>> FramePhotos(const Recording& rec, const FrameInput& i
       }
       bytes.assign(enc.begin(), enc.end());
     }
-    out.push_back({ToCameraInfo(model, static_cast<uint16_t>(idx)), std::move(bytes)});
+    out.push_back({ToCameraInfo(model, static_cast<uint16_t>(idx)), std::move(bytes), {}});
     return Status::OK();
   };
   for (const StereoView& v : in.stereo) {
@@ -252,7 +275,8 @@ int FrameProcessor::spacetime() const {
 
 Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameReport* rep,
                                                    const std::vector<const FrameInput*>& window,
-                                                   size_t centre) const {
+                                                   size_t centre,
+                                                   std::map<uint16_t, PhotoBillboard>* billboards) const {
   const Recording& rec = *rec_;
   const Calibration& cal = rec.calibration;
   std::vector<Point> points;
@@ -275,6 +299,14 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
   std::vector<uint16_t> depth_ids;
   double valid = 0;
   size_t views = 0;
+  // With the billboard filter: the centre frame's billboards with their filtered
+  // displacements, stored with the photos once the cleaning below has run.
+  struct FilteredBoard {
+    uint16_t id;
+    Billboard board;
+    cv::Mat displacement;
+  };
+  std::vector<FilteredBoard> filtered_boards;
   auto write_depth = [&](const std::string& camera, const cv::Mat& depth) -> Status {
     if (opt_.depth_out.empty()) return Status::OK();
     char dir[16];
@@ -421,6 +453,7 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
         dv.colour = boards[j].colour_image;
         dv.camera_id = boards[j].id;
         HVDB_RETURN_IF_ERROR(write_depth(boards[j].colour.name, dv.depth));
+        if (billboards != nullptr) filtered_boards.push_back({boards[j].id, *bb, filtered[j]});
         std::vector<Point> pts = PointsFromDepth(dv, po);
         points.insert(points.end(), pts.begin(), pts.end());
         depth_models.push_back(boards[j].colour);
@@ -465,6 +498,35 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
     rep->outliers_removed += points.size() - out;
     points.resize(out);
     rep->stage_ms["geometry"] += MsSince(t0);
+  }
+  if (billboards != nullptr && !filtered_boards.empty()) {
+    // What the geometric test removed (samples other views see through) leaves the billboards
+    // too: a sample is kept where a point of its camera survived at its pixel (or, with a
+    // stride, at its block's sample). Photo-consistency is not applied: projective texturing
+    // takes colour from the photos where their cameras see the surface, and a billboard with
+    // holes where its colour disagreed would let the other views' fragments fill them.
+    auto t0 = Clock::now();
+    std::map<uint16_t, std::pair<const CameraModel*, cv::Mat>> kept;
+    for (const FilteredBoard& fb : filtered_boards)
+      kept[fb.id] = {&fb.board.camera, cv::Mat(fb.displacement.size(), CV_8U, cv::Scalar(0))};
+    for (const Point& p : points) {
+      auto k = kept.find(p.camera);
+      if (k == kept.end()) continue;
+      const cv::Point2d px = k->second.first->Project(cv::Vec3d(p.x, p.y, p.z));
+      cv::Mat& m = k->second.second;
+      const int u = static_cast<int>(std::lround(px.x)), v = static_cast<int>(std::lround(px.y));
+      if (u >= 0 && v >= 0 && u < m.cols && v < m.rows) m.at<uint8_t>(v, u) = 1;
+    }
+    const int st = std::max(1, opt_.stride);
+    for (FilteredBoard& fb : filtered_boards) {
+      const cv::Mat& k = kept[fb.id].second;
+      cv::Mat& d = fb.displacement;
+      for (int y = 0; y < d.rows; ++y)
+        for (int x = 0; x < d.cols; ++x)
+          if (!k.at<uint8_t>(y - y % st, x - x % st)) d.at<float>(y, x) = std::numeric_limits<float>::quiet_NaN();
+      HVDB_ASSIGN_OR_RETURN((*billboards)[fb.id], EncodeBillboard(fb.board, d));
+    }
+    rep->stage_ms["billboard"] += MsSince(t0);
   }
   if (opt_.photo_consistency && !points.empty()) {
     auto t0 = Clock::now();
@@ -573,17 +635,23 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
       const size_t centre = static_cast<size_t>(i - lo);
       uint64_t bytes = 0;
       for (const FrameInput& f : loaded) bytes += f.bytes_read;
+      std::map<uint16_t, PhotoBillboard> billboards;
       Done d{i,
              load_error.ok()
                  ? proc.Process(*window[centre], &fr, window.size() > 1 ? window
                                                                         : std::vector<const FrameInput*>{},
-                                centre)
+                                centre, opt.photos ? &billboards : nullptr)
                  : Result<std::vector<Point>>(load_error),
              bytes, {}};
       if (d.points.ok() && opt.photos) {
         auto photos = FramePhotos(rec, *window[centre]);
         if (photos.ok()) {
           d.photos = std::move(photos).value();
+          // The billboards (--filter billboard) go with their cameras' photos.
+          for (Photo& p : d.photos) {
+            auto b = billboards.find(p.camera.id);
+            if (b != billboards.end()) p.billboard = std::move(b->second);
+          }
         } else {
           d.points = photos.status();
         }

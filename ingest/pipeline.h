@@ -104,9 +104,12 @@ class FrameProcessor {
   static Result<FrameProcessor> Make(const Recording& recording, const IngestOptions& options);
   // window: the frames around `input` in frame order (`input` itself at `centre`), as many on
   // either side as window_radius() (fewer at the recording's ends); empty: `input` alone.
+  // billboards: with the billboard filter, receives each colour camera's filtered billboard
+  // (by camera id) as the dataset stores it with the photo.
   Result<std::vector<Point>> Process(const FrameInput& input, FrameReport* report,
                                      const std::vector<const FrameInput*>& window = {},
-                                     size_t centre = 0) const;
+                                     size_t centre = 0,
+                                     std::map<uint16_t, PhotoBillboard>* billboards = nullptr) const;
   // The frames on either side each frame is matched with (0: none).
   int spacetime() const;
   // The frames on either side Process needs in its window: the spacetime matcher's and the

@@ -480,7 +480,7 @@ class Database {
                   const std::array<double, 3>& eye, const std::array<double, 3>& target,
                   const std::array<double, 3>& up, double fov, uint32_t width, uint32_t height,
                   const std::string& mode, uint32_t lod, const std::string& renderer, bool exr,
-                  bool view_dependent, bool texture) {
+                  bool view_dependent, bool texture, bool billboards) {
     wire::Render req;
     req.set_dataset(name);
     wire::ToWire(ToRegion(region), req.mutable_region());
@@ -498,6 +498,7 @@ class Database {
     req.set_lod(lod);
     req.set_view_dependent(view_dependent);
     req.set_texture(texture);
+    req.set_billboards(billboards);
     if (renderer == "auto") {
       req.set_renderer(wire::RENDERER_AUTO);
     } else if (renderer == "egl") {

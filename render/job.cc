@@ -59,6 +59,12 @@ Status CheckPhoto(const Photo& photo) {
   HVDB_RETURN_IF_ERROR(InField(what, CameraFromInfo(photo.camera).Validate()));
   auto rgb = DecodeRgb8(photo.image, photo.camera.width, photo.camera.height, what);
   if (!rgb.ok()) return Status::InvalidArgument(rgb.status().message());
+  if (photo.billboard.scale != 0) {
+    if (!(photo.billboard.scale > 0) || !std::isfinite(photo.billboard.scale))
+      return Status::InvalidArgument(what + ": the billboard's scale must be > 0");
+    auto board = DecodeBillboard(photo, *rgb, what);
+    if (!board.ok()) return board.status();
+  }
   return Status::OK();
 }
 
@@ -196,6 +202,10 @@ Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> da
   job->texture_ = r.texture();
   if (r.texture() && r.path_size() > 0) {
     return Invalid("render.texture", "textures a single view of one frame, not a sequence");
+  }
+  job->billboards_ = r.billboards();
+  if (r.billboards() && r.path_size() > 0) {
+    return Invalid("render.billboards", "draws a single view of one frame, not a sequence");
   }
   // Views.
   if (r.path_size() > 0) {
@@ -350,19 +360,64 @@ Status RenderJob::Draw(size_t i, Renderer& renderer, const std::atomic<bool>* ca
   }
   HVDB_RETURN_IF_ERROR(renderer.RenderInto(current_.points, view, o, &image_));
   // The progressive preview stays a plain point rendering: a quick look.
+  if (billboards_ && !steps_[i].preview) return Billboards(view, o);
   if (texture_ && !steps_[i].preview) HVDB_RETURN_IF_ERROR(Texture(view, o, renderer));
   return Status::OK();
 }
 
-Status RenderJob::Texture(const Camera& view, const RenderOptions& o, Renderer& renderer) {
-  if (current_.points.empty()) return Status::OK();  // nothing drawn, nothing to colour
+Result<uint32_t> RenderJob::SingleFrame(const std::string& field) const {
   const uint32_t frame = current_.points.front().frame;
   for (const Point& p : current_.points) {
     if (p.frame != frame) {
-      return Invalid("render.texture", "textures one frame; the region holds frames " +
-                                           std::to_string(frame) + " and " + std::to_string(p.frame));
+      return Invalid(field, "draws one frame; the region holds frames " + std::to_string(frame) +
+                                " and " + std::to_string(p.frame));
     }
   }
+  return frame;
+}
+
+Status RenderJob::Billboards(const Camera& view, const RenderOptions& o) {
+  if (current_.points.empty()) return Status::OK();  // no frame in the region: nothing to draw
+  HVDB_ASSIGN_OR_RETURN(const uint32_t frame, SingleFrame("render.billboards"));
+  if (frame != boards_frame_) {
+    boards_.clear();
+    boards_frame_ = UINT32_MAX;
+    HVDB_ASSIGN_OR_RETURN(std::vector<Photo> photos, dataset_->Photos(frame));
+    for (const Photo& photo : photos) {
+      if (!(photo.billboard.scale > 0)) continue;
+      const std::string what = "render.billboards: the billboard of camera " +
+                               std::to_string(photo.camera.id) + " of frame " + std::to_string(frame);
+      HVDB_RETURN_IF_ERROR(InField(what, CameraFromInfo(photo.camera).Validate()));
+      HVDB_ASSIGN_OR_RETURN(std::vector<uint8_t> rgb,
+                            DecodeRgb8(photo.image, photo.camera.width, photo.camera.height, what));
+      auto board = DecodeBillboard(photo, rgb, what);
+      if (!board.ok()) return Status::Corruption(board.status().message());
+      boards_.push_back(std::move(board).value());
+    }
+    if (boards_.empty()) {
+      return Status::NotFound("render.billboards: dataset '" + dataset_->Info().name +
+                              "' has no billboards of frame " + std::to_string(frame) +
+                              " (hvdb-ingest run --filter billboard stores them; render without "
+                              "billboards to see the points)");
+    }
+    boards_frame_ = frame;
+  }
+  const Camera drawn = image_.width == view.width && image_.height == view.height
+                           ? view
+                           : view.Resized(image_.width, image_.height);
+  BillboardDrawOptions bo;
+  bo.background = o.background;
+  HVDB_RETURN_IF_ERROR(DrawBillboardDepth(drawn, boards_, bo, &image_));
+  std::vector<TextureView> tv;
+  for (const BillboardSource& b : boards_) tv.push_back({b.camera, b.rgb, b.depth, 0, 0});
+  TextureOptions to;
+  to.background = o.background;
+  return ProjectiveTexture(drawn, tv, to, &image_);
+}
+
+Status RenderJob::Texture(const Camera& view, const RenderOptions& o, Renderer& renderer) {
+  if (current_.points.empty()) return Status::OK();  // nothing drawn, nothing to colour
+  HVDB_ASSIGN_OR_RETURN(const uint32_t frame, SingleFrame("render.texture"));
   if (frame != textured_frame_ || current_.lod != textured_lod_) {
     sources_.clear();
     HVDB_ASSIGN_OR_RETURN(std::vector<Photo> photos, dataset_->Photos(frame));

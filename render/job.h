@@ -23,6 +23,7 @@
 #include <vector>
 
 #include "protocol/wire.h"
+#include "render/billboard_render.h"
 #include "render/renderer.h"
 #include "storage/database.h"
 
@@ -84,6 +85,10 @@ class RenderJob {
   Status Draw(size_t i, Renderer& renderer, const std::atomic<bool>* cancelled);
   // Render.texture: recolours image_ from the photos of the frame current_ shows.
   Status Texture(const Camera& view, const RenderOptions& o, Renderer& renderer);
+  // Render.billboards: redraws image_ from the billboards of the frame current_ shows.
+  Status Billboards(const Camera& view, const RenderOptions& o);
+  // The one frame current_'s points belong to; InvalidArgument naming `field` otherwise.
+  Result<uint32_t> SingleFrame(const std::string& field) const;
 
   std::shared_ptr<Dataset> dataset_;
   RenderLimits limits_;
@@ -102,6 +107,9 @@ class RenderJob {
   std::vector<Source> sources_;
   uint32_t textured_frame_ = UINT32_MAX;
   int textured_lod_ = -1;
+  bool billboards_ = false;                      // Render.billboards
+  std::vector<BillboardSource> boards_;          // the billboards of boards_frame_
+  uint32_t boards_frame_ = UINT32_MAX;
   uint32_t highlight_mask_ = 0;                  // the selection overlay (Render.highlight_*)
   std::array<float, 4> highlight_{1.f, 0.45f, 0.f, 0.5f};
   std::vector<Camera> views_;

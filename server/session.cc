@@ -295,7 +295,15 @@ void Session::Dispatch(wire::Request req) {
         if (!ds.ok()) return DatasetError(id, ds.status());
         auto cam = wire::FromWire(pp.camera());
         if (!cam.ok()) return ErrorResponse(id, cam.status(), wire::INVALID_PARAMETER);
-        const Photo photo{*cam, pp.image()};
+        Photo photo{*cam, pp.image(), {}};
+        if (pp.has_billboard()) {
+          const wire::Billboard& b = pp.billboard();
+          if (b.plane_size() != 3 || !(b.scale() > 0))
+            return ErrorResponse(id, Status::InvalidArgument(
+                                         "put_photo.billboard: needs a scale > 0 and 3 plane values"),
+                                 wire::INVALID_PARAMETER);
+          photo.billboard = {b.scale(), {b.plane(0), b.plane(1), b.plane(2)}, b.displacement(), b.alpha()};
+        }
         Status st = render::CheckPhoto(photo);
         if (!st.ok()) return ErrorResponse(id, st, wire::INVALID_PARAMETER);
         st = (*ds)->PutPhoto(pp.frame(), photo);

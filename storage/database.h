@@ -63,12 +63,25 @@ struct CameraInfo {
   std::array<double, 16> world_from_camera{1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
 };
 
+// The billboard of a camera's view of a frame (thesis 6.1), kept with its photo (the colour
+// map). In the camera's undistorted (pinhole) image: disparity d = scale / z (z: camera-space
+// depth in metres) = Pi(x, y) + D(x, y), with the proxy plane Pi(x, y) = plane[0] x +
+// plane[1] y + plane[2] and the displacement map D.
+struct PhotoBillboard {
+  double scale = 0;  // pixels * metres; 0: the photo has no billboard
+  std::array<double, 3> plane{};
+  std::string displacement;  // PNG, 16-bit grey, the camera's size: (D + 128) * 256; 0: no sample
+  std::string alpha;         // PNG, 8-bit grey, the camera's size: alpha * 255
+};
+
 // A photo of an acquisition camera for one frame: the camera as it was for that frame (its id
 // is the Point::camera of the points it took) and the image file's bytes as recorded (PNG or
-// JPEG, 8-bit). The render service textures splats with them (thesis 6.3).
+// JPEG, 8-bit). The render service textures splats with them (thesis 6.3), and draws the
+// billboards of those that have one.
 struct Photo {
   CameraInfo camera;
   std::string image;
+  PhotoBillboard billboard;
 };
 
 struct DatasetInfo {

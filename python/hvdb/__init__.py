@@ -540,13 +540,14 @@ class Database:
     # -- rendering --
     def render(self, dataset, t, look_at, fov=50.0, size=(640, 480), mode="visibility",
                level=0, renderer="auto", depth=False, up=(0.0, -1.0, 0.0),
-               view_dependent=False, texture=False):
+               view_dependent=False, texture=False, billboards=False):
         """Renders frame time t (seconds) from a look-at camera (EWA splatting, thesis 5.1.2):
         look_at = (ex, ey, ez, tx, ty, tz), eye and target in metres, up = (0, -1, 0) as in
         `hvdb render`. Returns an H x W x 3 uint8 sRGB image; with depth=True a pair
         (image, depth) with depth H x W float32 metres (inf where empty). texture=True colours
         the view from the frame's stored photos over the points' depth (thesis 6.3; NotFound
-        when the frame has none)."""
+        when the frame has none); billboards=True draws the frame's billboards instead of its
+        points (ingested with --filter billboard; NotFound when the frame has none)."""
         la = _vector("look_at", look_at, 6)
         w, h = size
         w, h = _uint32("size", w), _uint32("size", h)
@@ -558,7 +559,8 @@ class Database:
         tt = _number("t", t)
         r = self._call("render", dataset, _window(t=(tt, tt)), la[:3], la[3:],
                        _vector("up", up, 3), fov, w, h, str(mode), _level(level),
-                       str(renderer), bool(depth), bool(view_dependent), bool(texture))
+                       str(renderer), bool(depth), bool(view_dependent), bool(texture),
+                       bool(billboards))
         if not depth:
             img = r["image"]
             return img[:, :, :3] if img.shape[2] == 4 else img
