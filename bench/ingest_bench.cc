@@ -6,6 +6,10 @@
 //     the valid fraction over non-occluded pixels (pixels whose surface point the right camera
 //     also sees), bad-pixel rates; and the 3D error of the merged, cleaned points (distance
 //     along the viewing ray to the true surface): RMSE, median, p90.
+//  1b. The billboard filter (thesis 6.2, --filter billboard) against the subpixel LM on a
+//     generated recording of 6 frames: 3D error of the points and flicker (the change of each
+//     colour camera's depth between consecutive frames where the true surface did not move),
+//     with integer and parabola disparities as its input, single-frame and spacetime stereo.
 //  2. Real sequences of ../shared/data, described by recording.yml files written into the
 //     scratch directory with absolute path patterns (nothing is copied) and ingested by the
 //     hvdb-ingest binary into a scratch data directory: points per frame, frames/s, points/s,
@@ -282,11 +286,6 @@ void RunBillboard(const std::string& scratch, bool quick, nlohmann::json& figure
   IngestOptions stb = bp;
   stb.spacetime = -1;
   configs.push_back({"spacetime_billboard_parabola", stb});
-  if (getenv("BB_R")) for (auto& c : configs) c.opt.billboard.radius = atoi(getenv("BB_R"));
-  if (getenv("BB_T")) for (auto& c : configs) c.opt.billboard.temporal_radius = atoi(getenv("BB_T"));
-  if (getenv("BB_D")) for (auto& c : configs) c.opt.billboard.delta_d = atof(getenv("BB_D"));
-  if (getenv("BB_I")) for (auto& c : configs) c.opt.billboard.inter_view = atoi(getenv("BB_I"));
-  if (getenv("BB_ONLY")) configs.erase(std::remove_if(configs.begin(), configs.end(), [](const Config& c) { return c.name.find("billboard") == std::string::npos; }), configs.end());
   const nlohmann::json params = {{"bricks", g.bricks}, {"width", g.width}, {"height", g.height},
                                  {"frames", g.frames}, {"seed", g.seed},
                                  {"billboard_radius", bb.billboard.radius},

@@ -515,6 +515,105 @@ TEST(Pipeline, DepthRecordingThroughTheServer) {
   EXPECT_NE(st.ToString().find("no photos"), std::string::npos) << st.ToString();
 }
 
+// A stereo recording ingested through a real hvdb-server with the billboard filter: the
+// billboards travel with the photos (PutPhoto.billboard) and the server draws them
+// (Render.billboards, thesis 6.3) from a brick's colour camera like its photo.
+TEST(Pipeline, BillboardsThroughTheServer) {
+  TempDir dir;
+  ASSERT_TRUE(GenerateRecording(Rig(3, 160, 120), dir / "rec").ok());
+  auto rec = OpenRecording(dir / "rec");
+  ASSERT_TRUE(rec.ok());
+  hvdb::testing::ServerProcess server(dir / "data");
+  ASSERT_TRUE(server.running());
+  const std::string addr = "127.0.0.1:" + std::to_string(server.port());
+  auto out = testing::RunCommand(std::string(HVDB_INGEST_PATH) + " run " + (dir / "rec") +
+                                 " --dataset d --server " + addr +
+                                 " --filter billboard --num-disparities 64 --quiet");
+  ASSERT_EQ(out.exit_code, 0) << out.output;
+  auto backend = client::MakeRemoteBackend({addr, ""});
+  ASSERT_TRUE(backend.ok());
+  const uint16_t colour0 = static_cast<uint16_t>(rec->calibration.bricks[0].colour);
+  auto render = [&](uint32_t frame, bool billboards, bool texture, Status* st) -> render::Srgb8Image {
+    wire::Render req;
+    req.set_dataset("d");
+    req.mutable_view()->set_dataset_camera(colour0);
+    const double t = frame / rec->fps;
+    wire::ToWire(Region{Window{{-1e9, -1e9, -1e9, t}, {1e9, 1e9, 1e9, t}}}, req.mutable_region());
+    req.set_billboards(billboards);
+    req.set_texture(texture);
+    req.set_renderer(wire::RENDERER_CPU);
+    std::string png;
+    *st = (*backend)->Render(req, [&](const wire::RenderReply& reply) {
+      png = reply.png();
+      return Status::OK();
+    });
+    const std::string path = dir / ("r" + std::to_string(billboards) + std::to_string(texture) + ".png");
+    std::ofstream(path, std::ios::binary) << png;
+    auto im = render::ReadSrgb8(path);
+    return im.ok() ? *im : render::Srgb8Image{};
+  };
+  Status st;
+  const render::Srgb8Image boards = render(1, true, false, &st);
+  ASSERT_TRUE(st.ok()) << st.ToString();
+  const render::Srgb8Image points = render(1, false, false, &st);
+  ASSERT_TRUE(st.ok()) << st.ToString();
+  auto photo = render::ReadSrgb8(rec->Path(rec->files[0].colour, 1));
+  ASSERT_TRUE(photo.ok());
+  ASSERT_EQ(boards.width, photo->width);
+  // Over the pixels both draw (opaque in both images; black is nothing drawn).
+  std::vector<uint8_t> mask(size_t{photo->width} * photo->height);
+  size_t drawn = 0;
+  for (size_t i = 0; i < mask.size(); ++i) {
+    auto opaque = [&](const render::Srgb8Image& im) {
+      const uint8_t* p = &im.data[im.channels * i];
+      return p[0] + p[1] + p[2] > 0 && (im.channels == 3 || p[3] == 255);
+    };
+    drawn += mask[i] = opaque(boards) && opaque(points);
+  }
+  const double p_boards = render::Psnr(boards, *photo, &mask), p_points = render::Psnr(points, *photo, &mask);
+  std::printf("camera %u, frame 1: points %.2f dB, billboards %.2f dB over %zu pixels\n", colour0,
+              p_points, p_boards, drawn);
+  EXPECT_GT(drawn, mask.size() / 2);
+  EXPECT_GE(p_boards, 25.0);
+  EXPECT_GT(p_boards, p_points + 3);
+  // A billboard render of a frame that has none is NOT_FOUND, not a silent fallback: the
+  // same points and photos re-stored without billboards in another dataset.
+  Window w{{-1e9, -1e9, -1e9, 0}, {1e9, 1e9, 1e9, 0}};
+  auto q = (*backend)->Query("d", w, QueryOptions{});
+  ASSERT_TRUE(q.ok());
+  std::vector<Point> f0;
+  Batch b;
+  while (*(*q)->Next(&b)) f0.insert(f0.end(), b.points.begin(), b.points.end());
+  auto info = (*backend)->Describe("d");
+  ASSERT_TRUE(info.ok());
+  DatasetInfo bare = *info;
+  bare.name = "bare";
+  ASSERT_TRUE((*backend)->CreateDataset(bare).ok());
+  ASSERT_TRUE((*backend)->BulkLoad("bare", 0, f0).ok());
+  wire::Render req;
+  req.set_dataset("bare");
+  req.mutable_view()->set_dataset_camera(colour0);
+  wire::ToWire(Region{w}, req.mutable_region());
+  req.set_billboards(true);
+  st = (*backend)->Render(req, [](const wire::RenderReply&) { return Status::OK(); });
+  EXPECT_TRUE(st.IsNotFound()) << st.ToString();
+  EXPECT_NE(st.ToString().find("no billboards"), std::string::npos) << st.ToString();
+  // A billboard whose maps do not decode is refused when stored.
+  Photo junk;
+  junk.camera = info->cameras[0];
+  {
+    std::ifstream f(dir / "r10.png", std::ios::binary);  // an image of the camera's size
+    junk.image.assign(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>());
+  }
+  junk.billboard.scale = 10;
+  junk.billboard.plane = {0, 0, 5};
+  junk.billboard.displacement = junk.image;  // 8-bit RGB, not 16-bit grey
+  junk.billboard.alpha = junk.image;
+  Status refused = (*backend)->PutPhoto("d", 0, junk);
+  EXPECT_TRUE(refused.IsInvalidArgument()) << refused.ToString();
+  EXPECT_NE(refused.ToString().find("displacement"), std::string::npos) << refused.ToString();
+}
+
 // Colour images in a format other than PNG or JPEG are stored as PNG with the frame (and
 // decode to the recorded pixels), so that a textured render can read them.
 TEST(Pipeline, PhotosInOtherFormatsAreStoredAsPng) {

@@ -7,6 +7,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <random>
 
 #include "storage/database.h"
@@ -41,6 +42,18 @@ void ExpectSame(const Photo& a, const Photo& b) {
   EXPECT_EQ(a.camera.distortion, b.camera.distortion);
   EXPECT_EQ(a.camera.world_from_camera, b.camera.world_from_camera);
   EXPECT_EQ(a.image, b.image);
+  EXPECT_EQ(a.billboard.scale, b.billboard.scale);
+  EXPECT_EQ(a.billboard.plane, b.billboard.plane);
+  EXPECT_EQ(a.billboard.displacement, b.billboard.displacement);
+  EXPECT_EQ(a.billboard.alpha, b.billboard.alpha);
+}
+
+Photo WithBillboard(Photo p) {
+  p.billboard.scale = 12.5;
+  p.billboard.plane = {0.01, -0.02, 9.5};
+  p.billboard.displacement.assign(33, '\x11');
+  p.billboard.alpha.assign(17, '\x22');
+  return p;
 }
 
 TEST(PhotosTest, StoredPerFrameAndCameraReplacedAndKept) {
@@ -99,17 +112,53 @@ TEST(PhotosTest, StoredPerFrameAndCameraReplacedAndKept) {
 }
 
 TEST(PhotosTest, DecoderRejectsEveryTruncationAndFlippedByte) {
-  const std::string good = EncodePhoto(Make(7, 40, 3));
-  ASSERT_TRUE(DecodePhoto(good, "x").ok());
-  for (size_t n = 0; n < good.size(); ++n) {
-    EXPECT_FALSE(DecodePhoto(good.substr(0, n), "x").ok()) << n;
+  for (const Photo& photo : {Make(7, 40, 3), WithBillboard(Make(7, 40, 3))}) {
+    const std::string good = EncodePhoto(photo);
+    ASSERT_TRUE(DecodePhoto(good, "x").ok());
+    for (size_t n = 0; n < good.size(); ++n) {
+      EXPECT_FALSE(DecodePhoto(good.substr(0, n), "x").ok()) << n;
+    }
+    std::mt19937 rng(5);
+    for (size_t i = 0; i < good.size(); ++i) {
+      std::string bad = good;
+      bad[i] = static_cast<char>(bad[i] ^ (1 + rng() % 255));
+      EXPECT_FALSE(DecodePhoto(bad, "x").ok()) << i;
+    }
   }
-  std::mt19937 rng(5);
-  for (size_t i = 0; i < good.size(); ++i) {
-    std::string bad = good;
-    bad[i] = static_cast<char>(bad[i] ^ (1 + rng() % 255));
-    EXPECT_FALSE(DecodePhoto(bad, "x").ok()) << i;
-  }
+}
+
+// Version 2 (docs/FORMAT.md "Photo"): a photo with its billboard round-trips through the
+// dataset; a photo without one stays version 1; a billboard without a scale or maps is refused.
+TEST(PhotosTest, BillboardsRoundTripAndAreChecked) {
+  const Photo plain = Make(3, 20, 1), board = WithBillboard(Make(4, 20, 2));
+  EXPECT_EQ(EncodePhoto(plain)[8], 1);
+  EXPECT_EQ(EncodePhoto(board)[8], 2);
+  auto decoded = DecodePhoto(EncodePhoto(board), "x");
+  ASSERT_TRUE(decoded.ok()) << decoded.status().ToString();
+  ExpectSame(board, *decoded);
+  TempDir dir;
+  auto db = Database::Open(dir.path());
+  ASSERT_TRUE(db.ok());
+  DatasetInfo info;
+  info.name = "v";
+  auto ds = (*db)->CreateDataset(info);
+  ASSERT_TRUE(ds.ok());
+  ASSERT_TRUE((*ds)->PutPhoto(0, board).ok());
+  ASSERT_TRUE((*ds)->PutPhoto(0, plain).ok());
+  auto photos = (*ds)->Photos(0);
+  ASSERT_TRUE(photos.ok());
+  ASSERT_EQ(photos->size(), 2u);
+  ExpectSame(plain, (*photos)[0]);
+  ExpectSame(board, (*photos)[1]);
+  Photo bad = board;
+  bad.billboard.alpha.clear();
+  EXPECT_TRUE((*ds)->PutPhoto(0, bad).IsInvalidArgument());
+  bad = board;
+  bad.billboard.scale = -1;
+  EXPECT_TRUE((*ds)->PutPhoto(0, bad).IsInvalidArgument());
+  bad = board;
+  bad.billboard.plane[1] = std::numeric_limits<double>::infinity();
+  EXPECT_TRUE((*ds)->PutPhoto(0, bad).IsInvalidArgument());
 }
 
 }  // namespace
