@@ -80,6 +80,12 @@ void RegisterRun(CLI::App& app, int* rc) {
   cmd->add_option("--billboard-iterations", a->o.billboard.iterations,
                   "billboard filter: inter-view passes")
       ->capture_default_str()->check(CLI::Range(1, 10));
+  cmd->add_option("--object-strokes", a->o.object_strokes,
+                  "with --filter billboard: only the object marked in stroke images (PATTERN with "
+                  "{camera}, relative to the recording; red on the object, blue on the rest, "
+                  "painted on --strokes-frame): each view cut by graph cut and matted (thesis 6.4)");
+  cmd->add_option("--strokes-frame", a->o.strokes_frame, "the recording frame the strokes were painted on")
+      ->capture_default_str();
   cmd->add_flag("--no-photo-consistency", a->no_photo, "no photo-consistency outlier removal");
   cmd->add_flag("--no-geometric-consistency", a->no_geometric,
                 "keep points that other views see through (no cross-view depth test)");

@@ -260,7 +260,63 @@ Result<FrameProcessor> FrameProcessor::Make(const Recording& rec, const IngestOp
       p.rect_.push_back(std::make_shared<const Rectification>(std::move(r)));
     }
   }
+  if (!p.opt_.object_strokes.empty()) HVDB_RETURN_IF_ERROR(p.FitObjectModels());
   return p;
+}
+
+Status FrameProcessor::FitObjectModels() {
+  const Recording& rec = *rec_;
+  if (opt_.filter != IngestOptions::Filter::kBillboard)
+    return Status::InvalidArgument("--object-strokes makes object billboards: it needs --filter billboard");
+  HVDB_RETURN_IF_ERROR(opt_.segmentation.Validate());
+  HVDB_RETURN_IF_ERROR(opt_.matting.Validate());
+  if (opt_.strokes_frame < 0 || opt_.strokes_frame >= rec.frames)
+    return Status::InvalidArgument("--strokes-frame " + std::to_string(opt_.strokes_frame) +
+                                   " is outside the recording's frames 0.." + std::to_string(rec.frames - 1));
+  HVDB_ASSIGN_OR_RETURN(FrameInput in, LoadFrame(rec, opt_.strokes_frame));
+  models_.assign(rec.calibration.bricks.size(), nullptr);
+  strokes_.assign(rec.calibration.bricks.size(), cv::Mat());
+  for (size_t j = 0; j < in.stereo.size(); ++j) {
+    const int brick = in.stereo[j].brick;
+    const CameraModel& cam = rec.calibration.cameras[static_cast<size_t>(rec.calibration.bricks[static_cast<size_t>(brick)].colour)];
+    const std::string path = rec.Path(opt_.object_strokes, opt_.strokes_frame, cam.name);
+    const cv::Mat painted = cv::imread(path, cv::IMREAD_COLOR);
+    if (painted.empty())
+      return Status::NotFound(path + ": no stroke image for camera " + cam.name +
+                              " (--object-strokes: red strokes on the object, blue on the rest)");
+    if (painted.size() != cam.size)
+      return Status::InvalidArgument(path + ": the stroke image is " + std::to_string(painted.cols) + "x" +
+                                     std::to_string(painted.rows) + ", camera " + cam.name + "'s images " +
+                                     std::to_string(cam.size.width) + "x" + std::to_string(cam.size.height));
+    cv::Mat marks(painted.size(), CV_8U, cv::Scalar(0));
+    for (int y = 0; y < painted.rows; ++y)
+      for (int x = 0; x < painted.cols; ++x) {
+        const cv::Vec3b c = painted.at<cv::Vec3b>(y, x);  // BGR
+        if (c[2] > 200 && c[1] < 60 && c[0] < 60) marks.at<uint8_t>(y, x) = kStrokeObject;
+        if (c[0] > 200 && c[1] < 60 && c[2] < 60) marks.at<uint8_t>(y, x) = kStrokeRest;
+      }
+    strokes_[static_cast<size_t>(brick)] = Undistort(cam, marks, /*nearest=*/true);
+    HVDB_ASSIGN_OR_RETURN(cv::Mat depth, ColourDepth(in, j));
+    auto model = SegmentationModel::Fit(Undistort(cam, in.stereo[j].colour), depth,
+                                        strokes_[static_cast<size_t>(brick)], opt_.segmentation);
+    if (!model.ok()) return Status::InvalidArgument(path + ": " + model.status().message());
+    models_[static_cast<size_t>(brick)] = std::make_shared<const SegmentationModel>(std::move(model).value());
+  }
+  return Status::OK();
+}
+
+Result<cv::Mat> FrameProcessor::ColourDepth(const FrameInput& in, size_t j) const {
+  const StereoView& v = in.stereo[j];
+  const Calibration& cal = rec_->calibration;
+  const Brick& b = cal.bricks[static_cast<size_t>(v.brick)];
+  const Rectification& r = *rect_[static_cast<size_t>(v.brick)];
+  cv::Mat l, rr;
+  Rectify(r, v.left, v.right, &l, &rr);
+  HVDB_ASSIGN_OR_RETURN(DisparityMap d, MatchStereo(l, rr, opt_.stereo));
+  const CameraModel colour = Pinhole(cal.cameras[static_cast<size_t>(b.colour)]);
+  cv::Mat depth = WarpDepth(r.left, DepthFromDisparity(d.d, r.baseline, r.left.K(0, 0), r.doffs), {}, colour).depth;
+  if (opt_.edge_radius > 0) depth = RemoveDepthEdges(depth, opt_.edge_jump, opt_.edge_radius);
+  return depth;
 }
 
 int FrameProcessor::window_radius() const {
@@ -324,12 +380,15 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
     const int st = spacetime();
     const bool billboard = opt_.filter == IngestOptions::Filter::kBillboard;
     // For the billboard filter, per brick: its colour camera and its depth in every frame.
+    const bool segment = billboard && !models_.empty();
     struct BrickDepths {
-      CameraModel colour;
+      CameraModel colour_camera;
       double scale = 0;
       cv::Mat colour_image;
       uint16_t id = 0;
-      std::vector<cv::Mat> depth;  // per frame of `frames`; empty: none
+      int brick = 0;
+      std::vector<cv::Mat> depth;   // per frame of `frames`; empty: none
+      std::vector<cv::Mat> colour;  // per frame, undistorted (with object strokes)
     };
     std::vector<BrickDepths> boards;
     // The brick's rectified pair in frame w of the window.
@@ -370,20 +429,18 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
       valid += ValidPct(depth);
       ++views;
       const CameraModel colour = Pinhole(cal.cameras[static_cast<size_t>(b.colour)]);
-      auto colour_depth = [&](const cv::Mat& d, const cv::Mat& s) {
-        WarpedDepth w = WarpDepth(r.left, d, s, colour);
-        if (opt_.edge_radius > 0) w.depth = RemoveDepthEdges(w.depth, opt_.edge_jump, opt_.edge_radius);
-        return w;
-      };
-      WarpedDepth w = colour_depth(depth, sigma);
+      WarpedDepth w = WarpDepth(r.left, depth, sigma, colour);
+      if (opt_.edge_radius > 0) w.depth = RemoveDepthEdges(w.depth, opt_.edge_jump, opt_.edge_radius);
       const cv::Mat colour_image = Undistort(cal.cameras[static_cast<size_t>(b.colour)], v.colour);
       colour_models.push_back(cal.cameras[static_cast<size_t>(b.colour)]);
       colour_images.push_back(v.colour);
       if (billboard) {
         // The frames around, matched on their own (single-frame stereo) for the filter.
         BrickDepths bd{colour, colour.K(0, 0) * r.baseline, colour_image,
-                       static_cast<uint16_t>(b.colour), std::vector<cv::Mat>(frames.size())};
+                       static_cast<uint16_t>(b.colour), v.brick, std::vector<cv::Mat>(frames.size()),
+                       std::vector<cv::Mat>(frames.size())};
         bd.depth[centre] = w.depth;
+        bd.colour[centre] = colour_image;
         rep->stage_ms["points"] += MsSince(t0);
         for (size_t f = 0; f < frames.size(); ++f) {
           if (f == centre || std::abs(static_cast<int>(f) - static_cast<int>(centre)) >
@@ -391,12 +448,11 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
             continue;
           t0 = Clock::now();
           cv::Mat lf, rf;
-          HVDB_RETURN_IF_ERROR(pair_at(f, j, r, &lf, &rf));
-          HVDB_ASSIGN_OR_RETURN(DisparityMap df, MatchStereo(lf, rf, opt_.stereo));
+          HVDB_RETURN_IF_ERROR(pair_at(f, j, r, &lf, &rf));  // checks the frame has the brick
+          HVDB_ASSIGN_OR_RETURN(bd.depth[f], ColourDepth(*frames[f], j));
+          if (segment)
+            bd.colour[f] = Undistort(cal.cameras[static_cast<size_t>(b.colour)], frames[f]->stereo[j].colour);
           rep->stage_ms["stereo"] += MsSince(t0);
-          t0 = Clock::now();
-          bd.depth[f] = colour_depth(DepthFromDisparity(df.d, r.baseline, fx, r.doffs), {}).depth;
-          rep->stage_ms["points"] += MsSince(t0);
         }
         boards.push_back(std::move(bd));
         continue;
@@ -419,6 +475,31 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
       // Thesis 6.1-6.2, 6.7: billboards of every brick in every frame, the centre frame's
       // filtered, and points from the filtered billboards.
       auto t0 = Clock::now();
+      // With object strokes (6.4): each view cut into the object and the rest over the frames
+      // it has, and matted; the mattes are the billboards' alpha. Without: alpha 1.
+      std::vector<std::vector<cv::Mat>> alphas(boards.size(), std::vector<cv::Mat>(frames.size()));
+      if (segment) {
+        for (size_t j = 0; j < boards.size(); ++j) {
+          const BrickDepths& bd = boards[j];
+          const auto& model = models_[static_cast<size_t>(bd.brick)];
+          if (model == nullptr) return Status::Internal("no segmentation model for brick " + std::to_string(bd.brick));
+          std::vector<size_t> have;
+          std::vector<cv::Mat> cs, ds, ss;
+          for (size_t f = 0; f < frames.size(); ++f) {
+            if (bd.depth[f].empty()) continue;
+            have.push_back(f);
+            cs.push_back(bd.colour[f]);
+            ds.push_back(bd.depth[f]);
+            ss.push_back(frames[f]->index == opt_.strokes_frame ? strokes_[static_cast<size_t>(bd.brick)] : cv::Mat());
+          }
+          HVDB_ASSIGN_OR_RETURN(std::vector<cv::Mat> labels, SegmentFrames(*model, cs, ds, ss, opt_.segmentation));
+          for (size_t k = 0; k < have.size(); ++k) {
+            HVDB_ASSIGN_OR_RETURN(alphas[j][have[k]], BayesianMatte(cs[k], labels[k], opt_.matting));
+          }
+        }
+        rep->stage_ms["segment"] += MsSince(t0);
+        t0 = Clock::now();
+      }
       std::vector<std::vector<Billboard>> bbs(frames.size(), std::vector<Billboard>(boards.size()));
       std::vector<std::vector<const Billboard*>> ptrs(frames.size(),
                                                       std::vector<const Billboard*>(boards.size()));
@@ -427,8 +508,8 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
           const BrickDepths& bd = boards[j];
           if (bd.depth[f].empty()) continue;
           // A view with too little depth for a plane has no billboard in that frame.
-          auto made = MakeBillboard(bd.colour, bd.depth[f], {}, f == centre ? bd.colour_image : cv::Mat(),
-                                    bd.scale);
+          auto made = MakeBillboard(bd.colour_camera, bd.depth[f], alphas[j][f],
+                                    f == centre ? bd.colour_image : cv::Mat(), bd.scale);
           if (!made.ok()) continue;
           bbs[f][j] = std::move(made).value();
           ptrs[f][j] = &bbs[f][j];
@@ -445,18 +526,18 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
         const cv::Mat disparity = BillboardDisparity(*bb, filtered[j]);
         const double fx = bb->camera.K(0, 0);
         DepthView dv;
-        dv.camera = &boards[j].colour;
+        dv.camera = &boards[j].colour_camera;
         dv.depth = BillboardDepth(*bb, filtered[j]);
         // Eq. 5.8 in the colour camera's disparity space: the filtered surface's slope.
         dv.sigma_z = DepthSigmaFromDisparity(disparity, DisparityDx(disparity), bb->scale / fx, fx,
                                              cal.SigmaC());
         dv.colour = boards[j].colour_image;
         dv.camera_id = boards[j].id;
-        HVDB_RETURN_IF_ERROR(write_depth(boards[j].colour.name, dv.depth));
+        HVDB_RETURN_IF_ERROR(write_depth(boards[j].colour_camera.name, dv.depth));
         if (billboards != nullptr) filtered_boards.push_back({boards[j].id, *bb, filtered[j]});
         std::vector<Point> pts = PointsFromDepth(dv, po);
         points.insert(points.end(), pts.begin(), pts.end());
-        depth_models.push_back(boards[j].colour);
+        depth_models.push_back(boards[j].colour_camera);
         depth_maps.push_back(dv.depth);
         depth_ids.push_back(dv.camera_id);
       }

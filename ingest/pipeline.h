@@ -30,6 +30,7 @@
 #include "ingest/photo_consistency.h"
 #include "ingest/points.h"
 #include "ingest/recording.h"
+#include "ingest/segmentation.h"
 #include "ingest/stereo.h"
 
 namespace hvdb::ingest {
@@ -53,6 +54,17 @@ struct IngestOptions {
   enum class Filter { kNone, kBillboard };
   Filter filter = Filter::kNone;
   BillboardFilterOptions billboard;
+  // With the billboard filter: only the object marked by brush strokes (thesis 6.4). A path
+  // pattern of one stroke image per colour camera ({camera}; relative to the recording, as in
+  // recording.yml) painted on recording frame `strokes_frame`: red (object) and blue (the
+  // rest) strokes, anything else unmarked. Per frame each view is cut into the object and the
+  // rest (segmentation's colour and depth models fitted to the strokes, a graph cut over the
+  // frames of the window) and matted at the boundary; the billboards' alpha is the matte and
+  // only the object becomes points.
+  std::string object_strokes;
+  int strokes_frame = 0;
+  SegmentationOptions segmentation;
+  MattingOptions matting;
   int stride = 1;              // depth: take every stride-th pixel
   bool normals = true;
   // Depth samples within this many pixels of a depth jump (> edge_jump of the depth) are
@@ -117,9 +129,18 @@ class FrameProcessor {
   int window_radius() const;
 
  private:
+  // Brick j's (of input.stereo) depth in its colour camera by single-frame stereo, mixed
+  // pixels removed.
+  Result<cv::Mat> ColourDepth(const FrameInput& input, size_t j) const;
+  // object_strokes: reads the strokes and fits each brick's segmentation model on them.
+  Status FitObjectModels();
+
   const Recording* rec_ = nullptr;
   IngestOptions opt_;
   std::vector<std::shared_ptr<const struct Rectification>> rect_;  // per brick
+  // object_strokes: per brick, the segmentation model and the strokes (undistorted, CV_8U).
+  std::vector<std::shared_ptr<const SegmentationModel>> models_;
+  std::vector<cv::Mat> strokes_;
 };
 
 // Runs the whole ingest. Returns an error for the first bad frame unless skip_bad_frames; the
