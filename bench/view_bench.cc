@@ -24,6 +24,7 @@
 #include <vector>
 
 #include "bench/real_recordings.h"
+#include "bench/view_generated.h"
 #include "client/backend.h"
 #include "ingest/pipeline.h"
 #include "ingest/recording.h"
@@ -134,10 +135,27 @@ int main(int argc, char** argv) {
   app.add_flag("--no-photo", no_photo, "ingest without photo-consistency");
   app.add_option("--edge-radius", edge_radius, "ingest's mixed-pixel removal radius (0: off)")->capture_default_str();
   app.add_flag("--quick", quick, "camera 4 only, stride 4 (CI smoke run)");
+  std::vector<std::string> parts = {"sjtu", "generated"};
+  app.add_option("--parts", parts, "sjtu: the SJTU stage against the warp; generated: a generated "
+                                   "recording, points against billboards")
+      ->capture_default_str()->check(CLI::IsMember({"sjtu", "generated"}));
   CLI11_PARSE(app, argc, argv);
+  const bool sjtu = std::find(parts.begin(), parts.end(), "sjtu") != parts.end();
+  const bool generated = std::find(parts.begin(), parts.end(), "generated") != parts.end();
   if (quick) held = {4}, stride = 4;
   const bool own_scratch = scratch.empty();
   if (own_scratch) scratch = (fs::temp_directory_path() / ("view-bench-" + std::to_string(getpid()))).string();
+  nlohmann::json figures = nlohmann::json::array();
+  if (generated) {
+    if (hvdb::bench::RunGeneratedViews({scratch, images, quick}, figures) != 0) return 1;
+  }
+  if (!sjtu) {
+    std::ofstream(out) << nlohmann::json{{"benchmark", "view"}, {"figures", figures}}.dump(2) << "\n";
+    std::printf("wrote %s\n", out.c_str());
+    std::error_code ec;
+    if (own_scratch) fs::remove_all(scratch, ec);
+    return 0;
+  }
   if (auto st = hvdb::bench::WriteSjtuRecording(shared, scratch + "/rec-sjtu"); !st.ok()) {
     std::fprintf(stderr, "view-bench: %s\n", st.ToString().c_str());
     return 1;
@@ -155,7 +173,6 @@ int main(int argc, char** argv) {
   if (!images.empty()) fs::create_directories(images);
   // Datasets of the held-out runs (removed at the end with the scratch folder).
   auto backend = hvdb::client::MakeEmbeddedBackend(scratch + "/data", size_t{256} << 20);
-  nlohmann::json figures = nlohmann::json::array();
   std::vector<double> gains;
   for (int id : held) {
     const std::string name = "cam" + std::to_string(id);
