@@ -6,6 +6,10 @@
 #include <limits>
 #include <thread>
 
+#include <opencv2/imgcodecs.hpp>
+
+#include "ingest/points.h"
+
 namespace hvdb::ingest {
 namespace {
 
@@ -204,6 +208,46 @@ cv::Mat BillboardDepth(const Billboard& bb, const cv::Mat& displacement, float m
       z.at<float>(y, x) = std::isfinite(dv) ? static_cast<float>(bb.scale / dv) : 0.f;
     }
   return z;
+}
+
+cv::Mat BillboardDepthSigma(const Billboard& bb, const cv::Mat& displacement, double sigma_c) {
+  const cv::Mat d = BillboardDisparity(bb, displacement);
+  // Central differences along x; one-sided at a hole's edge, 0 where no neighbour has one.
+  cv::Mat dx(d.size(), CV_32F, cv::Scalar(0));
+  for (int y = 0; y < d.rows; ++y) {
+    const float* r = d.ptr<float>(y);
+    float* o = dx.ptr<float>(y);
+    for (int x = 0; x < d.cols; ++x) {
+      const bool l = x > 0 && std::isfinite(r[x - 1]), c = std::isfinite(r[x]),
+                 g = x + 1 < d.cols && std::isfinite(r[x + 1]);
+      if (!c) continue;
+      o[x] = l && g ? (r[x + 1] - r[x - 1]) / 2 : l ? r[x] - r[x - 1] : g ? r[x + 1] - r[x] : 0.f;
+    }
+  }
+  const double fx = bb.camera.K(0, 0);
+  return DepthSigmaFromDisparity(d, dx, bb.scale / fx, fx, sigma_c);
+}
+
+Result<PhotoBillboard> EncodeBillboard(const Billboard& bb, const cv::Mat& displacement_in) {
+  const cv::Mat& displacement = displacement_in.empty() ? bb.displacement : displacement_in;
+  cv::Mat d16(displacement.size(), CV_16U), a8(displacement.size(), CV_8U);
+  for (int y = 0; y < d16.rows; ++y)
+    for (int x = 0; x < d16.cols; ++x) {
+      const float d = displacement.at<float>(y, x), a = bb.alpha.at<float>(y, x);
+      d16.at<uint16_t>(y, x) = std::isfinite(d) && a > 0
+                                   ? static_cast<uint16_t>(std::clamp(std::lround((d + 128.0) * 256.0), 1L, 65535L))
+                                   : 0;
+      a8.at<uint8_t>(y, x) = static_cast<uint8_t>(std::lround(std::clamp(a, 0.f, 1.f) * 255));
+    }
+  PhotoBillboard out;
+  out.scale = bb.scale;
+  out.plane = {bb.plane[0], bb.plane[1], bb.plane[2]};
+  std::vector<uint8_t> enc;
+  if (!cv::imencode(".png", d16, enc)) return Status::Internal("billboard: cannot encode its displacement map");
+  out.displacement.assign(enc.begin(), enc.end());
+  if (!cv::imencode(".png", a8, enc)) return Status::Internal("billboard: cannot encode its alpha map");
+  out.alpha.assign(enc.begin(), enc.end());
+  return out;
 }
 
 Status BillboardFilterOptions::Validate() const {

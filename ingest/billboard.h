@@ -26,6 +26,7 @@
 #include <vector>
 
 #include "ingest/calibration.h"
+#include "storage/database.h"
 #include "storage/status.h"
 
 namespace hvdb::ingest {
@@ -63,6 +64,16 @@ cv::Mat BillboardDepth(const Billboard& billboard, const cv::Mat& displacement =
 // uncertainty (DepthSigmaFromDisparity with baseline = s / fx).
 cv::Mat BillboardDisparity(const Billboard& billboard, const cv::Mat& displacement = {},
                            float min_alpha = 0.5f);
+
+// Eq. 5.8's depth uncertainty of the billboard's samples (CV_32F metres, +inf where there is no
+// sample): its disparity space is a stereo pair's with baseline s / fx, and the slope along x
+// of the (filtered) disparity widens it, as the LM's gradient does for plain stereo.
+cv::Mat BillboardDepthSigma(const Billboard& billboard, const cv::Mat& displacement, double sigma_c);
+
+// The billboard as the dataset keeps it with its photo (docs/FORMAT.md "Photo", version 2):
+// scale, plane, the displacement map as a 16-bit grey PNG of (D + 128) * 256 (0: no sample),
+// alpha as an 8-bit grey PNG. `displacement` replaces the billboard's own if not empty.
+Result<PhotoBillboard> EncodeBillboard(const Billboard& billboard, const cv::Mat& displacement = {});
 
 struct BillboardFilterOptions {
   // Spatial support of the B-spline: (2 radius + 1)^2 pixels (the thesis: 21 x 21).

@@ -68,7 +68,8 @@ struct PhotoConsistencyStats {
 // the splats in front of it, and a removal changes what the next view sees), so threads are
 // spent on what is independent: projecting the points and converting the image to YUV, chunked
 // over threads, and projecting + depth-sorting view v+1 in the background while view v is
-// tested (removals from view v are applied when view v+1 is tested, so this is exact).
+// tested (removals from view v are applied when view v+1 is tested, so this is exact). Within
+// a splat, eight pixels of a row are evaluated at once (render/simd.h).
 std::vector<uint8_t> PhotoConsistencyMask(std::span<const Point> points,
                                           std::span<const ColourView> views,
                                           const PhotoConsistencyOptions& options,

@@ -38,46 +38,6 @@ double PeakRssMb() {
 
 int HardwareThreads() { return std::max(1, static_cast<int>(std::thread::hardware_concurrency())); }
 
-// A filtered billboard as the dataset keeps it with its photo (docs/FORMAT.md "Photo",
-// version 2): the displacement map as 16-bit PNG of (D + 128) * 256 (0: none), alpha as 8-bit.
-Result<PhotoBillboard> EncodeBillboard(const Billboard& bb, const cv::Mat& displacement) {
-  cv::Mat d16(displacement.size(), CV_16U), a8(displacement.size(), CV_8U);
-  for (int y = 0; y < d16.rows; ++y)
-    for (int x = 0; x < d16.cols; ++x) {
-      const float d = displacement.at<float>(y, x), a = bb.alpha.at<float>(y, x);
-      d16.at<uint16_t>(y, x) = std::isfinite(d) && a > 0
-                                   ? static_cast<uint16_t>(std::clamp(std::lround((d + 128.0) * 256.0), 1L, 65535L))
-                                   : 0;
-      a8.at<uint8_t>(y, x) = static_cast<uint8_t>(std::lround(std::clamp(a, 0.f, 1.f) * 255));
-    }
-  PhotoBillboard out;
-  out.scale = bb.scale;
-  out.plane = {bb.plane[0], bb.plane[1], bb.plane[2]};
-  std::vector<uint8_t> enc;
-  if (!cv::imencode(".png", d16, enc)) return Status::Internal("billboard: cannot encode its displacement map");
-  out.displacement.assign(enc.begin(), enc.end());
-  if (!cv::imencode(".png", a8, enc)) return Status::Internal("billboard: cannot encode its alpha map");
-  out.alpha.assign(enc.begin(), enc.end());
-  return out;
-}
-
-// Central differences along x of a disparity map (+inf = none); one-sided at a hole's edge,
-// 0 where neither neighbour has a disparity.
-cv::Mat DisparityDx(const cv::Mat& d) {
-  cv::Mat dx(d.size(), CV_32F, cv::Scalar(0));
-  for (int y = 0; y < d.rows; ++y) {
-    const float* r = d.ptr<float>(y);
-    float* o = dx.ptr<float>(y);
-    for (int x = 0; x < d.cols; ++x) {
-      const bool l = x > 0 && std::isfinite(r[x - 1]), c = std::isfinite(r[x]),
-                 g = x + 1 < d.cols && std::isfinite(r[x + 1]);
-      if (!c) continue;
-      o[x] = l && g ? (r[x + 1] - r[x - 1]) / 2 : l ? r[x] - r[x - 1] : g ? r[x + 1] - r[x] : 0.f;
-    }
-  }
-  return dx;
-}
-
 double ValidPct(const cv::Mat& depth) {
   if (depth.empty()) return 0;
   return 100.0 * cv::countNonZero(depth > 0) / static_cast<double>(depth.total());
@@ -262,61 +222,6 @@ Result<FrameProcessor> FrameProcessor::Make(const Recording& rec, const IngestOp
   }
   if (!p.opt_.object_strokes.empty()) HVDB_RETURN_IF_ERROR(p.FitObjectModels());
   return p;
-}
-
-Status FrameProcessor::FitObjectModels() {
-  const Recording& rec = *rec_;
-  if (opt_.filter != IngestOptions::Filter::kBillboard)
-    return Status::InvalidArgument("--object-strokes makes object billboards: it needs --filter billboard");
-  HVDB_RETURN_IF_ERROR(opt_.segmentation.Validate());
-  HVDB_RETURN_IF_ERROR(opt_.matting.Validate());
-  if (opt_.strokes_frame < 0 || opt_.strokes_frame >= rec.frames)
-    return Status::InvalidArgument("--strokes-frame " + std::to_string(opt_.strokes_frame) +
-                                   " is outside the recording's frames 0.." + std::to_string(rec.frames - 1));
-  HVDB_ASSIGN_OR_RETURN(FrameInput in, LoadFrame(rec, opt_.strokes_frame));
-  models_.assign(rec.calibration.bricks.size(), nullptr);
-  strokes_.assign(rec.calibration.bricks.size(), cv::Mat());
-  for (size_t j = 0; j < in.stereo.size(); ++j) {
-    const int brick = in.stereo[j].brick;
-    const CameraModel& cam = rec.calibration.cameras[static_cast<size_t>(rec.calibration.bricks[static_cast<size_t>(brick)].colour)];
-    const std::string path = rec.Path(opt_.object_strokes, opt_.strokes_frame, cam.name);
-    const cv::Mat painted = cv::imread(path, cv::IMREAD_COLOR);
-    if (painted.empty())
-      return Status::NotFound(path + ": no stroke image for camera " + cam.name +
-                              " (--object-strokes: red strokes on the object, blue on the rest)");
-    if (painted.size() != cam.size)
-      return Status::InvalidArgument(path + ": the stroke image is " + std::to_string(painted.cols) + "x" +
-                                     std::to_string(painted.rows) + ", camera " + cam.name + "'s images " +
-                                     std::to_string(cam.size.width) + "x" + std::to_string(cam.size.height));
-    cv::Mat marks(painted.size(), CV_8U, cv::Scalar(0));
-    for (int y = 0; y < painted.rows; ++y)
-      for (int x = 0; x < painted.cols; ++x) {
-        const cv::Vec3b c = painted.at<cv::Vec3b>(y, x);  // BGR
-        if (c[2] > 200 && c[1] < 60 && c[0] < 60) marks.at<uint8_t>(y, x) = kStrokeObject;
-        if (c[0] > 200 && c[1] < 60 && c[2] < 60) marks.at<uint8_t>(y, x) = kStrokeRest;
-      }
-    strokes_[static_cast<size_t>(brick)] = Undistort(cam, marks, /*nearest=*/true);
-    HVDB_ASSIGN_OR_RETURN(cv::Mat depth, ColourDepth(in, j));
-    auto model = SegmentationModel::Fit(Undistort(cam, in.stereo[j].colour), depth,
-                                        strokes_[static_cast<size_t>(brick)], opt_.segmentation);
-    if (!model.ok()) return Status::InvalidArgument(path + ": " + model.status().message());
-    models_[static_cast<size_t>(brick)] = std::make_shared<const SegmentationModel>(std::move(model).value());
-  }
-  return Status::OK();
-}
-
-Result<cv::Mat> FrameProcessor::ColourDepth(const FrameInput& in, size_t j) const {
-  const StereoView& v = in.stereo[j];
-  const Calibration& cal = rec_->calibration;
-  const Brick& b = cal.bricks[static_cast<size_t>(v.brick)];
-  const Rectification& r = *rect_[static_cast<size_t>(v.brick)];
-  cv::Mat l, rr;
-  Rectify(r, v.left, v.right, &l, &rr);
-  HVDB_ASSIGN_OR_RETURN(DisparityMap d, MatchStereo(l, rr, opt_.stereo));
-  const CameraModel colour = Pinhole(cal.cameras[static_cast<size_t>(b.colour)]);
-  cv::Mat depth = WarpDepth(r.left, DepthFromDisparity(d.d, r.baseline, r.left.K(0, 0), r.doffs), {}, colour).depth;
-  if (opt_.edge_radius > 0) depth = RemoveDepthEdges(depth, opt_.edge_jump, opt_.edge_radius);
-  return depth;
 }
 
 int FrameProcessor::window_radius() const {
@@ -523,14 +428,10 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
       for (size_t j = 0; j < boards.size(); ++j) {
         const Billboard* bb = ptrs[centre][j];
         if (bb == nullptr) continue;
-        const cv::Mat disparity = BillboardDisparity(*bb, filtered[j]);
-        const double fx = bb->camera.K(0, 0);
         DepthView dv;
         dv.camera = &boards[j].colour_camera;
         dv.depth = BillboardDepth(*bb, filtered[j]);
-        // Eq. 5.8 in the colour camera's disparity space: the filtered surface's slope.
-        dv.sigma_z = DepthSigmaFromDisparity(disparity, DisparityDx(disparity), bb->scale / fx, fx,
-                                             cal.SigmaC());
+        dv.sigma_z = BillboardDepthSigma(*bb, filtered[j], cal.SigmaC());
         dv.colour = boards[j].colour_image;
         dv.camera_id = boards[j].id;
         HVDB_RETURN_IF_ERROR(write_depth(boards[j].colour_camera.name, dv.depth));
