@@ -236,6 +236,10 @@ def test_render_equals_the_cli_image(env, tmp_path):
     with pytest.raises(hvdb.NotFound, match="no photos"):
         env.db.render(DATASET, 5 / FPS, look_at=look, size=(160, 120), renderer="cpu",
                       texture=True)
+    # Nor has it billboards (hvdb-ingest --filter billboard stores them).
+    with pytest.raises(hvdb.NotFound, match="no billboards"):
+        env.db.render(DATASET, 5 / FPS, look_at=look, size=(160, 120), renderer="cpu",
+                      billboards=True)
 
 
 def test_queries_run_in_threads(env):
