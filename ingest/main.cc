@@ -49,7 +49,7 @@ void RegisterRun(CLI::App& app, int* rc) {
   cmd->add_option("--frame-offset", a->o.frame_offset, "dataset frame of recording frame 0")->capture_default_str();
   cmd->add_flag("--skip-bad-frames", a->o.skip_bad_frames, "report bad frames and go on without them");
   cmd->add_option("--report", a->report, "write the JSON report (per-frame statistics) here");
-  cmd->add_option("--depth-out", a->o.depth_out, "write every depth map made as DIR/NNNNNN/<camera>.depth.exr");
+  cmd->add_option("--depth-out", a->o.depth_out, "write every depth map made as DIR/NNNNNN/<camera>.depth.exr (with --object-strokes also each view's matte, <camera>.alpha.png: check strokes on a few frames first)");
   cmd->add_option("--stride", a->o.stride, "depth: use every n-th pixel in x and y")->capture_default_str();
   cmd->add_option("--min-disparity", a->o.stereo.min_disparity, "stereo: smallest disparity (px)")->capture_default_str();
   cmd->add_option("--num-disparities", a->o.stereo.num_disparities, "stereo: disparities searched")->capture_default_str();

@@ -268,14 +268,18 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
     cv::Mat displacement;
   };
   std::vector<FilteredBoard> filtered_boards;
-  auto write_depth = [&](const std::string& camera, const cv::Mat& depth) -> Status {
-    if (opt_.depth_out.empty()) return Status::OK();
+  // --depth-out: DIR/NNNNNN/<camera>.depth.exr, and with object strokes <camera>.alpha.png.
+  auto out_path = [&](const std::string& file) {
     char dir[16];
     std::snprintf(dir, sizeof dir, "%06d", in.index);
     const auto path = std::filesystem::path(opt_.depth_out) / dir;
     std::error_code ec;
     std::filesystem::create_directories(path, ec);
-    return WriteDepthExr((path / (camera + ".depth.exr")).string(), depth);
+    return (path / file).string();
+  };
+  auto write_depth = [&](const std::string& camera, const cv::Mat& depth) -> Status {
+    if (opt_.depth_out.empty()) return Status::OK();
+    return WriteDepthExr(out_path(camera + ".depth.exr"), depth);
   };
   if (rec.kind == RecordingKind::kStereo) {
     std::vector<const FrameInput*> frames = window;
@@ -400,6 +404,12 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
           HVDB_ASSIGN_OR_RETURN(std::vector<cv::Mat> labels, SegmentFrames(*model, cs, ds, ss, opt_.segmentation));
           for (size_t k = 0; k < have.size(); ++k) {
             HVDB_ASSIGN_OR_RETURN(alphas[j][have[k]], BayesianMatte(cs[k], labels[k], opt_.matting));
+            if (!opt_.depth_out.empty() && have[k] == centre) {
+              cv::Mat a8;
+              alphas[j][have[k]].convertTo(a8, CV_8U, 255);
+              const std::string path = out_path(bd.colour_camera.name + ".alpha.png");
+              if (!cv::imwrite(path, a8)) return Status::IOError(path + ": cannot write the matte");
+            }
           }
         }
         rep->stage_ms["segment"] += MsSince(t0);

@@ -1,22 +1,24 @@
 #!/usr/bin/env bash
 # Runs every test: set-up (packages + warnings-as-errors build), the full CTest suite, then
-# the storage tests again under AddressSanitizer + UndefinedBehaviorSanitizer.
+# the storage, server, codec and ingest point tests again under AddressSanitizer +
+# UndefinedBehaviorSanitizer, then the decoders under libFuzzer.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 bash scripts/setup.sh
 ctest --test-dir build --output-on-failure -j2 --timeout 900
 
-# Sanitizers: a separate Debug build of the storage and server tests (the tests that bound the
-# server's resident memory are left out: ASan's shadow memory and quarantine are what they would
-# measure).
+# Sanitizers: a separate Debug build of the storage, server and codec tests, and of ingest's
+# point stages (photo-consistency's vector loops, billboards, segmentation). The tests that bound
+# the server's resident memory are left out (ASan's shadow memory and quarantine are what they
+# would measure), and so is photo-consistency's throughput test.
 cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=Debug -DHVDB_SANITIZE=ON -DHVDB_WERROR=ON \
   -DHVDB_BUILD_BENCH=OFF >/dev/null
-cmake --build build-asan --target storage_tests server_tests codec_tests
+cmake --build build-asan --target storage_tests server_tests codec_tests ingest_points_tests
 ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
   ctest --test-dir build-asan --output-on-failure -j2 --timeout 900 \
-  -R '^(Crc32c|Point|BufferPool|Lod|KdTree|Hyperslice|Wal|Dataset|FollowerTest|Photos|Crash|Corruption|FaultInjection|Server|HttpServer|WsCodec|WebPath|OriginAllowed|CodecTest)' \
-  -E 'SlowReaderDoesNotGrowServerMemory|AClientThatNeverReleasesHoldsOnlyItsRing|ClientsKilledWhileHoldingSlotsLeakNothing'
+  -R '^(Crc32c|Point|BufferPool|Lod|KdTree|Hyperslice|Wal|Dataset|FollowerTest|Photos|Crash|Corruption|FaultInjection|Server|HttpServer|WsCodec|WebPath|OriginAllowed|CodecTest|DepthSigma|PhotoConsistency|GeometricConsistencyTest|BillboardTest|SegmentationTest)' \
+  -E 'SlowReaderDoesNotGrowServerMemory|AClientThatNeverReleasesHoldsOnlyItsRing|ClientsKilledWhileHoldingSlotsLeakNothing|PhotoConsistency.Throughput'
 
 # Fuzz the decoders with clang's libFuzzer, 20 seconds each: the frame and message decoder of
 # the socket protocol, the WebSocket messages and HTTP paths of the browser's, the hvdb7

@@ -556,6 +556,7 @@ TEST(Pipeline, ObjectStrokesIngestTheMarkedObjectOnly) {
   o.filter = IngestOptions::Filter::kBillboard;
   o.stereo.subpixel = Subpixel::kParabola;
   o.object_strokes = "strokes/{camera}.png";
+  o.depth_out = dir / "out";  // also writes each view's matte
   auto proc = FrameProcessor::Make(*rec, o);
   ASSERT_TRUE(proc.ok()) << proc.status().ToString();
   std::vector<FrameInput> frames;
@@ -590,6 +591,15 @@ TEST(Pipeline, ObjectStrokesIngestTheMarkedObjectOnly) {
       }
     }
     EXPECT_EQ(boards.size(), rec->calibration.bricks.size());
+  }
+  // The mattes written with the depth maps cover the box (in the undistorted image).
+  for (auto [cam, n] : box_pixels) {
+    const cv::Mat matte = cv::imread(dir / "out/000001" + "/" + rec->calibration.cameras[cam].name + ".alpha.png",
+                                     cv::IMREAD_UNCHANGED);
+    ASSERT_FALSE(matte.empty());
+    const int object = cv::countNonZero(matte >= 128);
+    EXPECT_GT(object, 0.8 * n) << "camera " << cam;
+    EXPECT_LT(object, 1.2 * n) << "camera " << cam;
   }
   // Clear errors: strokes need the billboard filter; a camera without its stroke image.
   IngestOptions plain = o;
