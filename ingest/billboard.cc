@@ -394,8 +394,14 @@ Result<std::vector<cv::Mat>> FilterBillboards(
           Billboard self = bv;
           self.displacement = current[v];
           layers.push_back(GridLayer(self, self, w));
-        } else {
+        } else if (b->camera.K == bv.camera.K && b->camera.R == bv.camera.R && b->camera.T == bv.camera.T) {
           layers.push_back(GridLayer(*b, bv, w));
+        } else {
+          // The camera moved (a hand-held depth camera): that frame's samples are reprojected
+          // as another view's are.
+          Layer l = WarpedLayer(*b, b->displacement, bv, dd);
+          l.w = w;
+          layers.push_back(std::move(l));
         }
       }
       if (o.inter_view)

@@ -90,7 +90,8 @@ struct BillboardFilterOptions {
 
 // Filters the displacement maps of the billboards of frame `centre`. window[t][v]: view v's
 // billboard at frame t of the window (views in the same order in every frame; a missing one
-// has an empty displacement map); window[centre] are the billboards filtered. Returns one
+// has an empty displacement map); window[centre] are the billboards filtered. A view whose
+// camera moved between frames has its other frames' samples reprojected like another view's. Returns one
 // CV_32F displacement map per view of window[centre] (NaN where there was none: the filter
 // smooths, it does not fill holes).
 Result<std::vector<cv::Mat>> FilterBillboards(

@@ -64,9 +64,10 @@ void RegisterRun(CLI::App& app, int* rc) {
                   "winner) or lm (Levenberg-Marquardt on disparity and its gradients)")
       ->capture_default_str()->check(CLI::IsMember({"none", "parabola", "lm"}));
   cmd->add_option("--filter", a->filter,
-                  "stereo: none, or billboard: each brick's depth as a billboard in its colour "
-                  "camera smoothed by the bilateral filter of thesis 6.2 over the frames around "
-                  "and the other bricks, in place of the LM (then --subpixel defaults to parabola)")
+                  "none, or billboard: each view's depth as a billboard in its colour camera "
+                  "smoothed by the bilateral filter of thesis 6.2 over the frames around and the "
+                  "other views; for stereo in place of the LM (then --subpixel defaults to "
+                  "parabola), for depth recordings with --billboard-baseline")
       ->capture_default_str()->check(CLI::IsMember({"none", "billboard"}));
   cmd->add_option("--billboard-radius", a->o.billboard.radius,
                   "billboard filter: B-spline support radius in pixels (thesis: 10, 21 x 21)")
@@ -77,6 +78,10 @@ void RegisterRun(CLI::App& app, int* rc) {
   cmd->add_option("--billboard-delta", a->o.billboard.delta_d,
                   "billboard filter: range threshold in disparity pixels (eq. 6.8)")
       ->capture_default_str()->check(CLI::PositiveNumber);
+  cmd->add_option("--billboard-baseline", a->o.billboard_baseline,
+                  "billboard filter, depth recordings: the depth sensor's baseline in metres (a "
+                  "Kinect v1's: 0.075); its disparity space is fx * baseline / z")
+      ->check(CLI::PositiveNumber);
   cmd->add_option("--billboard-iterations", a->o.billboard.iterations,
                   "billboard filter: inter-view passes")
       ->capture_default_str()->check(CLI::Range(1, 10));

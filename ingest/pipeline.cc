@@ -204,11 +204,13 @@ Result<FrameProcessor> FrameProcessor::Make(const Recording& rec, const IngestOp
   p.opt_ = options;
   if (p.opt_.stride < 1) return Status::InvalidArgument("stride must be >= 1");
   if (p.opt_.filter == IngestOptions::Filter::kBillboard) {
-    if (rec.kind != RecordingKind::kStereo)
+    if (rec.kind == RecordingKind::kPly)
+      return Status::InvalidArgument("the billboard filter works on depth maps: a PLY recording has "
+                                     "none; ingest it without --filter billboard");
+    if (rec.kind == RecordingKind::kDepth && !(p.opt_.billboard_baseline > 0 && p.opt_.billboard_baseline < 10))
       return Status::InvalidArgument(
-          "the billboard filter works in a stereo pair's disparity space: it needs a stereo "
-          "recording (this one is " + std::string(rec.kind == RecordingKind::kDepth ? "depth" : "PLY") +
-          "); ingest it without --filter billboard");
+          "the billboard filter works in disparity space: for a depth recording give the sensor's "
+          "baseline with --billboard-baseline METRES (a Kinect v1's is 0.075)");
     HVDB_RETURN_IF_ERROR(p.opt_.billboard.Validate());
   }
   if (rec.kind == RecordingKind::kStereo) {
@@ -226,7 +228,7 @@ Result<FrameProcessor> FrameProcessor::Make(const Recording& rec, const IngestOp
 
 int FrameProcessor::window_radius() const {
   const int bb = opt_.filter == IngestOptions::Filter::kBillboard ? opt_.billboard.temporal_radius : 0;
-  return std::max(spacetime(), rec_->kind == RecordingKind::kStereo ? bb : 0);
+  return std::max(spacetime(), rec_->kind == RecordingKind::kPly ? 0 : bb);
 }
 
 int FrameProcessor::spacetime() const {
@@ -281,25 +283,29 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
     if (opt_.depth_out.empty()) return Status::OK();
     return WriteDepthExr(out_path(camera + ".depth.exr"), depth);
   };
+  std::vector<const FrameInput*> frames = window;
+  if (frames.empty()) frames = {&in}, centre = 0;
+  if (centre >= frames.size() || frames[centre] != &in)
+    return Status::InvalidArgument("frame window: its centre is not the frame processed");
+  const bool billboard = opt_.filter == IngestOptions::Filter::kBillboard;
+  const bool segment = billboard && !models_.empty();
+  // For the billboard filter, per view (a brick's colour camera, or a depth camera): its
+  // camera and depth in every frame of the window within the filter's reach.
+  struct ViewDepths {
+    std::vector<CameraModel> camera;  // per frame of `frames` (a depth camera may move)
+    double scale = 0;                 // d = scale / z
+    cv::Mat colour_image;             // the centre frame's, undistorted
+    uint16_t id = 0;
+    int brick = -1;                   // stereo: the brick (its segmentation model)
+    std::vector<cv::Mat> depth;       // per frame; empty: none
+    std::vector<cv::Mat> colour;      // per frame, undistorted (with object strokes)
+  };
+  std::vector<ViewDepths> boards;
+  auto within_reach = [&](size_t f) {
+    return std::abs(static_cast<int>(f) - static_cast<int>(centre)) <= opt_.billboard.temporal_radius;
+  };
   if (rec.kind == RecordingKind::kStereo) {
-    std::vector<const FrameInput*> frames = window;
-    if (frames.empty()) frames = {&in}, centre = 0;
-    if (centre >= frames.size() || frames[centre] != &in)
-      return Status::InvalidArgument("frame window: its centre is not the frame processed");
     const int st = spacetime();
-    const bool billboard = opt_.filter == IngestOptions::Filter::kBillboard;
-    // For the billboard filter, per brick: its colour camera and its depth in every frame.
-    const bool segment = billboard && !models_.empty();
-    struct BrickDepths {
-      CameraModel colour_camera;
-      double scale = 0;
-      cv::Mat colour_image;
-      uint16_t id = 0;
-      int brick = 0;
-      std::vector<cv::Mat> depth;   // per frame of `frames`; empty: none
-      std::vector<cv::Mat> colour;  // per frame, undistorted (with object strokes)
-    };
-    std::vector<BrickDepths> boards;
     // The brick's rectified pair in frame w of the window.
     auto pair_at = [&](size_t w, size_t j, const Rectification& r, cv::Mat* l, cv::Mat* rr) -> Status {
       const auto& pairs = frames[w]->stereo;
@@ -345,16 +351,14 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
       colour_images.push_back(v.colour);
       if (billboard) {
         // The frames around, matched on their own (single-frame stereo) for the filter.
-        BrickDepths bd{colour, colour.K(0, 0) * r.baseline, colour_image,
-                       static_cast<uint16_t>(b.colour), v.brick, std::vector<cv::Mat>(frames.size()),
-                       std::vector<cv::Mat>(frames.size())};
+        ViewDepths bd{std::vector<CameraModel>(frames.size(), colour), colour.K(0, 0) * r.baseline,
+                      colour_image, static_cast<uint16_t>(b.colour), v.brick,
+                      std::vector<cv::Mat>(frames.size()), std::vector<cv::Mat>(frames.size())};
         bd.depth[centre] = w.depth;
         bd.colour[centre] = colour_image;
         rep->stage_ms["points"] += MsSince(t0);
         for (size_t f = 0; f < frames.size(); ++f) {
-          if (f == centre || std::abs(static_cast<int>(f) - static_cast<int>(centre)) >
-                                 opt_.billboard.temporal_radius)
-            continue;
+          if (f == centre || !within_reach(f)) continue;
           t0 = Clock::now();
           cv::Mat lf, rf;
           HVDB_RETURN_IF_ERROR(pair_at(f, j, r, &lf, &rf));  // checks the frame has the brick
@@ -380,92 +384,42 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
       depth_ids.push_back(dv.camera_id);
       rep->stage_ms["points"] += MsSince(t0);
     }
-    if (billboard && !boards.empty()) {
-      // Thesis 6.1-6.2, 6.7: billboards of every brick in every frame, the centre frame's
-      // filtered, and points from the filtered billboards.
-      auto t0 = Clock::now();
-      // With object strokes (6.4): each view cut into the object and the rest over the frames
-      // it has, and matted; the mattes are the billboards' alpha. Without: alpha 1.
-      std::vector<std::vector<cv::Mat>> alphas(boards.size(), std::vector<cv::Mat>(frames.size()));
-      if (segment) {
-        for (size_t j = 0; j < boards.size(); ++j) {
-          const BrickDepths& bd = boards[j];
-          const auto& model = models_[static_cast<size_t>(bd.brick)];
-          if (model == nullptr) return Status::Internal("no segmentation model for brick " + std::to_string(bd.brick));
-          std::vector<size_t> have;
-          std::vector<cv::Mat> cs, ds, ss;
-          for (size_t f = 0; f < frames.size(); ++f) {
-            if (bd.depth[f].empty()) continue;
-            have.push_back(f);
-            cs.push_back(bd.colour[f]);
-            ds.push_back(bd.depth[f]);
-            ss.push_back(frames[f]->index == opt_.strokes_frame ? strokes_[static_cast<size_t>(bd.brick)] : cv::Mat());
-          }
-          HVDB_ASSIGN_OR_RETURN(std::vector<cv::Mat> labels, SegmentFrames(*model, cs, ds, ss, opt_.segmentation));
-          for (size_t k = 0; k < have.size(); ++k) {
-            HVDB_ASSIGN_OR_RETURN(alphas[j][have[k]], BayesianMatte(cs[k], labels[k], opt_.matting));
-            if (!opt_.depth_out.empty() && have[k] == centre) {
-              cv::Mat a8;
-              alphas[j][have[k]].convertTo(a8, CV_8U, 255);
-              const std::string path = out_path(bd.colour_camera.name + ".alpha.png");
-              if (!cv::imwrite(path, a8)) return Status::IOError(path + ": cannot write the matte");
-            }
-          }
-        }
-        rep->stage_ms["segment"] += MsSince(t0);
-        t0 = Clock::now();
-      }
-      std::vector<std::vector<Billboard>> bbs(frames.size(), std::vector<Billboard>(boards.size()));
-      std::vector<std::vector<const Billboard*>> ptrs(frames.size(),
-                                                      std::vector<const Billboard*>(boards.size()));
-      for (size_t f = 0; f < frames.size(); ++f) {
-        for (size_t j = 0; j < boards.size(); ++j) {
-          const BrickDepths& bd = boards[j];
-          if (bd.depth[f].empty()) continue;
-          // A view with too little depth for a plane has no billboard in that frame.
-          auto made = MakeBillboard(bd.colour_camera, bd.depth[f], alphas[j][f],
-                                    f == centre ? bd.colour_image : cv::Mat(), bd.scale);
-          if (!made.ok()) continue;
-          bbs[f][j] = std::move(made).value();
-          ptrs[f][j] = &bbs[f][j];
-        }
-      }
-      BillboardFilterOptions fo = opt_.billboard;
-      if (fo.threads == 0) fo.threads = std::max(1, HardwareThreads() / std::max(1, opt_.workers));
-      HVDB_ASSIGN_OR_RETURN(std::vector<cv::Mat> filtered, FilterBillboards(ptrs, centre, fo));
-      rep->stage_ms["billboard"] += MsSince(t0);
-      t0 = Clock::now();
-      for (size_t j = 0; j < boards.size(); ++j) {
-        const Billboard* bb = ptrs[centre][j];
-        if (bb == nullptr) continue;
-        DepthView dv;
-        dv.camera = &boards[j].colour_camera;
-        dv.depth = BillboardDepth(*bb, filtered[j]);
-        dv.sigma_z = BillboardDepthSigma(*bb, filtered[j], cal.SigmaC());
-        dv.colour = boards[j].colour_image;
-        dv.camera_id = boards[j].id;
-        HVDB_RETURN_IF_ERROR(write_depth(boards[j].colour_camera.name, dv.depth));
-        if (billboards != nullptr) filtered_boards.push_back({boards[j].id, *bb, filtered[j]});
-        std::vector<Point> pts = PointsFromDepth(dv, po);
-        points.insert(points.end(), pts.begin(), pts.end());
-        depth_models.push_back(boards[j].colour_camera);
-        depth_maps.push_back(dv.depth);
-        depth_ids.push_back(dv.camera_id);
-      }
-      rep->stage_ms["points"] += MsSince(t0);
-    }
   } else {
-    for (const DepthFrameView& v : in.depth) {
+    // A depth map undistorted (nearest: never blend across edges), mixed pixels dropped.
+    auto depth_of = [&](const DepthFrameView& v) {
+      cv::Mat d = Undistort(v.model, v.depth, /*nearest=*/true);
+      return opt_.edge_radius > 0 ? RemoveDepthEdges(d, opt_.edge_jump, opt_.edge_radius) : d;
+    };
+    for (size_t j = 0; j < in.depth.size(); ++j) {
+      const DepthFrameView& v = in.depth[j];
       auto t0 = Clock::now();
       const CameraModel pin = Pinhole(v.model);
       DepthView dv;
       dv.camera = &pin;
-      dv.depth = Undistort(v.model, v.depth, /*nearest=*/true);  // never blend across edges
-      if (opt_.edge_radius > 0) dv.depth = RemoveDepthEdges(dv.depth, opt_.edge_jump, opt_.edge_radius);
+      dv.depth = depth_of(v);
       dv.colour = Undistort(v.model, v.colour);
       dv.camera_id = static_cast<uint16_t>(v.camera);
       valid += ValidPct(dv.depth);
       ++views;
+      if (billboard) {
+        // The sensor measures disparity over its baseline: that is the billboard's space.
+        ViewDepths bd{std::vector<CameraModel>(frames.size()), pin.K(0, 0) * opt_.billboard_baseline,
+                      dv.colour, dv.camera_id, -1, std::vector<cv::Mat>(frames.size()), {}};
+        for (size_t f = 0; f < frames.size(); ++f) {
+          if (!within_reach(f)) continue;
+          const auto& around = frames[f]->depth;
+          if (j >= around.size() || around[j].camera != v.camera)
+            return Status::InvalidArgument("frame window: frame " + std::to_string(frames[f]->index) +
+                                           " lacks camera " + std::to_string(v.camera));
+          bd.camera[f] = f == centre ? pin : Pinhole(around[j].model);  // this frame's pose
+          bd.depth[f] = f == centre ? dv.depth : depth_of(around[j]);
+        }
+        boards.push_back(std::move(bd));
+        colour_models.push_back(v.model);
+        colour_images.push_back(v.colour);
+        rep->stage_ms["points"] += MsSince(t0);
+        continue;
+      }
       std::vector<Point> pts = PointsFromDepth(dv, po);
       points.insert(points.end(), pts.begin(), pts.end());
       depth_models.push_back(pin);
@@ -475,6 +429,80 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
       colour_images.push_back(v.colour);
       rep->stage_ms["points"] += MsSince(t0);
     }
+  }
+  if (billboard && !boards.empty()) {
+    // Thesis 6.1-6.2, 6.7: billboards of every brick in every frame, the centre frame's
+    // filtered, and points from the filtered billboards.
+    auto t0 = Clock::now();
+    // With object strokes (6.4): each view cut into the object and the rest over the frames
+    // it has, and matted; the mattes are the billboards' alpha. Without: alpha 1.
+    std::vector<std::vector<cv::Mat>> alphas(boards.size(), std::vector<cv::Mat>(frames.size()));
+    if (segment) {
+      for (size_t j = 0; j < boards.size(); ++j) {
+        const ViewDepths& bd = boards[j];
+        const auto& model = models_[static_cast<size_t>(bd.brick)];
+        if (model == nullptr) return Status::Internal("no segmentation model for brick " + std::to_string(bd.brick));
+        std::vector<size_t> have;
+        std::vector<cv::Mat> cs, ds, ss;
+        for (size_t f = 0; f < frames.size(); ++f) {
+          if (bd.depth[f].empty()) continue;
+          have.push_back(f);
+          cs.push_back(bd.colour[f]);
+          ds.push_back(bd.depth[f]);
+          ss.push_back(frames[f]->index == opt_.strokes_frame ? strokes_[static_cast<size_t>(bd.brick)] : cv::Mat());
+        }
+        HVDB_ASSIGN_OR_RETURN(std::vector<cv::Mat> labels, SegmentFrames(*model, cs, ds, ss, opt_.segmentation));
+        for (size_t k = 0; k < have.size(); ++k) {
+          HVDB_ASSIGN_OR_RETURN(alphas[j][have[k]], BayesianMatte(cs[k], labels[k], opt_.matting));
+          if (!opt_.depth_out.empty() && have[k] == centre) {
+            cv::Mat a8;
+            alphas[j][have[k]].convertTo(a8, CV_8U, 255);
+            const std::string path = out_path(bd.camera[centre].name + ".alpha.png");
+            if (!cv::imwrite(path, a8)) return Status::IOError(path + ": cannot write the matte");
+          }
+        }
+      }
+      rep->stage_ms["segment"] += MsSince(t0);
+      t0 = Clock::now();
+    }
+    std::vector<std::vector<Billboard>> bbs(frames.size(), std::vector<Billboard>(boards.size()));
+    std::vector<std::vector<const Billboard*>> ptrs(frames.size(),
+                                                    std::vector<const Billboard*>(boards.size()));
+    for (size_t f = 0; f < frames.size(); ++f) {
+      for (size_t j = 0; j < boards.size(); ++j) {
+        const ViewDepths& bd = boards[j];
+        if (bd.depth[f].empty()) continue;
+        // A view with too little depth for a plane has no billboard in that frame.
+        auto made = MakeBillboard(bd.camera[f], bd.depth[f], alphas[j][f],
+                                  f == centre ? bd.colour_image : cv::Mat(), bd.scale);
+        if (!made.ok()) continue;
+        bbs[f][j] = std::move(made).value();
+        ptrs[f][j] = &bbs[f][j];
+      }
+    }
+    BillboardFilterOptions fo = opt_.billboard;
+    if (fo.threads == 0) fo.threads = std::max(1, HardwareThreads() / std::max(1, opt_.workers));
+    HVDB_ASSIGN_OR_RETURN(std::vector<cv::Mat> filtered, FilterBillboards(ptrs, centre, fo));
+    rep->stage_ms["billboard"] += MsSince(t0);
+    t0 = Clock::now();
+    for (size_t j = 0; j < boards.size(); ++j) {
+      const Billboard* bb = ptrs[centre][j];
+      if (bb == nullptr) continue;
+      DepthView dv;
+      dv.camera = &boards[j].camera[centre];
+      dv.depth = BillboardDepth(*bb, filtered[j]);
+      dv.sigma_z = BillboardDepthSigma(*bb, filtered[j], cal.SigmaC());
+      dv.colour = boards[j].colour_image;
+      dv.camera_id = boards[j].id;
+      HVDB_RETURN_IF_ERROR(write_depth(boards[j].camera[centre].name, dv.depth));
+      if (billboards != nullptr) filtered_boards.push_back({boards[j].id, *bb, filtered[j]});
+      std::vector<Point> pts = PointsFromDepth(dv, po);
+      points.insert(points.end(), pts.begin(), pts.end());
+      depth_models.push_back(boards[j].camera[centre]);
+      depth_maps.push_back(dv.depth);
+      depth_ids.push_back(dv.camera_id);
+    }
+    rep->stage_ms["points"] += MsSince(t0);
   }
   rep->valid_depth_pct = views ? valid / static_cast<double>(views) : 0;
   if (opt_.geometric_consistency && depth_maps.size() > 1 && !points.empty()) {
@@ -554,8 +582,9 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
   if (opt.workers <= 0) opt.workers = std::clamp(last - opt.first, 1, HardwareThreads());
   if (opt.max_in_flight <= 0) opt.max_in_flight = opt.workers + 1;
   if (opt.stereo.threads <= 0) opt.stereo.threads = std::max(1, HardwareThreads() / opt.workers);
-  HVDB_RETURN_IF_ERROR(EnsureDataset(backend, rec, opt.dataset));
+  // Options are checked (and strokes read) before anything is created.
   HVDB_ASSIGN_OR_RETURN(FrameProcessor proc, FrameProcessor::Make(rec, opt));
+  HVDB_RETURN_IF_ERROR(EnsureDataset(backend, rec, opt.dataset));
 
   const auto t_start = Clock::now();
   IngestReport report;

@@ -46,7 +46,8 @@ struct IngestOptions {
   // (thesis 3.4; for projector patterns that change over time); -1: the recording's
   // `spacetime` (0 when it declares none: single-frame stereo).
   int spacetime = -1;
-  // stereo: kBillboard makes each brick's depth a billboard in its colour camera and smooths
+  // stereo (or depth with billboard_baseline): kBillboard makes each brick's depth (each depth
+  // camera's) a billboard in its colour camera and smooths
   // it with the bilateral filter of thesis 6.2 over the frames around (temporal_radius) and
   // the other bricks' views before making points, in place of subpixel refinement
   // (stereo.subpixel is then best kParabola: thesis 6.5 filters integer disparities, but
@@ -54,6 +55,9 @@ struct IngestOptions {
   enum class Filter { kNone, kBillboard };
   Filter filter = Filter::kNone;
   BillboardFilterOptions billboard;
+  // Depth recordings with the billboard filter: the baseline (m) over which the depth sensor
+  // measures disparity (a Kinect v1's: 0.075), which makes its disparity space d = fx b / z.
+  double billboard_baseline = 0;
   // With the billboard filter: only the object marked by brush strokes (thesis 6.4). A path
   // pattern of one stroke image per colour camera ({camera}; relative to the recording, as in
   // recording.yml) painted on recording frame `strokes_frame`: red (object) and blue (the

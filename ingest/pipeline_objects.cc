@@ -11,6 +11,8 @@ Status FrameProcessor::FitObjectModels() {
   const Recording& rec = *rec_;
   if (opt_.filter != IngestOptions::Filter::kBillboard)
     return Status::InvalidArgument("--object-strokes makes object billboards: it needs --filter billboard");
+  if (rec.kind != RecordingKind::kStereo)
+    return Status::InvalidArgument("--object-strokes: object billboards are made from stereo recordings");
   HVDB_RETURN_IF_ERROR(opt_.segmentation.Validate());
   HVDB_RETURN_IF_ERROR(opt_.matting.Validate());
   if (opt_.strokes_frame < 0 || opt_.strokes_frame >= rec.frames)

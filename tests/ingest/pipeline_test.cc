@@ -810,6 +810,24 @@ TEST(Pipeline, UsageErrors) {
   auto both = testing::RunCommand(std::string(HVDB_INGEST_PATH) + " run " + dir.path() + " --dataset x");
   EXPECT_NE(both.exit_code, 0);
   EXPECT_NE(both.output.find("--data"), std::string::npos);
+  // The billboard filter on a depth recording needs the sensor's baseline; nothing is created.
+  {
+    Recording r;
+    r.dir = dir / "depth";
+    std::filesystem::create_directories(r.dir);
+    r.kind = RecordingKind::kDepth;
+    r.frames = 1;
+    Calibration cal;
+    cal.cameras.push_back(GeneratorCalibration(Rig(1, 32, 24)).cameras[0]);
+    r.files.push_back(CameraFiles{cal.cameras[0].name, "c.png", "d.exr", "", "", ""});
+    ASSERT_TRUE(SaveCalibration(cal, r.dir + "/calibration.yml").ok());
+    ASSERT_TRUE(SaveRecording(r).ok());
+  }
+  auto bb = testing::RunCommand(std::string(HVDB_INGEST_PATH) + " run " + (dir / "depth") +
+                                " --dataset x --data " + (dir / "d") + " --filter billboard");
+  EXPECT_EQ(bb.exit_code, 2) << bb.output;
+  EXPECT_NE(bb.output.find("--billboard-baseline"), std::string::npos) << bb.output;
+  EXPECT_FALSE(std::filesystem::exists(dir / "d/x"));
   for (const char* sub : {"run", "check", "calibrate", "stereo", "generate"}) {
     auto h = testing::RunCommand(std::string(HVDB_INGEST_PATH) + " " + sub + " --help");
     EXPECT_EQ(h.exit_code, 0) << sub << ": " << h.output;
