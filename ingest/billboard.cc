@@ -230,12 +230,17 @@ cv::Mat BillboardDepthSigma(const Billboard& bb, const cv::Mat& displacement, do
 
 Result<PhotoBillboard> EncodeBillboard(const Billboard& bb, const cv::Mat& displacement_in) {
   const cv::Mat& displacement = displacement_in.empty() ? bb.displacement : displacement_in;
+  if (displacement.type() != CV_32F || bb.alpha.type() != CV_32F || bb.alpha.size() != displacement.size())
+    return Status::InvalidArgument("billboard: displacement and alpha must be CV_32F of one size");
   cv::Mat d16(displacement.size(), CV_16U), a8(displacement.size(), CV_8U);
   for (int y = 0; y < d16.rows; ++y)
     for (int x = 0; x < d16.cols; ++x) {
       const float d = displacement.at<float>(y, x), a = bb.alpha.at<float>(y, x);
-      d16.at<uint16_t>(y, x) = std::isfinite(d) && a > 0
-                                   ? static_cast<uint16_t>(std::clamp(std::lround((d + 128.0) * 256.0), 1L, 65535L))
+      // The format holds [-128, 128) pixels to 1/256; a displacement beyond (a sample far off
+      // the plane: an outlier) is stored as no sample rather than clamped to a wrong depth.
+      const double code = (static_cast<double>(d) + 128.0) * 256.0;
+      d16.at<uint16_t>(y, x) = std::isfinite(d) && a > 0 && code >= 0.5 && code < 65535.5
+                                   ? static_cast<uint16_t>(std::lround(code))
                                    : 0;
       a8.at<uint8_t>(y, x) = static_cast<uint8_t>(std::lround(std::clamp(a, 0.f, 1.f) * 255));
     }
@@ -323,10 +328,10 @@ Layer WarpedLayer(const Billboard& bu, const cv::Mat& du, const Billboard& bv, f
       const double xv = p[0] / p[2], yv = p[1] / p[2];
       const int ix = static_cast<int>(std::lround(xv)), iy = static_cast<int>(std::lround(yv));
       if (ix < 0 || iy < 0 || ix >= W || iy >= H) continue;
-      const float dv = static_cast<float>(bv.scale / p[2]);
-      samples.push_back({iy * W + ix, static_cast<float>(dv - bv.Plane(xv, yv)), A[x]});
+      const float d = static_cast<float>(bv.scale / p[2] - bv.Plane(xv, yv));
+      samples.push_back({iy * W + ix, d, A[x]});
       float& f = front.at<float>(iy, ix);
-      f = std::max(f, dv - static_cast<float>(bv.Plane(ix, iy)));
+      f = std::max(f, d);
     }
   }
   cv::Mat sd(H, W, CV_32F, cv::Scalar(0)), sa(H, W, CV_32F, cv::Scalar(0));

@@ -72,7 +72,8 @@ cv::Mat BillboardDepthSigma(const Billboard& billboard, const cv::Mat& displacem
 
 // The billboard as the dataset keeps it with its photo (docs/FORMAT.md "Photo", version 2):
 // scale, plane, the displacement map as a 16-bit grey PNG of (D + 128) * 256 (0: no sample),
-// alpha as an 8-bit grey PNG. `displacement` replaces the billboard's own if not empty.
+// alpha as an 8-bit grey PNG. `displacement` replaces the billboard's own if not empty. A
+// displacement outside [-128, 128) pixels is stored as no sample.
 Result<PhotoBillboard> EncodeBillboard(const Billboard& billboard, const cv::Mat& displacement = {});
 
 struct BillboardFilterOptions {

@@ -137,7 +137,7 @@ PreparedView Prepare(std::span<const Point> points, const ColourView& cv, size_t
 // Fig. 5.4 for one view: updates keep and the counters. Each row of a splat is evaluated
 // eight pixels at a time (the CPU renderer's kernel arithmetic: render/simd.h; built for
 // AVX-512, AVX2 and the baseline, picked at load time), the same operations per pixel as the
-// scalar renderer's, e^x to within a unit or two of the last place.
+// scalar renderer's, e^x to within a unit or two of the last place, the sums in float lanes.
 HVDB_RENDER_CLONES
 void TestView(std::span<const Point> points, const PreparedView& pv,
               const PhotoConsistencyOptions& o, std::vector<uint8_t>* keep, size_t* tested,
@@ -175,6 +175,9 @@ void TestView(std::span<const Point> points, const PreparedView& pv,
     const Yuv c = ToYuv(p.r, p.g, p.b);
     // Eq. 5.13 over the unoccluded fragments (xi = 1: within dz of the fuzzy z-buffer, or in
     // front of it), and the alpha they carry for the normalisation.
+    // Summed in eight float lanes, added up in double per splat: a splat of a few hundred
+    // pixels keeps its sums to ~1e-6 relative, far below what the thresholds can tell apart
+    // (adding each row into doubles instead cost 23 % of the test's time on the SJTU frame).
     F sa{}, sy{}, su{}, sv{};
     for (int y = s.y0; y <= s.y1; ++y) {
       const float dy = static_cast<float>(y) - s.v;
@@ -210,15 +213,15 @@ void TestView(std::span<const Point> points, const PreparedView& pv,
       }
     }
     if (on_image) {
-      double sum_a = 0, dy = 0, du = 0, dv = 0;
-      for (uint32_t l = 0; l < kLanes; ++l) sum_a += sa[l], dy += sy[l], du += su[l], dv += sv[l];
+      double sum_a = 0, sum_y = 0, sum_u = 0, sum_v = 0;
+      for (uint32_t l = 0; l < kLanes; ++l) sum_a += sa[l], sum_y += sy[l], sum_u += su[l], sum_v += sv[l];
       if (!(sum_a > 0)) {
         ++*skipped;  // fully occluded: not tested, and behind what is drawn already
         continue;
       }
       ++*tested;
-      if (std::abs(dy / sum_a) > o.max_dy || std::abs(du / sum_a) > o.max_du ||
-          std::abs(dv / sum_a) > o.max_dv) {
+      if (std::abs(sum_y / sum_a) > o.max_dy || std::abs(sum_u / sum_a) > o.max_du ||
+          std::abs(sum_v / sum_a) > o.max_dv) {
         (*keep)[i] = 0;
         ++*removed;
         continue;

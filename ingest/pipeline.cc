@@ -64,28 +64,39 @@ CameraInfo ToCameraInfo(const CameraModel& c, uint16_t id) {
 namespace {
 
 // The frame's colour photos (the recorded PNG or JPEG files' bytes) with their cameras as they
-// were for this frame, for textured renders (Dataset::PutPhoto). An image in another format,
-// or too big for one protocol frame (16 MiB by default, with room to spare), is encoded from
+// were for this frame, for textured renders (Dataset::PutPhoto), each with its camera's
+// billboard when there is one. An image in another format, or too big for one protocol frame
+// (16 MiB by default, with room to spare) together with its billboard's maps, is encoded from
 // the decoded image: PNG, or JPEG at quality 95 when the PNG is still too big.
-Result<std::vector<Photo>> FramePhotos(const Recording& rec, const FrameInput& in) {
+Result<std::vector<Photo>> FramePhotos(const Recording& rec, const FrameInput& in,
+                                       std::map<uint16_t, PhotoBillboard>* billboards) {
   constexpr size_t kMaxPhotoBytes = 12u << 20;
   std::vector<Photo> out;
   auto read = [&](const std::string& path, const cv::Mat& image, const CameraModel& model,
                   int idx) -> Status {
+    Photo photo{ToCameraInfo(model, static_cast<uint16_t>(idx)), {}, {}};
+    if (auto b = billboards->find(photo.camera.id); b != billboards->end()) photo.billboard = std::move(b->second);
+    const size_t maps = photo.billboard.displacement.size() + photo.billboard.alpha.size();
+    if (maps >= kMaxPhotoBytes / 2)
+      return Status::InvalidArgument(path + ": the billboard's maps of camera " + model.name + " take " +
+                                     std::to_string(maps >> 20) + " MiB, more than a photo may carry "
+                                     "with them; ingest without --filter billboard, or with --no-photos");
+    const size_t limit = kMaxPhotoBytes - maps;
     std::ifstream f(path, std::ios::binary);
     std::string bytes((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
     if (!f.good() && !f.eof()) return Status::IOError(path + ": cannot read the colour image");
     const bool png = bytes.rfind("\x89PNG", 0) == 0, jpeg = bytes.rfind("\xff\xd8\xff", 0) == 0;
-    if (!(png || jpeg) || bytes.size() > kMaxPhotoBytes) {
+    if (!(png || jpeg) || bytes.size() > limit) {
       std::vector<uint8_t> enc;
-      if (!cv::imencode(".png", image, enc) || enc.size() > kMaxPhotoBytes) {
-        if (!cv::imencode(".jpg", image, enc, {cv::IMWRITE_JPEG_QUALITY, 95})) {
-          return Status::Internal(path + ": cannot encode the colour image for storage");
+      if (!cv::imencode(".png", image, enc) || enc.size() > limit) {
+        if (!cv::imencode(".jpg", image, enc, {cv::IMWRITE_JPEG_QUALITY, 95}) || enc.size() > limit) {
+          return Status::InvalidArgument(path + ": the colour image does not fit a protocol frame even as JPEG");
         }
       }
       bytes.assign(enc.begin(), enc.end());
     }
-    out.push_back({ToCameraInfo(model, static_cast<uint16_t>(idx)), std::move(bytes), {}});
+    photo.image = std::move(bytes);
+    out.push_back(std::move(photo));
     return Status::OK();
   };
   for (const StereoView& v : in.stereo) {
@@ -306,13 +317,18 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
   };
   if (rec.kind == RecordingKind::kStereo) {
     const int st = spacetime();
-    // The brick's rectified pair in frame w of the window.
-    auto pair_at = [&](size_t w, size_t j, const Rectification& r, cv::Mat* l, cv::Mat* rr) -> Status {
+    // Whether frame w of the window has the brick of in.stereo[j] at j.
+    auto has_brick = [&](size_t w, size_t j) -> Status {
       const auto& pairs = frames[w]->stereo;
       if (j >= pairs.size() || pairs[j].brick != frames[centre]->stereo[j].brick)
         return Status::InvalidArgument("frame window: frame " + std::to_string(frames[w]->index) +
                                        " lacks brick " + std::to_string(frames[centre]->stereo[j].brick));
-      Rectify(r, pairs[j].left, pairs[j].right, l, rr);
+      return Status::OK();
+    };
+    // The brick's rectified pair in frame w of the window.
+    auto pair_at = [&](size_t w, size_t j, const Rectification& r, cv::Mat* l, cv::Mat* rr) -> Status {
+      HVDB_RETURN_IF_ERROR(has_brick(w, j));
+      Rectify(r, frames[w]->stereo[j].left, frames[w]->stereo[j].right, l, rr);
       return Status::OK();
     };
     for (size_t j = 0; j < in.stereo.size(); ++j) {
@@ -360,8 +376,7 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
         for (size_t f = 0; f < frames.size(); ++f) {
           if (f == centre || !within_reach(f)) continue;
           t0 = Clock::now();
-          cv::Mat lf, rf;
-          HVDB_RETURN_IF_ERROR(pair_at(f, j, r, &lf, &rf));  // checks the frame has the brick
+          HVDB_RETURN_IF_ERROR(has_brick(f, j));
           HVDB_ASSIGN_OR_RETURN(bd.depth[f], ColourDepth(*frames[f], j));
           if (segment)
             bd.colour[f] = Undistort(cal.cameras[static_cast<size_t>(b.colour)], frames[f]->stereo[j].colour);
@@ -665,14 +680,9 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
                  : Result<std::vector<Point>>(load_error),
              bytes, {}};
       if (d.points.ok() && opt.photos) {
-        auto photos = FramePhotos(rec, *window[centre]);
+        auto photos = FramePhotos(rec, *window[centre], &billboards);
         if (photos.ok()) {
           d.photos = std::move(photos).value();
-          // The billboards (--filter billboard) go with their cameras' photos.
-          for (Photo& p : d.photos) {
-            auto b = billboards.find(p.camera.id);
-            if (b != billboards.end()) p.billboard = std::move(b->second);
-          }
         } else {
           d.points = photos.status();
         }

@@ -174,7 +174,8 @@ Result<std::vector<cv::Mat>> SegmentFrames(const SegmentationModel& model,
   const uint32_t W = static_cast<uint32_t>(size.width), H = static_cast<uint32_t>(size.height);
   const uint32_t F = static_cast<uint32_t>(colours.size());
   const size_t plane = size_t{W} * H, n = plane * F;
-  if (n >= (size_t{1} << 31)) return Status::InvalidArgument("segmentation: too many pixels for one cut");
+  // Arcs (up to 6 per node) are indexed by 32 bits.
+  if (6 * n >= (size_t{1} << 32)) return Status::InvalidArgument("segmentation: too many pixels for one cut");
   auto colour_at = [&](size_t v) {
     const size_t f = v / plane, p = v % plane;
     return ToRgb(colours[f].at<cv::Vec3b>(static_cast<int>(p / W), static_cast<int>(p % W)));

@@ -104,7 +104,6 @@ Status DrawBillboardDepth(const Camera& view, std::span<const BillboardSource> s
   std::vector<Pose> poses;
   for (const BillboardSource& s : sources) poses.emplace_back(s.camera);
   // Every fragment of every billboard, in tasks of row bands; fn(pixel, z, weight, alpha).
-  const unsigned threads = o.threads ? o.threads : std::max(1u, std::thread::hardware_concurrency());
   constexpr uint32_t kBand = 32;
   struct Task {
     size_t source;
@@ -115,6 +114,12 @@ Status DrawBillboardDepth(const Camera& view, std::span<const BillboardSource> s
     for (uint32_t y = 0; y < sources[s].camera.height; y += kBand)
       tasks.push_back({s, y, std::min(sources[s].camera.height, y + kBand)});
   const auto& lin = internal::SrgbTable();
+  // Each thread sums into buffers of its own, 28 bytes a pixel: as many threads as a budget of
+  // 512 MiB allows (one at least), so a big view on many cores does not take gigabytes.
+  const size_t thread_bytes = 28 * n;
+  const unsigned wanted = o.threads ? o.threads : std::max(1u, std::thread::hardware_concurrency());
+  const unsigned threads = static_cast<unsigned>(std::clamp<size_t>(
+      std::min<size_t>({wanted, tasks.size(), (size_t{512} << 20) / std::max<size_t>(1, thread_bytes)}), 1, 64));
   auto fragments = [&](const Task& t, auto&& fn) {
     const BillboardSource& src = sources[t.source];
     const Pose& pose = poses[t.source];
@@ -126,6 +131,7 @@ Status DrawBillboardDepth(const Camera& view, std::span<const BillboardSource> s
         const Vec3 X = pose.Unproject(x, y, zs);
         double u, v, zt;
         if (!target.Project(X, &u, &v, &zt)) continue;
+        if (!(std::abs(u) < 1e6 && std::abs(v) < 1e6)) continue;  // far off the view (or grazing)
         // The sample's footprint: its pixel seen from the view, a little enlarged so that
         // neighbouring samples close up.
         const double h = std::clamp(0.6 * view.fx * zs / (src.camera.fx * zt), 0.5, 8.0);
@@ -154,14 +160,17 @@ Status DrawBillboardDepth(const Camera& view, std::span<const BillboardSource> s
     for (auto& th : pool) th.join();
   };
   // Pass 1: the front-most fragment of each pixel.
-  std::vector<std::vector<float>> zmin(threads, std::vector<float>(n, std::numeric_limits<float>::infinity()));
+  std::vector<std::vector<float>> zmin(threads);
   run([&](unsigned k, const Task& t) {
+    if (zmin[k].empty()) zmin[k].assign(n, std::numeric_limits<float>::infinity());
     float* z = zmin[k].data();
     fragments(t, [&](size_t p, float zt, float, float, const uint8_t*) { z[p] = std::min(z[p], zt); });
   });
-  for (unsigned k = 1; k < threads; ++k)
-    for (size_t i = 0; i < n; ++i) zmin[0][i] = std::min(zmin[0][i], zmin[k][i]);
-  const std::vector<float>& front = zmin[0];
+  std::vector<float> front(n, std::numeric_limits<float>::infinity());
+  for (std::vector<float>& z : zmin) {
+    for (size_t i = 0; i < z.size(); ++i) front[i] = std::min(front[i], z[i]);
+    std::vector<float>().swap(z);  // freed before pass 2 allocates its sums
+  }
   // Pass 2: eq. 6.13 over the fragments within the tolerance of it, and eq. 6.15.
   struct Sums {
     std::vector<float> wz, w, a, rgb;  // rgb: weighted linear colour of the fragments

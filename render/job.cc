@@ -60,8 +60,10 @@ Status CheckPhoto(const Photo& photo) {
   auto rgb = DecodeRgb8(photo.image, photo.camera.width, photo.camera.height, what);
   if (!rgb.ok()) return Status::InvalidArgument(rgb.status().message());
   if (photo.billboard.scale != 0) {
-    if (!(photo.billboard.scale > 0) || !std::isfinite(photo.billboard.scale))
-      return Status::InvalidArgument(what + ": the billboard's scale must be > 0");
+    const auto& pl = photo.billboard.plane;
+    if (!(photo.billboard.scale > 0) || !std::isfinite(photo.billboard.scale) ||
+        !std::isfinite(pl[0]) || !std::isfinite(pl[1]) || !std::isfinite(pl[2]))
+      return Status::InvalidArgument(what + ": the billboard needs a finite scale > 0 and a finite plane");
     auto board = DecodeBillboard(photo, *rgb, what);
     if (!board.ok()) return board.status();
   }

@@ -1,6 +1,7 @@
 #include "server/session.h"
 
 #include <algorithm>
+#include <cmath>
 #include <array>
 
 #include <nlohmann/json.hpp>
@@ -298,9 +299,10 @@ void Session::Dispatch(wire::Request req) {
         Photo photo{*cam, pp.image(), {}};
         if (pp.has_billboard()) {
           const wire::Billboard& b = pp.billboard();
-          if (b.plane_size() != 3 || !(b.scale() > 0))
+          if (b.plane_size() != 3 || !(b.scale() > 0) || !std::isfinite(b.scale()) ||
+              !std::isfinite(b.plane(0)) || !std::isfinite(b.plane(1)) || !std::isfinite(b.plane(2)))
             return ErrorResponse(id, Status::InvalidArgument(
-                                         "put_photo.billboard: needs a scale > 0 and 3 plane values"),
+                                         "put_photo.billboard: needs a finite scale > 0 and 3 finite plane values"),
                                  wire::INVALID_PARAMETER);
           photo.billboard = {b.scale(), {b.plane(0), b.plane(1), b.plane(2)}, b.displacement(), b.alpha()};
         }
