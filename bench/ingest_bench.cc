@@ -239,11 +239,12 @@ void RunGenerated(const std::string& scratch, bool quick, nlohmann::json& figure
 
 // ---- 1b. billboard filter against subpixel refinement ------------------------------------
 
-// Thesis 6.5: integer disparities smoothed by the bilateral filter of 6.2 (--filter billboard)
-// against the subpixel LM of 3.5, on generated recordings with exact geometry. Per frame:
-// the 3D error of the points (along the viewing ray, as above) and the flicker: the RMS change
-// of each colour camera's depth between consecutive frames at pixels whose true surface did
-// not move (static floor, wall and spheres), from the points of each frame.
+// Thesis 6.5: disparities (integer, as the thesis, or the parabola's) smoothed by the bilateral
+// filter of 6.2 (--filter billboard) against the subpixel LM of 3.5, on a generated recording
+// with exact geometry. Per frame: the 3D error of the points (along the viewing ray, as above);
+// over frames the flicker: the median and p90 change of each colour camera's depth between
+// consecutive frames at pixels whose true surface did not move (static floor, wall and
+// spheres), from the points of each frame.
 void RunBillboard(const std::string& scratch, bool quick, nlohmann::json& figures) {
   GeneratorOptions g;
   g.bricks = quick ? 2 : 3;

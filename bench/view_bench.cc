@@ -33,39 +33,13 @@
 
 namespace {
 
+using hvdb::bench::FromMat;
+using hvdb::bench::ToMat;
 using hvdb::ingest::DepthFrameView;
 namespace fs = std::filesystem;
 
 double Seconds(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
-
-// BGR cv::Mat -> RGB Srgb8Image.
-hvdb::render::Srgb8Image FromMat(const cv::Mat& bgr) {
-  hvdb::render::Srgb8Image im;
-  im.width = static_cast<uint32_t>(bgr.cols);
-  im.height = static_cast<uint32_t>(bgr.rows);
-  im.channels = 3;
-  im.data.resize(size_t{im.width} * im.height * 3);
-  for (int y = 0; y < bgr.rows; ++y) {
-    for (int x = 0; x < bgr.cols; ++x) {
-      const cv::Vec3b p = bgr.at<cv::Vec3b>(y, x);
-      uint8_t* o = &im.data[(size_t(y) * im.width + size_t(x)) * 3];
-      o[0] = p[2], o[1] = p[1], o[2] = p[0];
-    }
-  }
-  return im;
-}
-
-cv::Mat ToMat(const hvdb::render::Srgb8Image& im) {
-  cv::Mat bgr(static_cast<int>(im.height), static_cast<int>(im.width), CV_8UC3);
-  for (int y = 0; y < bgr.rows; ++y) {
-    for (int x = 0; x < bgr.cols; ++x) {
-      const uint8_t* p = &im.data[(size_t(y) * im.width + size_t(x)) * im.channels];
-      bgr.at<cv::Vec3b>(y, x) = im.channels >= 3 ? cv::Vec3b(p[2], p[1], p[0]) : cv::Vec3b(p[0], p[0], p[0]);
-    }
-  }
-  return bgr;
 }
 
 // The naive baseline: `src`'s photo forward-warped into `dst` by src's depth (metres, 0 = none),

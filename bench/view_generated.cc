@@ -13,24 +13,32 @@
 #include "render/metrics.h"
 
 namespace hvdb::bench {
-namespace {
-
-render::Srgb8Image FromBgr(const cv::Mat& bgr) {
+render::Srgb8Image FromMat(const cv::Mat& bgr) {
   render::Srgb8Image im;
   im.width = static_cast<uint32_t>(bgr.cols);
   im.height = static_cast<uint32_t>(bgr.rows);
   im.channels = 3;
-  im.data.resize(size_t(bgr.cols) * size_t(bgr.rows) * 3);
-  for (int y = 0; y < bgr.rows; ++y)
+  im.data.resize(size_t{im.width} * im.height * 3);
+  for (int y = 0; y < bgr.rows; ++y) {
     for (int x = 0; x < bgr.cols; ++x) {
       const cv::Vec3b p = bgr.at<cv::Vec3b>(y, x);
-      uint8_t* o = &im.data[(size_t(y) * size_t(bgr.cols) + size_t(x)) * 3];
+      uint8_t* o = &im.data[(size_t(y) * im.width + size_t(x)) * 3];
       o[0] = p[2], o[1] = p[1], o[2] = p[0];
     }
+  }
   return im;
 }
 
-}  // namespace
+cv::Mat ToMat(const render::Srgb8Image& im) {
+  cv::Mat bgr(static_cast<int>(im.height), static_cast<int>(im.width), CV_8UC3);
+  for (int y = 0; y < bgr.rows; ++y) {
+    for (int x = 0; x < bgr.cols; ++x) {
+      const uint8_t* p = &im.data[(size_t(y) * im.width + size_t(x)) * im.channels];
+      bgr.at<cv::Vec3b>(y, x) = im.channels >= 3 ? cv::Vec3b(p[2], p[1], p[0]) : cv::Vec3b(p[0], p[0], p[0]);
+    }
+  }
+  return bgr;
+}
 
 int RunGeneratedViews(const GeneratedViewOptions& opt, nlohmann::json& figures) {
   namespace fs = std::filesystem;
@@ -68,7 +76,7 @@ int RunGeneratedViews(const GeneratedViewOptions& opt, nlohmann::json& figures) 
     for (int y = 0; y < truth->rows; ++y)
       for (int x = 0; x < truth->cols; ++x)
         mask[size_t(y) * size_t(truth->cols) + size_t(x)] = std::isfinite(truth->at<float>(y, x));
-    const render::Srgb8Image photo = FromBgr(photo_bgr);
+    const render::Srgb8Image photo = FromMat(photo_bgr);
     nlohmann::json params = {{"held_out", target.name}, {"bricks_ingested", 3}, {"frame", frame},
                              {"width", g.width}, {"height", g.height}, {"seed", g.seed}};
     // Every render of both ingests first; then PSNR over the pixels all of them draw (and h
@@ -110,7 +118,7 @@ int RunGeneratedViews(const GeneratedViewOptions& opt, nlohmann::json& figures) 
           std::exit(1);
         }
         const cv::Mat bgr = cv::imdecode(cv::Mat(1, static_cast<int>(png.size()), CV_8U, png.data()), cv::IMREAD_COLOR);
-        return FromBgr(bgr);
+        return FromMat(bgr);
       };
       const std::string pre = billboard ? "billboard_ingest." : "lm_ingest.";
       shots.push_back({pre + "points", render(false, false), ingest_s});
@@ -140,16 +148,9 @@ int RunGeneratedViews(const GeneratedViewOptions& opt, nlohmann::json& figures) 
     if (!opt.images.empty()) {
       // billboards | textured points of the same ingest | photo
       std::vector<cv::Mat> cols;
-      for (const char* want : {"billboard_ingest.billboards", "billboard_ingest.textured"}) {
-        for (const Shot& s : shots) {
-          if (s.name != want) continue;
-          cv::Mat m(static_cast<int>(s.image.height), static_cast<int>(s.image.width), CV_8UC3);
-          for (size_t i = 0; i < s.image.data.size() / 3; ++i)
-            m.at<cv::Vec3b>(static_cast<int>(i / s.image.width), static_cast<int>(i % s.image.width)) =
-                cv::Vec3b(s.image.data[3 * i + 2], s.image.data[3 * i + 1], s.image.data[3 * i]);
-          cols.push_back(m);
-        }
-      }
+      for (const char* want : {"billboard_ingest.billboards", "billboard_ingest.textured"})
+        for (const Shot& s : shots)
+          if (s.name == want) cols.push_back(ToMat(s.image));
       cols.push_back(photo_bgr);
       cv::hconcat(cols, row);
     }

@@ -4,9 +4,16 @@
 #define HVDB_BENCH_VIEW_GENERATED_H_
 
 #include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
 #include <string>
 
+#include "render/metrics.h"
+
 namespace hvdb::bench {
+
+// BGR cv::Mat <-> RGB(A) Srgb8Image, for PSNR and for the pictures (both parts of view-bench).
+render::Srgb8Image FromMat(const cv::Mat& bgr);
+cv::Mat ToMat(const render::Srgb8Image& image);
 
 struct GeneratedViewOptions {
   std::string scratch;  // folder for the recording and the datasets

@@ -237,6 +237,11 @@ Result<FrameProcessor> FrameProcessor::Make(const Recording& rec, const IngestOp
   return p;
 }
 
+int FrameProcessor::StageThreads() const {
+  // The cores of the machine shared by the workers that process frames at once.
+  return std::max(1, HardwareThreads() / std::max(1, opt_.workers));
+}
+
 int FrameProcessor::window_radius() const {
   const int bb = opt_.filter == IngestOptions::Filter::kBillboard ? opt_.billboard.temporal_radius : 0;
   return std::max(spacetime(), rec_->kind == RecordingKind::kPly ? 0 : bb);
@@ -496,7 +501,7 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
       }
     }
     BillboardFilterOptions fo = opt_.billboard;
-    if (fo.threads == 0) fo.threads = std::max(1, HardwareThreads() / std::max(1, opt_.workers));
+    if (fo.threads == 0) fo.threads = StageThreads();
     HVDB_ASSIGN_OR_RETURN(std::vector<cv::Mat> filtered, FilterBillboards(ptrs, centre, fo));
     rep->stage_ms["billboard"] += MsSince(t0);
     t0 = Clock::now();
@@ -520,18 +525,21 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
     rep->stage_ms["points"] += MsSince(t0);
   }
   rep->valid_depth_pct = views ? valid / static_cast<double>(views) : 0;
-  if (opt_.geometric_consistency && depth_maps.size() > 1 && !points.empty()) {
-    auto t0 = Clock::now();
-    std::vector<DepthMapView> dm;
-    for (size_t i = 0; i < depth_maps.size(); ++i) dm.push_back({&depth_models[i], depth_maps[i], depth_ids[i]});
-    GeometricConsistencyOptions go = opt_.geometric;
-    if (go.threads == 0) go.threads = std::max(1, HardwareThreads() / std::max(1, opt_.workers));
-    std::vector<uint8_t> keep = GeometricConsistencyMask(points, dm, go);
+  // Removes the points a cleaning stage did not keep, counting them.
+  auto keep_only = [&](const std::vector<uint8_t>& keep) {
     size_t out = 0;
     for (size_t i = 0; i < points.size(); ++i)
       if (keep[i]) points[out++] = points[i];
     rep->outliers_removed += points.size() - out;
     points.resize(out);
+  };
+  if (opt_.geometric_consistency && depth_maps.size() > 1 && !points.empty()) {
+    auto t0 = Clock::now();
+    std::vector<DepthMapView> dm;
+    for (size_t i = 0; i < depth_maps.size(); ++i) dm.push_back({&depth_models[i], depth_maps[i], depth_ids[i]});
+    GeometricConsistencyOptions go = opt_.geometric;
+    if (go.threads == 0) go.threads = StageThreads();
+    keep_only(GeometricConsistencyMask(points, dm, go));
     rep->stage_ms["geometry"] += MsSince(t0);
   }
   if (billboards != nullptr && !filtered_boards.empty()) {
@@ -569,14 +577,8 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
     for (size_t i = 0; i < colour_models.size(); ++i)
       cv_views.push_back(ColourView{&colour_models[i], colour_images[i]});
     PhotoConsistencyOptions pc = opt_.photo;
-    if (pc.threads == 0) pc.threads = std::max(1, HardwareThreads() / std::max(1, opt_.workers));
-    PhotoConsistencyStats st;
-    std::vector<uint8_t> keep = PhotoConsistencyMask(points, cv_views, pc, &st);
-    size_t out = 0;
-    for (size_t i = 0; i < points.size(); ++i)
-      if (keep[i]) points[out++] = points[i];
-    rep->outliers_removed += points.size() - out;
-    points.resize(out);
+    if (pc.threads == 0) pc.threads = StageThreads();
+    keep_only(PhotoConsistencyMask(points, cv_views, pc));
     rep->stage_ms["photo"] += MsSince(t0);
   }
   rep->points = points.size();

@@ -138,6 +138,8 @@ class FrameProcessor {
   Result<cv::Mat> ColourDepth(const FrameInput& input, size_t j) const;
   // object_strokes: reads the strokes and fits each brick's segmentation model on them.
   Status FitObjectModels();
+  // Threads for a stage of one frame (geometry, photo-consistency, the billboard filter).
+  int StageThreads() const;
 
   const Recording* rec_ = nullptr;
   IngestOptions opt_;

@@ -4,6 +4,7 @@
 
 #include "render/projective_texture.h"
 
+#include <chrono>
 #include <cmath>
 #include <nlohmann/json.hpp>
 
@@ -360,9 +361,16 @@ Status RenderJob::Draw(size_t i, Renderer& renderer, const std::atomic<bool>* ca
     o.width = std::max(1u, w / 2);
     o.height = std::max(1u, h / 2);
   }
+  // The progressive preview stays a plain point rendering: a quick look. The billboards replace
+  // the points, which are then not drawn (their frame is all they are needed for).
+  if (billboards_ && !steps_[i].preview) {
+    const auto t0 = std::chrono::steady_clock::now();
+    HVDB_RETURN_IF_ERROR(Billboards(view, o));
+    billboards_ms_ = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    return Status::OK();
+  }
+  billboards_ms_ = -1;
   HVDB_RETURN_IF_ERROR(renderer.RenderInto(current_.points, view, o, &image_));
-  // The progressive preview stays a plain point rendering: a quick look.
-  if (billboards_ && !steps_[i].preview) return Billboards(view, o);
   if (texture_ && !steps_[i].preview) HVDB_RETURN_IF_ERROR(Texture(view, o, renderer));
   return Status::OK();
 }
@@ -404,9 +412,9 @@ Status RenderJob::Billboards(const Camera& view, const RenderOptions& o) {
     }
     boards_frame_ = frame;
   }
-  const Camera drawn = image_.width == view.width && image_.height == view.height
-                           ? view
-                           : view.Resized(image_.width, image_.height);
+  // The view at the size asked for (RenderOptions width/height, else its own).
+  const uint32_t w = o.width != 0 ? o.width : view.width, h = o.height != 0 ? o.height : view.height;
+  const Camera drawn = w == view.width && h == view.height ? view : view.Resized(w, h);
   BillboardDrawOptions bo;
   bo.background = o.background;
   HVDB_RETURN_IF_ERROR(DrawBillboardDepth(drawn, boards_, bo, &image_));
@@ -483,7 +491,7 @@ Result<wire::RenderReply> RenderJob::Render(size_t i, Renderer& renderer,
   reply.set_height(img.height);
   reply.set_renderer_used(renderer.name());
   reply.set_points(current_.points.size());
-  reply.set_render_ms(renderer.last_stats().milliseconds);
+  reply.set_render_ms(billboards_ms_ >= 0 ? billboards_ms_ : renderer.last_stats().milliseconds);
   reply.set_index(static_cast<uint32_t>(steps_[i].view));
   reply.set_preview(steps_[i].preview);
   reply.set_lod(static_cast<uint32_t>(steps_[i].lod));

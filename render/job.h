@@ -110,6 +110,7 @@ class RenderJob {
   bool billboards_ = false;                      // Render.billboards
   std::vector<BillboardSource> boards_;          // the billboards of boards_frame_
   uint32_t boards_frame_ = UINT32_MAX;
+  double billboards_ms_ = -1;                    // the last image's billboard draw (-1: none)
   uint32_t highlight_mask_ = 0;                  // the selection overlay (Render.highlight_*)
   std::array<float, 4> highlight_{1.f, 0.45f, 0.f, 0.5f};
   std::vector<Camera> views_;

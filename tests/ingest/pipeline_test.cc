@@ -27,6 +27,7 @@
 #include "render/metrics.h"
 #include "render/renderer.h"
 #include "storage/database.h"
+#include "tests/ingest/strokes.h"
 #include "tests/ingest/test_util.h"
 #include "tests/server/server_process.h"
 
@@ -149,6 +150,20 @@ double Quantile(std::vector<double> v, double q) {
   if (v.empty()) return NAN;
   std::sort(v.begin(), v.end());
   return v[std::min(v.size() - 1, static_cast<size_t>(q * v.size()))];
+}
+
+// A Render request through `backend`: the PNG it answers, kept at `path` and read back (an
+// empty image when it failed; *st says why).
+render::Srgb8Image RenderPng(client::Backend& backend, const wire::Render& req, const std::string& path,
+                             Status* st) {
+  std::string png;
+  *st = backend.Render(req, [&](const wire::RenderReply& reply) {
+    png = reply.png();
+    return Status::OK();
+  });
+  std::ofstream(path, std::ios::binary) << png;
+  auto im = render::ReadSrgb8(path);
+  return st->ok() && im.ok() ? *im : render::Srgb8Image{};
 }
 
 TEST(Pipeline, GeneratedStereoRecordingGivesAccuratePoints) {
@@ -463,17 +478,10 @@ TEST(Pipeline, DepthRecordingThroughTheServer) {
     wire::ToWire(Region{Window{{-1e9, -1e9, -1e9, 0}, {1e9, 1e9, 1e9, 0}}}, req.mutable_region());
     req.set_texture(texture);
     req.set_renderer(wire::RENDERER_CPU);
-    std::string png;
-    Status st = (*backend)->Render(req, [&](const wire::RenderReply& reply) {
-      png = reply.png();
-      return Status::OK();
-    });
+    Status st;
+    render::Srgb8Image im = RenderPng(**backend, req, dir / (texture ? "textured.png" : "points.png"), &st);
     EXPECT_TRUE(st.ok()) << st.ToString();
-    const std::string path = dir / (texture ? "textured.png" : "points.png");
-    std::ofstream(path, std::ios::binary) << png;
-    auto im = render::ReadSrgb8(path);
-    EXPECT_TRUE(im.ok());
-    return im.ok() ? *im : render::Srgb8Image{};
+    return im;
   };
   const render::Srgb8Image points_only = render(false), textured = render(true);
   auto photo = render::ReadSrgb8(stereo->Path(stereo->files[0].colour, 0));
@@ -533,21 +541,12 @@ TEST(Pipeline, ObjectStrokesIngestTheMarkedObjectOnly) {
     const std::string name = rec->calibration.cameras[b.colour].name;
     const cv::Mat ids = cv::imread(dir / "rec" + "/groundtruth/000000/" + name + ".object.png", cv::IMREAD_UNCHANGED);
     ASSERT_FALSE(ids.empty());
-    cv::Mat inside, outside;
-    cv::erode(ids == kObjectMoving, inside, cv::Mat::ones(7, 7, CV_8U));
-    cv::erode(ids != kObjectMoving, outside, cv::Mat::ones(17, 17, CV_8U));
-    const cv::Moments m = cv::moments(ids == kObjectMoving, true);
-    ASSERT_GT(m.m00, 100);
-    const int cy = static_cast<int>(m.m01 / m.m00);
+    ASSERT_GT(cv::countNonZero(ids == kObjectMoving), 100);
+    const cv::Mat marks = testing::BrushStrokes(ids == kObjectMoving);
+    // Painted as the recording's stroke images are: red on the object, blue on the rest.
     cv::Mat paint(ids.size(), CV_8UC3, cv::Scalar(128, 128, 128));
-    for (int y = 0; y < ids.rows; ++y)
-      for (int x = 0; x < ids.cols; ++x) {
-        const bool object_line = std::abs(y - cy) <= 1 && inside.at<uint8_t>(y, x);
-        const bool rest_line = (y == ids.rows / 5 || y == ids.rows / 2 || y == 4 * ids.rows / 5 ||
-                                x == ids.cols / 10 || x == 9 * ids.cols / 10) && outside.at<uint8_t>(y, x);
-        if (object_line) paint.at<cv::Vec3b>(y, x) = {0, 0, 255};
-        if (rest_line) paint.at<cv::Vec3b>(y, x) = {255, 0, 0};
-      }
+    paint.setTo(cv::Scalar(0, 0, 255), marks == kStrokeObject);
+    paint.setTo(cv::Scalar(255, 0, 0), marks == kStrokeRest);
     ASSERT_TRUE(cv::imwrite(dir / "rec/strokes" + "/" + name + ".png", paint));
     const cv::Mat ids1 = cv::imread(dir / "rec" + "/groundtruth/000001/" + name + ".object.png", cv::IMREAD_UNCHANGED);
     box_pixels[b.colour] = cv::countNonZero(ids1 == kObjectMoving);
@@ -638,15 +637,7 @@ TEST(Pipeline, BillboardsThroughTheServer) {
     req.set_billboards(billboards);
     req.set_texture(texture);
     req.set_renderer(wire::RENDERER_CPU);
-    std::string png;
-    *st = (*backend)->Render(req, [&](const wire::RenderReply& reply) {
-      png = reply.png();
-      return Status::OK();
-    });
-    const std::string path = dir / ("r" + std::to_string(billboards) + std::to_string(texture) + ".png");
-    std::ofstream(path, std::ios::binary) << png;
-    auto im = render::ReadSrgb8(path);
-    return im.ok() ? *im : render::Srgb8Image{};
+    return RenderPng(**backend, req, dir / ("r" + std::to_string(billboards) + std::to_string(texture) + ".png"), st);
   };
   Status st;
   const render::Srgb8Image boards = render(1, true, false, &st);

@@ -11,6 +11,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "ingest/generator.h"
+#include "tests/ingest/strokes.h"
 #include "tests/ingest/test_util.h"
 
 namespace hvdb::ingest {
@@ -47,27 +48,6 @@ std::vector<Frame> MovingBoxFrames(const std::string& dir, int frames) {
   return out;
 }
 
-// Brush lines as a user would paint them: one across the object along its middle row, and
-// lines across the rest of the picture, each kept a few pixels inside its region.
-cv::Mat Strokes(const cv::Mat& truth) {
-  cv::Mat inside, outside;
-  cv::erode(truth, inside, cv::Mat::ones(7, 7, CV_8U));
-  cv::erode(truth == 0, outside, cv::Mat::ones(17, 17, CV_8U));
-  const cv::Moments m = cv::moments(truth, true);
-  const int cy = static_cast<int>(m.m01 / m.m00);
-  cv::Mat strokes(truth.size(), CV_8U, cv::Scalar(0));
-  for (int y = cy - 1; y <= cy + 1; ++y)
-    for (int x = 0; x < truth.cols; ++x)
-      if (inside.at<uint8_t>(y, x)) strokes.at<uint8_t>(y, x) = kStrokeObject;
-  for (int row : {truth.rows / 5, truth.rows / 2, 4 * truth.rows / 5})
-    for (int x = 0; x < truth.cols; ++x)
-      if (outside.at<uint8_t>(row, x)) strokes.at<uint8_t>(row, x) = kStrokeRest;
-  for (int col : {truth.cols / 10, 9 * truth.cols / 10})
-    for (int y = 0; y < truth.rows; ++y)
-      if (outside.at<uint8_t>(y, col)) strokes.at<uint8_t>(y, col) = kStrokeRest;
-  return strokes;
-}
-
 double Iou(const cv::Mat& a, const cv::Mat& b) {
   return static_cast<double>(cv::countNonZero(a & b)) / std::max(1, cv::countNonZero(a | b));
 }
@@ -81,7 +61,7 @@ TEST(SegmentationTest, StrokesInOneFrameCutTheMovingBoxInEveryFrame) {
     depths.push_back(f.depth);
     strokes.push_back(cv::Mat());
   }
-  strokes[0] = Strokes(frames[0].truth);
+  strokes[0] = testing::BrushStrokes(frames[0].truth);
   ASSERT_GT(cv::countNonZero(strokes[0] == kStrokeObject), 10);
   auto iou = [&](double lambda_z) {
     SegmentationOptions o;
