@@ -66,6 +66,10 @@ constexpr int kExitOk = 0;
 constexpr int kExitError = 1;
 constexpr int kExitUsage = 2;
 
+constexpr const char* kSkipInvalidHelp =
+    "Leave out points with a NaN or infinite coordinate and say how many (default: such a file "
+    "is an error and nothing of it is loaded)";
+
 double MsSince(Clock::time_point start) {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
 }
@@ -212,6 +216,7 @@ struct ImportArgs {
   double units_scale = 1.0;
   double sigma = 0.005;
   bool keep_ids = false;
+  bool skip_invalid = false;
   bool json = false;
 };
 
@@ -258,6 +263,7 @@ struct EditArgs {
   std::string paste;
   std::optional<uint32_t> paste_frame;
   double units_scale = 1.0;
+  bool skip_invalid = false;
   bool json = false;
   // To apply the operations in command-line order.
   CLI::Option *delete_opt = nullptr, *label_opt = nullptr, *box_opt = nullptr,
@@ -341,6 +347,7 @@ struct CompositeArgs {
   std::string name;
   std::string ply;
   double units_scale = 1.0;
+  bool skip_invalid = false;
   uint32_t first_frame = 0;
   uint32_t frames = 0;
   std::string trajectory;
@@ -840,6 +847,7 @@ Cli::Cli(CLI::App& app) : app_(app) {
       ->check(NonNegative());
   import_cmd_->add_flag("--keep-ids", import_.keep_ids,
                         "Keep the files' point ids (default: the engine assigns new ones)");
+  import_cmd_->add_flag("--skip-invalid", import_.skip_invalid, kSkipInvalidHelp);
   import_cmd_->add_flag("--json", import_.json, "Print a JSON summary");
   import_cmd_->footer("Files may be PLY, hvdb7 streams (hvdb export, hvdb-codec) or Draco files "
                       "(hvdb export --codec draco); temporal hvdb7 streams must follow the frame "
@@ -919,6 +927,10 @@ Cli::Cli(CLI::App& app) : app_(app) {
   edit_.paste_opt->needs("--frame");
   edit_cmd_->add_option("--units-scale", edit_.units_scale, "With --paste: position multiplier")
       ->check(Positive());
+  edit_cmd_
+      ->add_flag("--skip-invalid", edit_.skip_invalid,
+                 std::string("With --paste: ") + kSkipInvalidHelp)
+      ->needs(edit_.paste_opt);
   edit_cmd_->add_flag("--json", edit_.json, "Print JSON");
 
   undo_cmd_ = app.add_subcommand(
@@ -1147,6 +1159,7 @@ Cli::Cli(CLI::App& app) : app_(app) {
       "--trajectory", composite_.trajectory,
       "FILE.csv: one line 'dx,dy,dz' (metres) per frame, offsetting the object in frame F + i "
       "(default: it stays put)");
+  composite_cmd_->add_flag("--skip-invalid", composite_.skip_invalid, kSkipInvalidHelp);
   composite_cmd_->add_flag("--json", composite_.json, "Print JSON");
   composite_cmd_->footer(
       "All frames are inserted in one transaction; prints its lsn ('hvdb undo NAME LSN' removes\n"
@@ -1459,6 +1472,22 @@ void PlaceFrame(const ply::ReadOptions& ro, std::vector<Point>* pts) {
   }
 }
 
+// Reads a PLY file for import, edit --paste or composite; points left out by ro.skip_invalid
+// are said on stderr (after bar's line is cleared), so none goes missing unnoticed.
+Result<std::vector<Point>> ReadPlyNoting(const std::string& path, const ply::ReadOptions& ro,
+                                         uint64_t* skipped = nullptr, ProgressBar* bar = nullptr) {
+  ply::ReadStats stats;
+  Result<std::vector<Point>> pts = ply::ReadPly(path, ro, &stats);
+  if (pts.ok() && stats.skipped_non_finite > 0) {
+    if (bar) bar->Clear();
+    std::fprintf(stderr, "hvdb: skipped %llu point%s with a NaN or infinite coordinate in %s\n",
+                 static_cast<unsigned long long>(stats.skipped_non_finite),
+                 stats.skipped_non_finite == 1 ? "" : "s", path.c_str());
+  }
+  if (skipped) *skipped = stats.skipped_non_finite;
+  return pts;
+}
+
 Result<std::vector<Point>> ReadStreamFrame(const std::string& path, const ply::ReadOptions& ro,
                                            codec::Reference* reference) {
   Result<std::vector<Point>> pts =
@@ -1523,9 +1552,15 @@ int Cli::CmdImport() {
   if (!info.ok()) return Fail(info.status());
   Clock::time_point start = Clock::now();
   ProgressBar bar(a.files.size());
-  uint64_t total = 0;
+  uint64_t total = 0, skipped_total = 0;
   json frames = json::array();
   codec::Reference reference;  // the previous decoded stream, for temporal ones
+  // Each frame's load is atomic and durable: on a failure at file i, say which frames made it.
+  auto done = [&](size_t i) {
+    return i == 0 ? std::string("no frame was loaded")
+                  : "frames " + std::to_string(a.frame) + ".." +
+                        std::to_string(a.frame + static_cast<uint32_t>(i) - 1) + " were loaded";
+  };
   bar.Update(0, 0);
   for (size_t i = 0; i < a.files.size(); ++i) {
     ply::ReadOptions ro;
@@ -1533,13 +1568,15 @@ int Cli::CmdImport() {
     ro.frame = a.frame + static_cast<uint32_t>(i);
     ro.force_frame = true;
     ro.default_sigma = a.sigma;
+    ro.skip_invalid = a.skip_invalid;
+    uint64_t skipped = 0;
     Result<std::vector<Point>> pts =
         client::IsHvdb7File(a.files[i])   ? ReadStreamFrame(a.files[i], ro, &reference)
         : client::IsDracoFile(a.files[i]) ? ReadDracoFrame(a.files[i], ro)
-                                          : ply::ReadPly(a.files[i], ro);
+                                          : ReadPlyNoting(a.files[i], ro, &skipped, &bar);
     if (!pts.ok()) {
       bar.Clear();
-      return Fail(pts.status());
+      return Fail(Status(pts.status().code(), pts.status().message() + " (" + done(i) + ")"));
     }
     if (!a.keep_ids) {
       for (Point& p : *pts) p.id = 0;
@@ -1548,26 +1585,32 @@ int Cli::CmdImport() {
     Result<uint64_t> loaded = db().BulkLoad(a.name, ro.frame, std::move(pts).value());
     if (!loaded.ok()) {
       bar.Clear();
-      // Each frame's load is atomic and durable: say which frames made it in.
-      std::string done = i == 0 ? "no frame was loaded"
-                                : "frames " + std::to_string(a.frame) + ".." +
-                                      std::to_string(ro.frame - 1) + " were loaded";
-      return Fail(
-          Status(loaded.status().code(), a.files[i] + " -> frame " + std::to_string(ro.frame) +
-                                             ": " + loaded.status().message() + " (" + done + ")"));
+      return Fail(Status(loaded.status().code(),
+                         a.files[i] + " -> frame " + std::to_string(ro.frame) + ": " +
+                             loaded.status().message() + " (" + done(i) + ")"));
     }
     total += n;
-    frames.push_back({{"frame", ro.frame}, {"file", a.files[i]}, {"points", n}});
+    skipped_total += skipped;
+    frames.push_back(
+        {{"frame", ro.frame}, {"file", a.files[i]}, {"points", n}, {"skipped_invalid", skipped}});
     bar.Update(i + 1, total);
   }
   bar.Clear();
   double ms = MsSince(start);
   if (a.json) {
-    PrintJson({{"dataset", a.name}, {"points", total}, {"frames", frames}, {"elapsed_ms", ms}});
+    PrintJson({{"dataset", a.name},
+               {"points", total},
+               {"skipped_invalid", skipped_total},
+               {"frames", frames},
+               {"elapsed_ms", ms}});
   } else {
-    std::printf("imported %llu points into frames %u..%u of '%s' in %.2f s\n",
+    std::printf("imported %llu points into frames %u..%u of '%s' in %.2f s%s\n",
                 static_cast<unsigned long long>(total), a.frame,
-                a.frame + static_cast<uint32_t>(a.files.size() - 1), a.name.c_str(), ms / 1e3);
+                a.frame + static_cast<uint32_t>(a.files.size() - 1), a.name.c_str(), ms / 1e3,
+                skipped_total ? Printf(" (skipped %llu with a NaN or infinite coordinate)",
+                                       static_cast<unsigned long long>(skipped_total))
+                                    .c_str()
+                              : "");
   }
   return kExitOk;
 }
@@ -1714,7 +1757,8 @@ int Cli::CmdEdit() {
     ro.scale = a.units_scale;
     ro.frame = *a.paste_frame;
     ro.force_frame = true;
-    Result<std::vector<Point>> pts = ply::ReadPly(a.paste, ro);
+    ro.skip_invalid = a.skip_invalid;
+    Result<std::vector<Point>> pts = ReadPlyNoting(a.paste, ro);
     if (!pts.ok()) return Fail(pts.status());
     for (Point& p : *pts) p.id = 0;  // pasted copies are new points
     ops.emplace_back(position({a.paste_opt}), Transaction::InsertOp{std::move(pts).value()});
@@ -2053,7 +2097,8 @@ int Cli::CmdComposite() {
   }
   ply::ReadOptions ro;
   ro.scale = a.units_scale;
-  Result<std::vector<Point>> object = ply::ReadPly(a.ply, ro);
+  ro.skip_invalid = a.skip_invalid;
+  Result<std::vector<Point>> object = ReadPlyNoting(a.ply, ro);
   if (!object.ok()) return Fail(object.status());
   if (object->empty()) {
     return Fail(Status::InvalidArgument("'" + a.ply + "' has no points to composite"));

@@ -446,13 +446,18 @@ class VertexBuilder {
     return Status::OK();
   }
 
-  // Builds the point from values(); false if it is to be dropped.
-  bool Build(Point* p) const {
-    const double* v = vals_;
-    if (opts_.drop_non_finite &&
-        !(std::isfinite(v[kX]) && std::isfinite(v[kY]) && std::isfinite(v[kZ]))) {
-      return false;
+  // The first of x, y, z (0..2) of values() that is not finite as the stored float, or -1.
+  int NonFiniteAxis() const {
+    for (int a = 0; a < 3; ++a) {
+      if (!std::isfinite(static_cast<float>(vals_[kX + a] * opts_.scale))) return a;
     }
+    return -1;
+  }
+  double value(Field f) const { return vals_[f]; }
+
+  // Builds the point from values().
+  void Build(Point* p) const {
+    const double* v = vals_;
     *p = Point{};
     p->x = static_cast<float>(v[kX] * opts_.scale);
     p->y = static_cast<float>(v[kY] * opts_.scale);
@@ -484,7 +489,6 @@ class VertexBuilder {
     if (present_[kCamera]) p->camera = ClampTo<uint16_t>(v[kCamera]);
     // An hvdb file says exactly which fields are valid; trust it over the guesses above.
     p->flags = present_[kFlags] ? ClampTo<uint8_t>(v[kFlags]) : flags;
-    return true;
   }
 
  private:
@@ -693,7 +697,23 @@ std::array<float, 3> NormalForOct(std::array<int16_t, 2> oct) {
   return d;  // a code EncodeNormal never produces (e.g. -32768): the nearest normal
 }
 
-Result<std::vector<Point>> ReadPly(const std::string& path, const ReadOptions& opts) {
+namespace {
+
+// The error for `bad` vertices with a non-finite coordinate among `total`; `first` describes
+// the first of them.
+Status NonFiniteError(const std::string& path, uint64_t bad, uint64_t total,
+                      const std::string& first) {
+  return Status::InvalidArgument(
+      path + ": " + std::to_string(bad) + " of " + std::to_string(total) +
+      (bad == 1 ? " vertices has" : " vertices have") + " a NaN or infinite coordinate (" + first +
+      "); nothing was read. Pass --skip-invalid (Python: skip_invalid=True) to import " +
+      "the other " + std::to_string(total - bad) + " and skip these");
+}
+
+}  // namespace
+
+Result<std::vector<Point>> ReadPly(const std::string& path, const ReadOptions& opts,
+                                   ReadStats* stats) {
   if (!(opts.scale > 0) || !std::isfinite(opts.scale)) {
     return Status::InvalidArgument(path + ": scale must be positive and finite, not " +
                                    std::to_string(opts.scale));
@@ -722,16 +742,33 @@ Result<std::vector<Point>> ReadPly(const std::string& path, const ReadOptions& o
       1, h.format == Format::kAscii ? 2 * vertex->props.size() : vertex->props.size());
   points.reserve(static_cast<size_t>(std::min<uint64_t>(vertex->count, file_size / min_bytes + 1)));
   ElementReader reader(in, path, h.format);
+  uint64_t index = 0, bad = 0;
+  std::string first_bad;
   for (const Element& e : h.elements) {
     if (&e == vertex) {
       Point p;
       HVDB_RETURN_IF_ERROR(reader.Read(e, &builder, [&] {
-        if (builder.Build(&p)) points.push_back(p);
+        if (int axis = builder.NonFiniteAxis(); axis >= 0) {
+          if (bad++ == 0) {
+            double v = builder.value(static_cast<Field>(kX + axis));
+            char buf[96];
+            std::snprintf(buf, sizeof buf, "the first: vertex %llu, %c = %g%s",
+                          static_cast<unsigned long long>(index), "xyz"[axis], v,
+                          std::isfinite(v) ? ", beyond float range" : "");
+            first_bad = buf;
+          }
+        } else if (bad == 0 || opts.skip_invalid) {  // refusing: the rest is only counted
+          builder.Build(&p);
+          points.push_back(p);
+        }
+        ++index;
       }));
     } else {
       HVDB_RETURN_IF_ERROR(reader.Read(e, nullptr, [] {}));
     }
   }
+  if (bad > 0 && !opts.skip_invalid) return NonFiniteError(path, bad, index, first_bad);
+  if (stats) *stats = {index, bad};
   return points;
 }
 

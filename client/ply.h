@@ -34,8 +34,16 @@ struct ReadOptions {
   // after scaling). Estimating it from the nearest-neighbour spacing would cost a k-d tree
   // per file, so a fixed value is used; 0.005 m is about the spacing of a Kinect fusion cloud.
   double default_sigma = 0.005;
-  // Vertices with a NaN or infinite coordinate (holes in organised clouds) are left out.
-  bool drop_non_finite = true;
+  // A vertex with a NaN or infinite x, y or z (a hole of an organised cloud, a broken exporter;
+  // also a value beyond float range once scaled) makes the read fail, so that points never go
+  // missing unnoticed. true: such vertices are left out, counted in ReadStats.
+  bool skip_invalid = false;
+};
+
+// What a read found besides the points it returns.
+struct ReadStats {
+  uint64_t vertices = 0;            // in the file's vertex element
+  uint64_t skipped_non_finite = 0;  // left out by ReadOptions::skip_invalid
 };
 
 // Reads the `vertex` element of a PLY file. Properties recognised (any PLY scalar type):
@@ -46,7 +54,10 @@ struct ReadOptions {
 //   frame label camera flags   hvdb fields; `flags`, when present, is taken as written
 //   cov_xx cov_xy cov_xz cov_yy cov_yz cov_zz   covariance in m^2 (sets kFlagHasCovariance)
 // Anything else (alpha, quality, list properties, other elements) is read and ignored.
-Result<std::vector<Point>> ReadPly(const std::string& path, const ReadOptions& opts = {});
+// A vertex with a non-finite coordinate is InvalidArgument naming the file, the first such
+// vertex and how many there are, unless opts.skip_invalid. stats (optional) is filled on success.
+Result<std::vector<Point>> ReadPly(const std::string& path, const ReadOptions& opts = {},
+                                   ReadStats* stats = nullptr);
 
 // A sink for points, written batch by batch so a query result never has to fit in memory.
 class PointWriter {

@@ -94,6 +94,21 @@ int Fail(const Status& st) {
   return 1;
 }
 
+// An input PLY; with skip_invalid its points with a NaN or infinite coordinate are left out
+// and said on stderr (without it they make the read fail).
+Result<std::vector<Point>> ReadInput(const std::string& path, bool skip_invalid) {
+  ply::ReadOptions ro;
+  ro.skip_invalid = skip_invalid;
+  ply::ReadStats stats;
+  auto pts = ply::ReadPly(path, ro, &stats);
+  if (pts.ok() && stats.skipped_non_finite > 0) {
+    std::fprintf(stderr,
+                 "hvdb-codec: skipped %llu points with a NaN or infinite coordinate in %s\n",
+                 static_cast<unsigned long long>(stats.skipped_non_finite), path.c_str());
+  }
+  return pts;
+}
+
 }  // namespace
 }  // namespace hvdb
 
@@ -103,6 +118,9 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
 
   std::string in, out, reference, attributes = "position,color,normal";
+  bool skip_invalid = false;
+  const char* skip_invalid_help =
+      "Leave out points with a NaN or infinite coordinate and say how many (default: an error)";
   codec::EncodeOptions eo;
   auto* enc = app.add_subcommand("encode", "Code a PLY file into an hvdb7 stream");
   enc->add_option("IN", in, "Input PLY")->required()->check(CLI::ExistingFile);
@@ -128,6 +146,7 @@ int main(int argc, char** argv) {
   enc->add_option("--reference", reference,
                   "Decoded previous frame (PLY from `decode`, or an intra stream): temporal coding")
       ->check(CLI::ExistingFile);
+  enc->add_flag("--skip-invalid", skip_invalid, skip_invalid_help);
 
   size_t bytes = 0;
   std::string dec_reference;
@@ -147,6 +166,7 @@ int main(int argc, char** argv) {
   auto* cmp = app.add_subcommand("compare", "PSNR of a decoded PLY against the original (7.5)");
   cmp->add_option("ORIGINAL", in, "Original PLY")->required()->check(CLI::ExistingFile);
   cmp->add_option("DECODED", other, "Decoded PLY")->required()->check(CLI::ExistingFile);
+  cmp->add_flag("--skip-invalid", skip_invalid, skip_invalid_help);
 
   try {
     app.parse(argc, argv);
@@ -160,7 +180,7 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "hvdb-codec: %s\n", st.message().c_str());
       return 2;
     }
-    auto pts = ply::ReadPly(in);
+    auto pts = ReadInput(in, skip_invalid);
     if (!pts.ok()) return Fail(pts.status());
     codec::Reference ref;
     if (!reference.empty()) {
@@ -219,9 +239,9 @@ int main(int argc, char** argv) {
     return 0;
   }
   if (*cmp) {
-    auto a = ply::ReadPly(in);
+    auto a = ReadInput(in, skip_invalid);
     if (!a.ok()) return Fail(a.status());
-    auto b = ply::ReadPly(other);
+    auto b = ReadInput(other, skip_invalid);
     if (!b.ok()) return Fail(b.status());
     codec::Quality q = codec::Compare(a.value(), b.value());
     std::printf("position PSNR %.2f dB (rms %.6g)\ncolour PSNR Y %.2f  U %.2f  V %.2f dB\n"

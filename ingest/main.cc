@@ -48,6 +48,10 @@ void RegisterRun(CLI::App& app, int* rc) {
   cmd->add_option("--count", a->o.count, "frames to ingest (-1: to the end)")->capture_default_str();
   cmd->add_option("--frame-offset", a->o.frame_offset, "dataset frame of recording frame 0")->capture_default_str();
   cmd->add_flag("--skip-bad-frames", a->o.skip_bad_frames, "report bad frames and go on without them");
+  cmd->add_flag(
+      "--skip-invalid", a->o.skip_invalid,
+      "ply: leave out points with a NaN or infinite coordinate and say how many (default: "
+      "such a frame is bad)");
   cmd->add_option("--report", a->report, "write the JSON report (per-frame statistics) here");
   cmd->add_option("--depth-out", a->o.depth_out, "write every depth map made as DIR/NNNNNN/<camera>.depth.exr (with --object-strokes also each view's matte, <camera>.alpha.png: check strokes on a few frames first)");
   cmd->add_option("--stride", a->o.stride, "depth: use every n-th pixel in x and y")->capture_default_str();
@@ -162,6 +166,14 @@ void RegisterRun(CLI::App& app, int* rc) {
                 report->ingested, report->present, report->skipped,
                 static_cast<unsigned long long>(report->points), report->seconds,
                 j["frames_per_s"].get<double>(), j["points_per_s"].get<double>(), report->peak_rss_mb);
+    if (report->skipped_invalid > 0) {
+      int frames = 0;
+      for (const FrameReport& f : report->frames) frames += f.skipped_invalid > 0;
+      std::fprintf(
+          stderr,
+          "hvdb-ingest: skipped %llu points with a NaN or infinite coordinate in %d frame%s\n",
+          static_cast<unsigned long long>(report->skipped_invalid), frames, frames == 1 ? "" : "s");
+    }
     *rc = report->skipped ? 3 : 0;
   });
 }

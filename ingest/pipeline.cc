@@ -155,6 +155,7 @@ nlohmann::json IngestReport::ToJson() const {
   j["skipped"] = skipped;
   j["points"] = points;
   j["bytes_read"] = bytes_read;
+  j["skipped_invalid"] = skipped_invalid;
   j["seconds"] = seconds;
   j["frames_per_s"] = seconds > 0 ? ingested / seconds : 0;
   j["points_per_s"] = seconds > 0 ? static_cast<double>(points) / seconds : 0;
@@ -167,6 +168,7 @@ nlohmann::json IngestReport::ToJson() const {
                         {"valid_depth_pct", f.valid_depth_pct},
                         {"points", f.points},
                         {"outliers_removed", f.outliers_removed},
+                        {"skipped_invalid", f.skipped_invalid},
                         {"stage_ms", f.stage_ms}};
     if (!f.error.empty()) e["error"] = f.error;
     fr.push_back(e);
@@ -262,6 +264,7 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
   if (rec.kind == RecordingKind::kPly) {
     points = in.points;
     rep->points = points.size();
+    rep->skipped_invalid = in.skipped_invalid;
     return points;
   }
   PointOptions po;
@@ -660,7 +663,7 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
       std::vector<FrameInput> loaded;
       Status load_error;
       for (int w = lo; w <= hi && load_error.ok(); ++w) {
-        Result<FrameInput> f = LoadFrame(rec, w);
+        Result<FrameInput> f = LoadFrame(rec, w, opt.skip_invalid);
         if (f.ok()) {
           loaded.push_back(std::move(f).value());
         } else {
@@ -732,6 +735,7 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
       } else {
         ++report.ingested;
         report.points += *loaded;
+        report.skipped_invalid += fr.skipped_invalid;
         report.bytes_read += d.bytes;
       }
     } else {

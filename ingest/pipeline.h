@@ -84,6 +84,9 @@ struct IngestOptions {
   // textured renders (Render.texture).
   bool photos = true;
   bool skip_bad_frames = false;  // a bad frame is reported and skipped instead of stopping
+  // ply: points with a NaN or infinite coordinate are left out and counted (the frame's
+  // FrameReport::skipped_invalid) instead of making their frame bad.
+  bool skip_invalid = false;
   std::string depth_out;       // if set: DIR/NNNNNN/<camera>.depth.exr of every depth map made
   bool progress = false;       // a progress bar on stderr
 };
@@ -95,12 +98,14 @@ struct FrameReport {
   std::string error;
   double valid_depth_pct = 0;  // stereo/depth: pixels with depth / pixels
   uint64_t points = 0, outliers_removed = 0;
+  uint64_t skipped_invalid = 0;            // ply: points left out for a NaN or infinite coordinate
   std::map<std::string, double> stage_ms;  // load, rectify, stereo, points, photo, commit
 };
 
 struct IngestReport {
   int frames_total = 0, ingested = 0, present = 0, skipped = 0;
   uint64_t points = 0, bytes_read = 0;
+  uint64_t skipped_invalid = 0;  // over the ingested frames (IngestOptions::skip_invalid)
   double seconds = 0, peak_rss_mb = 0;
   std::vector<FrameReport> frames;  // in frame order
   nlohmann::json ToJson() const;

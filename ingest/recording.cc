@@ -314,7 +314,7 @@ Result<cv::Mat> LoadDepth(const Recording& r, const std::string& path, const cv:
 
 }  // namespace
 
-Result<FrameInput> LoadFrame(const Recording& r, int index) {
+Result<FrameInput> LoadFrame(const Recording& r, int index, bool skip_invalid) {
   if (index < 0 || index >= r.frames)
     return Status::InvalidArgument("frame " + std::to_string(index) + " is outside the recording (0.." +
                                    std::to_string(r.frames - 1) + ")");
@@ -333,7 +333,10 @@ Result<FrameInput> LoadFrame(const Recording& r, int index) {
     o.scale = r.ply_scale;
     o.frame = static_cast<uint32_t>(index);
     o.force_frame = true;
-    HVDB_ASSIGN_OR_RETURN(in.points, ply::ReadPly(path, o));
+    o.skip_invalid = skip_invalid;
+    ply::ReadStats stats;
+    HVDB_ASSIGN_OR_RETURN(in.points, ply::ReadPly(path, o, &stats));
+    in.skipped_invalid = stats.skipped_non_finite;
     in.bytes_read += size_of(path);
     return in;
   }

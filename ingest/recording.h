@@ -11,7 +11,8 @@
 // {frame} (the source frame number, optionally {frame:06d}-style zero padded) and {camera}.
 //
 // Loading a frame checks every file: missing or unreadable files, wrong image sizes, depth maps
-// with NaN, and images that do not match the calibration are errors naming the file.
+// with NaN, point clouds with NaN or infinite coordinates, and images that do not match the
+// calibration are errors naming the file.
 #ifndef HVDB_INGEST_RECORDING_H_
 #define HVDB_INGEST_RECORDING_H_
 
@@ -84,9 +85,12 @@ struct FrameInput {
   std::vector<StereoView> stereo;
   std::vector<DepthFrameView> depth;
   std::vector<Point> points;  // ply
+  uint64_t skipped_invalid = 0;  // ply: points left out for a NaN or infinite coordinate
   uint64_t bytes_read = 0;
 };
-Result<FrameInput> LoadFrame(const Recording& recording, int index);
+// A ply frame with a NaN or infinite coordinate is an error naming the file, unless
+// skip_invalid: then those points are left out and counted in FrameInput::skipped_invalid.
+Result<FrameInput> LoadFrame(const Recording& recording, int index, bool skip_invalid = false);
 
 // Reads a 4x4 row-major camera-to-world matrix (tolerant of tabs, CRLF and 3-digit exponents).
 Result<cv::Matx44d> ReadPoseFile(const std::string& path);

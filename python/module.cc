@@ -548,20 +548,23 @@ class Database {
   std::string where_;
 };
 
-py::array ReadPly(const std::string& path, double scale) {
+// (points, how many vertices skip_invalid left out); __init__.py's read_ply shapes the result.
+py::tuple ReadPly(const std::string& path, double scale, bool skip_invalid) {
   ply::ReadOptions o;
   o.scale = scale;
+  o.skip_invalid = skip_invalid;
+  ply::ReadStats stats;
   std::vector<Point> pts;
   {
     py::gil_scoped_release release;
-    auto r = ply::ReadPly(path, o);
+    auto r = ply::ReadPly(path, o, &stats);
     if (!r.ok()) {
       py::gil_scoped_acquire acquire;
       Throw(r.status());
     }
     pts = std::move(r).value();
   }
-  return ToArray(std::move(pts));
+  return py::make_tuple(ToArray(std::move(pts)), stats.skipped_non_finite);
 }
 
 void WritePly(const std::string& path, const py::array& points, bool ascii) {
@@ -646,7 +649,7 @@ PYBIND11_MODULE(_hvdb, m) {
       .def("paste", &Database::Paste)
       .def("render", &Database::Render);
 
-  m.def("read_ply", &ReadPly, "path"_a, "scale"_a = 1.0);
+  m.def("read_ply", &ReadPly, "path"_a, "scale"_a = 1.0, "skip_invalid"_a = false);
   m.def("write_ply", &WritePly, "path"_a, "points"_a, "ascii"_a = false);
   m.def("encode_normals", [](const py::array_t<float, py::array::c_style | py::array::forcecast>& n) {
     if (n.ndim() != 2 || n.shape(1) != 3) {

@@ -17,17 +17,18 @@ cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=Debug -DHVDB_SANITIZE=ON -D
 cmake --build build-asan --target storage_tests server_tests codec_tests ingest_points_tests
 ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
   ctest --test-dir build-asan --output-on-failure -j2 --timeout 900 \
-  -R '^(Crc32c|Point|BufferPool|Lod|KdTree|Hyperslice|Wal|Dataset|FollowerTest|Photos|Crash|Corruption|FaultInjection|Server|HttpServer|WsCodec|WebPath|OriginAllowed|CodecTest|DepthSigma|PhotoConsistency|GeometricConsistencyTest|BillboardTest|SegmentationTest)' \
-  -E 'SlowReaderDoesNotGrowServerMemory|AClientThatNeverReleasesHoldsOnlyItsRing|ClientsKilledWhileHoldingSlotsLeakNothing|PhotoConsistency.Throughput'
+  -R '^(Crc32c|Point|BufferPool|Lod|KdTree|Hyperslice|Wal|Dataset|FollowerTest|Photos|Crash|Corruption|FaultInjection|Server|HttpServer|Hardening|HttpHeadCheck|Printable|WsCodec|WebPath|OriginAllowed|CodecTest|DepthSigma|PhotoConsistency|GeometricConsistencyTest|BillboardTest|SegmentationTest)' \
+  -E 'SlowReaderDoesNotGrowServerMemory|PipelinedQueriesOfClientsThatDoNotRead|TheServerWideBudgetHolds|PingsOfAClientThatDoesNotRead|AClientThatNeverReleasesHoldsOnlyItsRing|ClientsKilledWhileHoldingSlotsLeakNothing|PhotoConsistency.Throughput'
 
 # Fuzz the decoders with clang's libFuzzer, 20 seconds each: the frame and message decoder of
-# the socket protocol, the WebSocket messages and HTTP paths of the browser's, the hvdb7
+# the socket protocol, the WebSocket messages and HTTP requests of the browser's, the hvdb7
 # point-stream decoder (codec/) and the photo files of storage/.
 CC=clang CXX=clang++ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DHVDB_FUZZ=ON -DHVDB_BUILD_BENCH=OFF >/dev/null
-cmake --build build-fuzz --target frame_decoder_fuzz ws_message_fuzz hvdb7_decoder_fuzz \
-  photo_decoder_fuzz
+cmake --build build-fuzz --target frame_decoder_fuzz ws_message_fuzz http_request_fuzz \
+  hvdb7_decoder_fuzz photo_decoder_fuzz
 for target in frame_decoder_fuzz:server/fuzz_corpus ws_message_fuzz:server/ws_fuzz_corpus \
+  http_request_fuzz:server/http_fuzz_corpus \
   hvdb7_decoder_fuzz:codec/fuzz_corpus photo_decoder_fuzz:storage/photo_fuzz_corpus; do
   corpus=$(mktemp -d)
   cp "tests/${target#*:}"/* "$corpus"/

@@ -54,8 +54,14 @@ class HttpConnection : public std::enable_shared_from_this<HttpConnection> {
     asio::post(strand_, [self] { self->Shutdown(); });
   }
 
+  // Waiting for a request (not serving one, not a WebSocket's handshake): such a connection
+  // may be closed to make room for a new one when the front end is full.
+  bool idle() const { return idle_; }
+  uint64_t seq = 0;  // order of arrival
+
  private:
   void ReadRequest() {
+    idle_ = true;
     parser_.emplace();
     parser_->header_limit(kMaxHeaderBytes);
     parser_->body_limit(0);
@@ -68,6 +74,7 @@ class HttpConnection : public std::enable_shared_from_this<HttpConnection> {
   }
 
   void OnRequest(beast::error_code ec) {
+    idle_ = false;
     if (ec == http::error::end_of_stream || ec == beast::error::timeout ||
         ec == asio::error::operation_aborted || ec == asio::error::connection_reset ||
         ec == asio::error::eof) {
@@ -84,39 +91,16 @@ class HttpConnection : public std::enable_shared_from_this<HttpConnection> {
     req_ = parser_->release();
     const unsigned version = req_.version();
     const bool keep = req_.keep_alive();
-    auto host_header = req_[http::field::host];
-    if (!HostAllowed(std::string_view(host_header.data(), host_header.size()), front_->origins())) {
-      Log(LogLevel::kWarn, "refused a request for host " + std::string(host_header));
-      return Reply(http::status::forbidden,
-                   "this server does not answer to the host name '" + std::string(host_header) +
-                   "': use its IP address or localhost, or allow the name with hvdb-server "
-                   "--http-origin http://NAME:PORT",
-                   version, false);
+    HttpVerdict v = CheckRequestHead(req_, front_->origins());
+    switch (v.kind) {
+      case HttpVerdict::kUpgrade:
+        return Upgrade();
+      case HttpVerdict::kServeFile:
+        return ServeFile(v.file, version, keep);
+      case HttpVerdict::kRefuse:
+        if (!v.log.empty()) Log(LogLevel::kWarn, v.log);
+        return Reply(static_cast<http::status>(v.status), v.reply, version, keep && !v.close);
     }
-    std::string_view target(req_.target().data(), req_.target().size());
-    std::string_view path = target.substr(0, target.find_first_of("?#"));
-    if (path == "/ws") {
-      if (!websocket::is_upgrade(req_)) {
-        return Reply(http::status::upgrade_required,
-                     "/ws is the WebSocket endpoint: connect with a WebSocket", version, keep);
-      }
-      auto origin = req_[http::field::origin];
-      auto host = req_[http::field::host];
-      if (!OriginAllowed(std::string_view(origin.data(), origin.size()),
-                         std::string_view(host.data(), host.size()), front_->origins())) {
-        Log(LogLevel::kWarn, "refused a WebSocket from origin " + std::string(origin));
-        return Reply(http::status::forbidden,
-                     "origin " + std::string(origin) + " may not connect (allow it with "
-                     "hvdb-server --http-origin)", version, false);
-      }
-      return Upgrade();
-    }
-    if (req_.method() != http::verb::get && req_.method() != http::verb::head) {
-      return Reply(http::status::method_not_allowed, "only GET and HEAD", version, keep);
-    }
-    std::string rel = WebPath(target);
-    if (rel.empty()) return Reply(http::status::bad_request, "bad path", version, keep);
-    ServeFile(rel, version, keep);
   }
 
   void ServeFile(const std::string& rel, unsigned version, bool keep) {
@@ -219,6 +203,7 @@ class HttpConnection : public std::enable_shared_from_this<HttpConnection> {
   std::optional<http::request_parser<http::string_body>> parser_;
   http::request<http::string_body> req_;
   bool done_ = false;
+  std::atomic<bool> idle_{false};
 };
 
 HttpFrontend::HttpFrontend(Server* server, std::string web_root, std::vector<std::string> origins)
@@ -285,11 +270,23 @@ void HttpFrontend::Accept() {
     boost::system::error_code ignored;
     socket.set_option(tcp::no_delay(true), ignored);
     auto c = std::make_shared<HttpConnection>(this, std::move(socket), strand);
-    bool refuse;
+    bool refuse = false;
+    std::shared_ptr<HttpConnection> evicted;
     {
       std::lock_guard<std::mutex> l(mu_);
-      refuse = connections_.size() >= server_->config().max_connections;
+      if (connections_.size() >= server_->config().max_connections) {
+        // Full: the connection that has waited longest for a request makes room (a silent
+        // socket cannot keep the page from loading); refused only if all are busy.
+        for (auto& [p, w] : connections_) {
+          auto other = w.lock();
+          if (other && other->idle() && (!evicted || other->seq < evicted->seq)) evicted = other;
+        }
+        refuse = !evicted;
+        if (evicted) connections_.erase(evicted.get());
+      }
+      c->seq = ++seq_;
     }
+    if (evicted) evicted->Close();
     if (Register(c)) c->Run(refuse);
     Accept();
   });

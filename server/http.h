@@ -61,6 +61,7 @@ class HttpFrontend {
   std::atomic<bool> stopping_{false};
   std::mutex mu_;
   std::map<HttpConnection*, std::weak_ptr<HttpConnection>> connections_;
+  uint64_t seq_ = 0;
 };
 
 }  // namespace hvdb::server

@@ -52,7 +52,27 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(size_t{8}, size_t{1} << 20));
   app.add_option("--max-frame-bytes", c.max_frame_bytes, "largest request frame accepted")
       ->capture_default_str()->check(CLI::Range(1024u, 1u << 30));
-  app.add_option("--max-connections", c.max_connections)->capture_default_str();
+  app.add_option("--max-connections", c.max_connections,
+                 "authenticated connections at once (more are refused as OVERLOADED)")
+      ->capture_default_str()->check(CLI::Range(1u, 65536u));
+  app.add_option("--max-preauth", c.max_preauth,
+                 "connections waiting to say Hello; when full, a new one closes the one there "
+                 "longest")
+      ->capture_default_str()->check(CLI::Range(1u, 65536u));
+  app.add_option("--handshake-timeout", c.handshake_timeout_s,
+                 "seconds a new connection has to send its Hello")
+      ->capture_default_str()->check(CLI::Range(1u, 3600u));
+  size_t connection_buffer_kib = c.outbound_high_water >> 10;
+  app.add_option("--connection-buffer-kib", connection_buffer_kib,
+                 "results buffered for one connection before its queries pause and its "
+                 "requests are no longer read (back-pressure)")
+      ->capture_default_str()->check(CLI::Range(size_t{256}, size_t{1} << 20));
+  size_t memory_budget_mb = 0;
+  app.add_option("--memory-budget", memory_budget_mb,
+                 "MiB of results buffered for all connections together; past it a connection "
+                 "holding results gets no more until it reads them (default: 1/8 of RAM, " +
+                     std::to_string(hvdb::server::DefaultMemoryBudget() >> 20) + " MiB here)")
+      ->check(CLI::Range(size_t{16}, size_t{1} << 24));
   app.add_option("--max-inflight", c.max_inflight, "requests in flight per connection")
       ->capture_default_str()->check(CLI::Range(1u, 4096u));
   app.add_option("--idle-timeout", c.idle_timeout_s, "seconds before an idle connection closes")
@@ -74,6 +94,8 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"error", "warn", "info", "debug"}));
   CLI11_PARSE(app, argc, argv);
   c.sync = !no_sync;
+  c.outbound_high_water = connection_buffer_kib << 10;
+  c.memory_budget = memory_budget_mb << 20;
   c.follow = follow || !c.store.empty();
   hvdb::server::SetLogLevel(log_level == "error"  ? hvdb::server::LogLevel::kError
                             : log_level == "warn" ? hvdb::server::LogLevel::kWarn

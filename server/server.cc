@@ -2,6 +2,7 @@
 
 #include "storage/rados_env.h"
 
+#include <malloc.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <sys/un.h>
@@ -42,7 +43,8 @@ Server::Server(Config config, std::unique_ptr<Database> db)
       renders_(config_.max_renders),
       acceptor_(io_),
       unix_acceptor_(io_),
-      signals_(io_) {}
+      signals_(io_),
+      trim_timer_(asio::make_strand(io_)) {}
 
 Server::~Server() {
   Stop();
@@ -114,6 +116,56 @@ std::string DefaultWebRoot() {
 uint16_t Server::http_port() const { return http_ ? http_->port() : 0; }
 std::string Server::web_root() const { return http_ ? http_->web_root() : ""; }
 
+size_t DefaultMemoryBudget() {
+  const long pages = ::sysconf(_SC_PHYS_PAGES);
+  const long page = ::sysconf(_SC_PAGESIZE);
+  if (pages <= 0 || page <= 0) return size_t{1} << 30;
+  return std::max<size_t>(size_t{64} << 20, static_cast<size_t>(pages) * page / 8);
+}
+
+// "TOKEN ro|rw" lines ('#' comments, blank lines). A file that grants nothing would leave the
+// server open to everyone, so it is refused, as is a token listed twice (which role was meant?).
+static Result<std::map<std::string, Role>> ReadTokenFile(const std::string& path) {
+  std::error_code fec;
+  if (std::filesystem::is_directory(path, fec)) {
+    return Status::InvalidArgument("--token-file " + path + " is a directory; give a file of "
+                                   "'TOKEN ro|rw' lines");
+  }
+  std::ifstream in(path);
+  if (!in) return Status::NotFound("--token-file: cannot read " + path);
+  std::map<std::string, Role> tokens;
+  std::map<std::string, int> first_line;
+  std::string line;
+  int n = 0;
+  while (std::getline(in, line)) {
+    ++n;
+    const size_t start = line.find_first_not_of(" \t\r");
+    if (start == std::string::npos || line[start] == '#') continue;
+    std::istringstream ls(line);
+    std::string tok, role, extra;
+    ls >> tok >> role >> extra;
+    if (tok.size() < 16 || (role != "ro" && role != "rw") || !extra.empty()) {
+      return Status::InvalidArgument(path + " line " + std::to_string(n) +
+                                     ": expected 'TOKEN ro|rw' with a token of 16+ characters");
+    }
+    auto [it, fresh] = first_line.emplace(tok, n);
+    if (!fresh) {
+      return Status::InvalidArgument(path + " line " + std::to_string(n) +
+                                     ": this token is already given on line " +
+                                     std::to_string(it->second) +
+                                     "; list each token once, with one role");
+    }
+    tokens[tok] = role == "rw" ? Role::kReadWrite : Role::kReadOnly;
+  }
+  if (in.bad()) return Status::IOError("--token-file: cannot read " + path);
+  if (tokens.empty()) {
+    return Status::InvalidArgument("--token-file " + path + " has no tokens: the server would "
+                                   "let everyone in; add 'TOKEN ro|rw' lines (tokens of 16+ "
+                                   "characters) or leave out --token-file");
+  }
+  return tokens;
+}
+
 static bool ParseHostPort(const std::string& s, std::string* host, uint16_t* port) {
   auto colon = s.rfind(':');
   if (colon == std::string::npos) return false;
@@ -167,22 +219,7 @@ Result<std::unique_ptr<Server>> Server::Create(const Config& config) {
   }
   std::map<std::string, Role> tokens;
   if (!config.token_file.empty()) {
-    std::ifstream in(config.token_file);
-    if (!in) return Status::NotFound("--token-file: cannot read " + config.token_file);
-    std::string line;
-    int n = 0;
-    while (std::getline(in, line)) {
-      ++n;
-      if (line.empty() || line[0] == '#') continue;
-      std::istringstream ls(line);
-      std::string tok, role;
-      ls >> tok >> role;
-      if (tok.size() < 16 || (role != "ro" && role != "rw")) {
-        return Status::InvalidArgument(config.token_file + " line " + std::to_string(n) +
-                                       ": expected 'TOKEN ro|rw' with a token of 16+ characters");
-      }
-      tokens[tok] = role == "rw" ? Role::kReadWrite : Role::kReadOnly;
-    }
+    HVDB_ASSIGN_OR_RETURN(tokens, ReadTokenFile(config.token_file));
   }
   if (non_loopback && tokens.empty()) {
     return Status::InvalidArgument("--listen " + tcp_listen +
@@ -230,6 +267,7 @@ Result<std::unique_ptr<Server>> Server::Create(const Config& config) {
   s->store_env_ = std::move(store_env);
   s->tokens_ = std::move(tokens);
   s->require_token_ = !s->tokens_.empty();
+  s->budget_ = config.memory_budget != 0 ? config.memory_budget : DefaultMemoryBudget();
   s->tcp_listen_ = tcp_listen;
   s->local_socket_ = local_socket;
   HVDB_RETURN_IF_ERROR(s->Listen());
@@ -313,10 +351,22 @@ Status Server::ListenUnix(const std::string& path) {
   return Status::OK();
 }
 
-Role Server::Authenticate(const std::string& token) const {
+Role Server::Authenticate(const std::string& token) {
   if (!require_token_) return Role::kReadWrite;
   auto it = tokens_.find(token);
-  return it == tokens_.end() ? Role::kNone : it->second;
+  if (it != tokens_.end()) return it->second;
+  // Logged for whoever watches for guessing, at most once a second with a count of the rest.
+  auto now = std::chrono::steady_clock::now();
+  std::lock_guard<std::mutex> l(auth_log_mu_);
+  ++auth_failures_unlogged_;
+  if (now - last_auth_log_ >= std::chrono::seconds(1)) {
+    Log(LogLevel::kWarn, "refused " + std::to_string(auth_failures_unlogged_) +
+                             " connection(s) with a missing or unknown token" +
+                             (token.empty() ? " (the last gave none)" : ""));
+    auth_failures_unlogged_ = 0;
+    last_auth_log_ = now;
+  }
+  return Role::kNone;
 }
 
 void Server::Accept() {
@@ -362,6 +412,7 @@ void Server::AcceptUnix() {
 
 void Server::Admit(std::shared_ptr<Session> session) {
   bool refuse = false;
+  std::shared_ptr<Session> evicted;
   {
     std::lock_guard<std::mutex> l(mu_);
     if (stopping_) {  // e.g. a WebSocket whose handshake ended after Stop took its list
@@ -369,24 +420,75 @@ void Server::Admit(std::shared_ptr<Session> session) {
       session->Close();
       return;
     }
-    refuse = sessions_.size() >= config_.max_connections;
+    refuse = authenticated_ >= config_.max_connections;
+    if (!refuse) {
+      // A full pre-authentication pool makes room by closing the connection there longest:
+      // a real client says Hello within milliseconds, a squatter never does.
+      while (preauth_.size() >= config_.max_preauth && !evicted) {
+        evicted = preauth_.front().lock();
+        preauth_.pop_front();
+      }
+      preauth_.push_back(session);
+    }
     sessions_.insert(session);
   }
   session->Start();
+  if (evicted) {
+    Log(LogLevel::kDebug, "closed the oldest connection without a Hello (the pool of " +
+                              std::to_string(config_.max_preauth) + " is full)");
+    evicted->Close();
+  }
   if (refuse) {
     session->Refuse(Status::Overloaded("the server has " + std::to_string(config_.max_connections) +
                                        " connections, its limit; retry later"));
   }
 }
 
-void Server::Forget(Session* s) {
+bool Server::Authenticated(Session* s) {
   std::lock_guard<std::mutex> l(mu_);
-  for (auto it = sessions_.begin(); it != sessions_.end(); ++it) {
-    if (it->get() == s) {
-      sessions_.erase(it);
-      return;
+  for (auto it = preauth_.begin(); it != preauth_.end(); ++it) {
+    auto p = it->lock();
+    if (p.get() == s) {
+      preauth_.erase(it);
+      if (authenticated_ >= config_.max_connections) return false;
+      ++authenticated_;
+      return true;
     }
   }
+  return false;  // closed meanwhile (evicted)
+}
+
+void Server::Forget(Session* s) {
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    for (auto it = preauth_.begin(); it != preauth_.end(); ++it) {
+      if (it->lock().get() == s) {
+        preauth_.erase(it);
+        break;
+      }
+    }
+    for (auto it = sessions_.begin(); it != sessions_.end(); ++it) {
+      if (it->get() == s) {
+        if ((*it)->authenticated()) --authenticated_;
+        sessions_.erase(it);
+        break;
+      }
+    }
+  }
+  TrimSoon();
+}
+
+void Server::TrimSoon() {
+  // A closed connection's buffers go back to malloc, which keeps them; whole free pages go back
+  // to the OS half a second later (one trim for a wave of closes), off the network threads.
+  if (stopping_ || trim_pending_.exchange(true)) return;
+  asio::dispatch(trim_timer_.get_executor(), [this] {
+    trim_timer_.expires_after(std::chrono::milliseconds(500));
+    trim_timer_.async_wait([this](boost::system::error_code ec) {
+      trim_pending_ = false;
+      if (!ec && !stopping_) asio::post(workers_, [] { ::malloc_trim(0); });
+    });
+  });
 }
 
 void Server::Run(bool handle_signals) {
@@ -434,6 +536,7 @@ void Server::Stop() {
     unix_acceptor_.close(ignored);
     if (http_) http_->Stop();
     signals_.cancel(ignored);
+    asio::dispatch(trim_timer_.get_executor(), [this] { trim_timer_.cancel(); });
     std::set<std::shared_ptr<Session>> all;
     {
       std::lock_guard<std::mutex> l(mu_);

@@ -12,6 +12,7 @@
 #include <atomic>
 #include <chrono>
 #include <condition_variable>
+#include <list>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -57,10 +58,19 @@ struct Config {
   size_t cache_mb = 256;
   uint32_t max_frame_bytes = 16u << 20;
   uint32_t max_connections = 256;
+  // Connections that have not completed their Hello have a pool of their own: when it is full,
+  // a new one pushes out the one that has waited longest, so silent sockets cannot keep
+  // authenticated clients out (docs/PROTOCOL.md, "Limits").
+  uint32_t max_preauth = 64;
   uint32_t max_inflight = 32;  // requests in flight per connection
   uint32_t idle_timeout_s = 300;
-  uint32_t handshake_timeout_s = 10;
-  size_t outbound_high_water = 4u << 20;  // bytes queued per connection before queries pause
+  uint32_t handshake_timeout_s = 5;
+  // Results buffered for one connection (queued to send, or being made) before its queries
+  // pause and the server stops reading its requests (back-pressure).
+  size_t outbound_high_water = 4u << 20;
+  // All connections' buffered results together ("" budget: DefaultMemoryBudget()). Past it a
+  // connection that already holds results gets no more until it reads them.
+  size_t memory_budget = 0;
   size_t max_ingest_bytes = 512u << 20;   // per connection, points of frames not yet loaded
   uint32_t max_slice_frames = 64;
   // Render requests (docs/PROTOCOL.md, "Rendering"): at most this many at once, server-wide
@@ -82,6 +92,9 @@ struct Config {
 // Where the web viewer's files are when --web-root is not given: the source tree's web/ for a
 // binary in its build tree, else the installed share/hvdb/web.
 std::string DefaultWebRoot();
+
+// --memory-budget's default: an eighth of the machine's memory.
+size_t DefaultMemoryBudget();
 
 enum class Role { kNone, kReadOnly, kReadWrite };
 
@@ -116,11 +129,20 @@ class Server {
   // The last graph cut's graph and flow, for re-cuts after more strokes (edit/operators.h).
   edit::GraphCutCache& graph_cuts() { return graph_cuts_; }
   // Role of a token; kNone if it is unknown (or tokens are required and none was given).
-  Role Authenticate(const std::string& token) const;
+  // Failed attempts are logged (at most one line a second, never the token).
+  Role Authenticate(const std::string& token);
   void Forget(Session* s);
-  // Starts serving a connection (refused when the server is at --max-connections); the HTTP
-  // front end admits its WebSockets here too.
+  // Starts serving a connection in the pre-authentication pool (when the pool is full the
+  // connection there longest is closed to make room); the HTTP front end admits its WebSockets
+  // here too.
   void Admit(std::shared_ptr<Session> session);
+  // After a good Hello: moves the session out of the pre-authentication pool; false (and the
+  // caller refuses it as OVERLOADED) when --max-connections are authenticated already.
+  bool Authenticated(Session* s);
+  // Results buffered in all connections (server-wide memory budget).
+  void AddBuffered(int64_t delta) { buffered_ += delta; }
+  bool OverBudget() const { return buffered_.load() >= static_cast<int64_t>(budget_); }
+  int64_t buffered() const { return buffered_.load(); }
 
  private:
   Server(Config config, std::unique_ptr<Database> db);
@@ -155,7 +177,22 @@ class Server {
   ServerStats stats_;
   std::mutex mu_;
   std::set<std::shared_ptr<Session>> sessions_;
+  // The pre-authentication pool, oldest first, and how many have authenticated.
+  std::list<std::weak_ptr<Session>> preauth_;
+  size_t authenticated_ = 0;
   std::atomic<bool> stopping_{false};
+  size_t budget_ = 0;
+  std::atomic<int64_t> buffered_{0};
+  // Failed token attempts since the last logged one (logging is rate-limited).
+  std::mutex auth_log_mu_;
+  std::chrono::steady_clock::time_point last_auth_log_{};
+  uint64_t auth_failures_unlogged_ = 0;
+  // Returning freed memory to the OS after connections close (at most once a second).
+  std::atomic<bool> trim_pending_{false};
+  boost::asio::basic_waitable_timer<std::chrono::steady_clock, boost::asio::wait_traits<std::chrono::steady_clock>,
+                                    boost::asio::strand<boost::asio::io_context::executor_type>>
+      trim_timer_;  // on a strand of its own: armed from any network thread
+  void TrimSoon();
 };
 
 }  // namespace hvdb::server

@@ -51,8 +51,10 @@ void Session::ArmTimer() {
 
 void Session::ReadNext() {
   auto self = shared_from_this();
+  reading_ = true;
   transport_->Read(hello_done_ ? nullptr : &hello_msg_, &request_,
                    [self](boost::system::error_code ec, Status st, size_t n) {
+                     self->reading_ = false;
                      if (ec || self->closed_) return self->CloseOnStrand();
                      self->server_->stats().bytes_in += n;
                      if (!st.ok()) {  // undecodable: the stream cannot be trusted any more
@@ -66,8 +68,25 @@ void Session::ReadNext() {
                      } else {
                        self->Dispatch(std::move(self->request_));
                      }
-                     if (!self->closed_ && !self->close_after_write_) self->ReadNext();
+                     if (self->closed_ || self->close_after_write_) return;
+                     // Back-pressure: a client that does not read what it asked for is not
+                     // read from either, until its results drain (WriteNext resumes).
+                     if (self->CanRead()) {
+                       self->ReadNext();
+                     } else {
+                       self->read_paused_ = true;
+                     }
                    });
+}
+
+bool Session::CanRead() const {
+  const size_t high = server_->config().outbound_high_water;
+  return Buffered() < high && !(server_->OverBudget() && Buffered() > 0);
+}
+
+void Session::Reserve(int64_t delta) {
+  bytes_reserved_ = static_cast<size_t>(static_cast<int64_t>(bytes_reserved_) + delta);
+  server_->AddBuffered(delta);
 }
 
 void Session::OnHello() {
@@ -84,6 +103,13 @@ void Session::OnHello() {
     close_after_write_ = true;
     return SendError(0, Status::PermissionDenied("invalid or missing access token"));
   }
+  if (!server_->Authenticated(this)) {
+    close_after_write_ = true;
+    return SendError(0, Status::Overloaded("the server has " +
+                                           std::to_string(server_->config().max_connections) +
+                                           " connections, its limit; retry later"));
+  }
+  authenticated_ = true;
   hello_done_ = true;
   wire::HelloReply reply;
   reply.set_protocol_version(wire::kProtocolVersion);
@@ -130,6 +156,9 @@ void Session::OnHello() {
 void Session::Dispatch(wire::Request req) {
   const uint64_t id = req.id();
   if (req.body_case() == wire::Request::BODY_NOT_SET) {
+    // MALFORMED closes the connection (docs/PROTOCOL.md, "Errors"): a client that sends what
+    // this server cannot read is out of step with it.
+    close_after_write_ = true;
     return SendError(id, Status::InvalidArgument("request: empty or unknown request kind"),
                      wire::MALFORMED);
   }
@@ -143,6 +172,13 @@ void Session::Dispatch(wire::Request req) {
   }
   if (req.body_case() == wire::Request::kRelease) return OnRelease(req.release());
   if (req.body_case() == wire::Request::kPing) {
+    if (req.ping().payload().size() > kMaxPingPayload) {
+      return SendError(id, Status::InvalidArgument(
+                               "ping.payload: " + std::to_string(req.ping().payload().size()) +
+                               " bytes; at most " + std::to_string(kMaxPingPayload) +
+                               " are echoed"),
+                       wire::INVALID_PARAMETER);
+    }
     wire::Response r;
     r.set_id(id);
     auto start = std::chrono::steady_clock::now();
@@ -423,6 +459,7 @@ void Session::SendRecords(const wire::Response& r, std::vector<Point> records, s
 void Session::Enqueue(OutFrame f) {
   if (closed_) return;
   bytes_queued_ += f.bytes();
+  server_->AddBuffered(static_cast<int64_t>(f.bytes()));
   out_.push_back(std::move(f));
   WriteNext();
 }
@@ -437,11 +474,13 @@ void Session::WriteNext() {
   auto self = shared_from_this();
   transport_->Write(out_, [self](boost::system::error_code ec, size_t frames, size_t n) {
     self->writing_ = false;
+    if (self->closed_) return;  // its bytes left the accounting at the close
     if (ec) return self->CloseOnStrand();
     self->server_->stats().bytes_out += n;
     for (size_t k = 0; k < frames; ++k) {
       OutFrame& done = self->out_.front();
       self->bytes_queued_ -= done.bytes();
+      self->server_->AddBuffered(-static_cast<int64_t>(done.bytes()));
       // The records' buffer serves the next batch (a few, so memory stays
       // bounded by the flow control's high-water mark).
       if (done.records.capacity() != 0 && self->spare_.size() < kMaxSpares) {
@@ -452,11 +491,15 @@ void Session::WriteNext() {
     // A write finishing is progress too: a slow reader is not idle.
     self->deadline_ = Clock::now() + std::chrono::seconds(
                                          self->server_->config().idle_timeout_s);
-    if (self->bytes_queued_ < self->server_->config().outbound_high_water / 2) {
+    if (self->Buffered() < self->server_->config().outbound_high_water / 2) {
       self->ResumePaused();
     }
     if (self->out_.empty() && self->close_after_write_) {
       return self->CloseOnStrand();
+    }
+    if (self->read_paused_ && !self->close_after_write_ && self->CanRead()) {
+      self->read_paused_ = false;
+      self->ReadNext();
     }
     self->WriteNext();
   });
@@ -479,6 +522,9 @@ void Session::Close() {
 void Session::CloseOnStrand() {
   if (closed_) return;
   closed_ = true;
+  // What is still queued is freed with the session; the budget forgets it now.
+  server_->AddBuffered(-static_cast<int64_t>(bytes_queued_));
+  bytes_queued_ = 0;
   for (auto& [id, op] : ops_) op->Cancel();
   ops_.clear();
   ingest_.clear();

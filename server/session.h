@@ -41,6 +41,11 @@ class Session : public std::enable_shared_from_this<Session> {
   void Close();
   // Sends one error frame and closes (used for refused connections too).
   void Refuse(const Status& st);
+  // Whether its Hello was accepted (it counts towards --max-connections).
+  bool authenticated() const { return authenticated_; }
+  // The largest ping payload answered (a pong is queued like any response; bigger pings would
+  // let a client that never reads grow the server by whatever it sends).
+  static constexpr size_t kMaxPingPayload = 64u << 10;
 
  private:
   using Clock = std::chrono::steady_clock;
@@ -78,6 +83,11 @@ class Session : public std::enable_shared_from_this<Session> {
   void Send(const google::protobuf::Message& m);
   void SendRecords(const wire::Response& r, std::vector<Point> records, size_t count);
   void Enqueue(OutFrame f);
+  // Results held for this connection: queued to send, or being made by a granted task. Past
+  // the connection's high-water mark its queries pause and no more requests are read.
+  size_t Buffered() const { return bytes_queued_ + bytes_reserved_; }
+  bool CanRead() const;
+  void Reserve(int64_t delta);
   void SendError(uint64_t id, const Status& st, wire::ErrorCode code = wire::ERROR_UNSPECIFIED);
   void WriteNext();
   void ArmTimer();
@@ -98,13 +108,17 @@ class Session : public std::enable_shared_from_this<Session> {
     std::vector<std::vector<Point>> bufs;
     size_t batches = 0;
     std::shared_ptr<wire::ShmRing> ring;
+    size_t reserved = 0;  // bytes counted for the batches until they are delivered
   };
   static constexpr size_t kSlotsPerTask = 4;
   static constexpr size_t kBatchesPerTask = 2;
   // Record buffers (1 MiB) kept for reuse by a connection: what the high-water mark lets be
   // queued. More are allocated while a fast reader keeps several tasks' worth in flight.
-  static constexpr size_t kMaxSpares = 4;
+  static constexpr size_t kMaxSpares = 2;
   Grant MakeGrant(const std::shared_ptr<Op>& op);
+  // Whether a query task or the next image may start: the connection is under its high-water
+  // mark, and under the server's budget or holding nothing.
+  bool MayProduce() const;
   // On the strand: starts the op's next batches on a worker if the connection has room (queued
   // bytes under the high-water mark, and free ring slots for the fast path); else pauses it.
   void Schedule(std::shared_ptr<Op> op);
@@ -121,6 +135,7 @@ class Session : public std::enable_shared_from_this<Session> {
     std::vector<std::vector<Point>> back;
     std::vector<int> unused;
     bool finished = false;
+    size_t reserved = 0;  // the grant's
   };
   // Makes the granted batches (any thread; touches only the op and the grant).
   Produced Produce(Op* op, Grant g);
@@ -149,12 +164,16 @@ class Session : public std::enable_shared_from_this<Session> {
   wire::Hello hello_msg_;
   wire::Request request_;
   bool hello_done_ = false;
+  std::atomic<bool> authenticated_{false};
+  bool read_paused_ = false;  // back-pressure: ReadNext waits for the queue to drain
+  bool reading_ = false;      // a Read is outstanding
   Role role_ = Role::kNone;
   bool closed_ = false;
   bool close_after_write_ = false;
   // Outbound frames; bytes_queued_ is what flow control looks at.
   std::deque<OutFrame> out_;
   size_t bytes_queued_ = 0;
+  size_t bytes_reserved_ = 0;
   bool writing_ = false;
   bool corked_ = false;  // frames are being queued together: write once they all are
   std::map<uint64_t, std::shared_ptr<Op>> ops_;

@@ -58,6 +58,12 @@ void Session::HandleQuery(std::shared_ptr<Op> op, const wire::Query& q) {
     std::lock_guard<std::mutex> l(op->mu);
     op->cursor = std::move(cursor).value();
   }
+  // Pipelined queries of a client that does not read wait here: each grant counts against the
+  // connection's buffer (a whole task's worth, reserved until delivered).
+  if (!MayProduce()) {
+    op->paused = true;
+    return;
+  }
   Grant g = MakeGrant(op);
   if (g.batches == 0) return Schedule(op);
   Deliver(op, Produce(op.get(), std::move(g)));
@@ -84,8 +90,12 @@ Session::Grant Session::MakeGrant(const std::shared_ptr<Op>& op) {
     if (!g.slots.empty() || op->slots_held > 0) return g;
   }
   // Two batches a task: a small query's batch and its QueryDone go out together. Bounded: the
-  // strand admits a task only under the high-water mark.
-  g.batches = kBatchesPerTask;
+  // strand admits a task only under the high-water mark, and counts the task's batches as
+  // buffered until they are delivered. Over the server's budget a connection gets one batch at
+  // a time, and only while it holds nothing.
+  g.batches = server_->OverBudget() ? 1 : kBatchesPerTask;
+  g.reserved = g.batches * wire::kMaxBatchBytes;
+  Reserve(static_cast<int64_t>(g.reserved));
   if (op->encoding == wire::RECORDS) {
     // Fixed 1 MiB buffers the cursor fills like a ring slot, recycled once written (sized
     // once: no zeroing per batch).
@@ -98,9 +108,14 @@ Session::Grant Session::MakeGrant(const std::shared_ptr<Op>& op) {
   return g;
 }
 
+bool Session::MayProduce() const {
+  return Buffered() < server_->config().outbound_high_water &&
+         (!server_->OverBudget() || Buffered() == 0);
+}
+
 void Session::Schedule(std::shared_ptr<Op> op) {
   if (closed_) return;
-  if (bytes_queued_ >= server_->config().outbound_high_water) {
+  if (!MayProduce()) {
     op->paused = true;  // resumed by WriteNext when the queue drains
     return;
   }
@@ -127,6 +142,7 @@ void Session::Pump(std::shared_ptr<Op> op, Grant g) {
 
 Session::Produced Session::Produce(Op* op, Grant g) {
   Produced out;
+  out.reserved = g.reserved;
   for (size_t i = 0; i < g.batches && !out.finished; ++i) {
     const int slot = i < g.slots.size() ? g.slots[i] : -1;
     Made m;
@@ -197,6 +213,7 @@ Session::Produced Session::Produce(Op* op, Grant g) {
 }
 
 void Session::Deliver(std::shared_ptr<Op> op, Produced out) {
+  Reserve(-static_cast<int64_t>(out.reserved));
   for (int slot : out.unused) ReturnSlot(slot);
   for (auto& b : out.back) {
     if (spare_.size() < kMaxSpares) spare_.push_back(std::move(b));
@@ -346,7 +363,7 @@ void Session::RenderNext(std::shared_ptr<Op> op) {
     ++op->next_image;
     // Sequences obey the same flow control as queries: the next image is made only while
     // the connection has room.
-    if (self->bytes_queued_ < self->server_->config().outbound_high_water) {
+    if (self->MayProduce()) {
       asio::post(self->server_->workers(), [self, op] { self->RenderNext(op); });
     } else {
       op->paused = true;  // resumed by WriteNext when the queue drains

@@ -80,6 +80,7 @@ class StreamTransport : public Transport, public std::enable_shared_from_this<St
 
  private:
   static constexpr size_t kMaxGather = 32;  // frames in one gather write
+  static constexpr size_t kKeepBodyBytes = 64u << 10;
 
   void ReadBody(uint32_t len, wire::Hello* hello, wire::Request* request, ReadDone done) {
     body_.resize(len);
@@ -99,6 +100,8 @@ class StreamTransport : public Transport, public std::enable_shared_from_this<St
             return done({}, Status::InvalidArgument("request frame is not a valid Request message"),
                         bytes);
           }
+          // A large request's buffer is not kept for the connection's lifetime.
+          if (self->body_.capacity() > kKeepBodyBytes) std::string().swap(self->body_);
           done({}, Status::OK(), bytes);
         }));
   }

@@ -36,6 +36,8 @@ class WsTransport : public Transport, public std::enable_shared_from_this<WsTran
         st = Status::InvalidArgument("the first message must be a Hello: " + st.message());
       }
       self->buf_.consume(self->buf_.size());
+      // A large message's buffer is not kept for the connection's lifetime.
+      if (self->buf_.capacity() > (64u << 10)) self->buf_.shrink_to_fit();
       if (!st.ok()) self->malformed_ = true;
       done({}, st, n);
     }));

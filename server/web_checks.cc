@@ -1,10 +1,12 @@
 #include "server/web_checks.h"
 
+#include <algorithm>
 #include <cctype>
 
 #include <utility>  // before Asio: Boost 1.74's awaitable.hpp needs std::exchange
 
 #include <boost/asio/ip/address.hpp>
+#include <boost/beast/websocket/rfc6455.hpp>
 
 namespace hvdb::server {
 
@@ -129,6 +131,91 @@ const char* ContentType(std::string_view path) {
   if (ext == "ico") return "image/x-icon";
   if (ext == "md" || ext == "txt") return "text/plain; charset=utf-8";
   return "application/octet-stream";
+}
+
+std::string Printable(std::string_view value, size_t max) {
+  static const char* kHex = "0123456789abcdef";
+  std::string out;
+  size_t i = 0;
+  for (; i < value.size() && out.size() < max; ++i) {
+    const unsigned char c = static_cast<unsigned char>(value[i]);
+    if (c >= 0x20 && c < 0x7f && c != '\\') {
+      out += static_cast<char>(c);
+    } else {
+      out += "\\x";
+      out += kHex[c >> 4];
+      out += kHex[c & 15];
+    }
+  }
+  if (i < value.size()) out += "... (" + std::to_string(value.size()) + " bytes)";
+  return out;
+}
+
+HttpVerdict CheckRequestHead(const boost::beast::http::request<boost::beast::http::string_body>& req,
+                             const std::vector<std::string>& origins) {
+  namespace http = boost::beast::http;
+  HttpVerdict v;
+  auto refuse = [&](int status, std::string reply, std::string log = {}) {
+    v.kind = HttpVerdict::kRefuse;
+    v.status = status;
+    v.reply = std::move(reply);
+    v.log = std::move(log);
+    return v;
+  };
+  if (req.count(http::field::transfer_encoding) != 0) {
+    const auto te = req[http::field::transfer_encoding];
+    return refuse(400, "requests may not have a body, so no Transfer-Encoding is accepted",
+                  "refused a request with Transfer-Encoding: " +
+                      Printable(std::string_view(te.data(), te.size())));
+  }
+  if (req.count(http::field::host) != 1) {
+    return refuse(400, "a request has exactly one Host header");
+  }
+  if (req.count(http::field::origin) > 1) {
+    return refuse(400, "a request has at most one Origin header");
+  }
+  const auto host_field = req[http::field::host];
+  const std::string_view host(host_field.data(), host_field.size());
+  if (!HostAllowed(host, origins)) {
+    return refuse(403,
+                  "this server does not answer to the host name '" + Printable(host) +
+                      "': use its IP address or localhost, or allow the name with hvdb-server "
+                      "--http-origin http://NAME:PORT",
+                  "refused a request for host " + Printable(host));
+  }
+  const std::string_view target(req.target().data(), req.target().size());
+  const std::string_view path = target.substr(0, target.find_first_of("?#"));
+  const bool keep = req.keep_alive();
+  if (path == "/ws") {
+    if (!boost::beast::websocket::is_upgrade(req)) {
+      v = refuse(426, "/ws is the WebSocket endpoint: connect with a WebSocket");
+      v.close = !keep;
+      return v;
+    }
+    const auto origin_field = req[http::field::origin];
+    const std::string_view origin(origin_field.data(), origin_field.size());
+    if (!OriginAllowed(origin, host, origins)) {
+      return refuse(403,
+                    "origin " + Printable(origin) +
+                        " may not connect (allow it with hvdb-server --http-origin)",
+                    "refused a WebSocket from origin " + Printable(origin));
+    }
+    v.kind = HttpVerdict::kUpgrade;
+    return v;
+  }
+  if (req.method() != http::verb::get && req.method() != http::verb::head) {
+    v = refuse(405, "only GET and HEAD");
+    v.close = !keep;
+    return v;
+  }
+  v.file = WebPath(target);
+  if (v.file.empty()) {
+    v = refuse(400, "bad path");
+    v.close = !keep;
+    return v;
+  }
+  v.kind = HttpVerdict::kServeFile;
+  return v;
 }
 
 }  // namespace hvdb::server

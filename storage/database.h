@@ -84,6 +84,11 @@ struct Photo {
   PhotoBillboard billboard;
 };
 
+// The ranges a dataset's parameters must lie in (checked when it is created).
+inline constexpr double kMinFps = 1e-3;   // a frame every 1000 s
+inline constexpr double kMaxFps = 10000;
+inline constexpr uint32_t kMaxFrames = 100'000'000;  // frames 0..kMaxFrames-1: ~38 days at 30 fps
+
 struct DatasetInfo {
   std::string name;
   double fps = 30.0;

@@ -18,6 +18,12 @@ namespace hvdb {
 
 namespace {
 
+std::string FormatNumber(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof(buf), "%g", v);
+  return buf;
+}
+
 constexpr char kManifestMagic[8] = {'H', 'V', 'D', 'B', 'M', 'A', 'N', '\0'};
 constexpr uint32_t kManifestVersion = 1;
 
@@ -193,11 +199,20 @@ Status DatasetImpl::WriteManifest() const {
 Result<std::unique_ptr<DatasetImpl>> DatasetImpl::Create(const std::string& dir,
                                                          const DatasetInfo& info,
                                                          const Options& opts, BufferPool* pool) {
-  if (!(info.fps > 0) || !std::isfinite(info.fps) || info.fps > 10000) {
-    return Status::InvalidArgument("fps must be in (0, 10000], got " + std::to_string(info.fps));
+  // The ranges of docs/PROTOCOL.md ("CreateDataset"), checked here so that every entry point
+  // (the server, the embedded CLI, Python) refuses the same values.
+  if (!(info.fps >= kMinFps) || !(info.fps <= kMaxFps)) {
+    return Status::InvalidArgument("fps must be in [" + FormatNumber(kMinFps) + ", " +
+                                   FormatNumber(kMaxFps) + "], got " + FormatNumber(info.fps));
   }
-  if (!(info.space_time_scale > 0) || !std::isfinite(info.space_time_scale)) {
-    return Status::InvalidArgument("space/time scale must be > 0");
+  if (!(info.space_time_scale >= 1e-9) || !(info.space_time_scale <= 1e9)) {
+    return Status::InvalidArgument("space/time scale must be in [1e-09, 1e+09], got " +
+                                   FormatNumber(info.space_time_scale));
+  }
+  if (info.frame_count > kMaxFrames) {
+    return Status::InvalidArgument("frame count must be at most " + std::to_string(kMaxFrames) +
+                                   " (frames are numbered below it), got " +
+                                   std::to_string(info.frame_count));
   }
   Env* env = opts.env ? opts.env : Env::Default();
   const bool atomic = env->AtomicDirRename();

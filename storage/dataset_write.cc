@@ -15,7 +15,7 @@ namespace hvdb {
 
 namespace {
 
-constexpr uint32_t kMaxFrame = 100'000'000;  // ~38 days at 30 fps
+constexpr uint32_t kMaxFrame = kMaxFrames;
 
 Status ValidatePoint(const Point& p) {
   if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) {

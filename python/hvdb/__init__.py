@@ -282,10 +282,15 @@ def times(pts, fps):
     return pts["frame"] / float(fps)
 
 
-def read_ply(path, scale=1.0):
+def read_ply(path, scale=1.0, skip_invalid=False):
     """Reads a PLY point cloud (as `hvdb import` does) into a POINT_DTYPE array; `scale`
-    multiplies positions (0.01 for centimetres)."""
-    return _hvdb.read_ply(str(path), _number("scale", scale))
+    multiplies positions (0.01 for centimetres).
+
+    A point with a NaN or infinite coordinate raises InvalidArgument (naming the file, the
+    first such point and how many there are) unless skip_invalid: then they are left out and
+    the result is a pair (points, skipped), skipped being how many were left out."""
+    pts, skipped = _hvdb.read_ply(str(path), _number("scale", scale), bool(skip_invalid))
+    return (pts, skipped) if skip_invalid else pts
 
 
 def write_ply(path, pts, ascii=False):

@@ -298,6 +298,66 @@ TEST_F(HvdbCliTest, ErrorsExitOneNamingTheCulprit) {
   EXPECT_NE(r.err.find(".ply or .csv"), std::string::npos) << r.err;
 }
 
+// A PLY with NaN or infinite coordinates is refused, naming the file and the way out, and
+// nothing of it is loaded; --skip-invalid loads the rest and says how many points it left out.
+TEST_F(HvdbCliTest, ImportRefusesNonFiniteUnlessSkipInvalid) {
+  const std::string header =
+      "ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\nproperty float y\n"
+      "property float z\nend_header\n";
+  {
+    std::ofstream(Path("ok.ply")) << header << "0 0 0\n1 0 0\n0 1 0\n0 0 1\n1 1 1\n";
+    std::ofstream(Path("holes.ply")) << header << "0 0 0\nnan nan nan\n0 1 0\n0 0 inf\n1 1 1\n";
+  }
+  ASSERT_EQ(Run("create walk --fps 30").code, 0);
+  RunResult r = Run("import walk --frame 0 ok.ply holes.ply");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_EQ(r.err.rfind("hvdb: InvalidArgument: holes.ply: 2 of 5 vertices have a NaN or "
+                        "infinite coordinate (the first: vertex 1, x = nan)",
+                        0),
+            0u)
+      << r.err;
+  EXPECT_NE(r.err.find("--skip-invalid"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("(frames 0..0 were loaded)"), std::string::npos) << r.err;
+  json info = RunJson("describe walk");
+  EXPECT_EQ(info["frames"], 1);  // ok.ply's frame, and no part of holes.ply's
+  EXPECT_EQ(info["points"], 5);
+
+  r = Run("import walk --frame 1 --skip-invalid holes.ply --json");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("skipped 2 points with a NaN or infinite coordinate in holes.ply"),
+            std::string::npos)
+      << r.err;
+  json imp = json::parse(r.out, nullptr, /*allow_exceptions=*/false);
+  ASSERT_FALSE(imp.is_discarded()) << r.out;
+  EXPECT_EQ(imp["points"], 3);
+  EXPECT_EQ(imp["skipped_invalid"], 2);
+  EXPECT_EQ(imp["frames"][0]["skipped_invalid"], 2);
+  info = RunJson("describe walk");
+  EXPECT_EQ(info["frames"], 2);
+  EXPECT_EQ(info["points"], 8);
+
+  r = Run("import walk --frame 2 --skip-invalid ok.ply holes.ply");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("imported 8 points into frames 2..3 of 'walk'"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("(skipped 2 with a NaN or infinite coordinate)"), std::string::npos)
+      << r.out;
+
+  // edit --paste and composite read PLY files by the same rule.
+  r = Run("edit walk --paste holes.ply --frame 0");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.err.find("holes.ply: 2 of 5 vertices"), std::string::npos) << r.err;
+  r = Run("composite walk --ply holes.ply --first-frame 0 --frames 1");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.err.find("holes.ply: 2 of 5 vertices"), std::string::npos) << r.err;
+  r = Run("edit walk --paste holes.ply --frame 0 --skip-invalid");
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("skipped 2 points"), std::string::npos) << r.err;
+  r = Run("composite walk --ply holes.ply --first-frame 1 --frames 1 --skip-invalid");
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("skipped 2 points"), std::string::npos) << r.err;
+  EXPECT_EQ(RunJson("describe walk")["points"], 8 + 8 + 3 + 3);
+}
+
 // ---------------------------------------------------------------------------------------------
 // Server mode.
 

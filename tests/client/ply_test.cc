@@ -248,9 +248,13 @@ TEST_F(PlyTest, AsciiSkipsListsAndAppliesOptions) {
   opts.scale = 0.01;
   opts.frame = 7;
   opts.default_sigma = 0.002;
-  Result<std::vector<Point>> pts = ReadPly(Path("a.ply"), opts);
+  opts.skip_invalid = true;
+  ReadStats stats;
+  Result<std::vector<Point>> pts = ReadPly(Path("a.ply"), opts, &stats);
   ASSERT_TRUE(pts.ok()) << pts.status().ToString();
-  ASSERT_EQ(pts->size(), 2u);  // the NaN vertex is dropped
+  ASSERT_EQ(pts->size(), 2u);  // the NaN vertex is skipped, and counted
+  EXPECT_EQ(stats.vertices, 3u);
+  EXPECT_EQ(stats.skipped_non_finite, 1u);
   const Point& p = (*pts)[0];
   EXPECT_FLOAT_EQ(p.x, 1.f);
   EXPECT_FLOAT_EQ(p.y, -2.f);
@@ -264,10 +268,79 @@ TEST_F(PlyTest, AsciiSkipsListsAndAppliesOptions) {
   EXPECT_EQ(p.cov, (std::array<float, 6>{s2, 0, 0, s2, 0, s2}));
   EXPECT_FLOAT_EQ((*pts)[1].z, 0.03f);
 
-  opts.drop_non_finite = false;
+  opts.skip_invalid = false;  // the default: the NaN makes the read fail
   pts = ReadPly(Path("a.ply"), opts);
-  ASSERT_TRUE(pts.ok()) << pts.status().ToString();
-  EXPECT_EQ(pts->size(), 3u);
+  ASSERT_FALSE(pts.ok());
+  EXPECT_TRUE(pts.status().IsInvalidArgument()) << pts.status().ToString();
+}
+
+// Points never go missing silently: a vertex with a NaN or infinite coordinate fails the read
+// with a message that says where, how many and what to do; skip_invalid reads the rest and
+// counts what it left out.
+TEST_F(PlyTest, NonFiniteCoordinatesFailUnlessSkipped) {
+  const std::string header =
+      "ply\nformat ascii 1.0\nelement vertex 6\nproperty float x\nproperty float y\n"
+      "property float z\nend_header\n";
+  WriteFile(Path("holes.ply"), header +
+                                   "0 0 0\n"
+                                   "1 2 3\n"
+                                   "nan 0 0\n"  // vertex 2: the first bad one
+                                   "4 5 6\n"
+                                   "0 inf 1\n"
+                                   "0 1 -inf\n");
+  Result<std::vector<Point>> r = ReadPly(Path("holes.ply"));
+  ASSERT_FALSE(r.ok());
+  EXPECT_TRUE(r.status().IsInvalidArgument()) << r.status().ToString();
+  const std::string& m = r.status().message();
+  EXPECT_NE(m.find(Path("holes.ply") + ": 3 of 6 vertices have a NaN or infinite coordinate"),
+            std::string::npos)
+      << m;
+  EXPECT_NE(m.find("vertex 2, x = nan"), std::string::npos) << m;
+  EXPECT_NE(m.find("--skip-invalid"), std::string::npos) << m;
+  EXPECT_NE(m.find("skip_invalid=True"), std::string::npos) << m;
+  EXPECT_NE(m.find("the other 3"), std::string::npos) << m;
+
+  ReadOptions opts;
+  opts.skip_invalid = true;
+  ReadStats stats;
+  r = ReadPly(Path("holes.ply"), opts, &stats);
+  ASSERT_TRUE(r.ok()) << r.status().ToString();
+  ASSERT_EQ(r->size(), 3u);
+  EXPECT_EQ((*r)[1].z, 3.f);
+  EXPECT_EQ((*r)[2].x, 4.f);
+  EXPECT_EQ(stats.vertices, 6u);
+  EXPECT_EQ(stats.skipped_non_finite, 3u);
+
+  // A clean file reads as before and says it skipped nothing.
+  std::vector<Point> pts = MakePoints(20);
+  ASSERT_TRUE(WritePly(Path("clean.ply"), pts).ok());
+  r = ReadPly(Path("clean.ply"), opts, &stats);
+  ASSERT_TRUE(r.ok()) << r.status().ToString();
+  EXPECT_EQ(r->size(), 20u);
+  EXPECT_EQ(stats.vertices, 20u);
+  EXPECT_EQ(stats.skipped_non_finite, 0u);
+
+  // Binary files, and a value that is finite as a double but not as the stored float: the one
+  // bad vertex is named.
+  std::string bin =
+      "ply\nformat binary_little_endian 1.0\nelement vertex 2\nproperty double x\n"
+      "property double y\nproperty double z\nend_header\n";
+  for (double v : {1.0, 2.0, 3.0, 1.0, 2.0, 1e300}) {
+    bin.append(reinterpret_cast<const char*>(&v), 8);
+  }
+  if constexpr (std::endian::native == std::endian::little) {
+    WriteFile(Path("big.ply"), bin);
+    r = ReadPly(Path("big.ply"));
+    ASSERT_FALSE(r.ok());
+    EXPECT_NE(r.status().message().find("1 of 2 vertices has a NaN or infinite coordinate (the "
+                                        "first: vertex 1, z = 1e+300, beyond float range)"),
+              std::string::npos)
+        << r.status().ToString();
+    r = ReadPly(Path("big.ply"), opts, &stats);
+    ASSERT_TRUE(r.ok()) << r.status().ToString();
+    EXPECT_EQ(r->size(), 1u);
+    EXPECT_EQ(stats.skipped_non_finite, 1u);
+  }
 }
 
 TEST_F(PlyTest, ScaleAppliesToCovarianceAndForceFrame) {

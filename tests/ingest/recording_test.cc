@@ -5,8 +5,10 @@
 #include <cmath>
 #include <fstream>
 
+#include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "client/backend.h"
 #include "ingest/generator.h"
 #include "tests/ingest/test_util.h"
 
@@ -55,6 +57,58 @@ TEST(Recording, GeneratedStereoRecordingLoads) {
   ASSERT_FALSE(bad.ok());
   EXPECT_NE(bad.status().message().find("spacetime must be 0..8"), std::string::npos)
       << bad.status().ToString();
+}
+
+// A PLY frame with NaN or infinite coordinates is a bad frame that names the file and
+// --skip-invalid; with --skip-invalid its other points go in and the report counts the rest.
+TEST(Recording, PlyNonFiniteIsAnErrorUnlessSkipInvalid) {
+  TempDir dir;
+  Recording r;
+  r.dir = dir / "ply";
+  fs::create_directories(r.dir + "/frames");
+  r.kind = RecordingKind::kPly;
+  r.frames = 2;
+  ASSERT_TRUE(SaveRecording(r).ok());
+  const std::string header =
+      "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+      "property float z\nend_header\n";
+  std::ofstream(r.dir + "/frames/000000.ply") << header << "0 0 1\n1 0 1\n0 1 1\n1 1 1\n";
+  std::ofstream(r.dir + "/frames/000001.ply") << header << "0 0 1\n-inf 0 1\n0 nan 1\n1 1 1\n";
+
+  auto f = LoadFrame(*OpenRecording(r.dir), 1);
+  ASSERT_FALSE(f.ok());
+  EXPECT_TRUE(f.status().IsInvalidArgument());
+  EXPECT_NE(f.status().message().find("000001.ply: 2 of 4 vertices have a NaN or infinite "
+                                      "coordinate (the first: vertex 1, x = -inf)"),
+            std::string::npos)
+      << f.status().ToString();
+  f = LoadFrame(*OpenRecording(r.dir), 1, /*skip_invalid=*/true);
+  ASSERT_TRUE(f.ok()) << f.status().ToString();
+  EXPECT_EQ(f->points.size(), 2u);
+  EXPECT_EQ(f->skipped_invalid, 2u);
+
+  const std::string base =
+      std::string(HVDB_INGEST_PATH) + " run " + r.dir + " --quiet --data " + (dir / "data");
+  auto stop = testing::RunCommand(base + " --dataset p");
+  EXPECT_EQ(stop.exit_code, 2) << stop.output;
+  EXPECT_NE(stop.output.find("000001.ply: 2 of 4 vertices"), std::string::npos) << stop.output;
+  EXPECT_NE(stop.output.find("--skip-invalid"), std::string::npos) << stop.output;
+  // Another dataset: frame 0 of p may or may not have gone in before frame 1 failed.
+  auto skip =
+      testing::RunCommand(base + " --dataset q --skip-invalid --report " + (dir / "r.json"));
+  EXPECT_EQ(skip.exit_code, 0) << skip.output;
+  EXPECT_NE(skip.output.find("skipped 2 points with a NaN or infinite coordinate in 1 frame"),
+            std::string::npos)
+      << skip.output;
+  std::ifstream in(dir / "r.json");
+  const auto j = nlohmann::json::parse(in);
+  EXPECT_EQ(j["skipped_invalid"], 2);
+  EXPECT_EQ(j["points"], 6);
+  EXPECT_EQ(j["frames"][1]["skipped_invalid"], 2);
+  auto backend = client::MakeEmbeddedBackend(dir / "data", 16 << 20);
+  auto info = backend->Describe("q");
+  ASSERT_TRUE(info.ok()) << info.status().ToString();
+  EXPECT_EQ(info->point_count, 6u);
 }
 
 TEST(Recording, MissingAndMismatchedFilesNameTheFile) {

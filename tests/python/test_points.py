@@ -60,3 +60,25 @@ def test_ply_and_open3d_round_trips(tmp_path):
     assert len(o3.points) == 50
     with pytest.raises(hvdb.NotFound):
         hvdb.read_ply(str(tmp_path / "missing.ply"))
+
+
+def test_read_ply_refuses_non_finite_points_unless_skip_invalid(tmp_path):
+    path = tmp_path / "holes.ply"
+    path.write_text("ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\n"
+                    "property float y\nproperty float z\nend_header\n"
+                    "0 0 0\n1 nan 0\n0 1 0\ninf 0 1\n1 1 1\n")
+    with pytest.raises(hvdb.InvalidArgument, match="skip_invalid=True") as e:
+        hvdb.read_ply(path)
+    assert "holes.ply: 2 of 5 vertices have a NaN or infinite coordinate" in str(e.value)
+    assert "vertex 1, y = nan" in str(e.value)
+    pts, skipped = hvdb.read_ply(path, skip_invalid=True)
+    assert skipped == 2 and len(pts) == 3
+    np.testing.assert_array_equal(pts["position"], [[0, 0, 0], [0, 1, 0], [1, 1, 1]])
+    # A clean file: nothing skipped, and the default result is the array alone.
+    hvdb.write_ply(tmp_path / "clean.ply", pts)
+    assert len(hvdb.read_ply(tmp_path / "clean.ply")) == 3
+    assert hvdb.read_ply(tmp_path / "clean.ply", 1.0, True)[1] == 0
+    # What was read loads (the rest of the file imported).
+    with hvdb.open(tmp_path / "data") as db:
+        db.create("h", fps=30)
+        assert db.load("h", 0, pts) == 3
