@@ -293,6 +293,7 @@ struct RegionArgs {
   bool clip_frames = false;
   uint32_t max_frames = 0;
   CLI::Option *box_opt = nullptr, *normal_opt = nullptr;
+  CLI::Option *offset_opt = nullptr, *thickness_opt = nullptr;
 };
 
 // The camera a lasso, marquee or brush is drawn through.
@@ -445,14 +446,14 @@ void AddRegionOptions(CLI::App* cmd, RegionArgs* r, const std::string& group) {
                       "'hvdb slice' shows it (with --offset B --thickness DB)")
           ->expected(4)
           ->group(group);
-  CLI::Option* offset =
+  r->offset_opt =
       cmd->add_option("--offset", r->offset, "B of the slice")->needs(r->normal_opt)->group(group);
-  CLI::Option* thickness = cmd->add_option("--thickness", r->thickness, "DB >= 0 of the slice")
-                               ->check(NonNegative())
-                               ->needs(r->normal_opt)
-                               ->group(group);
-  r->normal_opt->needs(offset);
-  r->normal_opt->needs(thickness);
+  r->thickness_opt = cmd->add_option("--thickness", r->thickness, "DB >= 0 of the slice")
+                         ->check(NonNegative())
+                         ->needs(r->normal_opt)
+                         ->group(group);
+  // --normal's own needs are checked in ParseRegion: CLI11 reports a missing one of several in
+  // the order of their addresses, so the message would change from build to build.
   r->normal_opt->excludes(r->box_opt);
   cmd->add_flag("--clip-frames", r->clip_frames,
                 "With --normal: use only the first frames when the slice spans too many (else "
@@ -480,6 +481,10 @@ bool ParseRegion(const RegionArgs& r, const std::string& command, std::optional<
     if (!w) return false;
     *out = Region(*w);
   } else if (r.normal_opt->count() > 0) {
+    if (r.offset_opt->count() == 0 || r.thickness_opt->count() == 0) {
+      *rc = Usage(command, "--normal needs --offset B and --thickness DB");
+      return false;
+    }
     std::optional<hvdb::Slice> s = MakeSlice(r.normal, r.offset, r.thickness, r.clip_frames,
                                              r.max_frames, r.clip_box, command, rc);
     if (!s) return false;
