@@ -458,7 +458,7 @@ bool Server::Authenticated(Session* s) {
   return false;  // closed meanwhile (evicted)
 }
 
-void Server::Forget(Session* s) {
+void Server::Forget(Session* s, size_t freed) {
   {
     std::lock_guard<std::mutex> l(mu_);
     for (auto it = preauth_.begin(); it != preauth_.end(); ++it) {
@@ -475,13 +475,15 @@ void Server::Forget(Session* s) {
       }
     }
   }
-  TrimSoon();
+  // Only worth a trim when closed connections held results (not for a flood of empty ones).
+  if ((freed_since_trim_ += freed) >= kTrimAfterBytes) TrimSoon();
 }
 
 void Server::TrimSoon() {
   // A closed connection's buffers go back to malloc, which keeps them; whole free pages go back
   // to the OS half a second later (one trim for a wave of closes), off the network threads.
   if (stopping_ || trim_pending_.exchange(true)) return;
+  freed_since_trim_ = 0;
   asio::dispatch(trim_timer_.get_executor(), [this] {
     trim_timer_.expires_after(std::chrono::milliseconds(500));
     trim_timer_.async_wait([this](boost::system::error_code ec) {

@@ -131,7 +131,8 @@ class Server {
   // Role of a token; kNone if it is unknown (or tokens are required and none was given).
   // Failed attempts are logged (at most one line a second, never the token).
   Role Authenticate(const std::string& token);
-  void Forget(Session* s);
+  // A closed connection leaves; `freed` bytes of results went with it.
+  void Forget(Session* s, size_t freed);
   // Starts serving a connection in the pre-authentication pool (when the pool is full the
   // connection there longest is closed to make room); the HTTP front end admits its WebSockets
   // here too.
@@ -139,9 +140,14 @@ class Server {
   // After a good Hello: moves the session out of the pre-authentication pool; false (and the
   // caller refuses it as OVERLOADED) when --max-connections are authenticated already.
   bool Authenticated(Session* s);
-  // Results buffered in all connections (server-wide memory budget).
+  // Results buffered in all connections (server-wide memory budget). Past 5/8 of it the server
+  // is crowded: connections that hold results get none more, and the next quarter is for
+  // connections that hold nothing (a client that reads is never starved by ones that do not);
+  // past 7/8 no connection gets more. The last eighth is for what connections hold besides
+  // results (their state, the allocator's slack), so that the process stays within the budget.
   void AddBuffered(int64_t delta) { buffered_ += delta; }
-  bool OverBudget() const { return buffered_.load() >= static_cast<int64_t>(budget_); }
+  bool Crowded() const { return buffered_.load() >= static_cast<int64_t>(budget_ / 8 * 5); }
+  bool OverBudget() const { return buffered_.load() >= static_cast<int64_t>(budget_ / 8 * 7); }
   int64_t buffered() const { return buffered_.load(); }
 
  private:
@@ -189,10 +195,12 @@ class Server {
   uint64_t auth_failures_unlogged_ = 0;
   // Returning freed memory to the OS after connections close (at most once a second).
   std::atomic<bool> trim_pending_{false};
+  std::atomic<size_t> freed_since_trim_{0};
   boost::asio::basic_waitable_timer<std::chrono::steady_clock, boost::asio::wait_traits<std::chrono::steady_clock>,
                                     boost::asio::strand<boost::asio::io_context::executor_type>>
       trim_timer_;  // on a strand of its own: armed from any network thread
   void TrimSoon();
+  static constexpr size_t kTrimAfterBytes = 4u << 20;
 };
 
 }  // namespace hvdb::server

@@ -45,6 +45,22 @@ void Session::ArmTimer() {
       self->CloseOnStrand();
       return;
     }
+    // When the server's memory budget is crowded, a connection whose results have not drained
+    // at all for a while gives its memory back: otherwise clients that never read could hold
+    // the budget until their idle timeout and starve everyone else.
+    if (!ec && self->bytes_queued_ > 0 && self->server_->Crowded() &&
+        Clock::now() - self->last_drain_ >= kStallWhileCrowded) {
+      Log(LogLevel::kWarn, "closing a connection that has not read its " +
+                               std::to_string(self->bytes_queued_ >> 10) +
+                               " KiB of results for " +
+                               std::to_string(kStallWhileCrowded.count()) +
+                               " s while the server's memory budget is crowded");
+      self->CloseOnStrand();
+      return;
+    }
+    // Queries that paused for the server's budget while this connection held nothing have no
+    // write of their own to resume them: they look again every second.
+    if (!ec && self->Buffered() == 0) self->ResumePaused();
     if (ec != asio::error::operation_aborted || !self->closed_) self->ArmTimer();
   });
 }
@@ -81,7 +97,7 @@ void Session::ReadNext() {
 
 bool Session::CanRead() const {
   const size_t high = server_->config().outbound_high_water;
-  return Buffered() < high && !(server_->OverBudget() && Buffered() > 0);
+  return Buffered() < high && !(server_->Crowded() && Buffered() > 0);
 }
 
 void Session::Reserve(int64_t delta) {
@@ -458,6 +474,7 @@ void Session::SendRecords(const wire::Response& r, std::vector<Point> records, s
 
 void Session::Enqueue(OutFrame f) {
   if (closed_) return;
+  if (out_.empty()) last_drain_ = Clock::now();  // the clock of a stall starts now
   bytes_queued_ += f.bytes();
   server_->AddBuffered(static_cast<int64_t>(f.bytes()));
   out_.push_back(std::move(f));
@@ -483,14 +500,13 @@ void Session::WriteNext() {
       self->server_->AddBuffered(-static_cast<int64_t>(done.bytes()));
       // The records' buffer serves the next batch (a few, so memory stays
       // bounded by the flow control's high-water mark).
-      if (done.records.capacity() != 0 && self->spare_.size() < kMaxSpares) {
-        self->spare_.push_back(std::move(done.records));
-      }
+      if (done.records.capacity() != 0) self->KeepSpare(std::move(done.records));
       self->out_.pop_front();
     }
     // A write finishing is progress too: a slow reader is not idle.
     self->deadline_ = Clock::now() + std::chrono::seconds(
                                          self->server_->config().idle_timeout_s);
+    self->last_drain_ = Clock::now();
     if (self->Buffered() < self->server_->config().outbound_high_water / 2) {
       self->ResumePaused();
     }
@@ -523,11 +539,13 @@ void Session::CloseOnStrand() {
   if (closed_) return;
   closed_ = true;
   // What is still queued is freed with the session; the budget forgets it now.
+  const size_t freed = bytes_queued_ + spare_.size() * kSpareBytes + ingest_bytes_;
   server_->AddBuffered(-static_cast<int64_t>(bytes_queued_));
   bytes_queued_ = 0;
   for (auto& [id, op] : ops_) op->Cancel();
   ops_.clear();
   ingest_.clear();
+  server_->AddBuffered(-static_cast<int64_t>(spare_.size() * kSpareBytes));
   spare_.clear();
   // Workers still making a batch hold their own reference; the ring goes with the last one.
   ring_.reset();
@@ -535,7 +553,14 @@ void Session::CloseOnStrand() {
   timer_.cancel(ignored);
   transport_->Close();
   server_->stats().connections_open--;
-  server_->Forget(this);
+  server_->Forget(this, freed);
+}
+
+void Session::KeepSpare(std::vector<Point> buf) {
+  // Kept for the next batches only while the server has memory to spare; counted in its budget.
+  if (spare_.size() >= kMaxSpares || server_->OverBudget()) return;
+  server_->AddBuffered(static_cast<int64_t>(kSpareBytes));
+  spare_.push_back(std::move(buf));
 }
 
 }  // namespace hvdb::server

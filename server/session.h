@@ -115,6 +115,10 @@ class Session : public std::enable_shared_from_this<Session> {
   // Record buffers (1 MiB) kept for reuse by a connection: what the high-water mark lets be
   // queued. More are allocated while a fast reader keeps several tasks' worth in flight.
   static constexpr size_t kMaxSpares = 2;
+  static constexpr size_t kSpareBytes = wire::kMaxBatchPoints * sizeof(Point);
+  void KeepSpare(std::vector<Point> buf);
+  // How long results may sit unread while the server's memory budget is crowded.
+  static constexpr std::chrono::seconds kStallWhileCrowded{5};
   Grant MakeGrant(const std::shared_ptr<Op>& op);
   // Whether a query task or the next image may start: the connection is under its high-water
   // mark, and under the server's budget or holding nothing.
@@ -174,6 +178,7 @@ class Session : public std::enable_shared_from_this<Session> {
   std::deque<OutFrame> out_;
   size_t bytes_queued_ = 0;
   size_t bytes_reserved_ = 0;
+  Clock::time_point last_drain_ = Clock::now();  // last write completed, or queue became busy
   bool writing_ = false;
   bool corked_ = false;  // frames are being queued together: write once they all are
   std::map<uint64_t, std::shared_ptr<Op>> ops_;

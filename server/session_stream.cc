@@ -91,9 +91,9 @@ Session::Grant Session::MakeGrant(const std::shared_ptr<Op>& op) {
   }
   // Two batches a task: a small query's batch and its QueryDone go out together. Bounded: the
   // strand admits a task only under the high-water mark, and counts the task's batches as
-  // buffered until they are delivered. Over the server's budget a connection gets one batch at
-  // a time, and only while it holds nothing.
-  g.batches = server_->OverBudget() ? 1 : kBatchesPerTask;
+  // buffered until they are delivered. When the server is crowded a connection gets one batch
+  // at a time, and only while it holds nothing.
+  g.batches = server_->Crowded() ? 1 : kBatchesPerTask;
   g.reserved = g.batches * wire::kMaxBatchBytes;
   Reserve(static_cast<int64_t>(g.reserved));
   if (op->encoding == wire::RECORDS) {
@@ -109,8 +109,8 @@ Session::Grant Session::MakeGrant(const std::shared_ptr<Op>& op) {
 }
 
 bool Session::MayProduce() const {
-  return Buffered() < server_->config().outbound_high_water &&
-         (!server_->OverBudget() || Buffered() == 0);
+  if (Buffered() >= server_->config().outbound_high_water) return false;
+  return Buffered() == 0 ? !server_->OverBudget() : !server_->Crowded();
 }
 
 void Session::Schedule(std::shared_ptr<Op> op) {
@@ -216,7 +216,7 @@ void Session::Deliver(std::shared_ptr<Op> op, Produced out) {
   Reserve(-static_cast<int64_t>(out.reserved));
   for (int slot : out.unused) ReturnSlot(slot);
   for (auto& b : out.back) {
-    if (spare_.size() < kMaxSpares) spare_.push_back(std::move(b));
+    KeepSpare(std::move(b));
   }
   if (closed_) return;
   corked_ = true;
@@ -270,6 +270,7 @@ std::vector<Point> Session::TakeSpare() {
   if (spare_.empty()) return {};
   std::vector<Point> v = std::move(spare_.back());
   spare_.pop_back();
+  server_->AddBuffered(-static_cast<int64_t>(kSpareBytes));
   return v;
 }
 

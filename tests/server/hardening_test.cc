@@ -10,6 +10,7 @@
 
 #include <gtest/gtest.h>
 
+#include <cerrno>
 #include <chrono>
 #include <fstream>
 #include <iterator>
@@ -75,6 +76,10 @@ class Sock {
     }
     return done;
   }
+  void ReceiveTimeout(int ms) {
+    timeval tv{ms / 1000, (ms % 1000) * 1000};
+    ::setsockopt(fd_, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof(tv));
+  }
   void SendTimeout(int ms) {
     timeval tv{ms / 1000, (ms % 1000) * 1000};
     ::setsockopt(fd_, SOL_SOCKET, SO_SNDTIMEO, &tv, sizeof(tv));
@@ -86,7 +91,8 @@ class Sock {
     for (;;) {
       ssize_t n = ::recv(fd_, tmp, sizeof(tmp), 0);
       if (n <= 0) {
-        closed_ = n == 0;
+        // A reset counts: the server closed with requests of ours still unread.
+        closed_ = n == 0 || errno == ECONNRESET;
         break;
       }
       buf.append(tmp, static_cast<size_t>(n));
@@ -149,6 +155,12 @@ std::unique_ptr<client::Connection> Connect(uint16_t port, const std::string& to
   auto c = client::Connection::Connect(o);
   EXPECT_TRUE(c.ok()) << c.status().ToString();
   return c.ok() ? std::move(c).value() : nullptr;
+}
+
+size_t Count(const std::string& s, const std::string& what) {
+  size_t n = 0;
+  for (size_t at = s.find(what); at != std::string::npos; at = s.find(what, at + 1)) ++n;
+  return n;
 }
 
 // A server with a dataset `d` of 8 frames x 100 000 points (51 MB of records; each whole query
@@ -284,6 +296,40 @@ TEST_F(HardeningTest, TheServerWideBudgetHoldsWithManyConnections) {
   EXPECT_EQ(testing::All(*c, "d", testing::FrameWindow(2, kFps)).size(), 100000u);
 }
 
+TEST(HardeningBudget, ClientsThatHoldTheBudgetWithoutReadingAreClosed) {
+  // 20 non-readers hold more than the 16 MiB budget: after 5 s without reading a byte they are
+  // closed until the server is under its budget again; a client that reads is never closed.
+  TempDir dir;
+  ServerChild server("b", {"--data", dir.path() + "/data", "--memory-budget", "16"}, dir.path());
+  ASSERT_EQ(server.Start(), "");
+  const uint16_t port = static_cast<uint16_t>(std::stoi(server.Address().substr(10)));
+  auto c = Connect(port);
+  ASSERT_TRUE(c);
+  DatasetInfo info;
+  info.name = "d";
+  info.fps = kFps;
+  ASSERT_TRUE(c->CreateDataset(info).ok());
+  std::mt19937_64 rng(38);
+  for (uint32_t f = 0; f < 4; ++f) ASSERT_TRUE(c->Ingest("d", f, RandomPoints(rng, 100000, f)).ok());
+  std::vector<std::unique_ptr<Sock>> tcp;
+  for (int i = 0; i < 20; ++i) {
+    tcp.push_back(std::make_unique<Sock>(port));
+    std::string bytes = HelloFrame();
+    for (int q = 1; q <= 8; ++q) bytes += wire::Frame(WholeQuery(q, "d", wire::COLUMNS));
+    tcp.back()->Write(bytes);
+  }
+  for (int i = 0; i < 4; ++i) {
+    EXPECT_EQ(testing::All(*c, "d", testing::FrameWindow(static_cast<uint32_t>(i), kFps)).size(),
+              100000u);
+    std::this_thread::sleep_for(std::chrono::seconds(2));
+  }
+  EXPECT_TRUE(c->Ping().ok());
+  const std::string log = server.Log();
+  const size_t closed = static_cast<size_t>(Count(log, "while the server's memory budget is crowded"));
+  std::printf("%zu of 20 stalled clients closed\n", closed);
+  EXPECT_GE(closed, 1u) << log;
+}
+
 // ---- Finding 2: pings are flow-controlled like everything else ----
 
 TEST_F(HardeningTest, PingPayloadsOverTheLimitAreRefused) {
@@ -379,12 +425,6 @@ std::string HttpExchange(uint16_t port, const std::string& request) {
   s.Write(request);
   ::shutdown(s.fd(), SHUT_WR);
   return s.ReadAll();
-}
-
-size_t Count(const std::string& s, const std::string& what) {
-  size_t n = 0;
-  for (size_t at = s.find(what); at != std::string::npos; at = s.find(what, at + 1)) ++n;
-  return n;
 }
 
 TEST_F(HardeningTest, TransferEncodingsAreRefusedAndTheBodyIsNotTakenForARequest) {
