@@ -117,6 +117,8 @@ class Session : public std::enable_shared_from_this<Session> {
   static constexpr size_t kMaxSpares = 2;
   static constexpr size_t kSpareBytes = wire::kMaxBatchPoints * sizeof(Point);
   void KeepSpare(std::vector<Point> buf);
+  // Queued results that have not drained for this long: the client is taken as not reading.
+  static constexpr std::chrono::milliseconds kNotReading{1000};
   // How long results may sit unread while the server's memory budget is crowded.
   static constexpr std::chrono::seconds kStallWhileCrowded{5};
   Grant MakeGrant(const std::shared_ptr<Op>& op);

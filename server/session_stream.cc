@@ -110,6 +110,10 @@ Session::Grant Session::MakeGrant(const std::shared_ptr<Op>& op) {
 
 bool Session::MayProduce() const {
   if (Buffered() >= server_->config().outbound_high_water) return false;
+  // A client whose queued results have not moved for a while is not reading: it gets no more
+  // work until they do (its write completing resumes it), which keeps the server's threads for
+  // clients that read.
+  if (bytes_queued_ > 0 && Clock::now() - last_drain_ >= kNotReading) return false;
   return Buffered() == 0 ? !server_->OverBudget() : !server_->Crowded();
 }
 

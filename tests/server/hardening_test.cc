@@ -163,6 +163,16 @@ size_t Count(const std::string& s, const std::string& what) {
   return n;
 }
 
+// The dataset `d`: `frames` frames of 100 000 random points.
+void LoadDataset(client::Connection& c, uint32_t frames, uint64_t seed) {
+  DatasetInfo info;
+  info.name = "d";
+  info.fps = kFps;
+  ASSERT_TRUE(c.CreateDataset(info).ok());
+  std::mt19937_64 rng(seed);
+  for (uint32_t f = 0; f < frames; ++f) ASSERT_TRUE(c.Ingest("d", f, RandomPoints(rng, 100000, f)).ok());
+}
+
 // A server with a dataset `d` of 8 frames x 100 000 points (51 MB of records; each whole query
 // makes ~50 batches).
 class HardeningTest : public ::testing::Test {
@@ -176,12 +186,7 @@ class HardeningTest : public ::testing::Test {
   void Load() {
     auto c = Connect(server_->port());
     ASSERT_TRUE(c);
-    DatasetInfo info;
-    info.name = "d";
-    info.fps = kFps;
-    ASSERT_TRUE(c->CreateDataset(info).ok());
-    std::mt19937_64 rng(37);
-    for (uint32_t f = 0; f < 8; ++f) ASSERT_TRUE(c->Ingest("d", f, RandomPoints(rng, 100000, f)).ok());
+    LoadDataset(*c, 8, 37);
   }
   // RSS once it has stopped growing (the server makes batches for a while after the sends).
   long SettledRss() {
@@ -305,12 +310,7 @@ TEST(HardeningBudget, ClientsThatHoldTheBudgetWithoutReadingAreClosed) {
   const uint16_t port = static_cast<uint16_t>(std::stoi(server.Address().substr(10)));
   auto c = Connect(port);
   ASSERT_TRUE(c);
-  DatasetInfo info;
-  info.name = "d";
-  info.fps = kFps;
-  ASSERT_TRUE(c->CreateDataset(info).ok());
-  std::mt19937_64 rng(38);
-  for (uint32_t f = 0; f < 4; ++f) ASSERT_TRUE(c->Ingest("d", f, RandomPoints(rng, 100000, f)).ok());
+  LoadDataset(*c, 4, 38);
   std::vector<std::unique_ptr<Sock>> tcp;
   for (int i = 0; i < 20; ++i) {
     tcp.push_back(std::make_unique<Sock>(port));
