@@ -57,10 +57,19 @@ class HttpConnection : public std::enable_shared_from_this<HttpConnection> {
   // Waiting for a request (not serving one, not a WebSocket's handshake): such a connection
   // may be closed to make room for a new one when the front end is full.
   bool idle() const { return idle_; }
-  uint64_t seq = 0;  // order of arrival
+  // When it began to wait (a counter of the front end's): the longest waiting goes first.
+  uint64_t waiting_since() const { return waiting_since_; }
+  // Closes it if it is still waiting for a request once on its strand (it may have got one).
+  void Evict() {
+    auto self = shared_from_this();
+    asio::post(strand_, [self] {
+      if (self->idle_) self->Shutdown();
+    });
+  }
 
  private:
   void ReadRequest() {
+    waiting_since_ = front_->NextSeq();
     idle_ = true;
     parser_.emplace();
     parser_->header_limit(kMaxHeaderBytes);
@@ -204,6 +213,7 @@ class HttpConnection : public std::enable_shared_from_this<HttpConnection> {
   http::request<http::string_body> req_;
   bool done_ = false;
   std::atomic<bool> idle_{false};
+  std::atomic<uint64_t> waiting_since_{0};
 };
 
 HttpFrontend::HttpFrontend(Server* server, std::string web_root, std::vector<std::string> origins)
@@ -279,14 +289,15 @@ void HttpFrontend::Accept() {
         // socket cannot keep the page from loading); refused only if all are busy.
         for (auto& [p, w] : connections_) {
           auto other = w.lock();
-          if (other && other->idle() && (!evicted || other->seq < evicted->seq)) evicted = other;
+          if (other && other->idle() &&
+              (!evicted || other->waiting_since() < evicted->waiting_since())) {
+            evicted = other;
+          }
         }
         refuse = !evicted;
-        if (evicted) connections_.erase(evicted.get());
       }
-      c->seq = ++seq_;
     }
-    if (evicted) evicted->Close();
+    if (evicted) evicted->Evict();
     if (Register(c)) c->Run(refuse);
     Accept();
   });

@@ -44,6 +44,7 @@ class HttpFrontend {
   const std::vector<std::string>& origins() const { return origins_; }
   // False once stopping: the caller drops the connection.
   bool Register(const std::shared_ptr<HttpConnection>& c);
+  uint64_t NextSeq() { return ++seq_; }
   void Unregister(HttpConnection* c);
 
  private:
@@ -61,7 +62,7 @@ class HttpFrontend {
   std::atomic<bool> stopping_{false};
   std::mutex mu_;
   std::map<HttpConnection*, std::weak_ptr<HttpConnection>> connections_;
-  uint64_t seq_ = 0;
+  std::atomic<uint64_t> seq_{0};
 };
 
 }  // namespace hvdb::server

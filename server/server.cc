@@ -411,17 +411,13 @@ void Server::AcceptUnix() {
 }
 
 void Server::Admit(std::shared_ptr<Session> session) {
-  bool refuse = false;
+  bool refuse = false, late = false;
   std::shared_ptr<Session> evicted;
   {
     std::lock_guard<std::mutex> l(mu_);
-    if (stopping_) {  // e.g. a WebSocket whose handshake ended after Stop took its list
-      session->Start();
-      session->Close();
-      return;
-    }
-    refuse = authenticated_ >= config_.max_connections;
-    if (!refuse) {
+    late = stopping_.load();  // e.g. a WebSocket whose handshake ended after Stop took its list
+    refuse = !late && authenticated_ >= config_.max_connections;
+    if (!late && !refuse) {
       // A full pre-authentication pool makes room by closing the connection there longest:
       // a real client says Hello within milliseconds, a squatter never does.
       while (preauth_.size() >= config_.max_preauth && !evicted) {
@@ -430,9 +426,12 @@ void Server::Admit(std::shared_ptr<Session> session) {
       }
       preauth_.push_back(session);
     }
-    sessions_.insert(session);
+    if (!late) sessions_.insert(session);
   }
+  // Started and closed outside mu_: a session's close may run inline (the caller can be on its
+  // strand, as the WebSocket upgrade is) and takes mu_ to leave the list.
   session->Start();
+  if (late) return session->Close();
   if (evicted) {
     Log(LogLevel::kDebug, "closed the oldest connection without a Hello (the pool of " +
                               std::to_string(config_.max_preauth) + " is full)");

@@ -149,6 +149,7 @@ class Server {
   bool Crowded() const { return buffered_.load() >= static_cast<int64_t>(budget_ / 8 * 5); }
   bool OverBudget() const { return buffered_.load() >= static_cast<int64_t>(budget_ / 8 * 7); }
   int64_t buffered() const { return buffered_.load(); }
+  size_t budget() const { return budget_; }
 
  private:
   Server(Config config, std::unique_ptr<Database> db);

@@ -312,6 +312,8 @@ void Session::Dispatch(wire::Request req) {
         st->set_bytes_out(s->stats().bytes_out);
         st->set_role(s->role());
         st->set_leader(s->db().Leader());
+        st->set_buffered_bytes(static_cast<uint64_t>(std::max<int64_t>(0, s->buffered())));
+        st->set_memory_budget_bytes(s->budget());
         CacheStats c = s->db().Cache();
         st->set_cache_capacity_bytes(c.capacity_bytes);
         uint64_t lookups = c.hits + c.misses;
@@ -507,7 +509,8 @@ void Session::WriteNext() {
     self->deadline_ = Clock::now() + std::chrono::seconds(
                                          self->server_->config().idle_timeout_s);
     self->last_drain_ = Clock::now();
-    if (self->Buffered() < self->server_->config().outbound_high_water / 2) {
+    if (self->Buffered() < self->server_->config().outbound_high_water / 2 &&
+        !self->close_after_write_) {
       self->ResumePaused();
     }
     if (self->out_.empty() && self->close_after_write_) {
@@ -558,7 +561,7 @@ void Session::CloseOnStrand() {
 
 void Session::KeepSpare(std::vector<Point> buf) {
   // Kept for the next batches only while the server has memory to spare; counted in its budget.
-  if (spare_.size() >= kMaxSpares || server_->OverBudget()) return;
+  if (closed_ || spare_.size() >= kMaxSpares || server_->Crowded()) return;
   server_->AddBuffered(static_cast<int64_t>(kSpareBytes));
   spare_.push_back(std::move(buf));
 }

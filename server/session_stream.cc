@@ -119,7 +119,8 @@ bool Session::MayProduce() const {
 
 void Session::Schedule(std::shared_ptr<Op> op) {
   if (closed_) return;
-  if (!MayProduce()) {
+  // A cancelled query only has its CANCELLED to send: it never waits for room.
+  if (!op->cancelled && !MayProduce()) {
     op->paused = true;  // resumed by WriteNext when the queue drains
     return;
   }
@@ -219,10 +220,8 @@ Session::Produced Session::Produce(Op* op, Grant g) {
 void Session::Deliver(std::shared_ptr<Op> op, Produced out) {
   Reserve(-static_cast<int64_t>(out.reserved));
   for (int slot : out.unused) ReturnSlot(slot);
-  for (auto& b : out.back) {
-    KeepSpare(std::move(b));
-  }
-  if (closed_) return;
+  if (closed_) return;  // its buffers go with the task (the close took spare_ out of the budget)
+  for (auto& b : out.back) KeepSpare(std::move(b));
   corked_ = true;
   for (Made& m : out.made) {
     if (m.held_slot >= 0) slot_held_[static_cast<size_t>(m.held_slot)] = 1;
@@ -282,6 +281,7 @@ void Session::ResumePaused() {
   auto self = shared_from_this();
   for (auto& [id, op] : ops_) {
     if (!op->paused) continue;
+    if (op->is_render && !op->cancelled && !MayProduce()) continue;  // still no room
     op->paused = false;
     if (op->is_render) {
       asio::post(server_->workers(), [self, op = op] { self->RenderNext(op); });

@@ -62,6 +62,9 @@ class Transport {
   virtual int native_handle() = 0;
 };
 
+// The largest Hello a transport reads (before the Hello nothing larger is buffered).
+inline constexpr uint32_t kMaxHelloBytes = 64u << 10;
+
 std::shared_ptr<Transport> MakeStreamTransport(StreamSocket socket, Strand strand,
                                                uint32_t max_frame_bytes);
 

@@ -2,6 +2,8 @@
 // (docs/PROTOCOL.md, "Framing").
 #include "server/transport.h"
 
+#include <algorithm>
+
 namespace hvdb::server {
 
 namespace asio = boost::asio;
@@ -22,10 +24,14 @@ class StreamTransport : public Transport, public std::enable_shared_from_this<St
           if (ec) return done(ec, Status::OK(), 0);
           uint32_t len;
           bool attachment = false;
-          if (!wire::ParseFrameHeader(self->header_, self->max_frame_, &len, &attachment)) {
+          // Before the Hello only a Hello's worth: a connection that has not authenticated
+          // cannot make the server allocate a large frame.
+          const uint32_t limit = hello != nullptr ? std::min(self->max_frame_, kMaxHelloBytes)
+                                                  : self->max_frame_;
+          if (!wire::ParseFrameHeader(self->header_, limit, &len, &attachment)) {
             return done({}, Status::InvalidArgument(
                                 "frame of " + std::to_string(len) + " bytes exceeds the limit of " +
-                                std::to_string(self->max_frame_)),
+                                std::to_string(limit) + (hello ? " for a Hello" : "")),
                         wire::kFrameHeaderSize);
           }
           if (attachment) {
@@ -55,9 +61,12 @@ class StreamTransport : public Transport, public std::enable_shared_from_this<St
     // Every frame queued so far in one gather write (a batch and its QueryDone, a task's
     // batches): one system call and one completion instead of one per frame.
     std::vector<asio::const_buffer> bufs;
-    size_t frames = 0;
+    size_t frames = 0, bytes = 0;
     for (const OutFrame& f : out) {
-      if (frames == kMaxGather) break;
+      // At most ~1 MiB a write (one frame at least): each completion is progress the session
+      // sees, so a slow reader is told apart from one that does not read.
+      if (frames == kMaxGather || (frames > 0 && bytes + f.bytes() > kMaxGatherBytes)) break;
+      bytes += f.bytes();
       bufs.push_back(asio::buffer(f.head));
       if (f.count > 0) bufs.push_back(asio::buffer(f.records.data(), f.count * sizeof(Point)));
       ++frames;
@@ -80,6 +89,7 @@ class StreamTransport : public Transport, public std::enable_shared_from_this<St
 
  private:
   static constexpr size_t kMaxGather = 32;  // frames in one gather write
+  static constexpr size_t kMaxGatherBytes = 1u << 20;
   static constexpr size_t kKeepBodyBytes = 64u << 10;
 
   void ReadBody(uint32_t len, wire::Hello* hello, wire::Request* request, ReadDone done) {

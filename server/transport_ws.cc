@@ -1,5 +1,7 @@
 #include "server/transport_ws.h"
 
+#include <algorithm>
+
 #include <boost/beast/core/flat_buffer.hpp>
 #include <boost/beast/websocket.hpp>
 
@@ -17,9 +19,12 @@ namespace {
 class WsTransport : public Transport, public std::enable_shared_from_this<WsTransport> {
  public:
   WsTransport(std::unique_ptr<WebSocket> ws, Strand strand)
-      : ws_(std::move(ws)), strand_(std::move(strand)) {}
+      : ws_(std::move(ws)), strand_(std::move(strand)), max_message_(ws_->read_message_max()) {}
 
   void Read(wire::Hello* hello, wire::Request* request, ReadDone done) override {
+    // Before the Hello only a Hello's worth (as on the stream transport).
+    ws_->read_message_max(hello != nullptr ? std::min<size_t>(max_message_, kMaxHelloBytes)
+                                           : max_message_);
     auto self = shared_from_this();
     ws_->async_read(buf_, asio::bind_executor(strand_, [self, hello, request, done = std::move(
                                                                                  done)](
@@ -96,6 +101,7 @@ class WsTransport : public Transport, public std::enable_shared_from_this<WsTran
   std::unique_ptr<WebSocket> ws_;
   Strand strand_;
   beast::flat_buffer buf_;
+  const size_t max_message_;
   bool malformed_ = false;
   bool closing_ = false;
   std::unique_ptr<boost::asio::steady_timer> close_timer_;

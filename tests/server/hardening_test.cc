@@ -12,6 +12,7 @@
 
 #include <cerrno>
 #include <chrono>
+#include <cstring>
 #include <fstream>
 #include <iterator>
 #include <random>
@@ -328,6 +329,65 @@ TEST(HardeningBudget, ClientsThatHoldTheBudgetWithoutReadingAreClosed) {
   const size_t closed = static_cast<size_t>(Count(log, "while the server's memory budget is crowded"));
   std::printf("%zu of 20 stalled clients closed\n", closed);
   EXPECT_GE(closed, 1u) << log;
+}
+
+TEST_F(HardeningTest, ClientsThatCloseMidQueryLeaveNothingInTheBudget) {
+  // Each connection that closes while a task of its query is under way must give back what it
+  // was counted for: 40 such closes would otherwise leave a 16 MiB budget full for good, and
+  // every later query would wait forever.
+  Start({"--memory-budget", "16"});
+  Load();
+  for (int i = 0; i < 40; ++i) {
+    auto c = Connect(server_->port());
+    ASSERT_TRUE(c);
+    auto q = c->Query("d", testing::EverythingWindow(), {});
+    ASSERT_TRUE(q.ok());
+    Batch b;
+    ASSERT_TRUE((*q)->Next(&b).ok());
+  }  // the connection closes with the query streaming
+  // And 100 that ask and hang up at once, while their next batches are being made.
+  for (int i = 0; i < 100; ++i) {
+    Sock s(server_->port(), 1 << 16);
+    s.Write(HelloFrame() + wire::Frame(WholeQuery(1, "d", wire::RECORDS)));
+    std::this_thread::sleep_for(std::chrono::milliseconds(i % 7));
+  }
+  auto watcher = Connect(server_->port());
+  ASSERT_TRUE(watcher);
+  uint64_t buffered = 0;
+  EXPECT_TRUE(testing::WaitUntil(std::chrono::milliseconds(5000), [&] {
+    auto st = watcher->Stats();
+    buffered = st.ok() ? st->buffered_bytes() : ~0ull;
+    return buffered == 0;
+  })) << buffered << " bytes still counted with no client holding results";
+  client::Options o;
+  o.port = server_->port();
+  o.prefer_local = false;
+  o.request_timeout = std::chrono::milliseconds(10000);
+  auto c = client::Connection::Connect(o);
+  ASSERT_TRUE(c.ok());
+  for (uint32_t f = 0; f < 3; ++f) {
+    EXPECT_EQ(testing::All(**c, "d", testing::FrameWindow(f, kFps)).size(), 100000u);
+  }
+}
+
+TEST_F(HardeningTest, ConnectionsBeforeTheirHelloCannotAnnounceLargeFrames) {
+  Start();
+  const long before = SettledRss();
+  // 64 connections announcing 16 MiB first frames: refused at the header, nothing allocated.
+  std::vector<std::unique_ptr<Sock>> socks;
+  for (int i = 0; i < 64; ++i) {
+    socks.push_back(std::make_unique<Sock>(server_->port()));
+    std::string header(4, '\0');
+    const uint32_t len = 16u << 20;
+    std::memcpy(header.data(), &len, 4);
+    socks.back()->Write(header + "x");
+  }
+  const long during = SettledRss();
+  std::printf("64 large first frames: RSS %+ld KiB\n", during - before);
+  EXPECT_LT(during - before, 32 * kMiB);
+  auto r = socks.front()->Responses(false);
+  ASSERT_FALSE(r.empty());
+  EXPECT_EQ(r[0].error().code(), wire::MALFORMED);
 }
 
 // ---- Finding 2: pings are flow-controlled like everything else ----
