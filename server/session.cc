@@ -509,6 +509,7 @@ void Session::WriteNext() {
     self->deadline_ = Clock::now() + std::chrono::seconds(
                                          self->server_->config().idle_timeout_s);
     self->last_drain_ = Clock::now();
+    if (self->results_queued_) self->read_results_ = true;
     if (self->Buffered() < self->server_->config().outbound_high_water / 2 &&
         !self->close_after_write_) {
       self->ResumePaused();

@@ -180,6 +180,8 @@ class Session : public std::enable_shared_from_this<Session> {
   std::deque<OutFrame> out_;
   size_t bytes_queued_ = 0;
   size_t bytes_reserved_ = 0;
+  bool results_queued_ = false;  // a query's batches have been queued
+  bool read_results_ = false;    // and a write completed after that: the client reads
   Clock::time_point last_drain_ = Clock::now();  // last write completed, or queue became busy
   bool writing_ = false;
   bool corked_ = false;  // frames are being queued together: write once they all are

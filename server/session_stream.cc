@@ -93,7 +93,7 @@ Session::Grant Session::MakeGrant(const std::shared_ptr<Op>& op) {
   // strand admits a task only under the high-water mark, and counts the task's batches as
   // buffered until they are delivered. When the server is crowded a connection gets one batch
   // at a time, and only while it holds nothing.
-  g.batches = server_->Crowded() ? 1 : kBatchesPerTask;
+  g.batches = server_->Crowded() || !read_results_ ? 1 : kBatchesPerTask;
   g.reserved = g.batches * wire::kMaxBatchBytes;
   Reserve(static_cast<int64_t>(g.reserved));
   if (op->encoding == wire::RECORDS) {
@@ -114,6 +114,9 @@ bool Session::MayProduce() const {
   // work until they do (its write completing resumes it), which keeps the server's threads for
   // clients that read.
   if (bytes_queued_ > 0 && Clock::now() - last_drain_ >= kNotReading) return false;
+  // Until a first write of results has completed, one batch at a time: a connection that asks
+  // and never reads costs the server one batch of work, not a connection's worth.
+  if (bytes_queued_ > 0 && !read_results_) return false;
   return Buffered() == 0 ? !server_->OverBudget() : !server_->Crowded();
 }
 
@@ -223,6 +226,7 @@ void Session::Deliver(std::shared_ptr<Op> op, Produced out) {
   if (closed_) return;  // its buffers go with the task (the close took spare_ out of the budget)
   for (auto& b : out.back) KeepSpare(std::move(b));
   corked_ = true;
+  results_queued_ = true;
   for (Made& m : out.made) {
     if (m.held_slot >= 0) slot_held_[static_cast<size_t>(m.held_slot)] = 1;
     if (m.records.empty()) {

@@ -63,7 +63,7 @@ class StreamTransport : public Transport, public std::enable_shared_from_this<St
     std::vector<asio::const_buffer> bufs;
     size_t frames = 0, bytes = 0;
     for (const OutFrame& f : out) {
-      // At most ~1 MiB a write (one frame at least): each completion is progress the session
+      // At most ~4 MiB a write (one frame at least): each completion is progress the session
       // sees, so a slow reader is told apart from one that does not read.
       if (frames == kMaxGather || (frames > 0 && bytes + f.bytes() > kMaxGatherBytes)) break;
       bytes += f.bytes();
@@ -89,7 +89,7 @@ class StreamTransport : public Transport, public std::enable_shared_from_this<St
 
  private:
   static constexpr size_t kMaxGather = 32;  // frames in one gather write
-  static constexpr size_t kMaxGatherBytes = 1u << 20;
+  static constexpr size_t kMaxGatherBytes = 4u << 20;
   static constexpr size_t kKeepBodyBytes = 64u << 10;
 
   void ReadBody(uint32_t len, wire::Hello* hello, wire::Request* request, ReadDone done) {
