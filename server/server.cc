@@ -438,9 +438,13 @@ void Server::Admit(std::shared_ptr<Session> session) {
     evicted->Close();
   }
   if (refuse) {
-    session->Refuse(Status::Overloaded("the server has " + std::to_string(config_.max_connections) +
-                                       " connections, its limit; retry later"));
+    session->Refuse(AtConnectionLimit());
   }
+}
+
+Status Server::AtConnectionLimit() const {
+  return Status::Overloaded("the server has " + std::to_string(config_.max_connections) +
+                            " connections, its limit; retry later");
 }
 
 bool Server::Authenticated(Session* s) {

@@ -140,6 +140,8 @@ class Server {
   // After a good Hello: moves the session out of the pre-authentication pool; false (and the
   // caller refuses it as OVERLOADED) when --max-connections are authenticated already.
   bool Authenticated(Session* s);
+  // OVERLOADED for a connection past --max-connections.
+  Status AtConnectionLimit() const;
   // Results buffered in all connections (server-wide memory budget). Past 5/8 of it the server
   // is crowded: connections that hold results get none more, and the next quarter is for
   // connections that hold nothing (a client that reads is never starved by ones that do not);

@@ -121,9 +121,7 @@ void Session::OnHello() {
   }
   if (!server_->Authenticated(this)) {
     close_after_write_ = true;
-    return SendError(0, Status::Overloaded("the server has " +
-                                           std::to_string(server_->config().max_connections) +
-                                           " connections, its limit; retry later"));
+    return SendError(0, server_->AtConnectionLimit());
   }
   authenticated_ = true;
   hello_done_ = true;

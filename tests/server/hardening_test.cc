@@ -27,6 +27,7 @@
 
 #include "client/client.h"
 #include "server/web_checks.h"
+#include "tests/server/frames.h"
 #include "tests/server/query_util.h"
 #include "tests/server/server_child.h"
 #include "tests/server/server_process.h"
@@ -104,16 +105,11 @@ class Sock {
   // The Response frames until the server closes; the first frame (the HelloReply) left out
   // when `after_hello`.
   std::vector<wire::Response> Responses(bool after_hello) {
-    std::string buf = ReadAll();
+    std::vector<std::string> frames = testing::FramePayloads(ReadAll());
     std::vector<wire::Response> out;
-    wire::FrameReader reader(256u << 20);
-    reader.Feed(reinterpret_cast<const uint8_t*>(buf.data()), buf.size());
-    std::string payload, err;
-    bool first = true;
-    while (reader.Next(&payload, &err) == wire::FrameReader::Result::kFrame) {
-      if (std::exchange(first, false) && after_hello) continue;
+    for (size_t i = after_hello ? 1 : 0; i < frames.size(); ++i) {
       wire::Response r;
-      EXPECT_TRUE(r.ParseFromString(payload));
+      EXPECT_TRUE(r.ParseFromString(frames[i]));
       out.push_back(r);
     }
     return out;

@@ -16,6 +16,7 @@
 #include "client/client.h"
 #include "storage/coding.h"
 #include "tests/edit/scene.h"
+#include "tests/server/frames.h"
 #include "tests/server/query_util.h"
 #include "tests/server/server_process.h"
 #include "tests/storage/test_util.h"
@@ -404,10 +405,7 @@ class RawSocket {
     }
     closed_ = true;
     std::vector<wire::Response> out;
-    wire::FrameReader reader(256u << 20);
-    reader.Feed(reinterpret_cast<const uint8_t*>(buf.data()), buf.size());
-    std::string payload, err;
-    while (reader.Next(&payload, &err) == wire::FrameReader::Result::kFrame) {
+    for (const std::string& payload : testing::FramePayloads(buf)) {
       wire::Response r;
       if (r.ParseFromString(payload)) out.push_back(r);
     }
