@@ -9,9 +9,9 @@
 #include <utility>
 #include <variant>
 
-#include <nlohmann/json.hpp>
-
 #include "client/client.h"
+#include "protocol/convert.h"
+#include "service/service.h"
 #include "render/job.h"
 #include "render/renderer.h"
 
@@ -41,6 +41,9 @@ class EmbeddedResults final : public QueryResults {
   std::unique_ptr<Cursor> cursor_;
 };
 
+// Runs every request through the executor (service/service.h), as hvdb-server does; what is
+// left here is what only this mode has: the data directory opened on first use, its block
+// cache's numbers, Check, and messages that name the directory.
 class EmbeddedBackend final : public Backend {
  public:
   EmbeddedBackend(std::string dir, size_t cache_bytes)
@@ -50,71 +53,65 @@ class EmbeddedBackend final : public Backend {
   std::string where() const override { return dir_; }
 
   Result<std::vector<std::string>> ListDatasets() override {
-    HVDB_ASSIGN_OR_RETURN(Database * db, Db(/*create=*/false));
-    std::vector<std::string> names = db->ListDatasets();
-    std::sort(names.begin(), names.end());
-    return names;
+    HVDB_ASSIGN_OR_RETURN(service::Service * x, Service(/*create=*/false));
+    return x->ListDatasets();
   }
 
   Result<DatasetInfo> CreateDataset(const DatasetInfo& info) override {
-    HVDB_ASSIGN_OR_RETURN(Database * db, Db(/*create=*/true));
-    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, db->CreateDataset(info));
-    return ds->Info();
+    HVDB_ASSIGN_OR_RETURN(service::Service * x, Service(/*create=*/true));
+    return x->CreateDataset(info);
   }
 
   Status DropDataset(const std::string& name) override {
-    HVDB_ASSIGN_OR_RETURN(Database * db, Db(/*create=*/false));
-    return Explain(name, db->DropDataset(name));
+    HVDB_ASSIGN_OR_RETURN(service::Service * x, Service(/*create=*/false));
+    return Explain(name, x->DropDataset(name));
   }
 
   Result<DatasetInfo> Describe(const std::string& name) override {
-    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
-    return ds->Info();
+    return Do(name, [&](service::Service& x) { return x.Describe(name); });
   }
 
   Result<std::unique_ptr<QueryResults>> Query(const std::string& name, const Region& region,
                                               const QueryOptions& opts) override {
-    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
-    HVDB_ASSIGN_OR_RETURN(std::unique_ptr<Cursor> cursor, ds->Query(region, opts));
-    return std::unique_ptr<QueryResults>(new EmbeddedResults(std::move(ds), std::move(cursor)));
+    HVDB_ASSIGN_OR_RETURN(service::OpenQuery q,
+                          Do(name, [&](service::Service& x) { return x.Query(name, region, opts); }));
+    return std::unique_ptr<QueryResults>(
+        new EmbeddedResults(std::move(q.dataset), std::move(q.cursor)));
   }
 
   Result<uint64_t> BulkLoad(const std::string& name, uint32_t frame,
                             std::vector<Point> points) override {
-    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
-    return ds->BulkLoad(frame, std::move(points));
+    return Do(name, [&](service::Service& x) { return x.BulkLoad(name, frame, std::move(points)); });
   }
 
   Result<CommitInfo> Commit(const std::string& name, const Transaction& txn) override {
-    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
-    return ds->Commit(txn);
+    return Do(name, [&](service::Service& x) { return x.Commit(name, txn); });
   }
 
   Result<CommitInfo> Revert(const std::string& name, uint64_t lsn) override {
-    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
-    return ds->Revert(lsn);
+    return Do(name, [&](service::Service& x) { return x.Revert(name, lsn); });
   }
 
   Status PutPhoto(const std::string& name, uint32_t frame, const Photo& photo) override {
-    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
-    HVDB_RETURN_IF_ERROR(render::CheckPhoto(photo));
-    return ds->PutPhoto(frame, photo);
+    HVDB_ASSIGN_OR_RETURN(service::Service * x, Service(/*create=*/false));
+    return Explain(name, x->PutPhoto(name, frame, photo));
   }
 
   Result<StatsReport> Stats(const std::string& name) override {
-    HVDB_ASSIGN_OR_RETURN(Database * db, Db(/*create=*/false));
+    HVDB_ASSIGN_OR_RETURN(service::Service * x, Service(/*create=*/false));
     std::vector<std::string> names;
     if (!name.empty()) {
       names.push_back(name);
     } else {
-      HVDB_ASSIGN_OR_RETURN(names, ListDatasets());
+      names = x->ListDatasets();
     }
     StatsReport report;
     for (const std::string& n : names) {
-      HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(n));
-      report.datasets.push_back({n, ds->Stats(), ds->Info().last_lsn});
+      HVDB_ASSIGN_OR_RETURN(service::DatasetReport d,
+                            Do(n, [&](service::Service& s) { return s.Stats(n); }));
+      report.datasets.push_back({n, d.stats, d.last_lsn});
     }
-    report.cache = db->Cache();
+    report.cache = x->db().Cache();
     return report;
   }
 
@@ -124,52 +121,48 @@ class EmbeddedBackend final : public Backend {
   }
 
   Result<std::vector<std::string>> Check(const std::string& name) override {
-    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
+    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds,
+                          Do(name, [&](service::Service& x) { return x.Find(name); }));
     return ds->Check();
   }
 
   Result<edit::SelectResult> Select(const std::string& name,
                                     const edit::SelectRequest& req) override {
-    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
-    return edit::Select(*ds, req);
+    return Do(name, [&](service::Service& x) { return x.Select(name, req); });
   }
 
   Result<edit::GraphCutReply> GraphCut(const std::string& name,
                                        const edit::GraphCutRequest& req) override {
-    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
-    return edit::GraphCutSelect(*ds, req);
+    return Do(name, [&](service::Service& x) { return x.GraphCut(name, req); });
   }
 
   Result<edit::CopyResult> Copy(const std::string& name, int bit,
                                 const std::optional<Region>& region, const std::string& clipboard,
                                 bool cut) override {
-    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
-    edit::ClipboardStore store(dir_);  // DIR/clipboards, as hvdb-server --data DIR keeps them
-    return edit::Copy(*ds, bit, region, store, clipboard, cut);
+    const edit::CopyRequest req{bit, region, clipboard, cut};
+    return Do(name, [&](service::Service& x) { return x.Copy(name, req); });
   }
 
   Result<CommitInfo> Paste(const std::string& name, const std::string& clipboard,
                            const Affine4& map) override {
-    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
-    edit::ClipboardStore store(dir_);
-    HVDB_ASSIGN_OR_RETURN(std::vector<Point> clip, store.Get(clipboard));
-    return edit::Paste(*ds, clip, map);
+    const edit::PasteRequest req{clipboard, map};
+    return Do(name, [&](service::Service& x) { return x.Paste(name, req); });
   }
 
   Result<CommitInfo> Composite(const std::string& name, const std::vector<Point>& object,
                                uint32_t first_frame, uint32_t frame_count,
                                const std::vector<std::array<double, 3>>& trajectory) override {
-    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(name));
-    return edit::Composite(*ds, object, first_frame, frame_count, trajectory);
+    const edit::CompositeRequest req{object, first_frame, frame_count, trajectory};
+    return Do(name, [&](service::Service& x) { return x.Composite(name, req); });
   }
 
   Status Render(const wire::Render& request,
                 const std::function<Status(const wire::RenderReply&)>& on_image) override {
-    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Open(request.dataset()));
     // What hvdb-server's sessions do, with a renderer of this process instead of one from the
     // server's pool: the request is checked before a renderer (an EGL context) is made.
-    HVDB_ASSIGN_OR_RETURN(std::unique_ptr<render::RenderJob> job,
-                          render::RenderJob::Create(std::move(ds), request));
+    HVDB_ASSIGN_OR_RETURN(
+        std::unique_ptr<render::RenderJob> job,
+        Do(request.dataset(), [&](service::Service& x) { return x.Render(request); }));
     std::string why;
     HVDB_ASSIGN_OR_RETURN(std::unique_ptr<render::Renderer> renderer,
                           render::MakeRenderer(job->renderer_kind(), &why));
@@ -186,10 +179,10 @@ class EmbeddedBackend final : public Backend {
   }
 
  private:
-  // The database, opened on first use. Only `create` makes the directory, so that a mistyped
-  // --data does not leave one behind.
-  Result<Database*> Db(bool create) {
-    if (db_) return db_.get();
+  // The executor over the database, opened on first use. Only `create` makes the directory,
+  // so that a mistyped --data does not leave one behind.
+  Result<service::Service*> Service(bool create) {
+    if (service_) return service_.get();
     std::error_code ec;
     if (!fs::exists(dir_, ec)) {
       if (!create) {
@@ -204,19 +197,22 @@ class EmbeddedBackend final : public Backend {
     hvdb::Options opts;
     opts.cache_bytes = cache_bytes_;
     HVDB_ASSIGN_OR_RETURN(db_, Database::Open(dir_, opts));
-    return db_.get();
+    // DIR/clipboards, the ones hvdb-server --data DIR keeps.
+    service_ = std::make_unique<service::Service>(db_.get(), dir_);
+    return service_.get();
   }
 
-  Result<std::shared_ptr<Dataset>> Open(const std::string& name) {
-    HVDB_ASSIGN_OR_RETURN(Database * db, Db(/*create=*/false));
-    Result<std::shared_ptr<Dataset>> ds = db->GetDataset(name);
-    if (ds.ok()) return ds;
-    return Explain(name, ds.status());
+  // Runs fn on the executor; a dataset that does not exist is said the way every command says it.
+  template <typename Fn>
+  auto Do(const std::string& name, Fn fn) -> decltype(fn(std::declval<service::Service&>())) {
+    HVDB_ASSIGN_OR_RETURN(service::Service * x, Service(/*create=*/false));
+    auto r = fn(*x);
+    if (!r.ok()) return Explain(name, r.status());
+    return r;
   }
 
-  // A NotFound about a dataset that does not exist, said the same way by every command.
   Status Explain(const std::string& name, Status s) {
-    if (!s.IsNotFound() || !db_ || Contains(db_->ListDatasets(), name)) return s;
+    if (!service::IsUnknownDataset(s)) return s;
     return Status::NotFound("no dataset '" + name + "' in " + dir_ + " ('hvdb --data " + dir_ +
                             " datasets' lists them)");
   }
@@ -224,6 +220,7 @@ class EmbeddedBackend final : public Backend {
   std::string dir_;
   size_t cache_bytes_;
   std::unique_ptr<Database> db_;
+  std::unique_ptr<service::Service> service_;
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -251,39 +248,6 @@ class RemoteResults final : public QueryResults {
   bool first_more_;
   bool have_first_ = true;
 };
-
-uint64_t U64(const nlohmann::json& j, const char* key) {
-  auto it = j.find(key);
-  return it != j.end() && it->is_number_unsigned() ? it->get<uint64_t>() : 0;
-}
-
-double F64(const nlohmann::json& j, const char* key) {
-  auto it = j.find(key);
-  return it != j.end() && it->is_number() ? it->get<double>() : 0;
-}
-
-// A label bit outside 0..31, refused here with the engine's words (the wire carries bits
-// unsigned, so a negative one would otherwise reach the server as another number).
-Status CheckBit(int bit, const char* what) {
-  if (bit < 0 || bit > 31) {
-    return Status::InvalidArgument(std::string(what) + ": label bit must be 0..31, got " +
-                                   std::to_string(bit));
-  }
-  return Status::OK();
-}
-
-// The graph-cut parameters that have no field in GraphCutRequest must keep their defaults.
-Status CheckWireParams(const edit::GraphCutParams& p) {
-  const edit::GraphCutParams d;
-  if (p.max_color_diff != d.max_color_diff || p.max_normal_diff != d.max_normal_diff ||
-      p.gmm_components != d.gmm_components || p.beta_c != d.beta_c || p.beta_n != d.beta_n ||
-      p.lambda_d != d.lambda_d || p.lambda_i != d.lambda_i || p.lambda_t != d.lambda_t) {
-    return Status::Unsupported(
-        "graph cut: only k, the intra/inter-frame radii and colour-only can be sent to "
-        "hvdb-server; the other parameters keep their defaults there");
-  }
-  return Status::OK();
-}
 
 class RemoteBackend final : public Backend {
  public:
@@ -383,23 +347,10 @@ class RemoteBackend final : public Backend {
       Result<wire::StatsReply> r =
           Run<wire::StatsReply>(true, [&n](Connection& c) { return c.Stats(n); });
       if (!r.ok()) return Explain(n, r.status());
-      nlohmann::json j = nlohmann::json::parse(r->dataset_json(), nullptr,
-                                               /*allow_exceptions=*/false);
-      if (!j.is_object()) {
-        return Status::IOError("hvdb-server sent unreadable statistics for dataset '" + n +
-                               "': " + r->dataset_json());
-      }
       StatsReport::Entry e;
       e.name = n;
       e.last_lsn = r->last_lsn();
-      e.stats.frames_with_data = static_cast<uint32_t>(U64(j, "frames_with_data"));
-      e.stats.points = U64(j, "points");
-      e.stats.tombstones = U64(j, "tombstones");
-      e.stats.buffered_points = U64(j, "buffered_points");
-      e.stats.trees = U64(j, "trees");
-      e.stats.tree_bytes = U64(j, "tree_bytes");
-      e.stats.wal_bytes = U64(j, "wal_bytes");
-      e.stats.leaf_utilisation = F64(j, "leaf_utilisation");
+      e.stats = wire::FromWire(r->dataset());
       report.datasets.push_back(std::move(e));
       last = std::move(r).value();
     }
@@ -439,113 +390,49 @@ class RemoteBackend final : public Backend {
                                "check' on the server's machine, with hvdb-server stopped");
   }
 
+  // The editing operators travel as their values (protocol/convert.h); the server's executor
+  // checks them as the embedded one does.
   Result<edit::SelectResult> Select(const std::string& name,
                                     const edit::SelectRequest& req) override {
-    HVDB_RETURN_IF_ERROR(CheckBit(req.bit, "select"));
     wire::SelectRequest q;
     q.set_dataset(name);
-    wire::ToWire(req.region, q.mutable_region());
-    q.set_bit(static_cast<uint32_t>(req.bit));
-    q.set_mode(static_cast<wire::SelectMode>(req.mode));
-    if (const auto* lasso = std::get_if<edit::Lasso>(&req.shape)) {
-      wire::LassoShape* l = q.mutable_lasso();
-      wire::ToWire(lasso->camera, l->mutable_camera());
-      for (const auto& v : lasso->polygon) {
-        l->add_polygon(v[0]);
-        l->add_polygon(v[1]);
-      }
-    } else if (const auto* brush = std::get_if<edit::Brush>(&req.shape)) {
-      wire::BrushShape* b = q.mutable_brush();
-      wire::ToWire(brush->camera, b->mutable_camera());
-      b->set_u(brush->u);
-      b->set_v(brush->v);
-      b->set_pixel_radius(brush->pixel_radius);
-      b->set_radius(brush->radius);
-      b->set_nearest(brush->depth == edit::Brush::Depth::kNearest);
-    }
+    wire::ToWire(req, &q);
     // Not repeated after a lost connection: it may have been committed.
     Result<wire::SelectReply> r =
         Run<wire::SelectReply>(false, [&q](Connection& c) { return c.Select(q); });
     if (!r.ok()) return Explain(name, r.status());
-    edit::SelectResult out;
-    out.matched = r->matched();
-    out.selected = r->selected();
-    out.lsn = r->lsn();
-    if (r->brush_center_size() == 3) {
-      out.brush_center =
-          std::array<double, 3>{r->brush_center(0), r->brush_center(1), r->brush_center(2)};
-    }
-    return out;
+    return wire::FromWire(*r);
   }
 
   Result<edit::GraphCutReply> GraphCut(const std::string& name,
                                        const edit::GraphCutRequest& req) override {
-    HVDB_RETURN_IF_ERROR(CheckBit(req.foreground_bit, "graph cut foreground"));
-    HVDB_RETURN_IF_ERROR(CheckBit(req.background_bit, "graph cut background"));
-    HVDB_RETURN_IF_ERROR(CheckBit(req.out_bit, "graph cut output"));
-    HVDB_RETURN_IF_ERROR(CheckWireParams(req.params));
-    if (req.params.k < 1 || !(req.params.intra_radius > 0) || !(req.params.inter_radius > 0)) {
-      // 0 means "the default" on the wire: refuse what the engine would refuse.
-      return Status::InvalidArgument("graph cut: k, radii, betas and components must be positive");
-    }
-    if (req.params.k > 64) {  // hvdb-server caps k at 64
-      return Status::InvalidArgument("graph cut: k must be at most 64 through hvdb-server, got " +
-                                     std::to_string(req.params.k));
-    }
     wire::GraphCutRequest q;
     q.set_dataset(name);
-    wire::ToWire(req.roi, q.mutable_roi());
-    q.set_foreground_bit(static_cast<uint32_t>(req.foreground_bit));
-    q.set_background_bit(static_cast<uint32_t>(req.background_bit));
-    q.set_out_bit(static_cast<uint32_t>(req.out_bit));
-    q.set_k(static_cast<uint32_t>(req.params.k));
-    q.set_intra_radius(req.params.intra_radius);
-    q.set_inter_radius(req.params.inter_radius);
-    q.set_colour_only(!req.params.use_normals);
+    wire::ToWire(req, &q);
     Result<wire::GraphCutReply> r =
         Run<wire::GraphCutReply>(false, [&q](Connection& c) { return c.GraphCut(q); });
     if (!r.ok()) return Explain(name, r.status());
-    edit::GraphCutReply out;
-    out.roi_points = r->roi_points();
-    out.selected = r->selected();
-    out.lsn = r->lsn();
-    out.cut.energy = r->energy();
-    out.cut.intra_edges = r->intra_edges();
-    out.cut.inter_edges = r->inter_edges();
-    out.cut.neighbours_ms = r->neighbours_ms();
-    out.cut.gmm_ms = r->gmm_ms();
-    out.cut.graph_ms = r->graph_ms();
-    out.cut.maxflow_ms = r->maxflow_ms();
-    out.cut.warm = r->recut();
-    out.load_ms = r->load_ms();
-    out.commit_ms = r->commit_ms();
-    return out;
+    return wire::FromWire(*r);
   }
 
   Result<edit::CopyResult> Copy(const std::string& name, int bit,
                                 const std::optional<Region>& region, const std::string& clipboard,
                                 bool cut) override {
-    HVDB_RETURN_IF_ERROR(CheckBit(bit, "copy"));
     wire::CopyRequest q;
     q.set_dataset(name);
-    q.set_bit(static_cast<uint32_t>(bit));
-    if (region) wire::ToWire(*region, q.mutable_region());
-    q.set_clipboard(clipboard);
-    q.set_cut(cut);
+    wire::ToWire(edit::CopyRequest{bit, region, clipboard, cut}, &q);
     // A copy only rewrites the clipboard: safe to repeat. A cut deletes: not.
     Result<wire::CopyReply> r =
         Run<wire::CopyReply>(!cut, [&q](Connection& c) { return c.Copy(q); });
     if (!r.ok()) return Explain(name, r.status());
-    return edit::CopyResult{r->points(), r->lsn()};
+    return wire::FromWire(*r);
   }
 
   Result<CommitInfo> Paste(const std::string& name, const std::string& clipboard,
                            const Affine4& map) override {
     wire::PasteRequest q;
     q.set_dataset(name);
-    q.set_clipboard(clipboard);
-    for (double v : map.a) q.add_matrix(v);
-    for (double v : map.c) q.add_offset(v);
+    wire::ToWire(edit::PasteRequest{clipboard, map}, &q);
     Result<CommitInfo> r = Run<CommitInfo>(false, [&q](Connection& c) { return c.Paste(q); });
     if (!r.ok()) return Explain(name, r.status());
     return r;
@@ -556,12 +443,7 @@ class RemoteBackend final : public Backend {
                                const std::vector<std::array<double, 3>>& trajectory) override {
     wire::CompositeRequest q;
     q.set_dataset(name);
-    wire::EncodeColumns(std::span<const Point>(object), q.mutable_object());
-    q.set_first_frame(first_frame);
-    q.set_frame_count(frame_count);
-    for (const auto& d : trajectory) {
-      for (double v : d) q.add_trajectory(v);
-    }
+    wire::ToWire(edit::CompositeRequest{object, first_frame, frame_count, trajectory}, &q);
     Result<CommitInfo> r = Run<CommitInfo>(false, [&q](Connection& c) { return c.Composite(q); });
     if (!r.ok()) {
       Status s = Explain(name, r.status());

@@ -13,6 +13,7 @@
 
 #include <boost/asio.hpp>
 
+#include "protocol/convert.h"
 #include "protocol/shm.h"
 #include "storage/coding.h"
 
@@ -406,12 +407,7 @@ Result<std::vector<std::string>> Connection::ListDatasets() {
 
 Result<DatasetInfo> Connection::CreateDataset(const DatasetInfo& info) {
   wire::Request req;
-  auto* c = req.mutable_create();
-  c->set_name(info.name);
-  c->set_fps(info.fps);
-  c->set_space_time_scale(info.space_time_scale);
-  c->set_frame_count(info.frame_count);
-  for (const CameraInfo& cam : info.cameras) wire::ToWire(cam, c->add_cameras());
+  wire::ToWire(info, req.mutable_create());
   HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
   return wire::FromWire(r.info());
 }
@@ -436,11 +432,7 @@ Result<std::unique_ptr<QueryStream>> Connection::Query(const std::string& datase
   auto* q = req.mutable_query();
   q->set_dataset(dataset);
   wire::ToWire(region, q->mutable_region());
-  q->set_lod(static_cast<uint32_t>(std::max(0, opts.lod)));
-  q->set_progressive(opts.progressive);
-  q->set_no_temporal_lod(!opts.temporal_lod);
-  q->set_batch_points(static_cast<uint32_t>(std::min<size_t>(opts.batch_points, UINT32_MAX)));
-  q->set_label_mask(opts.label_mask);
+  wire::ToWire(opts, q);
   q->set_encoding(impl_->opts.hvdb7     ? wire::HVDB7
                   : impl_->opts.draco   ? wire::DRACO
                   : impl_->opts.columns ? wire::COLUMNS
@@ -553,12 +545,7 @@ Result<CommitInfo> Connection::Commit(const std::string& dataset, const Transact
   req.mutable_edit()->set_dataset(dataset);
   wire::ToWire(txn, req.mutable_edit());
   HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
-  CommitInfo info;
-  info.lsn = r.commit().lsn();
-  info.inserted = r.commit().inserted();
-  info.removed = r.commit().removed();
-  info.assigned_ids.assign(r.commit().assigned_ids().begin(), r.commit().assigned_ids().end());
-  return info;
+  return wire::FromWire(r.commit());
 }
 
 Result<CommitInfo> Connection::Revert(const std::string& dataset, uint64_t lsn) {
@@ -566,11 +553,7 @@ Result<CommitInfo> Connection::Revert(const std::string& dataset, uint64_t lsn) 
   req.mutable_revert()->set_dataset(dataset);
   req.mutable_revert()->set_lsn(lsn);
   HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
-  CommitInfo info;
-  info.lsn = r.commit().lsn();
-  info.inserted = r.commit().inserted();
-  info.removed = r.commit().removed();
-  return info;
+  return wire::FromWire(r.commit());
 }
 
 Status Connection::PutPhoto(const std::string& dataset, uint32_t frame, const Photo& photo) {
@@ -578,15 +561,7 @@ Status Connection::PutPhoto(const std::string& dataset, uint32_t frame, const Ph
   auto* p = req.mutable_put_photo();
   p->set_dataset(dataset);
   p->set_frame(frame);
-  wire::ToWire(photo.camera, p->mutable_camera());
-  p->set_image(photo.image);
-  if (photo.billboard.scale != 0) {
-    auto* b = p->mutable_billboard();
-    b->set_scale(photo.billboard.scale);
-    for (double v : photo.billboard.plane) b->add_plane(v);
-    b->set_displacement(photo.billboard.displacement);
-    b->set_alpha(photo.billboard.alpha);
-  }
+  wire::ToWire(photo, p);
   return Call(&req).status();
 }
 
@@ -670,17 +645,6 @@ Status Connection::RenderSequence(
   }
 }
 
-namespace {
-CommitInfo CommitFromWire(const wire::CommitReply& c) {
-  CommitInfo info;
-  info.lsn = c.lsn();
-  info.inserted = c.inserted();
-  info.removed = c.removed();
-  info.assigned_ids.assign(c.assigned_ids().begin(), c.assigned_ids().end());
-  return info;
-}
-}  // namespace
-
 Result<wire::SelectReply> Connection::Select(const wire::SelectRequest& q) {
   wire::Request req;
   *req.mutable_select() = q;
@@ -706,14 +670,14 @@ Result<CommitInfo> Connection::Paste(const wire::PasteRequest& q) {
   wire::Request req;
   *req.mutable_paste() = q;
   HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
-  return CommitFromWire(r.commit());
+  return wire::FromWire(r.commit());
 }
 
 Result<CommitInfo> Connection::Composite(const wire::CompositeRequest& q) {
   wire::Request req;
   *req.mutable_composite() = q;
   HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
-  return CommitFromWire(r.commit());
+  return wire::FromWire(r.commit());
 }
 
 Status Client::EnsureConnected() {

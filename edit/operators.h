@@ -114,6 +114,23 @@ struct CopyResult {
   uint64_t points = 0;
   uint64_t lsn = 0;
 };
+// The requests of Copy, Paste and Composite as values (the executor's, service/service.h, and
+// the wire's, protocol/convert.h).
+struct CopyRequest {
+  int bit = 0;
+  std::optional<Region> region;  // restricts the copy; absent: the whole dataset
+  std::string clipboard;
+  bool cut = false;  // also delete the copied points, in the same transaction
+};
+struct PasteRequest {
+  std::string clipboard;
+  Affine4 map;
+};
+struct CompositeRequest {
+  std::vector<Point> object;
+  uint32_t first_frame = 0, frame_count = 1;
+  std::vector<std::array<double, 3>> trajectory;  // metres per frame, or empty (static)
+};
 Result<CopyResult> Copy(Dataset& ds, int bit, const std::optional<Region>& region,
                         ClipboardStore& store, const std::string& clipboard, bool cut);
 

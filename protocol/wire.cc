@@ -263,11 +263,10 @@ Result<std::array<double, 4>> Four(const google::protobuf::RepeatedField<double>
   if (v.size() != 4) {
     return Invalid(name, "needs exactly 4 values, got " + std::to_string(v.size()));
   }
+  // Only the shape is checked here: the values (NaN, empty ranges, a zero normal) are the
+  // engine's to judge (storage/hyperslice.h), so that embedded and remote callers get one answer.
   std::array<double, 4> a{};
-  for (int i = 0; i < 4; ++i) {
-    if (std::isnan(v[i])) return Invalid(name, "value " + std::to_string(i) + " is NaN");
-    a[static_cast<size_t>(i)] = v[i];
-  }
+  for (int i = 0; i < 4; ++i) a[static_cast<size_t>(i)] = v[i];
   return a;
 }
 
@@ -310,10 +309,6 @@ Result<hvdb::Region> FromWire(const wire::Region& r) {
       const wire::Slice& s = r.slice();
       hvdb::Slice out;
       HVDB_ASSIGN_OR_RETURN(out.normal, Four(s.normal(), "slice.normal"));
-      if (!std::isfinite(s.offset())) return Invalid("slice.offset", "must be finite");
-      if (!std::isfinite(s.thickness()) || s.thickness() < 0) {
-        return Invalid("slice.thickness", "must be finite and >= 0");
-      }
       out.offset = s.offset();
       out.thickness = s.thickness();
       if (s.has_clip()) {

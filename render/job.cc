@@ -58,13 +58,10 @@ constexpr size_t kMaxEncodedImage = 200u << 20;
 Status CheckPhoto(const Photo& photo) {
   const std::string what = "photo of camera " + std::to_string(photo.camera.id);
   HVDB_RETURN_IF_ERROR(InField(what, CameraFromInfo(photo.camera).Validate()));
+  HVDB_RETURN_IF_ERROR(ValidatePhoto(photo));  // storage's checks (the billboard's among them)
   auto rgb = DecodeRgb8(photo.image, photo.camera.width, photo.camera.height, what);
   if (!rgb.ok()) return Status::InvalidArgument(rgb.status().message());
   if (photo.billboard.scale != 0) {
-    const auto& pl = photo.billboard.plane;
-    if (!(photo.billboard.scale > 0) || !std::isfinite(photo.billboard.scale) ||
-        !std::isfinite(pl[0]) || !std::isfinite(pl[1]) || !std::isfinite(pl[2]))
-      return Status::InvalidArgument(what + ": the billboard needs a finite scale > 0 and a finite plane");
     auto board = DecodeBillboard(photo, *rgb, what);
     if (!board.ok()) return board.status();
   }

@@ -1,5 +1,6 @@
-// Request helpers shared by the session's files: request kinds, error responses, dataset lookup,
-// and the editing operators (edit/operators.h) run against a dataset on a worker.
+// The unary requests, decoded into the executor's values (protocol/convert.h), run by the one
+// executor (service/service.h) and its reply encoded: the server's side of "decode at the edge,
+// execute once". Streams (queries, renders, ingest chunks) are the session's (session_stream.cc).
 #ifndef HVDB_SERVER_REQUESTS_H_
 #define HVDB_SERVER_REQUESTS_H_
 
@@ -15,14 +16,15 @@ namespace hvdb::server {
 const char* KindOf(const wire::Request& r);
 // Whether the request needs a read-write connection.
 bool Writes(const wire::Request& r);
+// A Status as an error response: a dataset that does not exist is UNKNOWN_DATASET, the rest
+// by their code (wire::ToWire), unless `code` says otherwise.
 wire::Response ErrorResponse(uint64_t id, const Status& st,
                              wire::ErrorCode code = wire::ERROR_UNSPECIFIED);
-// A dataset lookup failure is UNKNOWN_DATASET, not a generic NOT_FOUND.
-Result<std::shared_ptr<Dataset>> FindDataset(Server* s, const std::string& name);
-wire::Response DatasetError(uint64_t id, const Status& st);
-wire::Response CommitResponse(uint64_t id, const CommitInfo& c);
-// Select, GraphCut, Copy, Paste, Composite: runs on a worker.
-wire::Response RunEditOperator(Server* s, uint64_t id, const wire::Request& req);
+// Whether Execute serves this kind (on a worker: it may read and write the data).
+bool IsUnary(const wire::Request& r);
+// List, Create, Drop, Describe, Edit, Revert, PutPhoto, Stats (the dataset's part) and the
+// editing operators.
+wire::Response Execute(Server* s, uint64_t id, const wire::Request& req);
 
 }  // namespace hvdb::server
 

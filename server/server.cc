@@ -41,6 +41,7 @@ Server::Server(Config config, std::unique_ptr<Database> db)
       io_(static_cast<int>(config_.io_threads)),
       workers_(config_.worker_threads),
       renders_(config_.max_renders),
+      service_(db_.get(), config_.data_dir, db_->options().env, &graph_cuts_),
       acceptor_(io_),
       unix_acceptor_(io_),
       signals_(io_),

@@ -28,6 +28,7 @@
 #include "edit/operators.h"
 #include "render/renderer_pool.h"
 #include "server/stats.h"
+#include "service/service.h"
 #include "storage/database.h"
 
 namespace hvdb::server {
@@ -128,6 +129,8 @@ class Server {
   render::RendererPool& renders() { return renders_; }
   // The last graph cut's graph and flow, for re-cuts after more strokes (edit/operators.h).
   edit::GraphCutCache& graph_cuts() { return graph_cuts_; }
+  // The executor every request runs through (service/service.h).
+  service::Service& service() { return service_; }
   // Role of a token; kNone if it is unknown (or tokens are required and none was given).
   // Failed attempts are logged (at most one line a second, never the token).
   Role Authenticate(const std::string& token);
@@ -169,6 +172,7 @@ class Server {
   boost::asio::thread_pool workers_;
   render::RendererPool renders_;
   edit::GraphCutCache graph_cuts_;
+  service::Service service_;
   boost::asio::ip::tcp::acceptor acceptor_;
   boost::asio::local::stream_protocol::acceptor unix_acceptor_;
   std::string tcp_listen_;    // "" if none

@@ -6,6 +6,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "protocol/convert.h"
 #include "render/job.h"
 #include "server/requests.h"
 
@@ -225,80 +226,6 @@ void Session::Dispatch(wire::Request req) {
   ops_[id] = op;
   Server* s = server_;
   switch (req.body_case()) {
-    case wire::Request::kList:
-      return RunOnWorker(id, [s, id] {
-        wire::Response r;
-        r.set_id(id);
-        for (const auto& n : s->db().ListDatasets()) r.mutable_datasets()->add_names(n);
-        return r;
-      });
-    case wire::Request::kCreate:
-      return RunOnWorker(id, [s, id, c = req.create()] {
-        DatasetInfo info;
-        info.name = c.name();
-        info.fps = c.fps();
-        info.space_time_scale = c.space_time_scale() == 0 ? 1.0 : c.space_time_scale();
-        info.frame_count = c.frame_count();
-        for (const auto& cam : c.cameras()) {
-          auto ci = wire::FromWire(cam);
-          if (!ci.ok()) return ErrorResponse(id, ci.status());
-          info.cameras.push_back(*ci);
-        }
-        auto ds = s->db().CreateDataset(info);
-        if (!ds.ok()) return ErrorResponse(id, ds.status());
-        wire::Response r;
-        r.set_id(id);
-        wire::ToWire((*ds)->Info(), r.mutable_info());
-        return r;
-      });
-    case wire::Request::kDrop:
-      return RunOnWorker(id, [s, id, name = req.drop().name()] {
-        Status st = s->db().DropDataset(name);
-        if (!st.ok()) return DatasetError(id, st);
-        wire::Response r;
-        r.set_id(id);
-        r.mutable_ack();
-        return r;
-      });
-    case wire::Request::kDescribe:
-      return RunOnWorker(id, [s, id, name = req.describe().dataset()] {
-        auto ds = FindDataset(s, name);
-        if (!ds.ok()) return DatasetError(id, ds.status());
-        wire::Response r;
-        r.set_id(id);
-        wire::ToWire((*ds)->Info(), r.mutable_info());
-        return r;
-      });
-    case wire::Request::kEdit:
-      return RunOnWorker(id, [s, id, e = req.edit()] {
-        auto ds = FindDataset(s, e.dataset());
-        if (!ds.ok()) return DatasetError(id, ds.status());
-        auto txn = wire::FromWire(e);
-        if (!txn.ok()) return ErrorResponse(id, txn.status());
-        auto c = (*ds)->Commit(*txn);
-        if (!c.ok()) return ErrorResponse(id, c.status());
-        wire::Response r;
-        r.set_id(id);
-        auto* cr = r.mutable_commit();
-        cr->set_lsn(c->lsn);
-        cr->set_inserted(c->inserted);
-        cr->set_removed(c->removed);
-        for (uint64_t a : c->assigned_ids) cr->add_assigned_ids(a);
-        return r;
-      });
-    case wire::Request::kRevert:
-      return RunOnWorker(id, [s, id, rv = req.revert()] {
-        auto ds = FindDataset(s, rv.dataset());
-        if (!ds.ok()) return DatasetError(id, ds.status());
-        auto c = (*ds)->Revert(rv.lsn());
-        if (!c.ok()) return ErrorResponse(id, c.status());
-        wire::Response r;
-        r.set_id(id);
-        r.mutable_commit()->set_lsn(c->lsn);
-        r.mutable_commit()->set_inserted(c->inserted);
-        r.mutable_commit()->set_removed(c->removed);
-        return r;
-      });
     case wire::Request::kStats:
       return RunOnWorker(id, [s, id, name = req.stats().dataset()] {
         wire::Response r;
@@ -325,14 +252,16 @@ void Session::Dispatch(wire::Request req) {
           l->set_p99_ms(sum.p99_ms);
         }
         if (!name.empty()) {
-          auto ds = FindDataset(s, name);
-          if (!ds.ok()) return DatasetError(id, ds.status());
-          DatasetStats d = (*ds)->Stats();
-          st->set_last_lsn((*ds)->Info().last_lsn);
-          nlohmann::json j = {{"frames_with_data", d.frames_with_data}, {"points", d.points},
-                              {"tombstones", d.tombstones}, {"buffered_points", d.buffered_points},
-                              {"trees", d.trees}, {"tree_bytes", d.tree_bytes},
-                              {"wal_bytes", d.wal_bytes}, {"leaf_utilisation", d.leaf_utilisation}};
+          auto d = s->service().Stats(name);
+          if (!d.ok()) return ErrorResponse(id, d.status());
+          st->set_last_lsn(d->last_lsn);
+          wire::ToWire(d->stats, st->mutable_dataset());
+          // The same values as JSON, for clients that predate the typed field.
+          const DatasetStats& v = d->stats;
+          nlohmann::json j = {{"frames_with_data", v.frames_with_data}, {"points", v.points},
+                              {"tombstones", v.tombstones}, {"buffered_points", v.buffered_points},
+                              {"trees", v.trees}, {"tree_bytes", v.tree_bytes},
+                              {"wal_bytes", v.wal_bytes}, {"leaf_utilisation", v.leaf_utilisation}};
           st->set_dataset_json(j.dump());
         }
         return r;
@@ -341,41 +270,10 @@ void Session::Dispatch(wire::Request req) {
       return HandleRender(op, req.render());
     case wire::Request::kIngest:
       return HandleIngest(id, req.ingest());
-    case wire::Request::kPutPhoto:
-      return RunOnWorker(id, [s, id, req] {
-        const wire::PutPhoto& pp = req.put_photo();
-        auto ds = FindDataset(s, pp.dataset());
-        if (!ds.ok()) return DatasetError(id, ds.status());
-        auto cam = wire::FromWire(pp.camera());
-        if (!cam.ok()) return ErrorResponse(id, cam.status(), wire::INVALID_PARAMETER);
-        Photo photo{*cam, pp.image(), {}};
-        if (pp.has_billboard()) {
-          const wire::Billboard& b = pp.billboard();
-          if (b.plane_size() != 3 || !(b.scale() > 0) || !std::isfinite(b.scale()) ||
-              !std::isfinite(b.plane(0)) || !std::isfinite(b.plane(1)) || !std::isfinite(b.plane(2)))
-            return ErrorResponse(id, Status::InvalidArgument(
-                                         "put_photo.billboard: needs a finite scale > 0 and 3 finite plane values"),
-                                 wire::INVALID_PARAMETER);
-          photo.billboard = {b.scale(), {b.plane(0), b.plane(1), b.plane(2)}, b.displacement(), b.alpha()};
-        }
-        Status st = render::CheckPhoto(photo);
-        if (!st.ok()) return ErrorResponse(id, st, wire::INVALID_PARAMETER);
-        st = (*ds)->PutPhoto(pp.frame(), photo);
-        if (!st.ok()) return ErrorResponse(id, st);
-        wire::Response r;
-        r.set_id(id);
-        r.mutable_ack();
-        return r;
-      });
-    case wire::Request::kSelect:
-    case wire::Request::kGraphCut:
-    case wire::Request::kCopy:
-    case wire::Request::kPaste:
-    case wire::Request::kComposite:
-      return RunOnWorker(id, [s, id, req] { return RunEditOperator(s, id, req); });
     case wire::Request::kQuery:
       return HandleQuery(op, req.query());
     default:
+      if (IsUnary(req)) return RunOnWorker(id, [s, id, req] { return Execute(s, id, req); });
       ops_.erase(id);
       return SendError(id, Status::InvalidArgument("request: unknown kind"), wire::MALFORMED);
   }
@@ -443,9 +341,7 @@ void Session::HandleIngest(uint64_t id, const wire::Ingest& ing) {
   ingest_.erase(key);
   Server* s = server_;
   RunOnWorker(id, [s, id, name = ing.dataset(), frame = ing.frame(), frame_points] {
-    auto ds = FindDataset(s, name);
-    if (!ds.ok()) return DatasetError(id, ds.status());
-    auto n = (*ds)->BulkLoad(frame, std::move(*frame_points));
+    auto n = s->service().BulkLoad(name, frame, std::move(*frame_points));
     if (!n.ok()) return ErrorResponse(id, n.status());
     wire::Response r;
     r.set_id(id);

@@ -1,5 +1,6 @@
 #include <algorithm>
 
+#include "protocol/convert.h"
 #include "server/requests.h"
 #include "server/session.h"
 
@@ -25,17 +26,13 @@ void Session::HandleQuery(std::shared_ptr<Op> op, const wire::Query& q) {
       return SendError(op->id, st);
     }
   }
-  if (q.lod() > 64) {
+  auto opts = wire::QueryOptionsFromWire(q);
+  if (!opts.ok()) {
     ops_.erase(op->id);
-    return SendError(op->id, Status::InvalidArgument("query.lod: " + std::to_string(q.lod()) +
-                                                     " is out of range"));
+    return SendError(op->id, opts.status());
   }
-  QueryOptions o;
-  o.lod = static_cast<int>(q.lod());
-  o.progressive = q.progressive();
-  o.temporal_lod = !q.no_temporal_lod();
-  o.label_mask = q.label_mask();
-  o.batch_points = q.batch_points() == 0 ? 16384u : std::min(q.batch_points(), wire::kMaxBatchPoints);
+  QueryOptions o = *opts;
+  o.batch_points = std::min<size_t>(o.batch_points, wire::kMaxBatchPoints);
   op->encoding = q.encoding();
   op->codec = q.codec();
   op->shm = op->encoding == wire::RECORDS && ring_ != nullptr;
@@ -47,16 +44,14 @@ void Session::HandleQuery(std::shared_ptr<Op> op, const wire::Query& q) {
   // The cursor is opened and the first batches made right here on the strand: a small query
   // (a window, a slice of one frame) is answered without a hand-off between threads. The work
   // is bounded like every task's (two batches, or the granted ring slots).
-  auto ds = FindDataset(server_, q.dataset());
-  Result<std::unique_ptr<Cursor>> cursor =
-      ds.ok() ? (*ds)->Query(*region, o) : Result<std::unique_ptr<Cursor>>(ds.status());
-  if (!cursor.ok()) {
-    Send(ds.ok() ? ErrorResponse(op->id, cursor.status()) : DatasetError(op->id, ds.status()));
+  Result<service::OpenQuery> open = server_->service().Query(q.dataset(), *region, o);
+  if (!open.ok()) {
+    Send(ErrorResponse(op->id, open.status()));
     return Finish(op->id);
   }
   {
     std::lock_guard<std::mutex> l(op->mu);
-    op->cursor = std::move(cursor).value();
+    op->cursor = std::move(open->cursor);
   }
   // Pipelined queries of a client that does not read wait here: each grant counts against the
   // connection's buffer (a whole task's worth, reserved until delivered).
@@ -314,19 +309,14 @@ void Session::HandleRender(std::shared_ptr<Op> op, const wire::Render& request) 
   asio::post(server_->workers(), [self, op, s, request] {
     wire::Response err;
     try {
-      auto ds = FindDataset(s, request.dataset());
-      if (!ds.ok()) {
-        err = DatasetError(op->id, ds.status());
-      } else {
-        render::RenderLimits limits;
-        limits.max_points = s->config().max_render_points;
-        auto job = render::RenderJob::Create(*ds, request, limits);
-        if (job.ok()) {
-          op->render_job = std::move(job).value();
-          return self->RenderNext(op);
-        }
-        err = ErrorResponse(op->id, job.status());
+      render::RenderLimits limits;
+      limits.max_points = s->config().max_render_points;
+      auto job = s->service().Render(request, limits);
+      if (job.ok()) {
+        op->render_job = std::move(job).value();
+        return self->RenderNext(op);
       }
+      err = ErrorResponse(op->id, job.status());
     } catch (const std::exception& e) {
       err = ErrorResponse(op->id, Status::Internal(e.what()));
     }

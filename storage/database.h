@@ -83,6 +83,11 @@ struct Photo {
   std::string image;
   PhotoBillboard billboard;
 };
+// The checks a photo passes before it is stored (Dataset::PutPhoto makes them; render's
+// CheckPhoto makes them first, then decodes the images): an image of 1 byte to 1 GiB, a camera
+// with a size and positive focal lengths, and a billboard (scale != 0) with a positive scale,
+// a finite plane and both maps.
+Status ValidatePhoto(const Photo& photo);
 
 // The ranges a dataset's parameters must lie in (checked when it is created).
 inline constexpr double kMinFps = 1e-3;   // a frame every 1000 s

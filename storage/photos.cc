@@ -130,11 +130,7 @@ Result<Photo> DecodePhoto(const std::string& data, const std::string& what) {
   return photo;
 }
 
-Status DatasetImpl::PutPhoto(uint32_t frame, const Photo& photo) {
-  if (follower_.load()) {
-    return Status::NotLeader("dataset '" + info_.name + "' is only read here: another process "
-                             "holds its data directory and is the one that writes it");
-  }
+Status ValidatePhoto(const Photo& photo) {
   const CameraInfo& c = photo.camera;
   if (photo.image.empty() || photo.image.size() > kMaxImage) {
     return Status::InvalidArgument("photo: the image must hold 1 byte to 1 GiB");
@@ -152,6 +148,16 @@ Status DatasetImpl::PutPhoto(uint32_t frame, const Photo& photo) {
     return Status::InvalidArgument("photo: a billboard needs a positive scale, a finite plane "
                                    "and both maps");
   }
+  return Status::OK();
+}
+
+Status DatasetImpl::PutPhoto(uint32_t frame, const Photo& photo) {
+  if (follower_.load()) {
+    return Status::NotLeader("dataset '" + info_.name + "' is only read here: another process "
+                             "holds its data directory and is the one that writes it");
+  }
+  HVDB_RETURN_IF_ERROR(ValidatePhoto(photo));
+  const CameraInfo& c = photo.camera;
   HVDB_RETURN_IF_ERROR(env_->CreateDirs(PhotoDir(dir_)));
   return WriteFileAtomic(env_, PhotoDir(dir_) + "/" + PhotoFileName(frame, c.id), EncodePhoto(photo));
 }

@@ -1,0 +1,352 @@
+#include "protocol/convert.h"
+
+#include <algorithm>
+#include <limits>
+#include <span>
+#include <string>
+#include <variant>
+
+namespace hvdb::wire {
+
+uint32_t BitToWire(int bit) { return static_cast<uint32_t>(bit); }
+int BitFromWire(uint32_t bit) { return static_cast<int32_t>(bit); }
+
+// ---- Select ----
+
+void ToWire(const edit::SelectRequest& r, wire::SelectRequest* out) {
+  ToWire(r.region, out->mutable_region());
+  out->set_bit(BitToWire(r.bit));
+  out->set_mode(static_cast<wire::SelectMode>(r.mode));
+  if (const auto* lasso = std::get_if<edit::Lasso>(&r.shape)) {
+    wire::LassoShape* l = out->mutable_lasso();
+    ToWire(lasso->camera, l->mutable_camera());
+    for (const auto& v : lasso->polygon) {
+      l->add_polygon(v[0]);
+      l->add_polygon(v[1]);
+    }
+  } else if (const auto* brush = std::get_if<edit::Brush>(&r.shape)) {
+    wire::BrushShape* b = out->mutable_brush();
+    ToWire(brush->camera, b->mutable_camera());
+    b->set_u(brush->u);
+    b->set_v(brush->v);
+    b->set_pixel_radius(brush->pixel_radius);
+    b->set_radius(brush->radius);
+    b->set_nearest(brush->depth == edit::Brush::Depth::kNearest);
+  }
+}
+
+Result<edit::SelectRequest> FromWire(const wire::SelectRequest& q) {
+  edit::SelectRequest sr;
+  HVDB_ASSIGN_OR_RETURN(sr.region, FromWire(q.region()));
+  sr.bit = BitFromWire(q.bit());
+  if (!wire::SelectMode_IsValid(q.mode())) {
+    return Status::InvalidArgument("select.mode: unknown value " + std::to_string(q.mode()));
+  }
+  sr.mode = static_cast<edit::SelectMode>(q.mode());
+  if (q.has_lasso()) {
+    edit::Lasso l;
+    HVDB_ASSIGN_OR_RETURN(l.camera, FromWire(q.lasso().camera()));
+    if (q.lasso().polygon_size() % 2) {
+      return Status::InvalidArgument("lasso.polygon: needs x y pairs");
+    }
+    for (int i = 0; i + 1 < q.lasso().polygon_size(); i += 2) {
+      l.polygon.push_back({q.lasso().polygon(i), q.lasso().polygon(i + 1)});
+    }
+    sr.shape = std::move(l);
+  } else if (q.has_brush()) {
+    edit::Brush b;
+    HVDB_ASSIGN_OR_RETURN(b.camera, FromWire(q.brush().camera()));
+    b.u = q.brush().u();
+    b.v = q.brush().v();
+    b.pixel_radius = q.brush().pixel_radius();
+    b.radius = q.brush().radius();
+    b.depth = q.brush().nearest() ? edit::Brush::Depth::kNearest : edit::Brush::Depth::kMedian;
+    sr.shape = std::move(b);
+  }
+  return sr;
+}
+
+void ToWire(const edit::SelectResult& r, wire::SelectReply* out) {
+  out->set_matched(r.matched);
+  out->set_selected(r.selected);
+  out->set_lsn(r.lsn);
+  if (r.brush_center) {
+    for (double v : *r.brush_center) out->add_brush_center(v);
+  }
+}
+
+edit::SelectResult FromWire(const wire::SelectReply& r) {
+  edit::SelectResult out;
+  out.matched = r.matched();
+  out.selected = r.selected();
+  out.lsn = r.lsn();
+  if (r.brush_center_size() == 3) {
+    out.brush_center = std::array<double, 3>{r.brush_center(0), r.brush_center(1), r.brush_center(2)};
+  }
+  return out;
+}
+
+// ---- Graph cut ----
+
+void ToWire(const edit::GraphCutRequest& r, wire::GraphCutRequest* out) {
+  ToWire(r.roi, out->mutable_roi());
+  out->set_foreground_bit(BitToWire(r.foreground_bit));
+  out->set_background_bit(BitToWire(r.background_bit));
+  out->set_out_bit(BitToWire(r.out_bit));
+  // Every parameter travels, so that the server judges the same values the embedded mode does;
+  // k goes as a two's complement like the bits (a negative k is refused, not wrapped).
+  const edit::GraphCutParams& p = r.params;
+  out->set_k(static_cast<uint32_t>(p.k));
+  out->set_intra_radius(p.intra_radius);
+  out->set_inter_radius(p.inter_radius);
+  out->set_colour_only(!p.use_normals);
+  out->set_max_color_diff(p.max_color_diff);
+  out->set_max_normal_diff(p.max_normal_diff);
+  out->set_gmm_components(static_cast<uint32_t>(p.gmm_components));
+  out->set_beta_c(p.beta_c);
+  out->set_beta_n(p.beta_n);
+  out->set_lambda_d(p.lambda_d);
+  out->set_lambda_i(p.lambda_i);
+  out->set_lambda_t(p.lambda_t);
+}
+
+Result<edit::GraphCutRequest> FromWire(const wire::GraphCutRequest& q) {
+  edit::GraphCutRequest g;
+  HVDB_ASSIGN_OR_RETURN(g.roi, FromWire(q.roi()));
+  g.foreground_bit = BitFromWire(q.foreground_bit());
+  g.background_bit = BitFromWire(q.background_bit());
+  g.out_bit = BitFromWire(q.out_bit());
+  edit::GraphCutParams& p = g.params;  // absent fields keep edit's defaults
+  if (q.has_k()) p.k = static_cast<int32_t>(q.k());
+  if (q.has_intra_radius()) p.intra_radius = q.intra_radius();
+  if (q.has_inter_radius()) p.inter_radius = q.inter_radius();
+  p.use_normals = !q.colour_only();
+  if (q.has_max_color_diff()) p.max_color_diff = q.max_color_diff();
+  if (q.has_max_normal_diff()) p.max_normal_diff = q.max_normal_diff();
+  if (q.has_gmm_components()) p.gmm_components = static_cast<int32_t>(q.gmm_components());
+  if (q.has_beta_c()) p.beta_c = q.beta_c();
+  if (q.has_beta_n()) p.beta_n = q.beta_n();
+  if (q.has_lambda_d()) p.lambda_d = q.lambda_d();
+  if (q.has_lambda_i()) p.lambda_i = q.lambda_i();
+  if (q.has_lambda_t()) p.lambda_t = q.lambda_t();
+  return g;
+}
+
+void ToWire(const edit::GraphCutReply& r, wire::GraphCutReply* out) {
+  out->set_roi_points(r.roi_points);
+  out->set_selected(r.selected);
+  out->set_lsn(r.lsn);
+  out->set_energy(r.cut.energy);
+  out->set_intra_edges(r.cut.intra_edges);
+  out->set_inter_edges(r.cut.inter_edges);
+  out->set_load_ms(r.load_ms);
+  out->set_neighbours_ms(r.cut.neighbours_ms);
+  out->set_gmm_ms(r.cut.gmm_ms);
+  out->set_graph_ms(r.cut.graph_ms);
+  out->set_maxflow_ms(r.cut.maxflow_ms);
+  out->set_commit_ms(r.commit_ms);
+  out->set_recut(r.cut.warm);
+}
+
+edit::GraphCutReply FromWire(const wire::GraphCutReply& r) {
+  edit::GraphCutReply out;
+  out.roi_points = r.roi_points();
+  out.selected = r.selected();
+  out.lsn = r.lsn();
+  out.cut.energy = r.energy();
+  out.cut.intra_edges = r.intra_edges();
+  out.cut.inter_edges = r.inter_edges();
+  out.cut.neighbours_ms = r.neighbours_ms();
+  out.cut.gmm_ms = r.gmm_ms();
+  out.cut.graph_ms = r.graph_ms();
+  out.cut.maxflow_ms = r.maxflow_ms();
+  out.cut.warm = r.recut();
+  out.load_ms = r.load_ms();
+  out.commit_ms = r.commit_ms();
+  return out;
+}
+
+// ---- Clipboards and compositing ----
+
+void ToWire(const edit::CopyRequest& r, wire::CopyRequest* out) {
+  out->set_bit(BitToWire(r.bit));
+  if (r.region) ToWire(*r.region, out->mutable_region());
+  out->set_clipboard(r.clipboard);
+  out->set_cut(r.cut);
+}
+
+Result<edit::CopyRequest> FromWire(const wire::CopyRequest& q) {
+  edit::CopyRequest c;
+  c.bit = BitFromWire(q.bit());
+  if (q.has_region()) {
+    HVDB_ASSIGN_OR_RETURN(hvdb::Region region, FromWire(q.region()));
+    c.region = std::move(region);
+  }
+  c.clipboard = q.clipboard();
+  c.cut = q.cut();
+  return c;
+}
+
+void ToWire(const edit::CopyResult& r, wire::CopyReply* out) {
+  out->set_points(r.points);
+  out->set_lsn(r.lsn);
+}
+
+edit::CopyResult FromWire(const wire::CopyReply& r) { return {r.points(), r.lsn()}; }
+
+void ToWire(const edit::PasteRequest& r, wire::PasteRequest* out) {
+  out->set_clipboard(r.clipboard);
+  for (double v : r.map.a) out->add_matrix(v);
+  for (double v : r.map.c) out->add_offset(v);
+}
+
+Result<edit::PasteRequest> FromWire(const wire::PasteRequest& q) {
+  edit::PasteRequest p;
+  p.clipboard = q.clipboard();
+  if (!q.matrix().empty()) {  // empty: the identity
+    if (q.matrix_size() != 16) return Status::InvalidArgument("matrix: needs 16 values");
+    std::copy(q.matrix().begin(), q.matrix().end(), p.map.a.begin());
+  }
+  if (!q.offset().empty()) {  // empty: zero
+    if (q.offset_size() != 4) return Status::InvalidArgument("offset: needs 4 values");
+    std::copy(q.offset().begin(), q.offset().end(), p.map.c.begin());
+  }
+  return p;
+}
+
+void ToWire(const edit::CompositeRequest& r, wire::CompositeRequest* out) {
+  EncodeColumns(std::span<const Point>(r.object), out->mutable_object());
+  out->set_first_frame(r.first_frame);
+  out->set_frame_count(r.frame_count);
+  for (const auto& d : r.trajectory) {
+    for (double v : d) out->add_trajectory(v);
+  }
+}
+
+Result<edit::CompositeRequest> FromWire(const wire::CompositeRequest& q) {
+  edit::CompositeRequest c;
+  HVDB_RETURN_IF_ERROR(DecodeColumns(q.object(), &c.object));
+  c.first_frame = q.first_frame();
+  c.frame_count = q.frame_count();
+  if (q.trajectory_size() % 3) {
+    return Status::InvalidArgument("composite.trajectory: needs x y z per frame");
+  }
+  for (int i = 0; i + 2 < q.trajectory_size(); i += 3) {
+    c.trajectory.push_back({q.trajectory(i), q.trajectory(i + 1), q.trajectory(i + 2)});
+  }
+  return c;
+}
+
+// ---- Commits, statistics, query options ----
+
+void ToWire(const CommitInfo& c, wire::CommitReply* out) {
+  out->set_lsn(c.lsn);
+  out->set_inserted(c.inserted);
+  out->set_removed(c.removed);
+  for (uint64_t a : c.assigned_ids) out->add_assigned_ids(a);
+}
+
+CommitInfo FromWire(const wire::CommitReply& c) {
+  CommitInfo info;
+  info.lsn = c.lsn();
+  info.inserted = c.inserted();
+  info.removed = c.removed();
+  info.assigned_ids.assign(c.assigned_ids().begin(), c.assigned_ids().end());
+  return info;
+}
+
+void ToWire(const hvdb::DatasetStats& s, wire::DatasetStats* out) {
+  out->set_frames_with_data(s.frames_with_data);
+  out->set_points(s.points);
+  out->set_tombstones(s.tombstones);
+  out->set_buffered_points(s.buffered_points);
+  out->set_trees(s.trees);
+  out->set_tree_bytes(s.tree_bytes);
+  out->set_wal_bytes(s.wal_bytes);
+  out->set_leaf_utilisation(s.leaf_utilisation);
+  out->set_merges(s.merges);
+  out->set_checkpoints(s.checkpoints);
+}
+
+hvdb::DatasetStats FromWire(const wire::DatasetStats& s) {
+  hvdb::DatasetStats d;
+  d.frames_with_data = s.frames_with_data();
+  d.points = s.points();
+  d.tombstones = s.tombstones();
+  d.buffered_points = s.buffered_points();
+  d.trees = s.trees();
+  d.tree_bytes = s.tree_bytes();
+  d.wal_bytes = s.wal_bytes();
+  d.leaf_utilisation = s.leaf_utilisation();
+  d.merges = s.merges();
+  d.checkpoints = s.checkpoints();
+  return d;
+}
+
+void ToWire(const hvdb::DatasetInfo& info, wire::CreateDataset* out) {
+  out->set_name(info.name);
+  out->set_fps(info.fps);
+  out->set_space_time_scale(info.space_time_scale);
+  out->set_frame_count(info.frame_count);
+  for (const CameraInfo& cam : info.cameras) ToWire(cam, out->add_cameras());
+}
+
+Result<hvdb::DatasetInfo> FromWire(const wire::CreateDataset& c) {
+  hvdb::DatasetInfo info;
+  info.name = c.name();
+  info.fps = c.fps();
+  info.space_time_scale = c.space_time_scale() == 0 ? 1.0 : c.space_time_scale();
+  info.frame_count = c.frame_count();
+  for (const auto& cam : c.cameras()) {
+    HVDB_ASSIGN_OR_RETURN(CameraInfo ci, FromWire(cam));
+    info.cameras.push_back(std::move(ci));
+  }
+  return info;
+}
+
+void ToWire(const Photo& photo, wire::PutPhoto* out) {
+  ToWire(photo.camera, out->mutable_camera());
+  out->set_image(photo.image);
+  if (photo.billboard.scale != 0) {
+    auto* b = out->mutable_billboard();
+    b->set_scale(photo.billboard.scale);
+    for (double v : photo.billboard.plane) b->add_plane(v);
+    b->set_displacement(photo.billboard.displacement);
+    b->set_alpha(photo.billboard.alpha);
+  }
+}
+
+Result<Photo> FromWire(const wire::PutPhoto& p) {
+  Photo photo;
+  HVDB_ASSIGN_OR_RETURN(photo.camera, FromWire(p.camera()));
+  photo.image = p.image();
+  if (p.has_billboard()) {
+    const wire::Billboard& b = p.billboard();
+    if (b.plane_size() != 3) {
+      return Status::InvalidArgument("put_photo.billboard.plane: needs 3 values, got " +
+                                     std::to_string(b.plane_size()));
+    }
+    photo.billboard = {b.scale(), {b.plane(0), b.plane(1), b.plane(2)}, b.displacement(), b.alpha()};
+  }
+  return photo;
+}
+
+void ToWire(const QueryOptions& o, wire::Query* out) {
+  out->set_lod(static_cast<uint32_t>(o.lod));  // two's complement: a negative level is refused
+  out->set_progressive(o.progressive);
+  out->set_no_temporal_lod(!o.temporal_lod);
+  out->set_batch_points(static_cast<uint32_t>(std::min<size_t>(o.batch_points, UINT32_MAX)));
+  out->set_label_mask(o.label_mask);
+}
+
+Result<QueryOptions> QueryOptionsFromWire(const wire::Query& q) {
+  QueryOptions o;
+  o.lod = static_cast<int32_t>(q.lod());
+  o.progressive = q.progressive();
+  o.temporal_lod = !q.no_temporal_lod();
+  o.label_mask = q.label_mask();
+  if (q.batch_points() != 0) o.batch_points = q.batch_points();
+  return o;
+}
+
+}  // namespace hvdb::wire

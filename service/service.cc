@@ -1,0 +1,129 @@
+#include "service/service.h"
+
+#include <algorithm>
+#include <utility>
+
+namespace hvdb::service {
+
+namespace {
+
+constexpr char kUnknownDataset[] = "no dataset '";
+
+}  // namespace
+
+Status UnknownDataset(const std::string& name) {
+  return Status::NotFound(kUnknownDataset + name + "' (the datasets request lists them)");
+}
+
+bool IsUnknownDataset(const Status& s) {
+  return s.IsNotFound() && s.message().rfind(kUnknownDataset, 0) == 0;
+}
+
+Service::Service(Database* db, std::string data_dir, Env* env, edit::GraphCutCache* graph_cuts)
+    : db_(db), data_dir_(std::move(data_dir)), env_(env), graph_cuts_(graph_cuts) {}
+
+std::vector<std::string> Service::ListDatasets() {
+  std::vector<std::string> names = db_->ListDatasets();
+  std::sort(names.begin(), names.end());
+  return names;
+}
+
+Result<DatasetInfo> Service::CreateDataset(const DatasetInfo& info) {
+  HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, db_->CreateDataset(info));
+  return ds->Info();
+}
+
+Result<std::shared_ptr<Dataset>> Service::Find(const std::string& name) {
+  Result<std::shared_ptr<Dataset>> ds = db_->GetDataset(name);
+  // The engine's message names the data directory's files: not the caller's business.
+  if (!ds.ok() && ds.status().IsNotFound()) return UnknownDataset(name);
+  return ds;
+}
+
+Status Service::DropDataset(const std::string& name) {
+  Status st = db_->DropDataset(name);
+  if (st.IsNotFound()) return UnknownDataset(name);
+  return st;
+}
+
+Result<DatasetInfo> Service::Describe(const std::string& name) {
+  HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
+  return ds->Info();
+}
+
+Result<OpenQuery> Service::Query(const std::string& name, const Region& region,
+                                 const QueryOptions& opts) {
+  if (opts.lod < 0 || opts.lod > kMaxLod) {
+    return Status::InvalidArgument("query.lod: " + std::to_string(opts.lod) +
+                                   " is out of range 0.." + std::to_string(kMaxLod));
+  }
+  OpenQuery q;
+  HVDB_ASSIGN_OR_RETURN(q.dataset, Find(name));
+  HVDB_ASSIGN_OR_RETURN(q.cursor, q.dataset->Query(region, opts));
+  return q;
+}
+
+Result<uint64_t> Service::BulkLoad(const std::string& name, uint32_t frame,
+                                   std::vector<Point> points) {
+  HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
+  return ds->BulkLoad(frame, std::move(points));
+}
+
+Result<CommitInfo> Service::Commit(const std::string& name, const Transaction& txn) {
+  HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
+  return ds->Commit(txn);
+}
+
+Result<CommitInfo> Service::Revert(const std::string& name, uint64_t lsn) {
+  HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
+  return ds->Revert(lsn);
+}
+
+Status Service::PutPhoto(const std::string& name, uint32_t frame, const Photo& photo) {
+  HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
+  HVDB_RETURN_IF_ERROR(render::CheckPhoto(photo));
+  return ds->PutPhoto(frame, photo);
+}
+
+Result<DatasetReport> Service::Stats(const std::string& name) {
+  HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
+  return DatasetReport{ds->Stats(), ds->Info().last_lsn};
+}
+
+Result<edit::SelectResult> Service::Select(const std::string& name,
+                                           const edit::SelectRequest& req) {
+  HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
+  return edit::Select(*ds, req);
+}
+
+Result<edit::GraphCutReply> Service::GraphCut(const std::string& name,
+                                              const edit::GraphCutRequest& req) {
+  HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
+  return edit::GraphCutSelect(*ds, req, graph_cuts_);
+}
+
+Result<edit::CopyResult> Service::Copy(const std::string& name, const edit::CopyRequest& req) {
+  HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
+  edit::ClipboardStore store(data_dir_, env_);  // DIR/clipboards, shared by server and CLI
+  return edit::Copy(*ds, req.bit, req.region, store, req.clipboard, req.cut);
+}
+
+Result<CommitInfo> Service::Paste(const std::string& name, const edit::PasteRequest& req) {
+  HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
+  edit::ClipboardStore store(data_dir_, env_);
+  HVDB_ASSIGN_OR_RETURN(std::vector<Point> clip, store.Get(req.clipboard));
+  return edit::Paste(*ds, clip, req.map);
+}
+
+Result<CommitInfo> Service::Composite(const std::string& name, const edit::CompositeRequest& req) {
+  HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
+  return edit::Composite(*ds, req.object, req.first_frame, req.frame_count, req.trajectory);
+}
+
+Result<std::unique_ptr<render::RenderJob>> Service::Render(const wire::Render& request,
+                                                           const render::RenderLimits& limits) {
+  HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(request.dataset()));
+  return render::RenderJob::Create(std::move(ds), request, limits);
+}
+
+}  // namespace hvdb::service

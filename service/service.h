@@ -1,0 +1,96 @@
+// The executor: the one place a request runs against a Database. hvdb-server's sessions
+// (server/session.cc: every transport decodes its bytes into a wire::Request, whose body
+// protocol/convert.h turns into these values) and the embedded mode (client/backend.cc: the
+// `hvdb --data` command line, Python's hvdb.open) both call it, so that the same request gets
+// the same result and the same error, word for word, whichever way it came.
+//
+// Typed values in, typed values or a Status out. Each request is validated once, on this path:
+// here what no engine call checks (levels of detail, photos before they are stored), in the
+// engine what it must refuse anyway (regions and transactions in storage/, label bits and
+// graph-cut parameters in edit/). The transports check only the shape of their messages. What only a transport has (flow control, ring slots, ingest chunks,
+// cancellation) stays in the transport; what only a process has (the server's counters, a
+// block cache's numbers) stays with it.
+//
+// Thread safety: as the Database's. hvdb-server calls it from many workers at once; the
+// embedded backend from one thread.
+#ifndef HVDB_SERVICE_SERVICE_H_
+#define HVDB_SERVICE_SERVICE_H_
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "edit/operators.h"
+#include "render/job.h"
+#include "storage/database.h"
+
+namespace hvdb::service {
+
+// The coarsest level of detail a query or render may ask for.
+inline constexpr int kMaxLod = 64;
+
+// A NotFound for a dataset that does not exist (wire: UNKNOWN_DATASET, not NOT_FOUND).
+Status UnknownDataset(const std::string& name);
+bool IsUnknownDataset(const Status& s);
+
+// An open query: the cursor and the dataset it reads (kept alive while the cursor is).
+struct OpenQuery {
+  std::shared_ptr<Dataset> dataset;
+  std::unique_ptr<Cursor> cursor;
+};
+
+// What Stats reports of one dataset.
+struct DatasetReport {
+  DatasetStats stats;
+  uint64_t last_lsn = 0;
+};
+
+class Service {
+ public:
+  // `db` outlives the service. Clipboards are kept in DIR/clipboards of `data_dir` through `env`
+  // (null: the POSIX files). `graph_cuts`: the cache of the last cut (hvdb-server keeps one, so
+  // that a cut after one more stroke is a re-cut); null: none.
+  Service(Database* db, std::string data_dir, Env* env = nullptr,
+          edit::GraphCutCache* graph_cuts = nullptr);
+
+  Database& db() { return *db_; }
+
+  // Names of the datasets, sorted.
+  std::vector<std::string> ListDatasets();
+  Result<DatasetInfo> CreateDataset(const DatasetInfo& info);
+  Status DropDataset(const std::string& name);
+  Result<DatasetInfo> Describe(const std::string& name);
+  Result<std::shared_ptr<Dataset>> Find(const std::string& name);
+
+  Result<OpenQuery> Query(const std::string& name, const Region& region, const QueryOptions& opts);
+  Result<uint64_t> BulkLoad(const std::string& name, uint32_t frame, std::vector<Point> points);
+  Result<CommitInfo> Commit(const std::string& name, const Transaction& txn);
+  Result<CommitInfo> Revert(const std::string& name, uint64_t lsn);
+  // The photo (and its billboard) is checked before it is stored: a bad one is refused here, not
+  // left to fail renders.
+  Status PutPhoto(const std::string& name, uint32_t frame, const Photo& photo);
+  Result<DatasetReport> Stats(const std::string& name);
+
+  // ---- The editing operators (edit/operators.h).
+  Result<edit::SelectResult> Select(const std::string& name, const edit::SelectRequest& req);
+  Result<edit::GraphCutReply> GraphCut(const std::string& name, const edit::GraphCutRequest& req);
+  Result<edit::CopyResult> Copy(const std::string& name, const edit::CopyRequest& req);
+  Result<CommitInfo> Paste(const std::string& name, const edit::PasteRequest& req);
+  Result<CommitInfo> Composite(const std::string& name, const edit::CompositeRequest& req);
+
+  // ---- Rendering: the request checked and the job made; the caller brings a renderer (the
+  // server's pool, or one made in this process) and asks for the images one by one.
+  Result<std::unique_ptr<render::RenderJob>> Render(const wire::Render& request,
+                                                    const render::RenderLimits& limits = {});
+
+ private:
+  Database* db_;
+  std::string data_dir_;
+  Env* env_;
+  edit::GraphCutCache* graph_cuts_;
+};
+
+}  // namespace hvdb::service
+
+#endif  // HVDB_SERVICE_SERVICE_H_
