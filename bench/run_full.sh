@@ -4,7 +4,7 @@
 #
 #   bash bench/run_full.sh [hvdb-bench options...]
 #
-# Build first (scripts/setup.sh builds build/; HVDB_BUILD_DIR picks another build directory).
+# Build first (scripts/setup.sh --all builds build/; HVDB_BUILD_DIR picks another build directory).
 # The datasets go to $HVDB_BENCH_SCRATCH (default: <build>/bench-scratch; a few GB, removed at
 # the end). Takes ~9 minutes on 2 cores.
 set -euo pipefail
@@ -13,7 +13,7 @@ BUILD_DIR=${HVDB_BUILD_DIR:-build}
 BIN="$BUILD_DIR/bench/hvdb-bench"
 SCRATCH=${HVDB_BENCH_SCRATCH:-$BUILD_DIR/bench-scratch}
 OUT=bench/results
-[ -x "$BIN" ] || { echo "run_full: $BIN not built (run scripts/setup.sh)" >&2; exit 1; }
+[ -x "$BIN" ] || { echo "run_full: $BIN not built (run scripts/setup.sh --all)" >&2; exit 1; }
 mkdir -p "$OUT" "$SCRATCH"
 
 {

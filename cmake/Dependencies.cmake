@@ -1,11 +1,17 @@
 # All third-party libraries come from Debian packages (scripts/setup.sh installs them).
 # Each is found here once, so a missing package fails at configure time with its name.
 find_package(Threads REQUIRED)
-find_package(Boost 1.74 REQUIRED COMPONENTS program_options graph)
+# Header-only parts of Boost (Asio, Beast, CRC; the tests compare with its graph cut).
+find_package(Boost 1.74 REQUIRED)
 find_package(PkgConfig REQUIRED)
 find_package(nanoflann REQUIRED)
-find_package(OpenCV REQUIRED COMPONENTS core imgproc imgcodecs calib3d ml)
-find_package(Ceres REQUIRED)
+# render/ needs OpenCV's core, imgproc, imgcodecs and calib3d; ingest/ also ml and Ceres.
+if(HVDB_BUILD_INGEST)
+  find_package(OpenCV REQUIRED COMPONENTS core imgproc imgcodecs calib3d ml)
+  find_package(Ceres REQUIRED)
+else()
+  find_package(OpenCV REQUIRED COMPONENTS core imgproc imgcodecs calib3d)
+endif()
 find_package(draco REQUIRED)
 find_package(OpenEXR REQUIRED)
 find_package(glm REQUIRED)

@@ -55,7 +55,7 @@ free_port() {
 start() {
   for tool in ceph-mon ceph-osd ceph-mgr ceph monmaptool ceph-authtool uuidgen; do
     command -v "$tool" >/dev/null || {
-      echo "ceph-dev.sh: $tool not found (install ceph-mon ceph-osd ceph-mgr ceph-common: bash scripts/setup.sh)" >&2
+      echo "ceph-dev.sh: $tool not found (install ceph-mon ceph-osd ceph-mgr ceph-common: bash scripts/setup.sh --all)" >&2
       exit 1
     }
   done

@@ -30,7 +30,7 @@ fi
 "$HVDB" --data "$DATA" check panoptic
 
 if [ ! -f web/node_modules/gl-matrix/esm/index.js ]; then
-  echo "demo: web/node_modules is missing; run scripts/setup.sh first (it runs npm ci in web/)" >&2
+  echo "demo: web/node_modules is missing; run scripts/setup.sh first (it installs web/package-lock.json's packages)" >&2
   exit 1
 fi
 "$SERVER" --data "$DATA" --listen "$LISTEN" --listen unix: --http "$HTTP" &

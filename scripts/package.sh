@@ -5,9 +5,9 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BUILD_DIR=${HVDB_BUILD_DIR:-build}
-if [ "${1:-}" = "--setup" ]; then bash scripts/setup.sh; fi
+if [ "${1:-}" = "--setup" ]; then bash scripts/setup.sh --all; fi
 if [ ! -f "$BUILD_DIR/CPackConfig.cmake" ]; then
-  echo "package: $BUILD_DIR is not configured; run scripts/setup.sh (or pass --setup)" >&2
+  echo "package: $BUILD_DIR is not configured; run scripts/setup.sh --all (or pass --setup)" >&2
   exit 1
 fi
 cmake --build "$BUILD_DIR" >/dev/null

@@ -1,26 +1,45 @@
 #!/usr/bin/env bash
-# Installs hvdb's build and test dependencies from Debian 12 packages and builds everything
-# (Release, Ninja, warnings as errors) into build/. Idempotent; run as root.
+# Installs what hvdb needs from Debian 12's packages and builds it (Release, Ninja, warnings as
+# errors) into build/. Idempotent; run as root.
+#
+#   bash scripts/setup.sh         what building and serving need, and only the demo's targets:
+#                                 hvdb, hvdb-server and the Python module (the README's first
+#                                 command: a few minutes on a fresh machine)
+#   bash scripts/setup.sh --all   also the tests' and benchmarks' packages (Chromium, Ceph, PCL,
+#                                 Open3D, ...) and every target (scripts/test.sh runs this)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
+ALL=0
+case "${1:-}" in
+  "") ;;
+  --all) ALL=1 ;;
+  -h|--help) sed -n '2,10p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+  *) echo "setup: unknown option '$1' (use --all, or nothing)" >&2; exit 2 ;;
+esac
+
+# Building and serving: the compiler, and the libraries hvdb-server, hvdb and the Python module
+# link (storage, protocol, render, edit, codec); ca-certificates for the web viewer's download.
 PACKAGES=(
-  build-essential cmake ninja-build pkg-config git
-  libboost-dev libboost-system-dev libboost-program-options-dev libboost-graph-dev
-  libflann-dev libopencv-dev libceres-dev libdraco-dev libopenexr-dev libglm-dev
+  build-essential cmake ninja-build pkg-config ca-certificates
+  libboost-dev libopencv-dev libdraco-dev libopenexr-dev libglm-dev libnanoflann-dev
   libegl-dev libgl-dev libegl-mesa0 libgl1-mesa-dri
-  libgtest-dev libgmock-dev libbenchmark-dev
-  libprotobuf-dev protobuf-compiler
-  nlohmann-json3-dev libcli11-dev
-  libspatialindex-dev libnanoflann-dev libpcl-dev python3-matplotlib
-  clang libclang-rt-14-dev liburing-dev
-  python3 python3-numpy pybind11-dev python3-pytest python3-open3d
-  chromium chromium-driver python3-selenium
-  librados-dev ceph-mon ceph-osd ceph-mgr ceph-common uuid-runtime
+  libprotobuf-dev protobuf-compiler nlohmann-json3-dev libcli11-dev liburing-dev librados-dev
+  python3 python3-dev python3-numpy pybind11-dev
 )
-# The web viewer's JavaScript dependencies come from the npm registry (web/package-lock.json);
-# Debian's npm unless a Node.js with its own npm is installed already.
-command -v npm >/dev/null 2>&1 || PACKAGES+=(npm)
+# The tests and benchmarks: ingest/ (Ceres), GoogleTest and Benchmark, the peers of the
+# benchmarks (PCL, libspatialindex, FLANN, Open3D), clang for the fuzzers and sanitizers, the
+# browser tests (Chromium), a real Ceph cluster for the RADOS tests.
+TEST_PACKAGES=(
+  git libceres-dev libboost-graph-dev libflann-dev
+  libgtest-dev libgmock-dev libbenchmark-dev
+  libspatialindex-dev libpcl-dev python3-matplotlib
+  clang libclang-rt-14-dev
+  python3-pytest python3-open3d
+  chromium chromium-driver python3-selenium
+  ceph-mon ceph-osd ceph-mgr ceph-common uuid-runtime
+)
+if ((ALL)); then PACKAGES+=("${TEST_PACKAGES[@]}"); fi
 
 missing=()
 for p in "${PACKAGES[@]}"; do
@@ -38,15 +57,26 @@ if ((${#missing[@]})); then
 fi
 
 # The web viewer's pinned dependencies, installed into web/node_modules (served by hvdb-server
-# --http; nothing is fetched from a CDN at run time). Again only when the lockfile changed.
+# --http; nothing is fetched from a CDN at run time), checked against web/package-lock.json.
+# Again only when the lockfile changed.
 if [ ! -f web/node_modules/.package-lock.json ] || [ web/package-lock.json -nt web/node_modules/.package-lock.json ]; then
-  echo "setup: installing the web viewer's npm dependencies (web/package-lock.json)"
-  npm ci --prefix web --no-audit --no-fund --loglevel=error
+  echo "setup: installing the web viewer's pinned dependencies (web/package-lock.json)"
+  /usr/bin/python3 scripts/web_deps.py web
 fi
 
 BUILD_DIR=${HVDB_BUILD_DIR:-build}
-cmake -S . -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=Release -DHVDB_WERROR=ON -DHVDB_BUILD_TESTS=ON >/dev/null
-cmake --build "$BUILD_DIR"
+if ((ALL)); then
+  cmake -S . -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=Release -DHVDB_WERROR=ON \
+    -DHVDB_BUILD_TESTS=ON -DHVDB_BUILD_BENCH=ON -DHVDB_BUILD_INGEST=ON >/dev/null
+  cmake --build "$BUILD_DIR"
+else
+  # A build directory configured already (by --all, say) keeps its configuration.
+  if [ ! -f "$BUILD_DIR/CMakeCache.txt" ]; then
+    cmake -S . -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=Release -DHVDB_WERROR=ON \
+      -DHVDB_BUILD_TESTS=OFF -DHVDB_BUILD_BENCH=OFF -DHVDB_BUILD_INGEST=OFF >/dev/null
+  fi
+  cmake --build "$BUILD_DIR" --target hvdb hvdb-server _hvdb
+fi
 echo "setup: built into $BUILD_DIR/"
 # The Python package, so that Debian's python3 finds it anywhere ('import hvdb').
 if [ "$(id -u)" -eq 0 ]; then

@@ -5,7 +5,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-bash scripts/setup.sh
+bash scripts/setup.sh --all
 ctest --test-dir build --output-on-failure -j2 --timeout 900
 
 # Sanitizers: a separate Debug build of the storage, server and codec tests, and of ingest's
