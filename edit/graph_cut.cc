@@ -133,6 +133,16 @@ struct GraphCut::State {
   GraphCutResult base;      // the build's figures (neighbours, graph, arcs, betas)
 };
 
+Status ValidateParams(const GraphCutParams& params) {
+  if (params.k < 1 || params.k > 64 || !(params.intra_radius > 0) || !(params.inter_radius > 0) ||
+      !std::isfinite(params.intra_radius) || !std::isfinite(params.inter_radius) ||
+      params.beta_c < 0 || params.beta_n < 0 || params.gmm_components < 1) {
+    return Status::InvalidArgument("graph cut: k must be 1..64, radii and components positive, "
+                                   "betas >= 0");
+  }
+  return Status::OK();
+}
+
 GraphCut::GraphCut(std::unique_ptr<State> s) : s_(std::move(s)) {}
 GraphCut::~GraphCut() = default;
 size_t GraphCut::size() const { return s_->attr.size(); }
@@ -140,12 +150,7 @@ size_t GraphCut::size() const { return s_->attr.size(); }
 Result<std::unique_ptr<GraphCut>> GraphCut::Build(const std::vector<Point>& points,
                                                  const GraphCutParams& params) {
   const size_t n = points.size();
-  if (params.k < 1 || params.k > 64 || !(params.intra_radius > 0) || !(params.inter_radius > 0) ||
-      !std::isfinite(params.intra_radius) || !std::isfinite(params.inter_radius) ||
-      params.beta_c < 0 || params.beta_n < 0 || params.gmm_components < 1) {
-    return Status::InvalidArgument("graph cut: k must be 1..64, radii and components positive, "
-                                   "betas >= 0");
-  }
+  HVDB_RETURN_IF_ERROR(ValidateParams(params));
   if (n >= 0xfffffff0u) return Status::LimitExceeded("graph cut: too many points");
   auto st = std::make_unique<State>();
   st->params = params;

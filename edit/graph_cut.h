@@ -49,6 +49,10 @@ struct GraphCutParams {
 
 enum class Seed : uint8_t { kUnknown = 0, kForeground = 1, kBackground = 2 };
 
+// InvalidArgument unless k is 1..64 (each point's k neighbours are held for the whole cut), the
+// radii are finite and positive, components >= 1 and betas >= 0.
+Status ValidateParams(const GraphCutParams& params);
+
 struct GraphCutResult {
   std::vector<uint8_t> selected;  // per input point: 1 = in the selection
   double energy = 0;              // the minimum of E_A (= the max flow)

@@ -257,6 +257,8 @@ Result<GraphCutReply> GraphCutSelect(Dataset& ds, const GraphCutRequest& req,
   if (req.foreground_bit == req.background_bit) {
     return Status::InvalidArgument("graph cut: foreground and background strokes need different bits");
   }
+  // Before any point is read: a re-cut (with a cache) and a first cut refuse the same way.
+  HVDB_RETURN_IF_ERROR(ValidateParams(req.params));
   using Clock = std::chrono::steady_clock;
   auto t0 = Clock::now();
   GraphCutReply reply;
