@@ -28,7 +28,13 @@ echo "fresh-check: debootstrap bookworm into $ROOT (not timed)"
 t0=$(date +%s)
 debootstrap --variant=minbase bookworm "$ROOT" "$MIRROR" >/dev/null
 echo "fresh-check: root made in $(( $(date +%s) - t0 )) s"
+# The machine's network settings go with it: its resolver, its apt sources, and the local
+# certificate authorities it trusts (a proxy's, say), which ca-certificates adds on install.
 cp /etc/resolv.conf "$ROOT/etc/resolv.conf"
+if compgen -G "/usr/local/share/ca-certificates/*.crt" >/dev/null; then
+  mkdir -p "$ROOT/usr/local/share/ca-certificates"
+  cp /usr/local/share/ca-certificates/*.crt "$ROOT/usr/local/share/ca-certificates/"
+fi
 mkdir -p "$ROOT/work/shared"
 mount -t proc proc "$ROOT/proc"
 mount --rbind /sys "$ROOT/sys"
