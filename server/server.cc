@@ -1,5 +1,6 @@
 #include "server/server.h"
 
+#include "storage/log.h"
 #include "storage/rados_env.h"
 
 #include <malloc.h>
@@ -45,7 +46,12 @@ Server::Server(Config config, std::unique_ptr<Database> db)
       acceptor_(io_),
       unix_acceptor_(io_),
       signals_(io_),
-      trim_timer_(asio::make_strand(io_)) {}
+      trim_timer_(asio::make_strand(io_)) {
+  // The engine's warnings and notes go into the server's log, with its timestamps and levels.
+  hvdb::SetLogHandler([](LogSeverity s, const std::string& m) {
+    Log(s == LogSeverity::kWarning ? LogLevel::kWarn : LogLevel::kInfo, m);
+  });
+}
 
 Server::~Server() {
   Stop();

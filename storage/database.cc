@@ -5,6 +5,7 @@
 #include <random>
 
 #include "storage/buffer_pool.h"
+#include "storage/log.h"
 #include "storage/coding.h"
 #include "storage/crc32c.h"
 #include "storage/dataset_impl.h"
@@ -208,8 +209,7 @@ Result<bool> Database::TryPromote() {
     Status st = it->second->impl()->Promote();
     if (!st.ok()) {
       // Reopened (and its recovery error reported) by the next GetDataset.
-      std::fprintf(stderr, "hvdb: %s: taking over as the writer: %s\n", it->first.c_str(),
-                   st.ToString().c_str());
+      LogWarning(it->first + ": taking over as the writer: " + st.ToString());
       it = open_.erase(it);
     } else {
       ++it;

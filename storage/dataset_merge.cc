@@ -11,6 +11,7 @@
 #include <cstdio>
 
 #include "storage/dataset_impl.h"
+#include "storage/log.h"
 #include "storage/kdtree_builder.h"
 
 namespace hvdb {
@@ -117,8 +118,7 @@ void DatasetImpl::MergerLoop() {
     ++merge_rounds_;
     merged_cv_.notify_all();
     if (!err.ok()) {
-      std::fprintf(stderr, "hvdb: %s: merge deferred: %s\n", info_.name.c_str(),
-                   err.ToString().c_str());
+      LogWarning(info_.name + ": merge deferred: " + err.ToString());
       // Retry later (a full disk may be freed); commits go on into T0 up to its bound.
       merge_cv_.wait_for(l, std::chrono::seconds(1), [&] { return merge_stop_ || merge_wake_; });
       merge_wake_ = true;
@@ -265,8 +265,8 @@ Status DatasetImpl::BulkLocked(uint32_t frame, std::vector<Point>* points) {
   if (!st.ok()) {
     // The load is durable: an error would invite a retry that loads the points twice.
     // Followers see it at their next full reload (a checkpoint, or a new writer).
-    std::fprintf(stderr, "hvdb: %s: frame %u loaded, but its log marker failed: %s\n",
-                 info_.name.c_str(), frame, st.ToString().c_str());
+    LogWarning(info_.name + ": frame " + std::to_string(frame) +
+               " loaded, but its log marker failed: " + st.ToString());
   }
   return Status::OK();
 }

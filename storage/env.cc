@@ -1,5 +1,6 @@
 // The POSIX Env: pread/pwrite/fdatasync on file descriptors.
 #include "storage/env.h"
+#include "storage/log.h"
 
 #include <dirent.h>
 #include <fcntl.h>
@@ -72,7 +73,7 @@ bool UringAvailable() {
   static const bool ok = [] {
     Ring probe;
     if (!probe.ok()) {
-      std::fprintf(stderr, "hvdb: io_uring is not available here; batched reads use preadv\n");
+      LogNote("io_uring is not available here; batched reads use preadv");
     }
     return probe.ok();
   }();
