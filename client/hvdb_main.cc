@@ -48,8 +48,9 @@
 #include <nlohmann/json.hpp>
 
 #include "client/backend.h"
-#include "client/ply.h"
-#include "client/point_files.h"
+#include "client/export.h"
+#include "formats/ply.h"
+#include "formats/point_files.h"
 #include "render/job.h"
 #include "render/renderer.h"
 #include "storage/database.h"
@@ -1467,7 +1468,7 @@ int Cli::CmdDescribe() {
 // import's frame, ids kept only on request (by the caller). *reference holds the stream's
 // decoded points afterwards, for the next file if it was coded temporally.
 // Scales positions and covariances by the import's units and puts the points in its frame.
-void PlaceFrame(const ply::ReadOptions& ro, std::vector<Point>* pts) {
+void PlaceFrame(const formats::ReadOptions& ro, std::vector<Point>* pts) {
   for (Point& p : *pts) {
     p.x = static_cast<float>(p.x * ro.scale);
     p.y = static_cast<float>(p.y * ro.scale);
@@ -1479,10 +1480,10 @@ void PlaceFrame(const ply::ReadOptions& ro, std::vector<Point>* pts) {
 
 // Reads a PLY file for import, edit --paste or composite; points left out by ro.skip_invalid
 // are said on stderr (after bar's line is cleared), so none goes missing unnoticed.
-Result<std::vector<Point>> ReadPlyNoting(const std::string& path, const ply::ReadOptions& ro,
+Result<std::vector<Point>> ReadPlyNoting(const std::string& path, const formats::ReadOptions& ro,
                                          uint64_t* skipped = nullptr, ProgressBar* bar = nullptr) {
-  ply::ReadStats stats;
-  Result<std::vector<Point>> pts = ply::ReadPly(path, ro, &stats);
+  formats::ReadStats stats;
+  Result<std::vector<Point>> pts = formats::ReadPly(path, ro, &stats);
   if (pts.ok() && stats.skipped_non_finite > 0) {
     if (bar) bar->Clear();
     std::fprintf(stderr, "hvdb: skipped %llu point%s with a NaN or infinite coordinate in %s\n",
@@ -1493,10 +1494,10 @@ Result<std::vector<Point>> ReadPlyNoting(const std::string& path, const ply::Rea
   return pts;
 }
 
-Result<std::vector<Point>> ReadStreamFrame(const std::string& path, const ply::ReadOptions& ro,
+Result<std::vector<Point>> ReadStreamFrame(const std::string& path, const formats::ReadOptions& ro,
                                            codec::Reference* reference) {
   Result<std::vector<Point>> pts =
-      client::ReadHvdb7File(path, reference->points.empty() ? nullptr : reference);
+      formats::ReadHvdb7File(path, reference->points.empty() ? nullptr : reference);
   if (!pts.ok()) return pts.status();
   reference->points = *pts;
   PlaceFrame(ro, &*pts);
@@ -1504,8 +1505,8 @@ Result<std::vector<Point>> ReadStreamFrame(const std::string& path, const ply::R
 }
 
 // A frame from a Draco file (hvdb export --codec draco), placed as ReadStreamFrame does.
-Result<std::vector<Point>> ReadDracoFrame(const std::string& path, const ply::ReadOptions& ro) {
-  Result<std::vector<Point>> pts = client::ReadDracoFile(path);
+Result<std::vector<Point>> ReadDracoFrame(const std::string& path, const formats::ReadOptions& ro) {
+  Result<std::vector<Point>> pts = formats::ReadDracoFile(path);
   if (!pts.ok()) return pts.status();
   PlaceFrame(ro, &*pts);
   // Draco files carry no covariances: the import's default.
@@ -1517,9 +1518,9 @@ Result<std::vector<Point>> ReadDracoFrame(const std::string& path, const ply::Re
 int Cli::CmdExport() {
   const ExportArgs& a = export_;
   client::ExportOptions o;
-  Status st = client::ParseFileCodec(a.codec, &o.codec);
+  Status st = formats::ParseFileCodec(a.codec, &o.codec);
   if (!st.ok()) return Usage("export", st.message());
-  if (a.temporal && o.codec != client::FileCodec::kHvdb7) {
+  if (a.temporal && o.codec != formats::FileCodec::kHvdb7) {
     return Usage("export", "--temporal is for --codec hvdb7");
   }
   o.encode.qp = a.qp;
@@ -1568,7 +1569,7 @@ int Cli::CmdImport() {
   };
   bar.Update(0, 0);
   for (size_t i = 0; i < a.files.size(); ++i) {
-    ply::ReadOptions ro;
+    formats::ReadOptions ro;
     ro.scale = a.units_scale;
     ro.frame = a.frame + static_cast<uint32_t>(i);
     ro.force_frame = true;
@@ -1576,8 +1577,8 @@ int Cli::CmdImport() {
     ro.skip_invalid = a.skip_invalid;
     uint64_t skipped = 0;
     Result<std::vector<Point>> pts =
-        client::IsHvdb7File(a.files[i])   ? ReadStreamFrame(a.files[i], ro, &reference)
-        : client::IsDracoFile(a.files[i]) ? ReadDracoFrame(a.files[i], ro)
+        formats::IsHvdb7File(a.files[i])   ? ReadStreamFrame(a.files[i], ro, &reference)
+        : formats::IsDracoFile(a.files[i]) ? ReadDracoFrame(a.files[i], ro)
                                           : ReadPlyNoting(a.files[i], ro, &skipped, &bar);
     if (!pts.ok()) {
       bar.Clear();
@@ -1638,20 +1639,20 @@ int Cli::CmdSlice() {
 
 int Cli::RunQuery(const Region& region, const QueryArgs& q, const std::string& command) {
   Clock::time_point start = Clock::now();
-  std::unique_ptr<ply::PointWriter> writer;
+  std::unique_ptr<formats::PointWriter> writer;
   if (q.codec != "raw" && q.out.empty()) return Usage(command, "--codec needs --out FILE");
   if (!q.out.empty()) {
-    client::FileCodec fc = client::FileCodec::kRaw;
+    formats::FileCodec fc = formats::FileCodec::kRaw;
     codec::EncodeOptions eo;
     eo.qp = q.qp;
     eo.qn = 12;
     eo.attributes = codec::kAllAttributes;
     eo.progressive = true;
-    Status parsed = client::ParseFileCodec(q.codec, &fc);
+    Status parsed = formats::ParseFileCodec(q.codec, &fc);
     if (!parsed.ok()) return Usage(command, parsed.message());
-    Result<std::unique_ptr<ply::PointWriter>> w =
-        fc == client::FileCodec::kRaw ? ply::OpenPointWriter(q.out, q.ascii)
-                                      : client::OpenCompressedWriter(q.out, fc, eo);
+    Result<std::unique_ptr<formats::PointWriter>> w =
+        fc == formats::FileCodec::kRaw ? formats::OpenPointWriter(q.out, q.ascii)
+                                      : formats::OpenCompressedWriter(q.out, fc, eo);
     if (!w.ok()) return Fail(w.status());
     writer = std::move(w).value();
   }
@@ -1758,7 +1759,7 @@ int Cli::CmdEdit() {
                      Transaction::TransformOp{select(*w), map});
   }
   if (a.paste_opt->count() > 0) {
-    ply::ReadOptions ro;
+    formats::ReadOptions ro;
     ro.scale = a.units_scale;
     ro.frame = *a.paste_frame;
     ro.force_frame = true;
@@ -2100,7 +2101,7 @@ int Cli::CmdComposite() {
     }
     trajectory = std::move(t).value();
   }
-  ply::ReadOptions ro;
+  formats::ReadOptions ro;
   ro.scale = a.units_scale;
   ro.skip_invalid = a.skip_invalid;
   Result<std::vector<Point>> object = ReadPlyNoting(a.ply, ro);
