@@ -22,9 +22,9 @@
 #include <draco/point_cloud/point_cloud_builder.h>
 #include <nanoflann.hpp>
 
-#include "client/ply.h"
 #include "codec/codec.h"
 #include "codec/metrics.h"
+#include "formats/ply.h"
 
 namespace {
 
@@ -287,19 +287,19 @@ int main(int argc, char** argv) {
   std::vector<DataSet> sets;
   std::vector<std::vector<Point>> panoptic;
   for (int f = 0; f < frames; ++f) {
-    hvdb::ply::ReadOptions ro;
+    hvdb::formats::ReadOptions ro;
     ro.scale = 0.01;
     char path[512];
     std::snprintf(path, sizeof path,
                   "%s/cmu-panoptic-kinoptic-171026-pose3/kinoptic_ptclouds/ptcloud_hd%08d.ply",
                   shared.c_str(), 380 + f);
-    auto r = hvdb::ply::ReadPly(path, ro);
+    auto r = hvdb::formats::ReadPly(path, ro);
     if (!r.ok()) Die(r.status().ToString());
     panoptic.push_back(std::move(r).value());
   }
   sets.push_back({"panoptic380", panoptic[0], true, true});
   {
-    auto r = hvdb::ply::ReadPly(shared + "/stanford-bunny/reconstruction/bun_zipper.ply");
+    auto r = hvdb::formats::ReadPly(shared + "/stanford-bunny/reconstruction/bun_zipper.ply");
     if (!r.ok()) Die(r.status().ToString());
     DataSet d{"bunny", std::move(r).value(), false, true};
     AddNormals(&d.points);
@@ -308,7 +308,7 @@ int main(int argc, char** argv) {
   for (const std::string& e : extra) {
     size_t eq = e.find('=');
     if (eq == std::string::npos) Die("--ply takes NAME=PATH");
-    auto r = hvdb::ply::ReadPly(e.substr(eq + 1));
+    auto r = hvdb::formats::ReadPly(e.substr(eq + 1));
     if (!r.ok()) Die(r.status().ToString());
     DataSet d{e.substr(0, eq), std::move(r).value(), true, false};
     d.normal = std::any_of(d.points.begin(), d.points.end(),

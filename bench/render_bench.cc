@@ -31,6 +31,7 @@
 #include <thread>
 #include <vector>
 
+#include "formats/image_io.h"
 #include "protocol/wire.h"
 #include "render/job.h"
 #include "render/metrics.h"
@@ -41,6 +42,7 @@
 #include "tests/render/test_scenes.h"
 #include "tests/storage/test_util.h"
 
+namespace formats = hvdb::formats;
 namespace render = hvdb::render;
 namespace pan = hvdb::testing::panoptic;
 using Clock = std::chrono::steady_clock;
@@ -131,7 +133,7 @@ bool TimeRenders(render::Renderer& r, std::span<const hvdb::Point> pts, const re
       return false;
     }
     if (rep < 0) {
-      if (image != nullptr) *image = render::ToSrgb8(kept);
+      if (image != nullptr) *image = formats::ToSrgb8(kept);
     } else {
       seconds->push_back(s);
     }
@@ -363,7 +365,7 @@ int main(int argc, char** argv) {
         for (double s : ref_secs) ref_splats.push_back(static_cast<double>(cloud->size()) / s);
         agreement.push_back(std::min(render::Psnr(ours, theirs), 999.0));
         auto img = cpu->Render(*cloud, k.camera, o);
-        auto photo = render::ReadSrgb8(pan::ImagePath(dir, k.name, 380));
+        auto photo = formats::ReadSrgb8(pan::ImagePath(dir, k.name, 380));
         if (!img.ok() || !photo.ok()) {
           std::fprintf(stderr, "render-bench: Panoptic camera %s failed\n", k.name.c_str());
           return 1;
@@ -506,7 +508,7 @@ int main(int argc, char** argv) {
       (void)renderer->RenderInto(pts, *cam, {}, &img);
       render_s += Seconds(t0);
       t0 = Clock::now();
-      auto png = render::EncodePng(img);
+      auto png = formats::EncodePng(img);
       encode_s += Seconds(t0);
     }
     json params = {{"images", path_images}, {"frames", frames.size()}, {"width", width},

@@ -21,7 +21,7 @@
 #include <thread>
 #include <vector>
 
-#include "ingest/pfm.h"
+#include "formats/pfm.h"
 #include "ingest/stereo.h"
 
 namespace fs = std::filesystem;
@@ -109,7 +109,7 @@ std::vector<Pair> Load2014(const std::string& data) {
     Pair p{"2014", scene, cv::imread(dir + "im0.png", cv::IMREAD_COLOR),
            cv::imread(dir + "im1.png", cv::IMREAD_COLOR), {},
            cv::imread(dir + "mask0nocc.png", cv::IMREAD_GRAYSCALE), ReadNdisp(dir + "calib.txt")};
-    auto gt = hvdb::ingest::ReadPfm(dir + "disp0GT.pfm");
+    auto gt = hvdb::formats::ReadPfm(dir + "disp0GT.pfm");
     if (p.left.empty() || p.right.empty() || p.mask.empty() || !gt.ok() || p.ndisp <= 0) {
       std::fprintf(stderr, "stereo-bench: cannot read scene %s (%s)\n", dir.c_str(),
                    gt.ok() ? "images, mask or calib.txt ndisp" : gt.status().ToString().c_str());

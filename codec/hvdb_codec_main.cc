@@ -18,9 +18,9 @@
 
 #include <CLI/CLI.hpp>
 
-#include "client/ply.h"
 #include "codec/codec.h"
 #include "codec/metrics.h"
+#include "formats/ply.h"
 
 namespace hvdb {
 namespace {
@@ -60,7 +60,7 @@ Status LoadReference(const std::string& path, codec::Reference* ref) {
     st = codec::Decode(data, &ref->points);
     return st.ok() ? st : Status(st.code(), path + ": " + st.message());
   }
-  auto pts = ply::ReadPly(path);
+  auto pts = formats::ReadPly(path);
   if (!pts.ok()) return pts.status();
   ref->points = std::move(pts).value();
   return Status::OK();
@@ -97,10 +97,10 @@ int Fail(const Status& st) {
 // An input PLY; with skip_invalid its points with a NaN or infinite coordinate are left out
 // and said on stderr (without it they make the read fail).
 Result<std::vector<Point>> ReadInput(const std::string& path, bool skip_invalid) {
-  ply::ReadOptions ro;
+  formats::ReadOptions ro;
   ro.skip_invalid = skip_invalid;
-  ply::ReadStats stats;
-  auto pts = ply::ReadPly(path, ro, &stats);
+  formats::ReadStats stats;
+  auto pts = formats::ReadPly(path, ro, &stats);
   if (pts.ok() && stats.skipped_non_finite > 0) {
     std::fprintf(stderr,
                  "hvdb-codec: skipped %llu points with a NaN or infinite coordinate in %s\n",
@@ -217,7 +217,7 @@ int main(int argc, char** argv) {
     st = codec::Decode(stream, &pts, opts, &stats);
     if (!st.ok()) return Fail(Status(st.code(), in + ": " + st.message()));
     double secs = Seconds(t0);
-    st = ply::WritePly(out, pts, ascii);
+    st = formats::WritePly(out, pts, ascii);
     if (!st.ok()) return Fail(st);
     std::printf("%zu points from %zu of %zu bytes, decoded in %.3f s (%.2f M points/s)\n",
                 pts.size(), stats.total_bytes, stream.size(), secs, pts.size() / secs / 1e6);

@@ -9,7 +9,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "client/ply.h"
+#include "formats/ply.h"
 #include "ingest/generator.h"  // ReadDepthExr
 
 namespace hvdb::ingest {
@@ -329,13 +329,13 @@ Result<FrameInput> LoadFrame(const Recording& r, int index, bool skip_invalid) {
   if (r.kind == RecordingKind::kPly) {
     const std::string path = r.Path(r.ply, index);
     if (!fs::exists(path)) return Status::NotFound(path + ": missing point cloud of frame " + std::to_string(index));
-    ply::ReadOptions o;
+    formats::ReadOptions o;
     o.scale = r.ply_scale;
     o.frame = static_cast<uint32_t>(index);
     o.force_frame = true;
     o.skip_invalid = skip_invalid;
-    ply::ReadStats stats;
-    HVDB_ASSIGN_OR_RETURN(in.points, ply::ReadPly(path, o, &stats));
+    formats::ReadStats stats;
+    HVDB_ASSIGN_OR_RETURN(in.points, formats::ReadPly(path, o, &stats));
     in.skipped_invalid = stats.skipped_non_finite;
     in.bytes_read += size_of(path);
     return in;

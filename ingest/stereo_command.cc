@@ -8,8 +8,8 @@
 #include <opencv2/imgcodecs.hpp>
 #include <string>
 
+#include "formats/pfm.h"
 #include "ingest/commands.h"
-#include "ingest/pfm.h"
 #include "ingest/stereo.h"
 
 namespace hvdb::ingest {
@@ -47,7 +47,7 @@ int RunStereo(const StereoOptions& o) {
     std::fprintf(stderr, "hvdb-ingest stereo: %s\n", res.status().ToString().c_str());
     return 1;
   }
-  Status st = WritePfm(o.out, res->d);
+  Status st = formats::WritePfm(o.out, res->d);
   if (!st.ok()) {
     std::fprintf(stderr, "hvdb-ingest stereo: %s\n", st.ToString().c_str());
     return 1;

@@ -21,7 +21,8 @@
 #include <opencv2/imgproc.hpp>
 
 #include "client/backend.h"
-#include "client/ply.h"
+#include "formats/image_io.h"
+#include "formats/ply.h"
 #include "protocol/wire.h"
 #include "render/renderer.h"
 #include "storage/point.h"
@@ -520,7 +521,7 @@ class Database {
                "renderer"_a = reply.renderer_used(), "renderer_choice"_a = reply.renderer_choice(),
                "points"_a = reply.points(), "render_ms"_a = reply.render_ms());
     if (exr) {
-      render::Image img = Take(render::DecodeExr(reply.exr()));
+      render::Image img = Take(formats::DecodeExr(reply.exr()));
       py::array_t<float> rgba({img.height, img.width, 4u});
       py::array_t<float> depth({img.height, img.width});
       std::memcpy(rgba.mutable_data(), img.rgba.data(), img.rgba.size() * sizeof(float));
@@ -550,14 +551,14 @@ class Database {
 
 // (points, how many vertices skip_invalid left out); __init__.py's read_ply shapes the result.
 py::tuple ReadPly(const std::string& path, double scale, bool skip_invalid) {
-  ply::ReadOptions o;
+  formats::ReadOptions o;
   o.scale = scale;
   o.skip_invalid = skip_invalid;
-  ply::ReadStats stats;
+  formats::ReadStats stats;
   std::vector<Point> pts;
   {
     py::gil_scoped_release release;
-    auto r = ply::ReadPly(path, o, &stats);
+    auto r = formats::ReadPly(path, o, &stats);
     if (!r.ok()) {
       py::gil_scoped_acquire acquire;
       Throw(r.status());
@@ -570,7 +571,7 @@ py::tuple ReadPly(const std::string& path, double scale, bool skip_invalid) {
 void WritePly(const std::string& path, const py::array& points, bool ascii) {
   std::vector<Point> pts = FromArray(points);
   py::gil_scoped_release release;
-  Status st = ply::WritePly(path, pts, ascii);
+  Status st = formats::WritePly(path, pts, ascii);
   py::gil_scoped_acquire acquire;
   Check(st);
 }

@@ -1,6 +1,6 @@
-// 8-bit images and the measures used to compare renderings with each other and with photos:
-// PSNR and SSIM over an optional mask. Used by the tests, the benchmark and (later) ingest's
-// photo-consistency step.
+// The measures used to compare renderings with each other and with photos, as 8-bit images
+// (formats/image_io.h): PSNR and SSIM over an optional mask. Used by the tests, the benchmark
+// and (later) ingest's photo-consistency step.
 #ifndef HVDB_RENDER_METRICS_H_
 #define HVDB_RENDER_METRICS_H_
 
@@ -8,22 +8,14 @@
 #include <string>
 #include <vector>
 
+#include "formats/image_io.h"
 #include "render/renderer.h"
 
 namespace hvdb::render {
 
-// Interleaved 8-bit sRGB pixels, row-major from the top-left: channels 1 (grey), 3 (RGB) or
-// 4 (RGBA, straight alpha).
-struct Srgb8Image {
-  uint32_t width = 0, height = 0, channels = 3;
-  std::vector<uint8_t> data;
-};
-
-// The rendered image as it is written to PNG: RGB if every pixel is opaque, else RGBA.
-Srgb8Image ToSrgb8(const Image& image);
-// Reads PNG or JPEG (any 8-bit image OpenCV reads), colour channels in RGB order.
-Result<Srgb8Image> ReadSrgb8(const std::string& path);
-Status WriteSrgb8Png(const Srgb8Image& image, const std::string& path);
+// 8-bit sRGB pixels (formats/image_io.h: ToSrgb8 makes them of a rendered image, ReadSrgb8 of
+// a PNG or JPEG file).
+using formats::Srgb8Image;
 
 // Peak signal-to-noise ratio (dB, peak 255) over the first three channels (the first for grey
 // images) of the pixels where mask is non-zero (all pixels without a mask). Sizes must agree;

@@ -16,8 +16,8 @@
 // reference used by tests and ingest, and the fallback when no EGL context can be made).
 //
 // Colour: point colours are sRGB; blending happens in linear light; Image holds linear values
-// and WritePng encodes sRGB. Thread safety: one Render at a time per Renderer (calls from
-// different threads are serialised); use one Renderer per concurrent render.
+// and formats::WritePng encodes sRGB. Thread safety: one Render at a time per Renderer (calls
+// from different threads are serialised); use one Renderer per concurrent render.
 #ifndef HVDB_RENDER_RENDERER_H_
 #define HVDB_RENDER_RENDERER_H_
 
@@ -29,12 +29,18 @@
 #include <string>
 #include <vector>
 
+#include "formats/image_io.h"
 #include "storage/point.h"
 #include "storage/status.h"
 
 namespace hvdb::render {
 
-inline constexpr uint32_t kMaxImageSize = 4096;  // per side
+// The rendered image, its size limit and the sRGB transfer function are formats/image_io.h's,
+// which also reads and writes images (PNG, EXR).
+using formats::Image;
+using formats::kMaxImageSize;
+using formats::LinearToSrgb;
+using formats::SrgbToLinear;
 
 // A camera with OpenCV conventions: x right, y down, looking along +z; the centre of pixel
 // (u, v) is at image coordinates (u, v). Same fields as storage's CameraInfo.
@@ -87,19 +93,6 @@ struct RenderOptions {
   std::array<float, 4> background{0, 0, 0, 1};
   // 0: the camera's size; else the camera is Resized() to this size first.
   uint32_t width = 0, height = 0;
-};
-
-// A rendered image, row-major from the top-left pixel.
-struct Image {
-  uint32_t width = 0, height = 0;
-  // Linear RGBA, premultiplied: the splats over the background.
-  std::vector<float> rgba;
-  // Coverage of the splats alone, 0..1 (before the background).
-  std::vector<float> coverage;
-  // Camera-space z (m) of the nearest splat touching the pixel; +infinity where none does.
-  std::vector<float> depth;
-
-  size_t pixels() const { return size_t{width} * height; }
 };
 
 enum class RendererKind : uint8_t { kAuto, kEgl, kCpu };
@@ -160,23 +153,6 @@ bool IsSoftwareRasteriser(const std::string& gl_renderer);
 // Where the render library reports warnings (such as the CPU fallback) and notes (such as
 // kAuto's choice, prefixed "note: "). Default: stderr.
 void SetLogHandler(std::function<void(const std::string&)> handler);
-
-// ---- Output ----
-// 8-bit sRGB PNG: RGB when every pixel is opaque, else RGBA with straight alpha.
-Result<std::string> EncodePng(const Image& image);
-Status WritePng(const Image& image, const std::string& path);
-// OpenEXR with float channels R G B A (linear, premultiplied) and Z (depth, +inf where empty).
-Result<std::string> EncodeExr(const Image& image);
-Status WriteExr(const Image& image, const std::string& path);
-// Reads what EncodeExr writes (R G B A, and Z where present); coverage is A. InvalidArgument
-// for bytes that are not such an EXR.
-Result<Image> DecodeExr(const std::string& bytes);
-// By extension: ".png" or ".exr".
-Status WriteImage(const Image& image, const std::string& path);
-
-// The sRGB transfer function and its inverse (IEC 61966-2-1).
-float SrgbToLinear(float v);
-float LinearToSrgb(float v);
 
 }  // namespace hvdb::render
 

@@ -141,14 +141,6 @@ void SetLogHandler(std::function<void(const std::string&)> handler) {
   g_log_handler = std::move(handler);
 }
 
-float SrgbToLinear(float v) {
-  return v <= 0.04045f ? v / 12.92f : std::pow((v + 0.055f) / 1.055f, 2.4f);
-}
-
-float LinearToSrgb(float v) {
-  return v <= 0.0031308f ? 12.92f * v : 1.055f * std::pow(v, 1.0f / 2.4f) - 0.055f;
-}
-
 Status Renderer::RenderInto(std::span<const Point> points, const Camera& camera,
                             const RenderOptions& options, Image* image) {
   HVDB_ASSIGN_OR_RETURN(*image, Render(points, camera, options));

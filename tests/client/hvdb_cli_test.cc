@@ -29,8 +29,9 @@
 
 #include <nlohmann/json.hpp>
 
-#include "client/ply.h"
-#include "client/point_files.h"
+#include "formats/image_io.h"
+#include "formats/ply.h"
+#include "formats/point_files.h"
 #include "render/metrics.h"
 #include "tests/edit/scene.h"
 
@@ -109,9 +110,9 @@ class HvdbCliTest : public ::testing::Test {
 bool HaveData() { return fs::exists(kFrame380) && fs::exists(kFrame381); }
 
 std::vector<Point> ReadCm(const std::string& path) {
-  ply::ReadOptions opts;
+  formats::ReadOptions opts;
   opts.scale = 0.01;
-  Result<std::vector<Point>> pts = ply::ReadPly(path, opts);
+  Result<std::vector<Point>> pts = formats::ReadPly(path, opts);
   EXPECT_TRUE(pts.ok()) << pts.status().ToString();
   return pts.ok() ? *pts : std::vector<Point>{};
 }
@@ -173,7 +174,7 @@ TEST_F(HvdbCliTest, ImportQueryEditUndoCheck) {
   // Exports: the window's ids are unique, the slice's are those of frame 1.
   r = Run("window walk " + std::string(kEverything) + " --out all.ply");
   ASSERT_EQ(r.code, 0) << r.err;
-  Result<std::vector<Point>> all = ply::ReadPly(Path("all.ply"));
+  Result<std::vector<Point>> all = formats::ReadPly(Path("all.ply"));
   ASSERT_TRUE(all.ok()) << all.status().ToString();
   ASSERT_EQ(all->size(), total);
   std::set<uint64_t> ids_all, ids_f1;
@@ -186,7 +187,7 @@ TEST_F(HvdbCliTest, ImportQueryEditUndoCheck) {
   EXPECT_EQ(ids_f1.size(), f1.size());
   r = Run(std::string(slice) + " --out " + Quote(Path("slice.ply")));
   ASSERT_EQ(r.code, 0) << r.err;
-  Result<std::vector<Point>> sl = ply::ReadPly(Path("slice.ply"));
+  Result<std::vector<Point>> sl = formats::ReadPly(Path("slice.ply"));
   ASSERT_TRUE(sl.ok()) << sl.status().ToString();
   std::set<uint64_t> ids_slice;
   for (const Point& p : *sl) ids_slice.insert(p.id);
@@ -567,7 +568,7 @@ TEST_F(HvdbCliTest, ServerModeMatchesEmbedded) {
     RunResult e = Run(query + " --out emb.ply"), r = Run(remote + query + " --out srv.ply");
     ASSERT_EQ(e.code, 0) << e.err;
     ASSERT_EQ(r.code, 0) << r.err;
-    Result<std::vector<Point>> pe = ply::ReadPly(Path("emb.ply")), ps = ply::ReadPly(Path("srv.ply"));
+    Result<std::vector<Point>> pe = formats::ReadPly(Path("emb.ply")), ps = formats::ReadPly(Path("srv.ply"));
     ASSERT_TRUE(pe.ok()) << pe.status().ToString();
     ASSERT_TRUE(ps.ok()) << ps.status().ToString();
     EXPECT_EQ(ps->size(), query == std::string(slice) ? f1.size() : total);
@@ -742,7 +743,7 @@ TEST_F(HvdbCliTest, EditingOperatorsEmbeddedAndThroughServer) {
   std::string files;
   for (uint32_t f = 0; f < kFrames; ++f) {
     std::string path = Path("scene" + std::to_string(f) + ".ply");
-    ASSERT_TRUE(ply::WritePly(path, frames[f]).ok());
+    ASSERT_TRUE(formats::WritePly(path, frames[f]).ok());
     files += " " + Quote(path);
   }
 
@@ -831,7 +832,7 @@ TEST_F(HvdbCliTest, EditingOperatorsEmbeddedAndThroughServer) {
     RunResult r = Run((srv ? remote : std::string()) + "window scene --label-mask 1 " + everything +
                       " --out sel.ply");
     ASSERT_EQ(r.code, 0) << r.err;
-    Result<std::vector<Point>> sel = ply::ReadPly(Path("sel.ply"));
+    Result<std::vector<Point>> sel = formats::ReadPly(Path("sel.ply"));
     ASSERT_TRUE(sel.ok()) << sel.status().ToString();
     for (const Point& p : *sel) ids[srv].insert(p.id);
   }
@@ -964,7 +965,7 @@ TEST_F(HvdbCliTest, EditingOperatorsEmbeddedAndThroughServer) {
     p.r = 255;
     cube.push_back(p);
   }
-  ASSERT_TRUE(ply::WritePly(Path("cube.ply"), cube, /*ascii=*/true).ok());
+  ASSERT_TRUE(formats::WritePly(Path("cube.ply"), cube, /*ascii=*/true).ok());
   std::ofstream(Path("path.csv")) << "# dx,dy,dz\n0.5,0.5,2\n0.6, 0.5, 2\n\n0.7,0.5,2\n";
   json comp = same("composite scene --ply " + Quote(Path("cube.ply")) +
                    " --units-scale 0.01 --first-frame 0 --frames 3 --trajectory " +
@@ -1082,7 +1083,7 @@ TEST_F(HvdbCliTest, EditingOperatorsEmbeddedAndThroughServer) {
 
 // A PNG written by `hvdb render`, decoded (empty on failure, which the test reports).
 render::Srgb8Image ReadPng(const std::string& path) {
-  Result<render::Srgb8Image> img = render::ReadSrgb8(path);
+  Result<render::Srgb8Image> img = formats::ReadSrgb8(path);
   EXPECT_TRUE(img.ok()) << path << ": " << img.status().ToString();
   return img.ok() ? *img : render::Srgb8Image{};
 }
@@ -1124,7 +1125,7 @@ TEST_F(HvdbCliTest, RenderEmbeddedAndThroughServer) {
   std::string files;
   for (uint32_t f = 0; f < kFrames; ++f) {
     std::string path = Path("scene" + std::to_string(f) + ".ply");
-    ASSERT_TRUE(ply::WritePly(path, frames[f]).ok());
+    ASSERT_TRUE(formats::WritePly(path, frames[f]).ok());
     files += " " + Quote(path);
   }
 
@@ -1345,7 +1346,7 @@ TEST_F(HvdbCliTest, CompressedExportImportAndWire) {
   const std::string box = " --box -9 9 -9 9 -9 9 0 1";
   ASSERT_EQ(Run("window walk" + box + " --out " + Quote(Path("a.ply"))).code, 0);
   ASSERT_EQ(Run("window back" + box + " --out " + Quote(Path("b.ply"))).code, 0);
-  auto a = ply::ReadPly(Path("a.ply")), b = ply::ReadPly(Path("b.ply"));
+  auto a = formats::ReadPly(Path("a.ply")), b = formats::ReadPly(Path("b.ply"));
   ASSERT_TRUE(a.ok() && b.ok());
   ASSERT_EQ(a->size(), b->size());
   // Positions on an 18-bit grid over a frame's extent (< 2 m: errors within 4 micrometres),
@@ -1375,7 +1376,7 @@ TEST_F(HvdbCliTest, CompressedExportImportAndWire) {
   // Compressed query output, read back by the library.
   r = Run("window walk" + box + " --codec hvdb7 --qp 20 --out " + Quote(Path("w.hv7")));
   ASSERT_EQ(r.code, 0) << r.err;
-  auto w = client::ReadHvdb7File(Path("w.hv7"));
+  auto w = formats::ReadHvdb7File(Path("w.hv7"));
   ASSERT_TRUE(w.ok()) << w.status().ToString();
   EXPECT_EQ(w->size(), a->size());
   r = Run("window walk" + box + " --codec hvdb7");

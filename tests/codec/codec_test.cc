@@ -10,22 +10,22 @@
 
 #include <gtest/gtest.h>
 
-#include "client/ply.h"
 #include "codec/codec.h"
 #include "codec/metrics.h"
+#include "formats/ply.h"
 
 namespace hvdb::codec {
 namespace {
 
 std::vector<Point> Panoptic(int frame) {
-  ply::ReadOptions ro;
+  formats::ReadOptions ro;
   ro.scale = 0.01;
   char path[512];
   std::snprintf(path, sizeof path,
                 HVDB_SHARED_DATA "/cmu-panoptic-kinoptic-171026-pose3/kinoptic_ptclouds/"
                                  "ptcloud_hd%08d.ply",
                 frame);
-  auto r = ply::ReadPly(path, ro);
+  auto r = formats::ReadPly(path, ro);
   EXPECT_TRUE(r.ok()) << r.status().ToString();
   std::vector<Point> pts = r.ok() ? std::move(r).value() : std::vector<Point>{};
   for (size_t i = 0; i < pts.size(); ++i) {

@@ -7,7 +7,7 @@
 
 #include <gtest/gtest.h>
 
-#include "client/ply.h"
+#include "formats/ply.h"
 #include "tests/run_command.h"
 
 namespace {
@@ -45,7 +45,7 @@ TEST_F(HvdbCodecCliTest, EncodeDecodeInfoCompare) {
   EXPECT_NE(r.out.find("qp 12  qc 7  qn 9"), std::string::npos) << r.out;
   r = Cli("decode " + P("a.hv7") + " " + P("a.ply"));
   ASSERT_EQ(r.code, 0) << r.out;
-  auto orig = hvdb::ply::ReadPly(f380), dec = hvdb::ply::ReadPly(P("a.ply"));
+  auto orig = hvdb::formats::ReadPly(f380), dec = hvdb::formats::ReadPly(P("a.ply"));
   ASSERT_TRUE(orig.ok() && dec.ok());
   EXPECT_EQ(orig->size(), dec->size());
   r = Cli("compare " + f380 + " " + P("a.ply"));
@@ -55,7 +55,7 @@ TEST_F(HvdbCodecCliTest, EncodeDecodeInfoCompare) {
   r = Cli("decode " + P("a.hv7") + " " + P("half.ply") + " --bytes " +
           std::to_string(fs::file_size(P("a.hv7")) / 3));
   ASSERT_EQ(r.code, 0) << r.out;
-  auto half = hvdb::ply::ReadPly(P("half.ply"));
+  auto half = hvdb::formats::ReadPly(P("half.ply"));
   ASSERT_TRUE(half.ok());
   EXPECT_LT(half->size(), orig->size());
   EXPECT_GT(half->size(), orig->size() / 16);

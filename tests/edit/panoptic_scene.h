@@ -18,8 +18,8 @@
 
 #include <opencv2/imgcodecs.hpp>
 
-#include "client/ply.h"
 #include "edit/graph_cut.h"
+#include "formats/ply.h"
 #include "storage/point.h"
 
 namespace hvdb::testing {
@@ -63,11 +63,11 @@ inline Result<RealScene> PanopticScene(const std::string& shared_data, uint32_t 
   std::array<float, 3> lo{1e9f, 1e9f, 1e9f}, hi{-1e9f, -1e9f, -1e9f};
   std::vector<std::vector<Point>> people;
   for (uint32_t f = 0; f < frames; ++f) {
-    ply::ReadOptions o;
+    formats::ReadOptions o;
     o.scale = 0.01;  // centimetres
     o.frame = f;
     o.force_frame = true;
-    HVDB_ASSIGN_OR_RETURN(auto pts, ply::ReadPly(files[f].string(), o));
+    HVDB_ASSIGN_OR_RETURN(auto pts, formats::ReadPly(files[f].string(), o));
     for (const Point& p : pts) {
       const float c[3] = {p.x, p.y, p.z};
       for (int a = 0; a < 3; ++a) {

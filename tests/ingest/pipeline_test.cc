@@ -22,6 +22,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "client/backend.h"
+#include "formats/image_io.h"
 #include "ingest/generator.h"
 #include "protocol/wire.h"
 #include "render/metrics.h"
@@ -162,7 +163,7 @@ render::Srgb8Image RenderPng(client::Backend& backend, const wire::Render& req, 
     return Status::OK();
   });
   std::ofstream(path, std::ios::binary) << png;
-  auto im = render::ReadSrgb8(path);
+  auto im = formats::ReadSrgb8(path);
   return st->ok() && im.ok() ? *im : render::Srgb8Image{};
 }
 
@@ -240,12 +241,12 @@ TEST(Pipeline, GeneratedStereoRecordingGivesAccuratePoints) {
     render::RenderOptions ro;
     auto img = cpu->Render(*pts, cam.ToRenderCamera(), ro);
     ASSERT_TRUE(img.ok()) << img.status().ToString();
-    auto photo = render::ReadSrgb8(rec->Path(rec->files[static_cast<size_t>(&b - &rec->calibration.bricks[0])].colour, 1));
+    auto photo = formats::ReadSrgb8(rec->Path(rec->files[static_cast<size_t>(&b - &rec->calibration.bricks[0])].colour, 1));
     ASSERT_TRUE(photo.ok()) << photo.status().ToString();
     std::vector<uint8_t> mask(img->pixels());
     size_t covered = 0;
     for (size_t i = 0; i < mask.size(); ++i) covered += mask[i] = img->coverage[i] >= 0.99f;
-    const double psnr = render::Psnr(render::ToSrgb8(*img), *photo, &mask);
+    const double psnr = render::Psnr(formats::ToSrgb8(*img), *photo, &mask);
     std::printf("%s: rendered ingest vs its photo: PSNR %.2f dB over %zu of %zu pixels\n",
                 cam.name.c_str(), psnr, covered, mask.size());
     EXPECT_GT(covered, mask.size() / 2);
@@ -484,7 +485,7 @@ TEST(Pipeline, DepthRecordingThroughTheServer) {
     return im;
   };
   const render::Srgb8Image points_only = render(false), textured = render(true);
-  auto photo = render::ReadSrgb8(stereo->Path(stereo->files[0].colour, 0));
+  auto photo = formats::ReadSrgb8(stereo->Path(stereo->files[0].colour, 0));
   ASSERT_TRUE(photo.ok());
   ASSERT_EQ(textured.width, photo->width);
   std::vector<uint8_t> mask(size_t{photo->width} * photo->height);
@@ -644,7 +645,7 @@ TEST(Pipeline, BillboardsThroughTheServer) {
   ASSERT_TRUE(st.ok()) << st.ToString();
   const render::Srgb8Image points = render(1, false, false, &st);
   ASSERT_TRUE(st.ok()) << st.ToString();
-  auto photo = render::ReadSrgb8(rec->Path(rec->files[0].colour, 1));
+  auto photo = formats::ReadSrgb8(rec->Path(rec->files[0].colour, 1));
   ASSERT_TRUE(photo.ok());
   ASSERT_EQ(boards.width, photo->width);
   // Over the pixels both draw (opaque in both images; black is nothing drawn).

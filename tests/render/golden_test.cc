@@ -9,6 +9,7 @@
 #include <cstdlib>
 #include <filesystem>
 
+#include "formats/image_io.h"
 #include "render/metrics.h"
 #include "render/renderer.h"
 #include "tests/render/test_scenes.h"
@@ -65,7 +66,7 @@ void Compare(const Srgb8Image& actual, const std::string& name, const std::strin
     std::printf("wrote %s\n", golden_path.c_str());
     return;
   }
-  auto golden = ReadSrgb8(golden_path);
+  auto golden = formats::ReadSrgb8(golden_path);
   ASSERT_TRUE(golden.ok()) << golden.status().ToString()
                            << " (create the goldens with HVDB_UPDATE_GOLDENS=1)";
   ASSERT_EQ(golden->width, actual.width);
@@ -119,14 +120,14 @@ TEST(GoldenTest, MismatchWritesADiff) {
   c.options.background = {1, 0, 1, 1};  // magenta instead of black
   auto img = r->Render(c.points, c.camera, c.options);
   ASSERT_TRUE(img.ok());
-  auto golden = ReadSrgb8(std::string(HVDB_RENDER_GOLDEN_DIR) + "/" + c.name + ".png");
+  auto golden = formats::ReadSrgb8(std::string(HVDB_RENDER_GOLDEN_DIR) + "/" + c.name + ".png");
   ASSERT_TRUE(golden.ok()) << "golden image missing: create it with HVDB_UPDATE_GOLDENS=1";
   Srgb8Image actual = ToSrgb8(*img);
   EXPECT_LT(Psnr(actual, *golden), 20);
   std::filesystem::create_directories(HVDB_RENDER_TEST_OUT);
   std::string path = std::string(HVDB_RENDER_TEST_OUT) + "/selftest.diff.png";
   ASSERT_TRUE(WriteSrgb8Png(AbsDiff(actual, *golden, 8), path).ok());
-  auto back = ReadSrgb8(path);
+  auto back = formats::ReadSrgb8(path);
   ASSERT_TRUE(back.ok());
   EXPECT_EQ(back->width, actual.width);
 }

@@ -8,6 +8,7 @@
 #include <fstream>
 
 #include "client/client.h"
+#include "formats/image_io.h"
 #include "render/metrics.h"
 #include "tests/render/test_scenes.h"
 #include "tests/server/server_process.h"
@@ -114,7 +115,7 @@ TEST_F(RenderJobTest, RendersTheRegionLikeTheRendererDoes) {
   auto direct = cpu->Render(FramePoints(1), TheLookAt(), {});
   ASSERT_TRUE(direct.ok());
   // The query returns the points in its own order: sums may round differently.
-  EXPECT_GE(render::Psnr(render::ToSrgb8(*img), render::ToSrgb8(*direct)), 50);
+  EXPECT_GE(render::Psnr(formats::ToSrgb8(*img), formats::ToSrgb8(*direct)), 50);
   auto reply = (*job)->Render(0, *cpu);
   ASSERT_TRUE(reply.ok());
   EXPECT_TRUE(reply->last());
@@ -155,9 +156,9 @@ TEST_F(RenderJobTest, HighlightShowsASelection) {
   }
   auto want = cpu->Render(pts, TheLookAt(), {});
   ASSERT_TRUE(want.ok());
-  EXPECT_GE(render::Psnr(render::ToSrgb8(*img), render::ToSrgb8(*want)), 50);
+  EXPECT_GE(render::Psnr(formats::ToSrgb8(*img), formats::ToSrgb8(*want)), 50);
   auto plain = cpu->Render(FramePoints(0), TheLookAt(), {});
-  EXPECT_LT(render::Psnr(render::ToSrgb8(*img), render::ToSrgb8(*plain)), 30);
+  EXPECT_LT(render::Psnr(formats::ToSrgb8(*img), formats::ToSrgb8(*plain)), 30);
   // Colours outside [0, 1], or not four of them, are refused naming the field.
   req.set_highlight_color(0, 2.f);
   EXPECT_EQ(RenderJob::Create(ds_, req).status().message().rfind("render.highlight_color:", 0), 0u);
@@ -277,7 +278,7 @@ TEST_F(RenderJobTest, ProgressiveGivesACoarsePreviewFirst) {
   half.height = 60;
   auto b = cpu->Render(FramePoints(1), TheLookAt(), half);
   ASSERT_TRUE(a.ok() && b.ok());
-  EXPECT_GE(render::Psnr(render::ToSrgb8(*a), render::ToSrgb8(*b)), 18);
+  EXPECT_GE(render::Psnr(formats::ToSrgb8(*a), formats::ToSrgb8(*b)), 18);
   // Near the coarsest level the preview is the coarsest level; at it, there is none.
   req.set_lod(3);
   auto near = RenderJob::Create(ds_, req);
@@ -316,7 +317,7 @@ TEST_F(RenderJobTest, ThePipelinedSequenceDrawsWhatEachFrameHolds) {
     ASSERT_TRUE(img.ok()) << img.status().ToString();
     auto direct = cpu->Render(FramePoints(frames[i]), TheLookAt(), {});
     ASSERT_TRUE(direct.ok());
-    EXPECT_GE(render::Psnr(render::ToSrgb8(*img), render::ToSrgb8(*direct)), 50) << "image " << i;
+    EXPECT_GE(render::Psnr(formats::ToSrgb8(*img), formats::ToSrgb8(*direct)), 50) << "image " << i;
   }
   // Cancelled mid-sequence: the next image says so (its query may already have run).
   std::atomic<bool> cancelled{false};
@@ -387,7 +388,7 @@ class RenderServerTest : public ::testing::Test {
   render::Srgb8Image Decode(const std::string& png) {
     std::string path = dir_.path() + "/reply.png";
     std::ofstream(path, std::ios::binary) << png;
-    auto img = render::ReadSrgb8(path);
+    auto img = formats::ReadSrgb8(path);
     EXPECT_TRUE(img.ok()) << img.status().ToString();
     return img.ok() ? *img : render::Srgb8Image{};
   }
@@ -414,7 +415,7 @@ TEST_F(RenderServerTest, RendersAnImage) {
               reply->fallback() ? " (fallback)" : "", reply->render_ms());
   auto direct = render::MakeCpuRenderer()->Render(FramePoints(2), TheLookAt(), {});
   ASSERT_TRUE(direct.ok());
-  EXPECT_GE(render::Psnr(Decode(reply->png()), render::ToSrgb8(*direct)), 35);
+  EXPECT_GE(render::Psnr(Decode(reply->png()), formats::ToSrgb8(*direct)), 35);
   // EXR on request, at another size.
   req.set_format(wire::IMAGE_EXR);
   req.set_width(80);

@@ -13,7 +13,8 @@
 #include <string>
 #include <vector>
 
-#include "client/ply.h"
+#include "formats/image_io.h"
+#include "formats/ply.h"
 #include "render/metrics.h"
 #include "render/renderer.h"
 #include "storage/point.h"
@@ -90,9 +91,9 @@ inline std::string ImagePath(const std::string& dir, const std::string& cam, int
 
 // The cloud of `frame` in metres, with surfel covariances (sigma_t 4 mm, sigma_n 1 mm).
 inline Result<std::vector<Point>> LoadCloud(const std::string& dir, int frame) {
-  ply::ReadOptions o;
+  formats::ReadOptions o;
   o.scale = 0.01;  // centimetres
-  HVDB_ASSIGN_OR_RETURN(std::vector<Point> pts, ply::ReadPly(CloudPath(dir, frame), o));
+  HVDB_ASSIGN_OR_RETURN(std::vector<Point> pts, formats::ReadPly(CloudPath(dir, frame), o));
   SurfelCovariances(&pts, 0.004f, 0.001f);
   return pts;
 }
@@ -106,7 +107,7 @@ struct Comparison {
 inline Comparison CompareWithPhoto(const render::Image& rendered, const render::Srgb8Image& photo,
                                    bool with_ssim) {
   Comparison c;
-  render::Srgb8Image r = render::ToSrgb8(rendered);
+  render::Srgb8Image r = formats::ToSrgb8(rendered);
   std::vector<uint8_t> mask(rendered.pixels());
   for (size_t i = 0; i < mask.size(); ++i) {
     mask[i] = rendered.coverage[i] >= 0.99f;

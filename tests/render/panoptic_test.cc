@@ -63,7 +63,7 @@ TEST_F(PanopticTest, RenderingsMatchTheKinectPhotos) {
     for (const pan::KinectCamera& k : *cameras_) {
       auto img = cpu->Render(*cloud_, k.camera, o);
       ASSERT_TRUE(img.ok()) << img.status().ToString();
-      auto photo = ReadSrgb8(pan::ImagePath(DataDir(), k.name, kFrame));
+      auto photo = formats::ReadSrgb8(pan::ImagePath(DataDir(), k.name, kFrame));
       ASSERT_TRUE(photo.ok()) << photo.status().ToString();
       pan::Comparison c = pan::CompareWithPhoto(*img, *photo, false);
       std::printf("%s %s: PSNR %.2f dB over %zu pixels\n",

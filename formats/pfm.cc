@@ -1,4 +1,4 @@
-#include "ingest/pfm.h"
+#include "formats/pfm.h"
 
 #include <bit>
 #include <cctype>
@@ -10,7 +10,7 @@
 #include <iterator>
 #include <vector>
 
-namespace hvdb::ingest {
+namespace hvdb::formats {
 
 namespace {
 
@@ -115,4 +115,4 @@ Result<cv::Mat> ReadPfm(const std::string& path) {
   return img;
 }
 
-}  // namespace hvdb::ingest
+}  // namespace hvdb::formats

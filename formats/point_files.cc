@@ -1,16 +1,13 @@
-#include "client/point_files.h"
+#include "formats/point_files.h"
 
 #include <cerrno>
 #include <cstdio>
 #include <fstream>
-#include <filesystem>
 #include <iterator>
-#include <limits>
 
-#include "client/backend.h"
 #include "protocol/wire.h"
 
-namespace hvdb::client {
+namespace hvdb::formats {
 namespace {
 
 Status WriteWhole(const std::string& path, const std::string& data) {
@@ -28,7 +25,7 @@ Status WriteWhole(const std::string& path, const std::string& data) {
   return Status::OK();
 }
 
-class CompressedWriter : public ply::PointWriter {
+class CompressedWriter : public PointWriter {
  public:
   CompressedWriter(std::string path, FileCodec codec, const codec::EncodeOptions& o,
                    const codec::Reference* ref)
@@ -65,16 +62,16 @@ Status ParseFileCodec(const std::string& name, FileCodec* out) {
   return Status::OK();
 }
 
-Result<std::unique_ptr<ply::PointWriter>> OpenCompressedWriter(
+Result<std::unique_ptr<PointWriter>> OpenCompressedWriter(
     const std::string& path, FileCodec codec, const codec::EncodeOptions& options,
     const codec::Reference* reference) {
-  if (codec == FileCodec::kRaw) return ply::OpenPointWriter(path);
+  if (codec == FileCodec::kRaw) return OpenPointWriter(path);
   // Fail now, not after the query, if the file cannot be created.
   std::FILE* f = std::fopen((path + ".tmp").c_str(), "wb");
   if (!f) return Status::FromErrno(path + ".tmp", errno);
   std::fclose(f);
   std::remove((path + ".tmp").c_str());
-  return std::unique_ptr<ply::PointWriter>(new CompressedWriter(path, codec, options, reference));
+  return std::unique_ptr<PointWriter>(new CompressedWriter(path, codec, options, reference));
 }
 
 namespace {
@@ -119,55 +116,4 @@ Result<std::vector<Point>> ReadHvdb7File(const std::string& path,
   return pts;
 }
 
-Result<std::vector<std::string>> ExportFrames(Backend& db, const std::string& name,
-                                              const std::string& dir, const ExportOptions& o,
-                                              const std::function<void(size_t, size_t)>& progress) {
-  HVDB_ASSIGN_OR_RETURN(DatasetInfo info, db.Describe(name));
-  if (o.first >= info.frame_count && info.frame_count > 0) {
-    return Status::InvalidArgument("--first " + std::to_string(o.first) + ": '" + name +
-                                   "' has frames 0.." + std::to_string(info.frame_count - 1));
-  }
-  const uint32_t last = o.count == 0 ? info.frame_count
-                                     : std::min<uint64_t>(info.frame_count, uint64_t{o.first} + o.count);
-  std::error_code ec;
-  std::filesystem::create_directories(dir, ec);
-  if (ec) return Status::IOError(dir + ": " + ec.message());
-  const char* ext = o.codec == FileCodec::kHvdb7 ? "hv7" : o.codec == FileCodec::kDraco ? "drc" : "ply";
-  std::vector<std::string> files;
-  codec::Reference ref;
-  bool have_ref = false;
-  for (uint32_t f = o.first; f < last; ++f) {
-    Window w;
-    for (int a = 0; a < 3; ++a) {
-      w.lo[a] = -std::numeric_limits<double>::infinity();
-      w.hi[a] = std::numeric_limits<double>::infinity();
-    }
-    w.lo[3] = w.hi[3] = f / info.fps;
-    HVDB_ASSIGN_OR_RETURN(auto q, db.Query(name, Region(w), QueryOptions{}));
-    std::vector<Point> pts;
-    Batch b;
-    while (true) {
-      HVDB_ASSIGN_OR_RETURN(bool more, q->Next(&b));
-      pts.insert(pts.end(), b.points.begin(), b.points.end());
-      if (!more) break;
-    }
-    char file[64];
-    std::snprintf(file, sizeof file, "_%06u.%s", f, ext);
-    const std::string path = dir + "/" + name + file;
-    const bool temporal = o.temporal && have_ref && !pts.empty() && !ref.points.empty();
-    HVDB_ASSIGN_OR_RETURN(auto writer,
-                          OpenCompressedWriter(path, o.codec, o.encode, temporal ? &ref : nullptr));
-    HVDB_RETURN_IF_ERROR(writer->Append(pts));
-    HVDB_RETURN_IF_ERROR(writer->Finish());
-    if (o.temporal && o.codec == FileCodec::kHvdb7) {
-      // The next frame is coded against this one as a decoder will see it.
-      HVDB_ASSIGN_OR_RETURN(ref.points, ReadHvdb7File(path, temporal ? &ref : nullptr));
-      have_ref = true;
-    }
-    files.push_back(path);
-    if (progress) progress(f - o.first + 1, last - o.first);
-  }
-  return files;
-}
-
-}  // namespace hvdb::client
+}  // namespace hvdb::formats

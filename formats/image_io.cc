@@ -1,4 +1,6 @@
-// PNG (8-bit sRGB, through OpenCV's imgcodecs) and OpenEXR (float) output of rendered images.
+// PNG (8-bit sRGB, through OpenCV's imgcodecs) and OpenEXR (float) images.
+#include "formats/image_io.h"
+
 #include <ImfChannelList.h>
 #include <ImfFrameBuffer.h>
 #include <ImfHeader.h>
@@ -16,10 +18,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
-#include "render/metrics.h"
-#include "render/renderer.h"
-
-namespace hvdb::render {
+namespace hvdb::formats {
 
 namespace {
 
@@ -128,6 +127,14 @@ bool EndsWith(const std::string& s, const std::string& suffix) {
 }
 
 }  // namespace
+
+float SrgbToLinear(float v) {
+  return v <= 0.04045f ? v / 12.92f : std::pow((v + 0.055f) / 1.055f, 2.4f);
+}
+
+float LinearToSrgb(float v) {
+  return v <= 0.0031308f ? 12.92f * v : 1.055f * std::pow(v, 1.0f / 2.4f) - 0.055f;
+}
 
 Srgb8Image ToSrgb8(const Image& img) {
   Srgb8Image out;
@@ -301,4 +308,4 @@ Result<Srgb8Image> ReadSrgb8(const std::string& path) {
   return s;
 }
 
-}  // namespace hvdb::render
+}  // namespace hvdb::formats

@@ -7,11 +7,10 @@
 
 #include <cmath>
 
-#include "render/metrics.h"
-#include "render/renderer.h"
+#include "formats/image_io.h"
 #include "tests/storage/test_util.h"
 
-namespace hvdb::render {
+namespace hvdb::formats {
 namespace {
 
 // A 4 x 3 gradient with one transparent pixel when `transparent`.
@@ -152,4 +151,4 @@ TEST(ImageIoTest, ExrDecodesWhatItEncodes) {
 }
 
 }  // namespace
-}  // namespace hvdb::render
+}  // namespace hvdb::formats

@@ -7,9 +7,9 @@
 // write followed by a read gives back each Point bit for bit.
 //
 // Like the storage API, nothing here throws: errors come back as Status / Result<T>, with a
-// message that names the file and the problem.
-#ifndef HVDB_CLIENT_PLY_H_
-#define HVDB_CLIENT_PLY_H_
+// message that names the file and the problem. Reading is ply_read.cc, writing ply_write.cc.
+#ifndef HVDB_FORMATS_PLY_H_
+#define HVDB_FORMATS_PLY_H_
 
 #include <array>
 #include <cstdint>
@@ -22,8 +22,9 @@
 #include "storage/point.h"
 #include "storage/status.h"
 
-namespace hvdb::ply {
+namespace hvdb::formats {
 
+// How ReadPly reads a file.
 struct ReadOptions {
   // Multiplies positions (0.01: the file is in centimetres); covariances scale by scale^2.
   double scale = 1.0;
@@ -132,6 +133,6 @@ Status WriteCsv(const std::string& path, std::span<const Point> pts);
 // octahedron's fold a zero component gets a tiny sign-carrying value). Used by the writers.
 std::array<float, 3> NormalForOct(std::array<int16_t, 2> oct);
 
-}  // namespace hvdb::ply
+}  // namespace hvdb::formats
 
-#endif  // HVDB_CLIENT_PLY_H_
+#endif  // HVDB_FORMATS_PLY_H_

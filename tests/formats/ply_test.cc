@@ -1,4 +1,4 @@
-#include "client/ply.h"
+#include "formats/ply.h"
 
 #include <gtest/gtest.h>
 
@@ -15,7 +15,7 @@
 #include <string>
 #include <vector>
 
-namespace hvdb::ply {
+namespace hvdb::formats {
 namespace {
 
 namespace fs = std::filesystem;
@@ -520,4 +520,4 @@ TEST_F(PlyTest, ReadsRealPanopticFrame) {
 }
 
 }  // namespace
-}  // namespace hvdb::ply
+}  // namespace hvdb::formats

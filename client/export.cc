@@ -1,0 +1,68 @@
+#include "client/export.h"
+
+#include <algorithm>
+#include <cstdio>
+#include <filesystem>
+#include <limits>
+
+#include "client/backend.h"
+
+namespace hvdb::client {
+
+using formats::FileCodec;
+
+Result<std::vector<std::string>> ExportFrames(Backend& db, const std::string& name,
+                                              const std::string& dir, const ExportOptions& o,
+                                              const std::function<void(size_t, size_t)>& progress) {
+  HVDB_ASSIGN_OR_RETURN(DatasetInfo info, db.Describe(name));
+  if (o.first >= info.frame_count && info.frame_count > 0) {
+    return Status::InvalidArgument("--first " + std::to_string(o.first) + ": '" + name +
+                                   "' has frames 0.." + std::to_string(info.frame_count - 1));
+  }
+  const uint32_t last = o.count == 0
+                            ? info.frame_count
+                            : std::min<uint64_t>(info.frame_count, uint64_t{o.first} + o.count);
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec) return Status::IOError(dir + ": " + ec.message());
+  const char* ext = o.codec == FileCodec::kHvdb7   ? "hv7"
+                    : o.codec == FileCodec::kDraco ? "drc"
+                                                   : "ply";
+  std::vector<std::string> files;
+  codec::Reference ref;
+  bool have_ref = false;
+  for (uint32_t f = o.first; f < last; ++f) {
+    Window w;
+    for (int a = 0; a < 3; ++a) {
+      w.lo[a] = -std::numeric_limits<double>::infinity();
+      w.hi[a] = std::numeric_limits<double>::infinity();
+    }
+    w.lo[3] = w.hi[3] = f / info.fps;
+    HVDB_ASSIGN_OR_RETURN(auto q, db.Query(name, Region(w), QueryOptions{}));
+    std::vector<Point> pts;
+    Batch b;
+    while (true) {
+      HVDB_ASSIGN_OR_RETURN(bool more, q->Next(&b));
+      pts.insert(pts.end(), b.points.begin(), b.points.end());
+      if (!more) break;
+    }
+    char file[64];
+    std::snprintf(file, sizeof file, "_%06u.%s", f, ext);
+    const std::string path = dir + "/" + name + file;
+    const bool temporal = o.temporal && have_ref && !pts.empty() && !ref.points.empty();
+    HVDB_ASSIGN_OR_RETURN(auto writer, formats::OpenCompressedWriter(path, o.codec, o.encode,
+                                                                     temporal ? &ref : nullptr));
+    HVDB_RETURN_IF_ERROR(writer->Append(pts));
+    HVDB_RETURN_IF_ERROR(writer->Finish());
+    if (o.temporal && o.codec == FileCodec::kHvdb7) {
+      // The next frame is coded against this one as a decoder will see it.
+      HVDB_ASSIGN_OR_RETURN(ref.points, formats::ReadHvdb7File(path, temporal ? &ref : nullptr));
+      have_ref = true;
+    }
+    files.push_back(path);
+    if (progress) progress(f - o.first + 1, last - o.first);
+  }
+  return files;
+}
+
+}  // namespace hvdb::client

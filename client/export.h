@@ -1,0 +1,36 @@
+// `hvdb export`: a dataset's frames written as point files (formats/point_files.h), one file a
+// frame, read through a Backend (embedded or remote).
+#ifndef HVDB_CLIENT_EXPORT_H_
+#define HVDB_CLIENT_EXPORT_H_
+
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "codec/codec.h"
+#include "formats/point_files.h"
+#include "storage/status.h"
+
+namespace hvdb::client {
+
+class Backend;
+
+struct ExportOptions {
+  formats::FileCodec codec = formats::FileCodec::kHvdb7;
+  codec::EncodeOptions encode;  // hvdb7 (and Draco's qp)
+  bool temporal = false;        // hvdb7: each frame coded against the decoded previous one
+  uint32_t first = 0;
+  uint32_t count = 0;  // 0: to the last frame
+};
+
+// Writes frames first.. of a dataset as DIR/NAME_FFFFFF.{hv7,drc,ply}, one file per frame;
+// progress(done, total) after each. Returns the files written.
+Result<std::vector<std::string>> ExportFrames(Backend& db, const std::string& name,
+                                              const std::string& dir, const ExportOptions& o,
+                                              const std::function<void(size_t, size_t)>& progress);
+
+}  // namespace hvdb::client
+
+#endif  // HVDB_CLIENT_EXPORT_H_
