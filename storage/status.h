@@ -32,7 +32,9 @@ enum class StatusCode : unsigned char {
 
 const char* StatusCodeName(StatusCode code);
 
-class Status {
+// [[nodiscard]]: an error dropped on the floor is a bug; a caller that means to ignore one
+// says so with (void) and a reason.
+class [[nodiscard]] Status {
  public:
   Status() = default;
   Status(StatusCode code, std::string msg) : code_(code), msg_(std::move(msg)) {}
@@ -69,7 +71,7 @@ class Status {
 
 // A value or an error. REQUIRES: the Status given is not OK.
 template <typename T>
-class Result {
+class [[nodiscard]] Result {
  public:
   Result(T value) : value_(std::move(value)) {}  // NOLINT(google-explicit-constructor)
   Result(Status status) : status_(std::move(status)) {  // NOLINT(google-explicit-constructor)
