@@ -13,11 +13,6 @@
 namespace hvdb::cli {
 namespace {
 
-struct NameArgs {  // stats, check, drop
-  std::string name;
-  bool json = false;
-};
-
 struct PingArgs {
   unsigned count = 1;
   bool json = false;

@@ -138,6 +138,12 @@ std::optional<hvdb::Slice> MakeSlice(const std::vector<double>& normal, double o
                                      const std::string& command, int* rc);
 
 // The region an editing command works in: a 4D box, or a hyperslice as `slice` takes it.
+// A dataset's name and --json: datasets, describe, stats, check, drop.
+struct NameArgs {
+  std::string name;
+  bool json = false;
+};
+
 struct RegionArgs {
   std::vector<double> box, normal, clip_box;
   double offset = 0, thickness = 0;

@@ -21,11 +21,6 @@ namespace {
 
 namespace fs = std::filesystem;
 
-struct NameArgs {  // datasets, describe
-  std::string name;
-  bool json = false;
-};
-
 struct CreateArgs {
   std::string name;
   double fps = 0;
