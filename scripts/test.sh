@@ -8,8 +8,8 @@ cd "$(dirname "$0")/.."
 bash scripts/setup.sh --all
 ctest --test-dir build --output-on-failure -j2 --timeout 900
 
-# Sanitizers: a separate Debug build of the storage, server, executor and codec tests, and of ingest's
-# point stages (photo-consistency's vector loops, billboards, segmentation). The tests that bound
+# Sanitizers: a separate Debug build of the storage, server, executor and codec tests, and of
+# ingest's point stages (photo-consistency's vector loops, billboards, segmentation). The tests that bound
 # the server's resident memory are left out (ASan's shadow memory and quarantine are what they
 # would measure), and so is photo-consistency's throughput test.
 cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=Debug -DHVDB_SANITIZE=ON -DHVDB_WERROR=ON \
