@@ -22,8 +22,8 @@ wire::Response ErrorResponse(uint64_t id, const Status& st,
                              wire::ErrorCode code = wire::ERROR_UNSPECIFIED);
 // Whether Execute serves this kind (on a worker: it may read and write the data).
 bool IsUnary(const wire::Request& r);
-// List, Create, Drop, Describe, Edit, Revert, PutPhoto, Stats (the dataset's part) and the
-// editing operators.
+// List, Create, Drop, Describe, Edit, Revert, PutPhoto and the editing operators. (Stats is the
+// session's: it adds the server's counters to the executor's Service::Stats.)
 wire::Response Execute(Server* s, uint64_t id, const wire::Request& req);
 
 }  // namespace hvdb::server
