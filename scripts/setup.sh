@@ -14,7 +14,7 @@ ALL=0
 case "${1:-}" in
   "") ;;
   --all) ALL=1 ;;
-  -h|--help) sed -n '2,10p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+  -h|--help) sed -n '2,9p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
   *) echo "setup: unknown option '$1' (use --all, or nothing)" >&2; exit 2 ;;
 esac
 
