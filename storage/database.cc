@@ -183,8 +183,11 @@ Status Database::Refresh() {
   for (const auto& entry : open) {
     const std::shared_ptr<Dataset>& ds = entry.second;
     if (!env_->Exists(dir_ + "/" + entry.first + "/MANIFEST")) {  // dropped by the writer
-      std::lock_guard<std::mutex> l(mu_);
-      std::erase_if(open_, [&](const auto& e) { return e.second == ds; });
+      {
+        std::lock_guard<std::mutex> l(mu_);
+        std::erase_if(open_, [&](const auto& e) { return e.second == ds; });
+      }
+      ds->impl()->EndWatches();
       continue;
     }
     Status st = ds->impl()->Refresh(full);
@@ -245,6 +248,7 @@ Result<std::shared_ptr<Dataset>> Database::CreateDataset(const DatasetInfo& info
   std::lock_guard<std::mutex> l(mu_);
   HVDB_ASSIGN_OR_RETURN(auto impl,
                         DatasetImpl::Create(dir_ + "/" + info.name, info, opts_, pool_.get()));
+  impl->SetParentHub(all_);
   auto ds = std::make_shared<Dataset>(std::move(impl));
   open_.emplace_back(info.name, ds);
   return ds;
@@ -262,6 +266,7 @@ Result<std::shared_ptr<Dataset>> Database::GetDataset(const std::string& name) {
                             " (list them with `hvdb datasets`)");
   }
   HVDB_ASSIGN_OR_RETURN(auto impl, DatasetImpl::Open(path, opts_, pool_.get(), follower_));
+  impl->SetParentHub(all_);
   auto ds = std::make_shared<Dataset>(std::move(impl));
   open_.emplace_back(name, ds);
   return ds;
@@ -273,6 +278,9 @@ Status Database::DropDataset(const std::string& name) {
   std::lock_guard<std::mutex> l(mu_);
   std::string path = dir_ + "/" + name;
   if (!env_->Exists(path + "/MANIFEST")) return Status::NotFound("no dataset '" + name + "'");
+  for (const auto& [n, ds] : open_) {
+    if (n == name) ds->impl()->EndWatches();
+  }
   std::erase_if(open_, [&](const auto& e) { return e.first == name; });
   if (!env_->AtomicDirRename()) {
     // Its MANIFEST first: the dataset is gone at that step, the rest is deleted after.
@@ -287,6 +295,10 @@ Status Database::DropDataset(const std::string& name) {
 }
 
 CacheStats Database::Cache() const { return pool_->Stats(); }
+
+std::unique_ptr<WatchHandle> Database::WatchAll(ChangeFn fn) {
+  return all_->Subscribe(std::move(fn), /*hold=*/false);
+}
 
 Dataset::Dataset(std::unique_ptr<DatasetImpl> impl) : impl_(std::move(impl)) {}
 Dataset::~Dataset() = default;
@@ -304,6 +316,9 @@ DatasetStats Dataset::Stats() const { return impl_->Stats(); }
 std::vector<std::string> Dataset::Check() const { return impl_->Check(); }
 Status Dataset::Checkpoint() { return impl_->Checkpoint(); }
 Status Dataset::WaitForMerges() { return impl_->WaitForMerges(); }
+Result<std::unique_ptr<WatchHandle>> Dataset::Watch(std::optional<uint64_t> from_lsn, ChangeFn fn) {
+  return impl_->Watch(from_lsn, std::move(fn));
+}
 Status Dataset::PutPhoto(uint32_t frame, const Photo& photo) { return impl_->PutPhoto(frame, photo); }
 Result<std::vector<Photo>> Dataset::Photos(uint32_t frame) const { return impl_->Photos(frame); }
 

@@ -25,6 +25,7 @@
 #include "storage/env.h"
 #include "storage/point.h"
 #include "storage/status.h"
+#include "storage/watch.h"
 
 namespace hvdb {
 
@@ -256,6 +257,12 @@ class Dataset {
   Result<std::vector<Photo>> Photos(uint32_t frame) const;
   // Waits until the merger has turned every full buffer T0 into a tree (benchmarks, tests).
   Status WaitForMerges();
+  // Calls fn with each change published from now on (commits, reverts, bulk loads, in LSN
+  // order; a follower publishes the writer's as it reads them), until the Watch is destroyed or
+  // the dataset is dropped (a last kDropped event). With from_lsn: first the changes after it,
+  // read from the log (InvalidArgument if it is past the last LSN), then the live ones, none
+  // lost or repeated. fn's rules: storage/watch.h.
+  Result<std::unique_ptr<WatchHandle>> Watch(std::optional<uint64_t> from_lsn, ChangeFn fn);
 
   DatasetImpl* impl() { return impl_.get(); }
 
@@ -288,6 +295,8 @@ class Database {
   Database& operator=(const Database&) = delete;
 
   std::vector<std::string> ListDatasets() const;
+  // Every open dataset's changes from now on (no replay), each event naming its dataset.
+  std::unique_ptr<WatchHandle> WatchAll(ChangeFn fn);
   Result<std::shared_ptr<Dataset>> CreateDataset(const DatasetInfo& info);
   Result<std::shared_ptr<Dataset>> GetDataset(const std::string& name);
   Status DropDataset(const std::string& name);
@@ -309,6 +318,7 @@ class Database {
   std::unique_ptr<BufferPool> pool_;
   mutable std::mutex mu_;
   std::vector<std::pair<std::string, std::shared_ptr<Dataset>>> open_;
+  std::shared_ptr<WatchHub> all_ = std::make_shared<WatchHub>();  // WatchAll's subscribers
 };
 
 // Checks a dataset name: 1-64 characters of [A-Za-z0-9_.-], not starting with '.'.

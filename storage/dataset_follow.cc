@@ -24,10 +24,33 @@ Status DatasetImpl::Refresh(bool full) {
   std::lock_guard<std::mutex> fl(follow_mu_);
   if (!follower_) return Status::OK();
   if (!full) {
+    followed_.clear();
     HVDB_ASSIGN_OR_RETURN(bool followed, FollowLog());
-    if (followed) return Status::OK();
+    if (followed) {
+      Publish(followed_);
+      followed_.clear();
+      return Status::OK();
+    }
   }
-  return Reload();
+  uint64_t before;
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    before = last_lsn_;
+  }
+  HVDB_RETURN_IF_ERROR(Reload());
+  uint64_t after;
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    after = last_lsn_;
+  }
+  // What the reload brought in, from the log (a change whose record is missing, e.g. a bulk
+  // load whose marker failed, has no event).
+  if (after > before && (hub_->size() > 0 || (parent_hub_ && parent_hub_->size() > 0))) {
+    auto events = EventsBetween(before, after);
+    if (!events.ok()) return events.status();
+    Publish(*events);
+  }
+  return Status::OK();
 }
 
 Result<bool> DatasetImpl::FollowLog() {
@@ -69,8 +92,9 @@ Result<bool> DatasetImpl::FollowLog() {
     return nullptr;
   };
   for (const TxnRecord& rec : recs) {
-    // A gap (or a marker of another time): read the files again.
-    if (rec.lsn != (rec.bulk ? last : last + 1)) return false;
+    // A gap (or a marker of another time): read the files again. Bulk-load markers take the
+    // next LSN; those of older logs repeat the last one.
+    if (rec.lsn != last + 1 && !(rec.bulk && rec.lsn == last)) return false;
     if (rec.bulk) {
       const uint32_t f = rec.frames.at(0).frame;
       HVDB_ASSIGN_OR_RETURN(auto v, LoadFrameState(dir_ + "/frames/" + FrameStateFileName(f), snap));
@@ -91,6 +115,7 @@ Result<bool> DatasetImpl::FollowLog() {
       }
     }
     last = rec.lsn;
+    followed_.push_back(EventOfRecord(info_.name, rec));
   }
   {
     std::lock_guard<std::mutex> l(mu_);

@@ -88,6 +88,12 @@ class DatasetImpl {
   // The caller holds the directory's lock.
   Status Promote();
 
+  // Dataset::Watch; parent: a hub that gets every event too (Database::WatchAll).
+  Result<std::unique_ptr<WatchHandle>> Watch(std::optional<uint64_t> from_lsn, ChangeFn fn);
+  void SetParentHub(std::shared_ptr<WatchHub> parent) { parent_hub_ = std::move(parent); }
+  // Ends every watch with a kDropped event (the dataset was dropped).
+  void EndWatches();
+
   // Resolves a region to frames (for queries: temporal LOD and the slice frame bound).
   Result<RegionPlan> Plan(const Region& region, int lod, bool temporal_lod) const;
   std::shared_ptr<const FrameVersion> Snapshot(uint32_t frame) const;
@@ -129,6 +135,9 @@ class DatasetImpl {
   // Resolves a request against the working state into a log record (no change yet).
   Status Resolve(const Transaction& txn, Working* ws, TxnRecord* rec, CommitInfo* info);
   Result<TxnRecord> FindRecord(uint64_t lsn) const;
+  // storage/dataset_watch.cc: the events of the logged changes with LSNs in (after, upto].
+  Result<std::vector<ChangeEvent>> EventsBetween(uint64_t after, uint64_t upto) const;
+  void Publish(const std::vector<ChangeEvent>& events);
   std::string TreePath(uint32_t frame, uint64_t seq) const;
 
   // dataset_merge.cc: the logarithmic method.
@@ -174,6 +183,10 @@ class DatasetImpl {
   // A follower's place in wal.log (follow_mu_; Refresh and Promote hold it).
   std::mutex follow_mu_;
   uint64_t follow_start_ = 0, follow_offset_ = 0;
+  std::vector<ChangeEvent> followed_;  // what FollowLog applied, for Refresh to publish
+  // Watchers (storage/watch.h): this dataset's, and the database's (WatchAll).
+  std::shared_ptr<WatchHub> hub_ = std::make_shared<WatchHub>();
+  std::shared_ptr<WatchHub> parent_hub_;
   // Replaced trees kept until their deadline (Options::retired_grace_ms).
   std::mutex grave_mu_;
   std::deque<std::pair<std::chrono::steady_clock::time_point, std::shared_ptr<KdTree>>> graves_;

@@ -224,6 +224,7 @@ Status DatasetImpl::BulkLocked(uint32_t frame, std::vector<Point>* points) {
   for (Point& p : *points) {
     if (p.id == 0) p.id = next_id_++;
   }
+  const uint64_t loaded = points->size();
   const size_t i = TargetSlot(v, points->size());
   HVDB_ASSIGN_OR_RETURN(auto tree, BuildMerged(v, i, std::move(*points), /*sync=*/true));
   FrameVersion nv = v;
@@ -235,13 +236,13 @@ Status DatasetImpl::BulkLocked(uint32_t frame, std::vector<Point>* points) {
   while (nv.slots.size() <= i) nv.slots.emplace_back();
   nv.slots[i] = TreeSlot{tree, nullptr};
   nv.t0 = PointBuffer();
-  // Durable once the state listing the tree is. A bulk load is no transaction (it takes no
-  // LSN); the log gets a marker carrying the last transaction's LSN, for followers, which
-  // re-read the state it names.
+  // Durable once the state listing the tree is. A bulk load is no transaction (it cannot be
+  // reverted) but takes the next LSN, so that watchers can resume after it: the state's applied
+  // LSN, and the log's marker for followers and watchers, which re-read the state it names.
   uint64_t lsn;
   {
     std::lock_guard<std::mutex> l(mu_);
-    lsn = last_lsn_;
+    lsn = last_lsn_ + 1;
   }
   nv.applied_lsn = lsn;
   Status st = PersistFrame(nv);
@@ -249,25 +250,29 @@ Status DatasetImpl::BulkLocked(uint32_t frame, std::vector<Point>* points) {
     if (tree) tree->MarkObsolete();
     return st;
   }
-  {
-    std::lock_guard<std::mutex> l(mu_);
-    frames_[frame] = std::make_shared<const FrameVersion>(std::move(nv));
-  }
-  for (auto& t : merged) Bury(t);  // the durable state no longer lists them
   TxnRecord marker;
   marker.lsn = lsn;
   marker.bulk = true;
+  marker.bulk_points = loaded;
   marker.frames.emplace_back();
   marker.frames[0].frame = frame;
-  st = wal_->Append({marker});
-  if (st.ok() && opts_.sync) st = wal_->Sync();
+  Status logged = wal_->Append({marker});
+  if (logged.ok() && opts_.sync) logged = wal_->Sync();
   wal_bytes_ = wal_->size();
-  if (!st.ok()) {
-    // The load is durable: an error would invite a retry that loads the points twice.
-    // Followers see it at their next full reload (a checkpoint, or a new writer).
-    LogWarning(info_.name + ": frame " + std::to_string(frame) +
-               " loaded, but its log marker failed: " + st.ToString());
+  {
+    std::lock_guard<std::mutex> l(mu_);
+    frames_[frame] = std::make_shared<const FrameVersion>(std::move(nv));
+    last_lsn_ = lsn;
   }
+  for (auto& t : merged) Bury(t);  // the durable state no longer lists them
+  if (!logged.ok()) {
+    // The load is durable: an error would invite a retry that loads the points twice.
+    // Followers see it at their next full reload (a checkpoint, or a new writer); a watcher
+    // resuming from before it does not (its LSN is missing from the log).
+    LogWarning(info_.name + ": frame " + std::to_string(frame) +
+               " loaded, but its log marker failed: " + logged.ToString());
+  }
+  Publish({EventOfRecord(info_.name, marker)});
   return Status::OK();
 }
 

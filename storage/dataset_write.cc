@@ -660,6 +660,10 @@ void DatasetImpl::LeadCommits(std::vector<WriteRequest*>& group) {
     }
     last_lsn_ = lsn;
   }
+  std::vector<ChangeEvent> events;
+  events.reserve(records.size());
+  for (const TxnRecord& r : records) events.push_back(EventOfRecord(info_.name, r));
+  Publish(events);
   for (uint32_t f : ws.changed()) dirty_.insert(f);
   // Trees are the merger's work (logarithmic method), and so are checkpoints: a commit is
   // durable now, with its points in T0 and its record in the log.

@@ -76,14 +76,17 @@ static Result<TxnRecord> DecodePayload(uint8_t type, const std::string& payload,
     return Status::Corruption("log record " + std::to_string(lsn) + ": unknown type " +
                               std::to_string(type));
   }
-  if (payload.size() != 4) {
+  // u32 frame, then (since bulk loads have LSNs of their own) u64 points loaded.
+  if (payload.size() != 4 && payload.size() != 12) {
     return Status::Corruption("log record " + std::to_string(lsn) + ": bad bulk-load marker");
   }
   TxnRecord t;
   t.lsn = lsn;
   t.bulk = true;
   t.frames.emplace_back();
-  t.frames[0].frame = DecodeLE<uint32_t>(reinterpret_cast<const uint8_t*>(payload.data()));
+  const auto* p = reinterpret_cast<const uint8_t*>(payload.data());
+  t.frames[0].frame = DecodeLE<uint32_t>(p);
+  if (payload.size() == 12) t.bulk_points = DecodeLE<uint64_t>(p + 4);
   return t;
 }
 
@@ -170,7 +173,7 @@ Result<WalContents> ReadWal(Env* env, const std::string& path) {
     if (type != kTypeTxn && type != kTypeBulk) {
       return corrupt(pos, "unknown type " + std::to_string(type));
     }
-    // A transaction's LSN is above the one before; a bulk-load marker repeats it.
+    // A record's LSN is above the one before; a bulk-load marker of an older log may repeat it.
     if (type == kTypeBulk ? lsn < expect_lsn : lsn <= expect_lsn) {
       return corrupt(pos, "sequence number " + std::to_string(lsn) + " is not above " +
                               std::to_string(expect_lsn));
@@ -214,8 +217,10 @@ Status WalWriter::Append(const std::vector<TxnRecord>& records) {
     const size_t at = out.size();
     out.resize(at + kWalRecordHeaderSize);
     if (t.bulk) {
-      out.resize(out.size() + 4);
-      EncodeLE(reinterpret_cast<uint8_t*>(out.data() + out.size() - 4), t.frames.at(0).frame);
+      out.resize(out.size() + 12);
+      auto* m = reinterpret_cast<uint8_t*>(out.data() + out.size() - 12);
+      EncodeLE(m, t.frames.at(0).frame);
+      EncodeLE(m + 4, t.bulk_points);
     } else {
       AppendTxnPayload(t, &out);
     }

@@ -24,10 +24,12 @@ struct TxnRecord {
   uint64_t lsn = 0;
   uint64_t reverts = 0;  // non-zero: this transaction undid transaction `reverts`
   std::vector<FrameEffect> frames;
-  // A bulk load's marker (record type 2): frames[0].frame's state file was replaced; no
-  // points. Its lsn is the last transaction's (the state's applied LSN), not a new one.
-  // Recovery skips it; followers re-read that state.
+  // A bulk load's marker (record type 2): frames[0].frame's state file was replaced, with
+  // bulk_points points loaded (the record holds no points). Its lsn is the bulk load's own (the
+  // state's applied LSN); markers of older logs repeat the last transaction's. Recovery skips
+  // it; followers re-read that state; watchers see it as a "bulk" event.
   bool bulk = false;
+  uint64_t bulk_points = 0;
 };
 
 Result<TxnRecord> DecodeTxnPayload(const std::string& payload, uint64_t lsn);

@@ -311,7 +311,8 @@ class CorruptionTest : public ::testing::Test {
     return out;
   }
 
-  // Opens and expects exactly the pristine frame plus `txns`, with last_lsn = txns.size().
+  // Opens and expects exactly the pristine frame plus `txns`, with last_lsn = txns.size() + 1
+  // (the pristine frame's bulk load took LSN 1).
   void ExpectCommitted(const std::vector<PointMap>& txns, const std::string& when) {
     SCOPED_TRACE(when);
     auto db = Database::Open(dir_, TestOptions());
@@ -325,7 +326,7 @@ class CorruptionTest : public ::testing::Test {
     ASSERT_TRUE(st.ok()) << st.ToString();
     EXPECT_EQ(got.size(), want.size());
     EXPECT_TRUE(got == want);
-    EXPECT_EQ((*ds)->Info().last_lsn, txns.size());
+    EXPECT_EQ((*ds)->Info().last_lsn, txns.size() + 1);
     auto problems = (*ds)->Check();
     EXPECT_TRUE(problems.empty()) << problems[0];
   }
@@ -450,7 +451,7 @@ TEST_F(CorruptionTest, LogTruncatedInsideLastRecordDropsOnlyThatCommit) {
     txn.Insert(pts);
     auto c = (*ds)->Commit(txn);
     ASSERT_TRUE(c.ok()) << c.status().ToString();
-    EXPECT_EQ(c->lsn, 4u);
+    EXPECT_EQ(c->lsn, 5u);  // after the bulk load (1) and transactions 2, 3, 4 (torn)
     PointMap t;
     for (size_t i = 0; i < pts.size(); ++i) {
       pts[i].id = c->assigned_ids[i];
@@ -716,7 +717,8 @@ TEST_F(CorruptionTest, LogWriteFailureLeavesNoTraceOfTheTransaction) {
   EXPECT_TRUE(Contains(first, "IOError")) << first;
   EXPECT_TRUE(Contains(first, "wal.log")) << first;
   EXPECT_TRUE(Contains(first, std::strerror(EFBIG))) << first;
-  EXPECT_EQ(second, "lsn 1") << "the failed transaction must not use up a sequence number";
+  // (LSN 1 is the pristine frame's bulk load.)
+  EXPECT_EQ(second, "lsn 2") << "the failed transaction must not use up a sequence number";
 
   auto db = Database::Open(dir_, TestOptions());
   ASSERT_TRUE(db.ok());
@@ -736,7 +738,7 @@ TEST_F(CorruptionTest, LogWriteFailureLeavesNoTraceOfTheTransaction) {
         << "a point of the failed transaction survived";
   }
   EXPECT_EQ(in_frame3, small.size());
-  EXPECT_EQ((*ds)->Info().last_lsn, 1u);
+  EXPECT_EQ((*ds)->Info().last_lsn, 2u);
   EXPECT_TRUE((*ds)->Check().empty());
 }
 

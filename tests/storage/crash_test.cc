@@ -305,6 +305,7 @@ Step NextStep(std::mt19937_64& rng, Model* m) {
       m->points[{p.frame, p.id}] = p;
     }
     s.what = " bulk load of " + std::to_string(n) + " points into frame " + std::to_string(s.frame);
+    s.expect_lsn = ++m->lsn;  // a bulk load takes an LSN of its own
     return s;
   }
   s.kind = Step::kTxn;

@@ -1,0 +1,101 @@
+#include "storage/watch.h"
+
+#include <algorithm>
+
+#include "storage/wal.h"
+
+namespace hvdb {
+
+const char* ChangeKindName(ChangeEvent::Kind kind) {
+  switch (kind) {
+    case ChangeEvent::Kind::kCommit: return "commit";
+    case ChangeEvent::Kind::kRevert: return "revert";
+    case ChangeEvent::Kind::kBulk: return "bulk";
+    case ChangeEvent::Kind::kDropped: return "dropped";
+  }
+  return "unknown";
+}
+
+ChangeEvent EventOfRecord(const std::string& dataset, const TxnRecord& rec) {
+  ChangeEvent ev;
+  ev.dataset = dataset;
+  ev.lsn = rec.lsn;
+  ev.kind = rec.bulk ? ChangeEvent::Kind::kBulk
+                     : rec.reverts ? ChangeEvent::Kind::kRevert : ChangeEvent::Kind::kCommit;
+  ev.reverts = rec.reverts;
+  for (const FrameEffect& f : rec.frames) {
+    ev.frames.push_back(f.frame);
+    ev.points += f.added.size();
+    ev.removed += f.removed.size();
+  }
+  if (rec.bulk) ev.points = rec.bulk_points;
+  std::sort(ev.frames.begin(), ev.frames.end());
+  ev.frames.erase(std::unique(ev.frames.begin(), ev.frames.end()), ev.frames.end());
+  return ev;
+}
+
+std::unique_ptr<WatchHub::Subscription> WatchHub::Subscribe(ChangeFn fn, bool hold) {
+  auto e = std::make_shared<Entry>();
+  e->fn = std::move(fn);
+  e->hold = hold;
+  std::lock_guard<std::mutex> l(mu_);
+  subs_.push_back(e);
+  return std::make_unique<Subscription>(shared_from_this(), std::move(e));
+}
+
+void WatchHub::Publish(const ChangeEvent& ev) {
+  std::lock_guard<std::mutex> l(mu_);
+  for (const auto& e : subs_) {
+    if (e->hold) {
+      e->held.push_back(ev);
+    } else {
+      e->fn(ev);
+    }
+  }
+}
+
+void WatchHub::EndAll(const ChangeEvent& last) {
+  std::lock_guard<std::mutex> l(mu_);
+  for (const auto& e : subs_) {
+    // A subscriber still replaying gets what it held first: the end comes last.
+    if (e->hold) {
+      e->held.push_back(last);
+    } else {
+      e->fn(last);
+    }
+    e->ended = true;
+  }
+  std::vector<std::shared_ptr<Entry>> held;
+  for (auto& e : subs_) {
+    if (e->hold) held.push_back(e);  // Go() delivers their end
+  }
+  subs_ = std::move(held);
+}
+
+size_t WatchHub::size() const {
+  std::lock_guard<std::mutex> l(mu_);
+  return subs_.size();
+}
+
+WatchHub::Subscription::~Subscription() {
+  std::lock_guard<std::mutex> l(hub_->mu_);
+  std::erase(hub_->subs_, e_);
+}
+
+void WatchHub::Subscription::Go(uint64_t after) {
+  std::lock_guard<std::mutex> l(hub_->mu_);
+  if (!e_->hold) return;
+  for (const ChangeEvent& ev : e_->held) {
+    if (ev.kind == ChangeEvent::Kind::kDropped || ev.lsn > after) e_->fn(ev);
+  }
+  e_->held.clear();
+  e_->hold = false;
+  if (e_->ended) std::erase(hub_->subs_, e_);
+}
+
+bool WatchHub::Subscription::ended() const {
+  std::lock_guard<std::mutex> l(hub_->mu_);
+  return e_->ended;
+}
+
+}  // namespace hvdb
