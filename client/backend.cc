@@ -2,6 +2,9 @@
 
 #include <algorithm>
 #include <chrono>
+#include <condition_variable>
+#include <deque>
+#include <mutex>
 #include <filesystem>
 #include <functional>
 #include <span>
@@ -39,6 +42,58 @@ class EmbeddedResults final : public QueryResults {
  private:
   std::shared_ptr<Dataset> ds_;  // outlives the cursor
   std::unique_ptr<Cursor> cursor_;
+};
+
+// Events from the storage callback, queued for Next. Bounded as a server connection is: a reader
+// that falls kMaxQueued events behind gets kLagged (resume from the last LSN it was given).
+class EmbeddedWatcher final : public Watcher {
+ public:
+  static constexpr size_t kMaxQueued = 65536;
+  explicit EmbeddedWatcher(std::shared_ptr<Dataset> ds) : ds_(std::move(ds)) {}
+  ChangeFn Fn() {
+    return [this](const ChangeEvent& ev) {
+      std::lock_guard<std::mutex> l(mu_);
+      if (overflow_) return;
+      if (q_.size() >= kMaxQueued) {
+        overflow_ = true;
+      } else {
+        q_.push_back(ev);
+      }
+      cv_.notify_one();
+    };
+  }
+  void Attach(std::unique_ptr<WatchHandle> h) { handle_ = std::move(h); }
+  Result<bool> Next(ChangeEvent* ev, std::chrono::milliseconds timeout) override {
+    std::unique_lock<std::mutex> l(mu_);
+    if (ended_) return false;
+    if (!cv_.wait_for(l, timeout, [&] { return !q_.empty() || overflow_; })) return false;
+    if (q_.empty()) {  // overflowed, and everything before it was taken
+      ChangeEvent lag;
+      lag.kind = ChangeEvent::Kind::kLagged;
+      lag.dataset = ds_->Info().name;
+      lag.lsn = last_lsn_;
+      *ev = lag;
+      ended_ = true;
+      l.unlock();
+      handle_.reset();
+      return true;
+    }
+    *ev = std::move(q_.front());
+    q_.pop_front();
+    if (ev->kind != ChangeEvent::Kind::kDropped) last_lsn_ = ev->lsn;
+    if (ev->kind == ChangeEvent::Kind::kDropped) ended_ = true;
+    return true;
+  }
+  ~EmbeddedWatcher() override { handle_.reset(); }  // before the queue it feeds
+
+ private:
+  std::shared_ptr<Dataset> ds_;
+  std::mutex mu_;
+  std::condition_variable cv_;
+  std::deque<ChangeEvent> q_;
+  bool overflow_ = false, ended_ = false;
+  uint64_t last_lsn_ = 0;
+  std::unique_ptr<WatchHandle> handle_;
 };
 
 // Runs every request through the executor (service/service.h), as hvdb-server does; what is
@@ -118,6 +173,17 @@ class EmbeddedBackend final : public Backend {
   Result<double> Ping() override {
     return Status::Unsupported("ping needs --server HOST:PORT: there is no server to ping on " +
                                dir_);
+  }
+
+  Result<std::unique_ptr<Watcher>> Watch(const std::string& name,
+                                         std::optional<uint64_t> from_lsn) override {
+    HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds,
+                          Do(name, [&](service::Service& x) { return x.Find(name); }));
+    auto w = std::make_unique<EmbeddedWatcher>(ds);
+    HVDB_ASSIGN_OR_RETURN(std::unique_ptr<WatchHandle> h,
+                          Do(name, [&](service::Service& x) { return x.Watch(name, from_lsn, w->Fn()); }));
+    w->Attach(std::move(h));
+    return std::unique_ptr<Watcher>(std::move(w));
   }
 
   Result<std::vector<std::string>> Check(const std::string& name) override {
@@ -249,10 +315,33 @@ class RemoteResults final : public QueryResults {
   bool have_first_ = true;
 };
 
+// A watch on a connection of its own: its events never wait behind other requests' answers.
+class RemoteWatcher final : public Watcher {
+ public:
+  RemoteWatcher(std::unique_ptr<Connection> c, std::unique_ptr<WatchStream> s)
+      : conn_(std::move(c)), stream_(std::move(s)) {}
+  ~RemoteWatcher() override { stream_.reset(); }  // cancels it while the connection is open
+  Result<bool> Next(ChangeEvent* ev, std::chrono::milliseconds timeout) override {
+    return stream_->Next(ev, timeout);
+  }
+
+ private:
+  std::unique_ptr<Connection> conn_;
+  std::unique_ptr<WatchStream> stream_;
+};
+
 class RemoteBackend final : public Backend {
  public:
   RemoteBackend(std::string address, client::Options opts)
-      : address_(std::move(address)), token_given_(!opts.token.empty()), client_(std::move(opts)) {}
+      : address_(std::move(address)), token_given_(!opts.token.empty()), opts_(opts),
+        client_(std::move(opts)) {}
+
+  Result<std::unique_ptr<Watcher>> Watch(const std::string& name,
+                                         std::optional<uint64_t> from_lsn) override {
+    HVDB_ASSIGN_OR_RETURN(std::unique_ptr<Connection> c, Connection::Connect(opts_));
+    HVDB_ASSIGN_OR_RETURN(std::unique_ptr<WatchStream> s, c->Watch(name, from_lsn));
+    return std::unique_ptr<Watcher>(new RemoteWatcher(std::move(c), std::move(s)));
+  }
 
   bool remote() const override { return true; }
   std::string where() const override { return address_; }
@@ -512,6 +601,7 @@ class RemoteBackend final : public Backend {
 
   std::string address_;
   bool token_given_;
+  client::Options opts_;  // for connections of their own (watches)
   Client client_;
   bool connected_ = false;
 };

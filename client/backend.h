@@ -16,6 +16,7 @@
 #define HVDB_CLIENT_BACKEND_H_
 
 #include <array>
+#include <chrono>
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -39,6 +40,17 @@ class QueryResults {
   // Valid after Next() returned false: the frames read, and whether a slice was clipped.
   virtual const std::vector<uint32_t>& frames() const = 0;
   virtual bool clipped() const = 0;
+};
+
+// A watch of a dataset's changes (storage/watch.h): the same events in both modes. Embedded, it
+// sees the changes this process makes (and, on a follower, the writer's as it refreshes);
+// remote, every change the server publishes.
+class Watcher {
+ public:
+  virtual ~Watcher() = default;
+  // The next event, waiting at most `timeout`: false if none came in time. After a kDropped or
+  // kLagged event the watch has ended, and Next returns false at once.
+  virtual Result<bool> Next(ChangeEvent* ev, std::chrono::milliseconds timeout) = 0;
 };
 
 // Latency of one kind of request, over the server's recent requests of that kind.
@@ -100,6 +112,10 @@ class Backend {
   virtual Status PutPhoto(const std::string& name, uint32_t frame, const Photo& photo) = 0;
   // Storage statistics of one dataset, or of all ("" ), plus the cache or server counters.
   virtual Result<StatsReport> Stats(const std::string& name) = 0;
+  // Subscribes to the dataset's changes; with from_lsn, the changes after it come first (from
+  // the log). Errors (unknown dataset, from_lsn past the last LSN) are returned here.
+  virtual Result<std::unique_ptr<Watcher>> Watch(const std::string& name,
+                                                 std::optional<uint64_t> from_lsn) = 0;
   // Remote only: one round trip to the server, in milliseconds.
   virtual Result<double> Ping() = 0;
   // Embedded only: the problems Dataset::Check finds in one dataset.

@@ -540,6 +540,83 @@ Status QueryStream::Cancel() {
   return Status::OK();
 }
 
+Result<bool> Connection::WaitFor(uint64_t id, std::chrono::milliseconds timeout) {
+  if (auto it = pending_.find(id); it != pending_.end() && !it->second.empty()) return true;
+  if (impl_->rpos < impl_->rbuf.size()) return true;
+  if (broken_) return Status::IOError("connection to hvdb-server is broken; reconnect");
+  HVDB_RETURN_IF_ERROR(FlushReleases());
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  for (;;) {
+    auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+        deadline - std::chrono::steady_clock::now());
+    pollfd p{impl_->fd(), POLLIN, 0};
+    int r = ::poll(&p, 1, static_cast<int>(std::max<int64_t>(0, left.count())));
+    if (r > 0) return true;
+    if (r == 0) return false;
+    if (errno != EINTR) return Status::IOError(std::string("poll: ") + std::strerror(errno));
+  }
+}
+
+Result<std::unique_ptr<WatchStream>> Connection::Watch(const std::string& dataset,
+                                                       std::optional<uint64_t> from_lsn) {
+  wire::Request req;
+  req.mutable_watch()->set_dataset(dataset);
+  if (from_lsn) req.mutable_watch()->set_from_lsn(*from_lsn);
+  HVDB_ASSIGN_OR_RETURN(uint64_t id, Send(&req));
+  // The first answer is an error, a replayed event or LIVE: it comes at once.
+  HVDB_ASSIGN_OR_RETURN(wire::Response r, Receive(id));
+  if (r.has_error()) return wire::FromWire(r.error());
+  std::unique_ptr<WatchStream> w(new WatchStream(this, id));
+  w->first_ = std::move(r);
+  return w;
+}
+
+WatchStream::~WatchStream() {
+  if (done_ || conn_->broken()) return;
+  if (!Cancel().ok()) return;
+  ChangeEvent ev;
+  while (true) {  // what was on its way, then CANCELLED
+    auto r = Next(&ev, conn_->impl_->opts.request_timeout);
+    if (!r.ok() || !*r) break;
+  }
+}
+
+Result<bool> WatchStream::Next(ChangeEvent* ev, std::chrono::milliseconds timeout) {
+  if (done_) return false;
+  wire::Response r;
+  if (first_) {
+    r = std::move(*first_);
+    first_.reset();
+  } else {
+    HVDB_ASSIGN_OR_RETURN(bool ready, conn_->WaitFor(id_, timeout));
+    if (!ready) return false;
+    HVDB_ASSIGN_OR_RETURN(r, conn_->Receive(id_));
+  }
+  if (r.has_error()) {
+    done_ = true;
+    return wire::FromWire(r.error());
+  }
+  if (!r.has_event()) {
+    done_ = true;
+    return Status::IOError("hvdb-server answered a watch with something else than an event");
+  }
+  HVDB_ASSIGN_OR_RETURN(*ev, wire::FromWire(r.event()));
+  if (ev->kind == ChangeEvent::Kind::kDropped || ev->kind == ChangeEvent::Kind::kLagged) {
+    done_ = true;
+  }
+  return true;
+}
+
+Status WatchStream::Cancel() {
+  if (done_) return Status::OK();
+  wire::Request req;
+  req.mutable_cancel()->set_target(id_);
+  HVDB_ASSIGN_OR_RETURN(uint64_t cid, conn_->Send(&req));
+  HVDB_ASSIGN_OR_RETURN(wire::Response ack, conn_->Receive(cid));
+  (void)ack;
+  return Status::OK();
+}
+
 Result<CommitInfo> Connection::Commit(const std::string& dataset, const Transaction& txn) {
   wire::Request req;
   req.mutable_edit()->set_dataset(dataset);

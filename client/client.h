@@ -19,6 +19,7 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <optional>
 #include <span>
 #include <string>
 #include <thread>
@@ -94,6 +95,30 @@ class QueryStream {
   bool clipped_ = false;
 };
 
+// A watch of a dataset's changes (docs/PROTOCOL.md, "Watching"). Destroying it before the
+// end cancels it on the server.
+class WatchStream {
+ public:
+  ~WatchStream();
+  WatchStream(const WatchStream&) = delete;
+  WatchStream& operator=(const WatchStream&) = delete;
+  // The next event, waiting at most `timeout` for it: false if none came in time (the watch
+  // goes on). The watch has ended after a kDropped or kLagged event (then false at once).
+  // Errors from the server come back as their Status.
+  Result<bool> Next(ChangeEvent* ev, std::chrono::milliseconds timeout);
+  // Ends the watch; Next() then reports Cancelled, after the events already on their way.
+  Status Cancel();
+  bool ended() const { return done_; }
+
+ private:
+  friend class Connection;
+  WatchStream(Connection* c, uint64_t id) : conn_(c), id_(id) {}
+  Connection* conn_;
+  uint64_t id_;
+  bool done_ = false;
+  std::optional<wire::Response> first_;  // the answer Connection::Watch waited for
+};
+
 class Connection {
  public:
   static Result<std::unique_ptr<Connection>> Connect(const Options& options);
@@ -114,6 +139,12 @@ class Connection {
   // Bulk-loads the points into `frame`, sent in chunks of at most 1 MiB.
   Result<uint64_t> Ingest(const std::string& dataset, uint32_t frame, std::span<const Point> pts);
   Result<wire::StatsReply> Stats(const std::string& dataset = "");
+  // Subscribes to the dataset's changes ("": every dataset's, live only); from_lsn: the changes
+  // after it first. Returns once the server has accepted it (errors such as an unknown dataset
+  // or a from_lsn past the last LSN come back here). A Connection with a watch still serves
+  // other requests; the events wait for the stream.
+  Result<std::unique_ptr<WatchStream>> Watch(const std::string& dataset,
+                                             std::optional<uint64_t> from_lsn = std::nullopt);
 
   // Editing operators (edit/operators.h), run by the server next to the data. Each takes the
   // request message with its dataset set, and returns the server's reply.
@@ -141,6 +172,7 @@ class Connection {
 
  private:
   friend class QueryStream;
+  friend class WatchStream;
   struct Impl;
   // A response with what came beside its message: the records of a RECORDS batch, or the ring
   // slot that holds them.
@@ -154,6 +186,8 @@ class Connection {
   // The next response to `id`; a records attachment for it goes straight into *records
   // (when given) instead of in->records.
   Status ReceiveFull(uint64_t id, Incoming* in, std::vector<Point>* records);
+  // Whether a response to `id` is here or bytes have come within `timeout`.
+  Result<bool> WaitFor(uint64_t id, std::chrono::milliseconds timeout);
   // Ring slots go back to the server in one frame, when the client is about to wait.
   void ReleaseSlot(int slot);
   Status FlushReleases();

@@ -349,4 +349,35 @@ Result<QueryOptions> QueryOptionsFromWire(const wire::Query& q) {
   return o;
 }
 
+void ToWire(const ChangeEvent& e, wire::WatchEvent* out) {
+  static_assert(static_cast<int>(ChangeEvent::Kind::kCommit) == wire::WATCH_COMMIT &&
+                static_cast<int>(ChangeEvent::Kind::kRevert) == wire::WATCH_REVERT &&
+                static_cast<int>(ChangeEvent::Kind::kBulk) == wire::WATCH_BULK &&
+                static_cast<int>(ChangeEvent::Kind::kDropped) == wire::WATCH_DROPPED &&
+                static_cast<int>(ChangeEvent::Kind::kLive) == wire::WATCH_LIVE &&
+                static_cast<int>(ChangeEvent::Kind::kLagged) == wire::WATCH_LAGGED);
+  out->set_dataset(e.dataset);
+  out->set_lsn(e.lsn);
+  out->set_kind(static_cast<wire::WatchEventKind>(e.kind));
+  out->mutable_frames()->Assign(e.frames.begin(), e.frames.end());
+  out->set_points(e.points);
+  out->set_removed(e.removed);
+  out->set_reverts(e.reverts);
+}
+
+Result<ChangeEvent> FromWire(const wire::WatchEvent& e) {
+  if (e.kind() < wire::WATCH_COMMIT || e.kind() > wire::WATCH_LAGGED) {
+    return Status::InvalidArgument("event.kind: unknown value " + std::to_string(e.kind()));
+  }
+  ChangeEvent out;
+  out.kind = static_cast<ChangeEvent::Kind>(e.kind());
+  out.dataset = e.dataset();
+  out.lsn = e.lsn();
+  out.frames.assign(e.frames().begin(), e.frames().end());
+  out.points = e.points();
+  out.removed = e.removed();
+  out.reverts = e.reverts();
+  return out;
+}
+
 }  // namespace hvdb::wire

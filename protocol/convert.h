@@ -57,6 +57,11 @@ Result<Photo> FromWire(const wire::PutPhoto& p);
 void ToWire(const QueryOptions& o, wire::Query* out);
 Result<QueryOptions> QueryOptionsFromWire(const wire::Query& q);
 
+// A watch's event (storage/watch.h). The kinds map one to one; an unknown kind from a newer
+// server is InvalidArgument.
+void ToWire(const ChangeEvent& e, wire::WatchEvent* out);
+Result<ChangeEvent> FromWire(const wire::WatchEvent& e);
+
 }  // namespace hvdb::wire
 
 #endif  // HVDB_PROTOCOL_CONVERT_H_

@@ -29,6 +29,7 @@ const char* KindOf(const wire::Request& r) {
     case wire::Request::kPaste: return "paste";
     case wire::Request::kComposite: return "composite";
     case wire::Request::kRelease: return "release";
+    case wire::Request::kWatch: return "watch";
     default: return "unknown";
   }
 }

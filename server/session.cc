@@ -179,11 +179,19 @@ void Session::Dispatch(wire::Request req) {
   }
   if (req.body_case() == wire::Request::kCancel) {
     auto it = ops_.find(req.cancel().target());
-    if (it != ops_.end()) it->second->Cancel();
+    const bool found = it != ops_.end();
+    const bool watch = found && it->second->watch_flow != nullptr;
+    if (found) it->second->Cancel();
     wire::Response r;
     r.set_id(id);
-    r.mutable_ack()->set_value(it != ops_.end() ? 1 : 0);
-    return Send(r);
+    r.mutable_ack()->set_value(found ? 1 : 0);
+    Send(r);
+    if (watch) {  // a watch has nothing in progress to notice the flag: it ends here
+      const uint64_t target = req.cancel().target();
+      SendError(target, Status::Cancelled("watch cancelled"));
+      Finish(target);
+    }
+    return;
   }
   if (req.body_case() == wire::Request::kRelease) return OnRelease(req.release());
   if (req.body_case() == wire::Request::kPing) {
@@ -272,6 +280,8 @@ void Session::Dispatch(wire::Request req) {
       return HandleIngest(id, req.ingest());
     case wire::Request::kQuery:
       return HandleQuery(op, req.query());
+    case wire::Request::kWatch:
+      return HandleWatch(op, req.watch());
     default:
       if (IsUnary(req)) return RunOnWorker(id, [s, id, req] { return Execute(s, id, req); });
       ops_.erase(id);

@@ -75,6 +75,16 @@ class Session : public std::enable_shared_from_this<Session> {
     std::unique_ptr<render::RenderJob> render_job;
     std::optional<render::RendererPool::Lease> render_lease;
     size_t next_image = 0;
+    // Watches (session_watch.cc): the subscription (ends with the op), what crosses from the
+    // publishing thread to the strand, and the LSN of the last event queued for the client.
+    struct WatchFlow {
+      std::atomic<uint32_t> inflight{0};
+      std::atomic<bool> overflow{false};
+    };
+    std::unique_ptr<WatchHandle> watch;
+    std::shared_ptr<WatchFlow> watch_flow;
+    std::string watch_dataset;
+    uint64_t watch_sent_lsn = 0;
   };
   // Reads the next message (the Hello, then requests) and serves it.
   void ReadNext();
@@ -97,6 +107,16 @@ class Session : public std::enable_shared_from_this<Session> {
   // Runs fn on a worker; its response is sent and the request finished on the strand.
   void RunOnWorker(uint64_t id, std::function<wire::Response()> fn);
   void HandleIngest(uint64_t id, const wire::Ingest& ing);
+
+  // ---- session_watch.cc ----
+  // Subscribes on a worker (a resumed watch reads the log first); events come to the strand.
+  void HandleWatch(std::shared_ptr<Op> op, const wire::Watch& w);
+  // On the strand: queues the event for the client, or, when the client does not keep up (its
+  // queue at the high-water mark, or too many events on their way to the strand: ev null), ends
+  // the watch with a LAGGED event naming the LSN to resume from.
+  void OnWatchEvent(uint64_t id, const ChangeEvent* ev);
+  // Events on their way from the publishing thread to the strand, per watch.
+  static constexpr uint32_t kMaxWatchInflight = 4096;
 
   // ---- session_stream.cc ----
   void HandleQuery(std::shared_ptr<Op> op, const wire::Query& q);

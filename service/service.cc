@@ -126,4 +126,18 @@ Result<std::unique_ptr<render::RenderJob>> Service::Render(const wire::Render& r
   return render::RenderJob::Create(std::move(ds), request, limits);
 }
 
+Result<std::unique_ptr<WatchHandle>> Service::Watch(const std::string& name,
+                                                    std::optional<uint64_t> from_lsn,
+                                                    ChangeFn fn) {
+  if (name.empty()) {
+    if (from_lsn) {
+      return Status::InvalidArgument("watch.from_lsn: a watch of every dataset is live only "
+                                     "(name a dataset to resume from an LSN)");
+    }
+    return db_->WatchAll(std::move(fn));
+  }
+  HVDB_ASSIGN_OR_RETURN(auto ds, Find(name));
+  return ds->Watch(from_lsn, std::move(fn));
+}
+
 }  // namespace hvdb::service

@@ -71,6 +71,11 @@ class Service {
   // left to fail renders.
   Status PutPhoto(const std::string& name, uint32_t frame, const Photo& photo);
   Result<DatasetReport> Stats(const std::string& name);
+  // The dataset's changes (storage/watch.h: replay from `from_lsn`, then live), or, for name "",
+  // every dataset's changes from now on (from_lsn must be absent). fn runs on the writing thread
+  // and must only hand the event on; destroy the handle to stop.
+  Result<std::unique_ptr<WatchHandle>> Watch(const std::string& name,
+                                             std::optional<uint64_t> from_lsn, ChangeFn fn);
 
   // ---- The editing operators (edit/operators.h).
   Result<edit::SelectResult> Select(const std::string& name, const edit::SelectRequest& req);

@@ -297,7 +297,9 @@ Status Database::DropDataset(const std::string& name) {
 CacheStats Database::Cache() const { return pool_->Stats(); }
 
 std::unique_ptr<WatchHandle> Database::WatchAll(ChangeFn fn) {
-  return all_->Subscribe(std::move(fn), /*hold=*/false);
+  auto sub = all_->Subscribe(std::move(fn), /*hold=*/true);
+  sub->Go(0, "");  // a kLive event first, as a dataset's watch has
+  return sub;
 }
 
 Dataset::Dataset(std::unique_ptr<DatasetImpl> impl) : impl_(std::move(impl)) {}

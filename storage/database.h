@@ -295,7 +295,8 @@ class Database {
   Database& operator=(const Database&) = delete;
 
   std::vector<std::string> ListDatasets() const;
-  // Every open dataset's changes from now on (no replay), each event naming its dataset.
+  // Every open dataset's changes from now on (no replay), each event naming its dataset, after
+  // a kLive event (LSN 0, no dataset).
   std::unique_ptr<WatchHandle> WatchAll(ChangeFn fn);
   Result<std::shared_ptr<Dataset>> CreateDataset(const DatasetInfo& info);
   Result<std::shared_ptr<Dataset>> GetDataset(const std::string& name);

@@ -46,7 +46,7 @@ Result<std::unique_ptr<WatchHandle>> DatasetImpl::Watch(std::optional<uint64_t> 
     HVDB_ASSIGN_OR_RETURN(std::vector<ChangeEvent> past, EventsBetween(after, upto));
     for (const ChangeEvent& ev : past) fn(ev);
   }
-  sub->Go(upto);
+  sub->Go(upto, info_.name);
   return sub;
 }
 

@@ -12,6 +12,8 @@ const char* ChangeKindName(ChangeEvent::Kind kind) {
     case ChangeEvent::Kind::kRevert: return "revert";
     case ChangeEvent::Kind::kBulk: return "bulk";
     case ChangeEvent::Kind::kDropped: return "dropped";
+    case ChangeEvent::Kind::kLive: return "live";
+    case ChangeEvent::Kind::kLagged: return "lagged";
   }
   return "unknown";
 }
@@ -82,9 +84,14 @@ WatchHub::Subscription::~Subscription() {
   std::erase(hub_->subs_, e_);
 }
 
-void WatchHub::Subscription::Go(uint64_t after) {
+void WatchHub::Subscription::Go(uint64_t after, const std::string& dataset) {
   std::lock_guard<std::mutex> l(hub_->mu_);
   if (!e_->hold) return;
+  ChangeEvent live;
+  live.kind = ChangeEvent::Kind::kLive;
+  live.dataset = dataset;
+  live.lsn = after;
+  e_->fn(live);
   for (const ChangeEvent& ev : e_->held) {
     if (ev.kind == ChangeEvent::Kind::kDropped || ev.lsn > after) e_->fn(ev);
   }

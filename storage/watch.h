@@ -23,6 +23,10 @@ struct ChangeEvent {
     kRevert = 1,   // a transaction that undid transaction `reverts`
     kBulk = 2,     // a bulk load of frames[0]
     kDropped = 3,  // the dataset was dropped: the watch ends
+    kLive = 4,     // a watch's replay is over: lsn is the last it covered; live events follow
+    // Never published: a consumer's queue (a server connection's, Python's) overflowed and
+    // the watch ended; resume from lsn.
+    kLagged = 5,
   };
   Kind kind = Kind::kCommit;
   std::string dataset;
@@ -70,8 +74,9 @@ class WatchHub::Subscription {
   Subscription(std::shared_ptr<WatchHub> hub, std::shared_ptr<Entry> e)
       : hub_(std::move(hub)), e_(std::move(e)) {}
   ~Subscription();
-  // Delivers what was held with an LSN above `after` (a replay covered the rest), then goes live.
-  void Go(uint64_t after);
+  // Sends a kLive event (lsn `after`), delivers what was held with an LSN above `after` (a
+  // replay covered the rest), then goes live.
+  void Go(uint64_t after, const std::string& dataset);
   bool ended() const;
 
  private:

@@ -22,6 +22,8 @@ void AddClipboardCommands(CLI::App& app, Context& ctx);
 void AddRenderCommands(CLI::App& app, Context& ctx);
 // admin_commands.cc: stats, check, drop, ping.
 void AddAdminCommands(CLI::App& app, Context& ctx);
+// watch_commands.cc: watch.
+void AddWatchCommands(CLI::App& app, Context& ctx);
 
 }  // namespace hvdb::cli
 

@@ -117,6 +117,7 @@ void AddCommands(CLI::App& app, Context& ctx) {
   AddSelectCommands(app, ctx);
   AddClipboardCommands(app, ctx);
   AddRenderCommands(app, ctx);
+  AddWatchCommands(app, ctx);
   AddAdminCommands(app, ctx);
 }
 

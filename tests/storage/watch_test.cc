@@ -23,13 +23,20 @@ using testing::TempDir;
 using Kind = ChangeEvent::Kind;
 
 // Collects events from the watch's callback (any thread).
+// The kLive event that ends a watch's replay is kept apart.
 struct Sink {
   std::mutex mu;
   std::vector<ChangeEvent> events;
+  std::vector<uint64_t> live;  // kLive events' LSNs, with how many events came before each
   ChangeFn fn() {
     return [this](const ChangeEvent& ev) {
       std::lock_guard<std::mutex> l(mu);
-      events.push_back(ev);
+      if (ev.kind == Kind::kLive) {
+        live.push_back(ev.lsn);
+        live.push_back(events.size());
+      } else {
+        events.push_back(ev);
+      }
     };
   }
   std::vector<ChangeEvent> Take() {
@@ -150,6 +157,9 @@ TEST_F(WatchTest, ResumeFromAnLsnLosesAndRepeatsNothingWhileTheWriterGoesOn) {
     auto ev = sink.Take();
     ASSERT_EQ(ev.size(), last - from);
     for (size_t i = 0; i < ev.size(); ++i) ASSERT_EQ(ev[i].lsn, from + 1 + i);
+    // One kLive event, after the replayed ones (those up to its LSN).
+    ASSERT_EQ(sink.live.size(), 2u);
+    EXPECT_EQ(sink.live[1], sink.live[0] - from);
   }
 }
 

@@ -1,0 +1,75 @@
+// Watch requests (docs/PROTOCOL.md, "Watching"): a subscription to a dataset's changes whose
+// events are queued on the connection as they are published. Memory stays bounded for a client
+// that stops reading: past the connection's high-water mark (or kMaxWatchInflight events not yet
+// on the strand) the watch ends with LAGGED, naming the LSN to resume from.
+#include "protocol/convert.h"
+#include "server/requests.h"
+#include "server/session.h"
+
+namespace hvdb::server {
+
+namespace asio = boost::asio;
+
+void Session::HandleWatch(std::shared_ptr<Op> op, const wire::Watch& w) {
+  auto flow = std::make_shared<Op::WatchFlow>();
+  op->watch_flow = flow;
+  op->watch_dataset = w.dataset();
+  std::optional<uint64_t> from;
+  if (w.has_from_lsn()) from = w.from_lsn();
+  op->watch_sent_lsn = from.value_or(0);
+  std::weak_ptr<Session> weak = shared_from_this();
+  const uint64_t id = op->id;
+  // Runs on the publishing thread (a commit's leader, a follower's refresh): it only posts.
+  ChangeFn fn = [weak, flow, strand = strand_, id](const ChangeEvent& ev) {
+    if (flow->overflow.load()) return;
+    if (flow->inflight.fetch_add(1) >= kMaxWatchInflight) {
+      flow->inflight.fetch_sub(1);
+      flow->overflow = true;
+      asio::post(strand, [weak, id] {
+        if (auto s = weak.lock()) s->OnWatchEvent(id, nullptr);
+      });
+      return;
+    }
+    asio::post(strand, [weak, flow, id, ev] {
+      flow->inflight.fetch_sub(1);
+      if (auto s = weak.lock()) s->OnWatchEvent(id, &ev);
+    });
+  };
+  auto self = shared_from_this();
+  asio::post(server_->workers(), [self, op, name = w.dataset(), from, fn = std::move(fn)] {
+    auto handle = self->server_->service().Watch(name, from, fn);
+    asio::post(self->strand_, [self, op, handle = std::move(handle)]() mutable {
+      auto it = self->ops_.find(op->id);
+      if (it == self->ops_.end() || it->second != op) return;  // cancelled, or closed
+      if (!handle.ok()) {
+        self->Send(ErrorResponse(op->id, handle.status()));
+        return self->Finish(op->id);
+      }
+      op->watch = std::move(handle).value();
+    });
+  });
+}
+
+void Session::OnWatchEvent(uint64_t id, const ChangeEvent* ev) {
+  if (closed_) return;
+  auto it = ops_.find(id);
+  if (it == ops_.end() || it->second->watch_flow == nullptr) return;
+  Op& op = *it->second;
+  wire::Response r;
+  r.set_id(id);
+  if (ev == nullptr || op.watch_flow->overflow || Buffered() >= server_->config().outbound_high_water) {
+    ChangeEvent lag;
+    lag.kind = ChangeEvent::Kind::kLagged;
+    lag.dataset = op.watch_dataset;
+    lag.lsn = op.watch_sent_lsn;
+    wire::ToWire(lag, r.mutable_event());
+    Send(r);
+    return Finish(id);
+  }
+  wire::ToWire(*ev, r.mutable_event());
+  Send(r);
+  if (ev->kind == ChangeEvent::Kind::kDropped) return Finish(id);
+  op.watch_sent_lsn = ev->lsn;
+}
+
+}  // namespace hvdb::server
