@@ -24,6 +24,7 @@
 #include "protocol/ws_codec.h"
 #include "server/http.h"
 #include "tests/server/server_process.h"
+#include "tests/server/ws_client.h"
 #include "tests/storage/test_util.h"
 
 namespace hvdb {
@@ -212,56 +213,7 @@ class HttpServerTest : public ::testing::Test {
   std::unique_ptr<ServerProcess> server_;
 };
 
-// A synchronous WebSocket client.
-class Ws {
- public:
-  // Connects and upgrades; the handshake's HTTP status (101 when it worked).
-  unsigned Open(uint16_t port, const std::string& origin = "") {
-    ws_.next_layer().connect({asio::ip::address_v4::loopback(), port});
-    if (!origin.empty()) {
-      ws_.set_option(websocket::stream_base::decorator(
-          [origin](websocket::request_type& r) { r.set(http::field::origin, origin); }));
-    }
-    websocket::response_type res;
-    beast::error_code ec;
-    ws_.handshake(res, "127.0.0.1:" + std::to_string(port), "/ws", ec);
-    return res.result_int();
-  }
-  void Text(const std::string& s) {
-    ws_.text(true);
-    ws_.write(asio::buffer(s));
-  }
-  void Binary(const std::string& s) {
-    ws_.binary(true);
-    ws_.write(asio::buffer(s));
-  }
-  // The next message; false when the connection closed (close_code() says how).
-  bool Read(std::string* out, bool* text) {
-    beast::flat_buffer b;
-    beast::error_code ec;
-    ws_.read(b, ec);
-    if (ec) return false;
-    *out = beast::buffers_to_string(b.data());
-    *text = ws_.got_text();
-    return true;
-  }
-  json ReadJson() {
-    std::string s;
-    bool text = false;
-    EXPECT_TRUE(Read(&s, &text));
-    EXPECT_TRUE(text) << "expected a text message";
-    return text ? json::parse(s) : json();
-  }
-  int close_code() const { return ws_.reason().code; }
-  json Hello(const std::string& token = "") {
-    Text(json{{"protocol_version", 2}, {"client_name", "test"}, {"token", token}}.dump());
-    return ReadJson();
-  }
-
- private:
-  asio::io_context io_;
-  websocket::stream<tcp::socket> ws_{io_};
-};
+using testing::Ws;
 
 TEST_F(HttpServerTest, ServesTheViewerFilesAndNothingElse) {
   Start();
