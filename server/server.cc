@@ -16,6 +16,7 @@
 #include <sstream>
 
 #include "server/http.h"
+#include "client/client.h"
 #include "server/session.h"
 
 namespace hvdb::server {
@@ -76,9 +77,15 @@ void Server::FollowLoop() {
   using Clock = std::chrono::steady_clock;
   auto next_takeover = Clock::now();
   std::string last_error;
+  // Woken by the writer's watch events (LeaderWatchLoop); the interval is the safety net for
+  // when that connection is down.
+  std::thread watcher([this] { LeaderWatchLoop(); });
   std::unique_lock<std::mutex> l(follow_mu_);
-  while (!follow_cv_.wait_for(l, std::chrono::milliseconds(config_.follow_interval_ms),
-                              [this] { return follow_stop_; })) {
+  for (;;) {
+    follow_cv_.wait_for(l, std::chrono::milliseconds(config_.follow_interval_ms),
+                        [this] { return follow_stop_ || follow_wake_; });
+    if (follow_stop_) break;
+    follow_wake_ = false;
     l.unlock();
     Status st = db_->Refresh();
     if (!st.ok() && st.ToString() != last_error) {
@@ -97,10 +104,67 @@ void Server::FollowLoop() {
                                  " (the previous writer is gone); clients send writes to " +
                                  advertise_ + (pub.ok() ? "" : " (not published: " +
                                                                   pub.ToString() + ")"));
-        return;
+        l.lock();
+        break;
       }
     }
     l.lock();
+  }
+  watch_stop_ = true;
+  l.unlock();
+  watcher.join();
+}
+
+void Server::LeaderWatchLoop() {
+  // A watch of every dataset on the writer (its LEADER address): each change it publishes wakes
+  // FollowLoop, which reads it from the shared files at once instead of at the next interval.
+  const auto pause = std::chrono::milliseconds(config_.follow_interval_ms);
+  std::string logged;
+  while (!watch_stop_) {
+    const std::string leader = db_->Leader();
+    client::Options o;
+    Status st = leader.empty() ? Status::NotFound("the writer has published no address")
+                               : client::ParseAddress(leader, &o);
+    std::unique_ptr<client::Connection> conn;
+    std::unique_ptr<client::WatchStream> watch;
+    if (st.ok()) {
+      // A writer that wants tokens takes ours (servers of one directory share a token file).
+      if (!tokens_.empty()) o.token = tokens_.begin()->first;
+      o.connect_timeout = std::chrono::milliseconds(1000);
+      o.request_timeout = std::chrono::milliseconds(5000);
+      auto c = client::Connection::Connect(o);
+      st = c.status();
+      if (c.ok()) {
+        conn = std::move(c).value();
+        auto w = conn->Watch("");
+        st = w.status();
+        if (w.ok()) watch = std::move(w).value();
+      }
+    }
+    if (!st.ok()) {
+      if (st.ToString() != logged) {
+        Log(LogLevel::kInfo, "no watch on the writer (" + st.ToString() + "); following it every " +
+                                 std::to_string(config_.follow_interval_ms) + " ms");
+      }
+      logged = st.ToString();
+      std::unique_lock<std::mutex> l(follow_mu_);
+      follow_cv_.wait_for(l, pause, [this] { return watch_stop_.load() || follow_stop_; });
+      continue;
+    }
+    logged.clear();
+    ChangeEvent ev;
+    while (!watch_stop_) {
+      auto got = watch->Next(&ev, std::chrono::milliseconds(200));
+      if (!got.ok() || watch->ended()) break;  // the writer went away or we lagged: look again
+      if (*got && ev.kind != ChangeEvent::Kind::kLive) {
+        {
+          std::lock_guard<std::mutex> l(follow_mu_);
+          follow_wake_ = true;
+        }
+        follow_cv_.notify_all();
+      }
+      if (db_->Leader() != leader) break;  // a new writer
+    }
   }
 }
 

@@ -162,6 +162,8 @@ class Server {
   Status ListenUnix(const std::string& path);
   // While a reader: refreshes from the writer's files and tries to take over (server.cc).
   void FollowLoop();
+  // While a reader: watches the writer's changes and wakes FollowLoop on each (server.cc).
+  void LeaderWatchLoop();
   void Accept();
   void AcceptUnix();
 
@@ -186,6 +188,8 @@ class Server {
   std::mutex follow_mu_;
   std::condition_variable follow_cv_;
   bool follow_stop_ = false;
+  bool follow_wake_ = false;  // the writer published a change (follow_mu_)
+  std::atomic<bool> watch_stop_{false};
   uint16_t port_ = 0;
   ServerStats stats_;
   std::mutex mu_;

@@ -112,8 +112,8 @@ class Session : public std::enable_shared_from_this<Session> {
   // Subscribes on a worker (a resumed watch reads the log first); events come to the strand.
   void HandleWatch(std::shared_ptr<Op> op, const wire::Watch& w);
   // On the strand: queues the event for the client, or, when the client does not keep up (its
-  // queue at the high-water mark, or too many events on their way to the strand: ev null), ends
-  // the watch with a LAGGED event naming the LSN to resume from.
+  // queue at the high-water mark and not draining, or too many events on their way to the
+  // strand: ev null), ends the watch with a LAGGED event naming the LSN to resume from.
   void OnWatchEvent(uint64_t id, const ChangeEvent* ev);
   // Events on their way from the publishing thread to the strand, per watch.
   static constexpr uint32_t kMaxWatchInflight = 4096;

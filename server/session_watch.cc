@@ -1,7 +1,8 @@
 // Watch requests (docs/PROTOCOL.md, "Watching"): a subscription to a dataset's changes whose
 // events are queued on the connection as they are published. Memory stays bounded for a client
-// that stops reading: past the connection's high-water mark (or kMaxWatchInflight events not yet
-// on the strand) the watch ends with LAGGED, naming the LSN to resume from.
+// that stops reading: past the connection's high-water mark with nothing drained for a second,
+// past four times the mark, or with kMaxWatchInflight events not yet on the strand, the watch
+// ends with LAGGED, naming the LSN to resume from.
 #include "protocol/convert.h"
 #include "server/requests.h"
 #include "server/session.h"
@@ -57,7 +58,11 @@ void Session::OnWatchEvent(uint64_t id, const ChangeEvent* ev) {
   Op& op = *it->second;
   wire::Response r;
   r.set_id(id);
-  if (ev == nullptr || op.watch_flow->overflow || Buffered() >= server_->config().outbound_high_water) {
+  // Lagging: past the high-water mark with nothing drained for a while (the client does not
+  // read), or past four times the mark whatever it does (a replay burst stays within that).
+  const size_t mark = server_->config().outbound_high_water;
+  const bool stalled = Buffered() >= mark && Clock::now() - last_drain_ >= kNotReading;
+  if (ev == nullptr || op.watch_flow->overflow || stalled || Buffered() >= 4 * mark) {
     ChangeEvent lag;
     lag.kind = ChangeEvent::Kind::kLagged;
     lag.dataset = op.watch_dataset;

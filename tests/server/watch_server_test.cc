@@ -203,7 +203,7 @@ TEST_F(WatchServerTest, AWatcherThatStopsReadingLagsWithinABoundAndResumes) {
   // Events of transactions touching 4,000 frames each (~8 KB): the socket's buffers fill, then
   // the connection's queue reaches its high-water mark.
   std::this_thread::sleep_for(milliseconds(200));
-  const int kCommits = 120;
+  const int kCommits = 250;
   uint64_t last = 0;
   int64_t max_buffered = 0;
   for (int i = 0; i < kCommits; ++i) {
@@ -224,7 +224,8 @@ TEST_F(WatchServerTest, AWatcherThatStopsReadingLagsWithinABoundAndResumes) {
     }
   }
   // What the server holds for all connections stays near the watcher's high-water mark.
-  EXPECT_LT(max_buffered, 512 << 10) << "a watcher that does not read grew the server";
+  // (The mark is 256 KiB; a watch may queue up to four times it while a replay bursts.)
+  EXPECT_LT(max_buffered, 1536 << 10) << "a watcher that does not read grew the server";
   // Now read: events, then LAGGED naming where to resume.
   uint64_t seen = 0, resume = 0;
   bool lagged = false;
