@@ -23,8 +23,13 @@ int main(int argc, char** argv) {
                "over when it is gone (its lease ends), instead of refusing to start; always on "
                "with --store rados:...");
   app.add_option("--follow-interval-ms", c.follow_interval_ms,
-                 "how often a reading server looks for the writer's new commits")
+                 "how often a reading server looks for the writer's new commits without being told "
+                 "(it also watches the writer and follows each commit at once)")
       ->capture_default_str()->check(CLI::Range(10u, 60000u));
+  bool no_follow_events = false;
+  app.add_flag("--no-follow-events", no_follow_events,
+               "with --follow: look for the writer's changes every --follow-interval-ms only, "
+               "without watching the writer for them");
   app.add_option("--advertise", c.advertise,
                  "HOST:PORT that clients should send writes to while this server is the writer "
                  "(default: the TCP --listen address)");
@@ -95,6 +100,7 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
   c.sync = !no_sync;
   c.outbound_high_water = connection_buffer_kib << 10;
+  c.follow_events = !no_follow_events;
   c.memory_budget = memory_budget_mb << 20;
   c.follow = follow || !c.store.empty();
   hvdb::server::SetLogLevel(log_level == "error"  ? hvdb::server::LogLevel::kError

@@ -79,7 +79,8 @@ void Server::FollowLoop() {
   std::string last_error;
   // Woken by the writer's watch events (LeaderWatchLoop); the interval is the safety net for
   // when that connection is down.
-  std::thread watcher([this] { LeaderWatchLoop(); });
+  std::thread watcher;
+  if (config_.follow_events) watcher = std::thread([this] { LeaderWatchLoop(); });
   std::unique_lock<std::mutex> l(follow_mu_);
   for (;;) {
     follow_cv_.wait_for(l, std::chrono::milliseconds(config_.follow_interval_ms),
@@ -112,7 +113,7 @@ void Server::FollowLoop() {
   }
   watch_stop_ = true;
   l.unlock();
-  watcher.join();
+  if (watcher.joinable()) watcher.join();
 }
 
 void Server::LeaderWatchLoop() {

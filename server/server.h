@@ -47,6 +47,9 @@ struct Config {
   // once its lease ends, instead of refusing to start. On by default with a RADOS store.
   bool follow = false;
   uint32_t follow_interval_ms = 100;
+  // A reader also watches the writer's changes (a watch on its LEADER address) and follows
+  // each at once; the interval is then only the safety net. Off: it follows every interval.
+  bool follow_events = true;
   // Where this server tells clients to send writes while it is the writer ("": its TCP
   // --listen address with the bound port).
   std::string advertise;

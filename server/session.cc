@@ -403,6 +403,11 @@ void Session::WriteNext() {
     for (size_t k = 0; k < frames; ++k) {
       OutFrame& done = self->out_.front();
       self->bytes_queued_ -= done.bytes();
+      if (done.watch != 0) {
+        if (auto w = self->ops_.find(done.watch); w != self->ops_.end()) {
+          w->second->watch_queued -= std::min(w->second->watch_queued, done.bytes());
+        }
+      }
       self->server_->AddBuffered(-static_cast<int64_t>(done.bytes()));
       // The records' buffer serves the next batch (a few, so memory stays
       // bounded by the flow control's high-water mark).

@@ -85,6 +85,7 @@ class Session : public std::enable_shared_from_this<Session> {
     std::shared_ptr<WatchFlow> watch_flow;
     std::string watch_dataset;
     uint64_t watch_sent_lsn = 0;
+    size_t watch_queued = 0;  // bytes of its events queued, not yet written
   };
   // Reads the next message (the Hello, then requests) and serves it.
   void ReadNext();

@@ -58,11 +58,15 @@ void Session::OnWatchEvent(uint64_t id, const ChangeEvent* ev) {
   Op& op = *it->second;
   wire::Response r;
   r.set_id(id);
-  // Lagging: past the high-water mark with nothing drained for a while (the client does not
-  // read), or past four times the mark whatever it does (a replay burst stays within that).
+  // Everything up to the replay's end is queued once its LIVE event comes.
+  if (ev != nullptr && ev->kind == ChangeEvent::Kind::kLive) op.watch_sent_lsn = ev->lsn;
+  // Lagging: the watch's own events past the connection's high-water mark with nothing drained
+  // for a while (the client does not read), or past four times the mark whatever it does (a
+  // replay burst stays within that). Other requests' results on the connection do not count:
+  // their own flow control bounds them.
   const size_t mark = server_->config().outbound_high_water;
-  const bool stalled = Buffered() >= mark && Clock::now() - last_drain_ >= kNotReading;
-  if (ev == nullptr || op.watch_flow->overflow || stalled || Buffered() >= 4 * mark) {
+  const bool stalled = op.watch_queued >= mark && Clock::now() - last_drain_ >= kNotReading;
+  if (ev == nullptr || op.watch_flow->overflow || stalled || op.watch_queued >= 4 * mark) {
     ChangeEvent lag;
     lag.kind = ChangeEvent::Kind::kLagged;
     lag.dataset = op.watch_dataset;
@@ -72,7 +76,10 @@ void Session::OnWatchEvent(uint64_t id, const ChangeEvent* ev) {
     return Finish(id);
   }
   wire::ToWire(*ev, r.mutable_event());
-  Send(r);
+  OutFrame f = transport_->Encode(r, {}, 0);
+  f.watch = id;
+  op.watch_queued += f.bytes();
+  Enqueue(std::move(f));
   if (ev->kind == ChangeEvent::Kind::kDropped) return Finish(id);
   op.watch_sent_lsn = ev->lsn;
 }

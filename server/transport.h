@@ -36,6 +36,7 @@ struct OutFrame {
   size_t count = 0;
   std::string tail;
   bool text = false;  // a WebSocket text message
+  uint64_t watch = 0;  // the watch request whose event this is (its own queue is bounded)
   size_t bytes() const { return head.size() + count * sizeof(Point) + tail.size(); }
 };
 
