@@ -1,8 +1,9 @@
 """Live mode of the web viewer (web/src/live.js) in a real browser against a real hvdb-server:
 the page opened with ?live=1 watches a dataset; frames committed by the `hvdb` command line
 appear on screen within seconds, without moving the camera; pausing keeps the frame on screen
-while new ones arrive, and "return to live" shows the newest. A LAGGED event resumes the watch
-from its LSN; DROPPED is said in the status bar. Latencies (event at the page -> frame on
+while new ones arrive, and "return to live" shows the newest. An edit of the frame on screen
+while live stays on it. A LAGGED event resumes the watch without replaying what the page has;
+DROPPED is said in the status bar. Latencies (event at the page -> frame on
 screen, and the command's return -> on screen) are measured, not asserted; with
 HVDB_WEB_RESULTS set they are written next to it, to web_live.json."""
 import glob
@@ -150,8 +151,20 @@ def test_lagged_resumes_and_dropped_is_shown(browser, server, files, live_datase
     if not browser.execute_script("return !!(window.hvdbLive && window.hvdbLive.on)"):
         pytest.skip("needs the page of the previous tests")
     call(browser, "window.hvdbLive.goLive()")
-    last = int(browser.execute_script("return window.hvdbLive.lastLsn"))
+    # An edit of the frame on screen while live: its own COMMIT event comes back too; the page
+    # reloads the frame once more, stays on it and shows the selection.
     head = browser.execute_script("return window.hvdbLive.head")
+    call(browser, "window.hvdbApp.marquee(200, 80, 440, 300)")
+    call(browser, "window.hvdbApp.idle()")
+    sel = browser.execute_script("return window.hvdbApp.lastSelect")
+    WebDriverWait(browser, 30).until(lambda d: d.execute_script(
+        "return window.hvdbLive.frames.some(f => f.kind === 'WATCH_COMMIT')"))
+    WebDriverWait(browser, 30).until(lambda d: d.execute_script(
+        "const a = window.hvdbApp.app; return a.target.done && !a.target.stale"))
+    assert shown_frame(browser) == head
+    assert browser.execute_script("return window.hvdbApp.selectedCount()") == int(sel["selected"]) > 0
+    assert browser.execute_script("return window.hvdbApp.lastError") is None
+    last = int(browser.execute_script("return window.hvdbLive.lastLsn"))
     resumes = browser.execute_script("return window.hvdbLive.resumes")
     shown = browser.execute_script("return window.hvdbLive.onScreen.length")
     # As if the server had ended the watch (its LSN two changes back): the page resumes after
