@@ -54,7 +54,7 @@ export function decodeBinary(buffer) {
 // The body kind of a Response (its oneof field), e.g. "batch", "done", "error".
 function bodyKind(r) {
   for (const k of ['error', 'batch', 'done', 'render', 'info', 'datasets', 'commit', 'selected',
-    'graph_cut', 'copied', 'pong', 'stats', 'ack']) {
+    'graph_cut', 'copied', 'pong', 'stats', 'ack', 'event']) {
     if (r[k] !== undefined && r[k] !== null) return k;
   }
   return null;
@@ -138,7 +138,8 @@ export class Connection {
   // Sends {id, ...body}. Resolves with the final Response (JSON, with `sections`/`columns`
   // attached for binary replies); rejects with HvdbError on an error reply.
   // onPart(decoded) is called for every streamed part: each query batch ({response, columns,
-  // sections}) and each render reply (the last one too).
+  // sections}), each render reply (the last one too) and each watch event (a watch resolves
+  // with its DROPPED or LAGGED event, and rejects with CANCELLED once cancelled).
   request(body, { onPart = null, onId = null } = {}) {
     if (!this.isOpen) return Promise.reject(new HvdbError('CLOSED', 'not connected to the server'));
     const id = this.nextId++;
@@ -212,7 +213,9 @@ export class Connection {
       p.reject(new HvdbError(r.error.code, r.error.message, r.error.parameter));
       return;
     }
-    if (kind === 'batch' || kind === 'render') {
+    // A watch's events (WatchEvent) stream like batches; DROPPED and LAGGED end the watch.
+    const watchEnds = kind === 'event' && (r.event.kind === 'WATCH_DROPPED' || r.event.kind === 'WATCH_LAGGED');
+    if (kind === 'batch' || kind === 'render' || kind === 'event') {
       if (p.onPart) {
         try {
           p.onPart(decoded);
@@ -226,6 +229,7 @@ export class Connection {
       }
       if (kind === 'batch') return;
       if (kind === 'render' && !r.render.last) return;
+      if (kind === 'event' && !watchEnds) return;
     }
     this.pending.delete(id);
     r.sections = decoded.sections;

@@ -1,7 +1,7 @@
 // The hvdb viewer: wires the connection, renderer, frame store, player, editor and UI
 // together, reads the URL parameters and exposes window.hvdbApp (the test hooks).
 //   /?dataset=NAME&t=SECONDS&look_at=EX,EY,EZ,TX,TY,TZ&fov=DEG&size=WxH&lod=N&token=T
-//     &renderer=points&splats=sprites|quads&bit=N
+//     &renderer=points&splats=sprites|quads&bit=N&live=1
 // The token may also be given as #token=T (a fragment is not sent to servers nor logged).
 import { Connection, frameWindow, allTimeWindow, sliceRegion } from './connection.js';
 import { ViewCamera, NavigationController, wireCamera, DEFAULT_UP } from './camera.js';
@@ -9,6 +9,7 @@ import { SplatRenderer } from './renderer.js';
 import { FrameStore, Player } from './player.js';
 import { Editor } from './editor.js';
 import { UI } from './ui.js';
+import { Live } from './live.js';
 
 const kMaxLod = 12;
 
@@ -30,6 +31,7 @@ function parseParams() {
     renderer: q.get('renderer') === 'points' ? 'points' : 'splats',
     splats: ['sprites', 'quads'].includes(q.get('splats')) ? q.get('splats') : 'auto',
     bit: q.has('bit') ? Number(q.get('bit')) : 0,
+    live: ['1', 'true', 'yes'].includes(q.get('live')),
   };
   if (q.has('size')) {
     const m = /^(\d+)x(\d+)$/.exec(q.get('size'));
@@ -76,6 +78,7 @@ class App {
     this.cam.fovDeg = params.fov;
     this.ui = null;
     this.sequence = null;
+    this.live = new Live(this);  // live mode (the Live button, ?live=1)
   }
 
   async start() {
@@ -112,6 +115,7 @@ class App {
     if (!names.includes(name)) throw new Error(`dataset "${name}" is not on the server (it has: ${names.join(', ')})`);
     this.ui.setDatasets(names, name);
     await this.openDataset(name, true);
+    if (this.params.live) await this.live.start();
   }
 
   onConnState(state, detail) {
@@ -164,6 +168,8 @@ class App {
 
   async openDataset(name, initial = false) {
     this.player.stop();
+    const wasLive = this.live.on && name !== this.dataset;
+    if (wasLive) this.live.stop();
     const reply = await this.conn.request({ describe: { dataset: name } });
     this.info = reply.info;
     this.info.fps = Number(this.info.fps) || 30;
@@ -189,6 +195,7 @@ class App {
     const firstQueryAt = this.firstQueryAt;
     await this.gotoFrame(f);
     if (initial) this.metrics.firstFrameMs = performance.now() - firstQueryAt;
+    if (wasLive) await this.live.start();  // live mode follows the dataset chosen
   }
 
   frameAt(t) {
@@ -272,11 +279,13 @@ class App {
     this.store.sweep();
     if (d.done) this.metrics.lastQueryMs = d.loadMs;
     this.ui.setFrame(this.frame, this.info.frame_count, this.info.fps, this.viewMode === 'slice');
+    if (this.live.on) this.live.updateUi();
     if (immediate) this.drawNow(resolution); else this.requestDraw();
   }
 
   stepFrame(delta) {
     this.player.stop();
+    this.live.userSeek();
     const n = this.info.frame_count;
     return this.gotoFrame(((this.frame + delta) % n + n) % n);
   }
@@ -539,6 +548,7 @@ function exposeHooks(app, ready) {
     },
     async gotoFrame(i) {
       app.player.stop();
+      app.live.userSeek();
       await app.gotoFrame(i);
       return true;
     },
@@ -585,6 +595,7 @@ function boot() {
   });
   if (app) {
     exposeHooks(app, ready);
+    window.hvdbLive = app.live.hooks();
     // A page leaving (or frozen in the back/forward cache) gives its connection back to the
     // server; coming back from that cache starts afresh.
     window.addEventListener('pagehide', () => { if (app.conn) app.conn.close(); });

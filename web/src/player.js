@@ -69,9 +69,10 @@ export class FrameStore {
 
   // Starts (or returns) the query for `key`. Resolves with the FrameData when it is done.
   // Without a connection nothing is sent: what is cached (even a failed entry) is returned.
+  // A `stale` entry (a live change touched its frame after its query was sent) is queried anew.
   load(key, { dataset, frame, region, lod }) {
     let d = this.get(key);
-    if (d && !d.error) return d;
+    if (d && !d.error && !d.stale) return d;
     if (d && !this.conn.isOpen) return d;
     if (d) {
       this.map.delete(key);
@@ -242,6 +243,20 @@ export class FrameStore {
     }
   }
 
+  // A change committed at `since` (performance.now()) touched these frames: entries of them
+  // (and slices, which span all frames) queried before it are stale. Those not on screen are
+  // dropped; those on screen stay until load() replaces them (no blank picture meanwhile).
+  invalidateFrames(frames, since) {
+    const touched = new Set(frames);
+    for (const [k, d] of [...this.map]) {
+      if (!(d.frame === -1 || touched.has(d.frame)) || d.sentAt >= since) continue;
+      d.stale = true;
+      if (this.inUse(d)) continue;
+      this.map.delete(k);
+      this.dispose(d);
+    }
+  }
+
   // Another dataset: nothing cached applies, nor its levels of detail.
   reset() {
     this.invalidate();
@@ -273,7 +288,10 @@ export class Player {
     if (!n || a.viewMode !== 'frames' || !a.conn.isOpen) return;
     let inFlight = 0;
     for (const d of a.store.map.values()) if (!d.done && !d.error) ++inFlight;
+    // In live mode the newest frame is the end: nothing to wrap around to (frame 0 is old news).
+    const wrap = !a.live?.on;
     for (let k = 1; k <= ahead && inFlight < 4; ++k) {
+      if (f + k >= n && !wrap) break;
       const g = (f + k) % n;
       const key = a.frameKey(g);
       const d = a.store.get(key);

@@ -93,10 +93,20 @@ export class UI {
 
   bindTimeline() {
     const a = this.app;
-    $('play').addEventListener('click', () => a.player.toggle());
+    $('play').addEventListener('click', () => this.togglePlay());
     $('step-back').addEventListener('click', this.run(() => a.stepFrame(-1)));
     $('step-forward').addEventListener('click', this.run(() => a.stepFrame(1)));
-    $('frame-slider').addEventListener('input', this.run((e) => { a.player.stop(); return a.gotoFrame(Number(e.target.value)); }));
+    $('frame-slider').addEventListener('input', this.run((e) => { a.player.stop(); a.live.userSeek(); return a.gotoFrame(Number(e.target.value)); }));
+    $('live').addEventListener('click', this.run(() => a.live.toggle()));
+    $('live-pause').addEventListener('click', () => a.live.pause());
+    $('live-return').addEventListener('click', this.run(() => a.live.goLive()));
+  }
+
+  // Playback moves in time: live mode pauses rather than pull the play head back.
+  togglePlay() {
+    const a = this.app;
+    if (!a.player.playing) a.live.userSeek();
+    a.player.toggle();
   }
 
   bindKeys() {
@@ -128,10 +138,11 @@ export class UI {
       else if (ctrl) handled = false;
       else if (k === 'Tab') { if (!e.shiftKey && !e.altKey && !isFormControl(document.activeElement)) this.toggleFly(); else handled = false; }
       else if (a.cam.fly && 'wasdqe'.includes(lower) && lower.length === 1) handled = false;  // flying
-      else if (k === ' ') { if (!e.repeat) a.player.toggle(); }
+      else if (k === ' ') { if (!e.repeat) this.togglePlay(); }
       else if (k === 'ArrowLeft') a.stepFrame(-1).catch(fail);
       else if (k === 'ArrowRight') a.stepFrame(1).catch(fail);
-      else if (k === 'Home') { a.player.stop(); a.gotoFrame(0).catch(fail); }
+      else if (k === 'Home') { a.player.stop(); a.live.userSeek(); a.gotoFrame(0).catch(fail); }
+      else if (k === 'End') { if (a.live.on) a.live.goLive().catch(fail); else handled = false; }
       else if (k === 'Delete') { if (clipboardOk()) edit(() => a.editor.copy(true)); else handled = false; }
       else if (k === '?' || lower === 'h') this.toggleHelp();
       else if (k === 'Escape') this.toggleHelp(false);
@@ -169,6 +180,17 @@ export class UI {
   setPlaying(playing) { $('play').textContent = playing ? 'Pause' : 'Play'; }
 
   setOverlay(on) { $('overlay').checked = on; }
+
+  // Live mode's buttons: on (subscribed), following the newest frame or paused `behind` it.
+  setLive(on, following, behind) {
+    $('live').classList.toggle('active', on);
+    $('live').textContent = on ? '● Live' : 'Live';
+    $('live').title = on ? 'Live mode on: click to leave it' : 'Live: follow the newest frame as it is committed';
+    $('live-pause').hidden = $('live-return').hidden = !on;
+    $('live-pause').disabled = !following;
+    $('live-return').disabled = following;
+    $('live-return').textContent = !following && behind > 0 ? `Return to live (+${behind})` : 'Return to live';
+  }
 
   setDatasets(names, current) {
     const sel = $('dataset');
