@@ -287,6 +287,63 @@ class Query {
   bool clipped_ = false;
 };
 
+// A watch of a dataset's changes (client::Watcher): its own connection when remote, a queue fed
+// by the engine when embedded; events as dicts. hvdb.Database.watch iterates over it.
+class Watch {
+ public:
+  Watch(std::shared_ptr<void> keep, std::unique_ptr<client::Watcher> w)
+      : keep_(std::move(keep)), w_(std::move(w)) {}
+  // The next event as a dict, or None if none came within timeout_s (the watch goes on) or it
+  // has ended (ended() then says so). Waits in short steps so that Ctrl-C interrupts it.
+  py::object Next(double timeout_s) {
+    if (!w_) return py::none();
+    const auto end = std::chrono::steady_clock::now() +
+                     std::chrono::microseconds(static_cast<int64_t>(timeout_s * 1e6));
+    ChangeEvent ev;
+    for (;;) {
+      auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+          end - std::chrono::steady_clock::now());
+      Result<bool> got(false);
+      {
+        py::gil_scoped_release release;
+        got = w_->Next(&ev, std::max(std::chrono::milliseconds(0),
+                                     std::min(left, std::chrono::milliseconds(100))));
+      }
+      if (!got.ok()) {
+        Close();
+        Throw(got.status());
+      }
+      if (*got) break;
+      if (PyErr_CheckSignals() != 0) throw py::error_already_set();
+      if (left.count() <= 0) return py::none();
+    }
+    py::dict d;
+    d["lsn"] = ev.lsn;
+    d["kind"] = ChangeKindName(ev.kind);
+    d["dataset"] = ev.dataset;
+    if (ev.kind != ChangeEvent::Kind::kLive && ev.kind != ChangeEvent::Kind::kLagged &&
+        ev.kind != ChangeEvent::Kind::kDropped) {
+      d["frames"] = ev.frames;
+      d["points"] = ev.points;
+      d["removed"] = ev.removed;
+      if (ev.kind == ChangeEvent::Kind::kRevert) d["reverts"] = ev.reverts;
+    }
+    if (ev.kind == ChangeEvent::Kind::kLagged || ev.kind == ChangeEvent::Kind::kDropped) ended_ = true;
+    return d;
+  }
+  bool ended() const { return ended_ || !w_; }
+  void Close() {
+    std::unique_ptr<client::Watcher> w = std::move(w_);
+    py::gil_scoped_release release;
+    w.reset();  // cancels it on the server
+  }
+
+ private:
+  std::shared_ptr<void> keep_;  // the backend outlives the watch
+  std::unique_ptr<client::Watcher> w_;
+  bool ended_ = false;
+};
+
 class Database {
  public:
   explicit Database(std::unique_ptr<client::Backend> b)
@@ -419,6 +476,14 @@ class Database {
       }
     }
     return CommitDict(Take(Call([&](client::Backend& b) { return b.Commit(name, txn); })));
+  }
+
+  Watch StartWatch(const std::string& name, std::optional<uint64_t> from_lsn) {
+    if (!shared_) Throw(Status::InvalidArgument("the database is closed"));
+    std::shared_ptr<Shared> s = shared_;
+    std::unique_ptr<client::Watcher> w =
+        Take(Call([&](client::Backend& b) { return b.Watch(name, from_lsn); }));
+    return Watch(s, std::move(w));
   }
 
   py::dict Revert(const std::string& name, uint64_t lsn) {
@@ -629,6 +694,11 @@ PYBIND11_MODULE(_hvdb, m) {
       .def_property_readonly("frames", &Query::frames)
       .def_property_readonly("clipped", &Query::clipped);
 
+  py::class_<Watch>(m, "_Watch")
+      .def("next", &Watch::Next, "timeout"_a)
+      .def("close", &Watch::Close)
+      .def_property_readonly("ended", &Watch::ended);
+
   py::class_<Database>(m, "_Database")
       .def_static("open", &Database::Open, "dir"_a, "cache_mb"_a)
       .def_static("connect", &Database::Connect, "address"_a, "token"_a, "wire"_a)
@@ -644,6 +714,7 @@ PYBIND11_MODULE(_hvdb, m) {
       .def("bulk_load", &Database::BulkLoad)
       .def("commit", &Database::Commit)
       .def("revert", &Database::Revert)
+      .def("watch", &Database::StartWatch, "name"_a, "from_lsn"_a = py::none())
       .def("select", &Database::Select)
       .def("graphcut", &Database::GraphCut)
       .def("copy", &Database::Copy)

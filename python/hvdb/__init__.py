@@ -348,6 +348,19 @@ def connect(address="127.0.0.1:7878", token=None, wire="records"):
         raise Unavailable(f"cannot reach hvdb-server at {address}: {e}") from None
 
 
+def _watch_events(w, timeout):
+    try:
+        while True:
+            ev = w.next(1e9 if timeout is None else float(timeout))
+            if ev is None:
+                return
+            yield ev
+            if w.ended:
+                return
+    finally:
+        w.close()
+
+
 class Database:
     """A database: embedded on a data directory (hvdb.open) or an hvdb-server (hvdb.connect).
     A context manager: closes on exit."""
@@ -508,6 +521,17 @@ class Database:
     def redo(self, dataset, undo_lsn):
         """Re-applies what an undo reverted: reverts the undo's commit."""
         return self._call("revert", dataset, _uint64("undo_lsn", undo_lsn))
+
+    def watch(self, dataset, from_lsn=None, timeout=None):
+        """Yields the dataset's changes as they are committed, each a dict: lsn, kind ("commit",
+        "revert", "bulk"), frames, points (added), removed (and reverts, for a revert). With
+        from_lsn, the changes after it come first (from the log), then a {"kind": "live"} event,
+        then the new ones; without, "live" comes first. Ends after a "dropped" event, or after a
+        "lagged" one (the reader fell behind: resume with from_lsn=event["lsn"]), or when no
+        event came for `timeout` seconds (None: waits for ever; Ctrl-C stops it). Embedded, it
+        sees the changes made through this process; remote, every change the server makes."""
+        w = self._call("watch", dataset, None if from_lsn is None else _uint64("from_lsn", from_lsn))
+        return _watch_events(w, timeout)
 
     # -- editing operators (thesis ch. 9) --
     def select(self, dataset, bit, x=None, y=None, z=None, t=None, mode="replace"):

@@ -327,3 +327,32 @@ def test_a_reading_server_follows_the_writer_and_refuses_writes(seeded_dir, tmp_
         r.close()
         reader.stop()
         writer.stop()
+
+
+def test_watch_yields_each_change_in_order_and_resumes_from_an_lsn(env):
+    """db.watch: the same events embedded and through a server; a resume from an LSN replays
+    exactly what came after it, then goes live."""
+    db = env.db
+    start = db.info(DATASET)["last_lsn"]
+    events = db.watch(DATASET, timeout=5)
+    assert next(events) == {"lsn": start, "kind": "live", "dataset": DATASET}
+    new = hvdb.points(np.array([[5.0, 5.0, 5.0], [5.1, 5.0, 5.0]]), frame=2)
+    with db.transaction(DATASET) as tx:
+        tx.insert(new)
+    db.load(DATASET, 7, hvdb.points(np.array([[1.0, 2.0, 3.0]] * 5), frame=7))
+    undo = db.undo(DATASET, tx.lsn)
+    got = [next(events) for _ in range(3)]
+    assert [e["kind"] for e in got] == ["commit", "bulk", "revert"]
+    assert [e["lsn"] for e in got] == [tx.lsn, tx.lsn + 1, undo["lsn"]]
+    assert got[0]["frames"] == [2] and got[0]["points"] == 2
+    assert got[1]["frames"] == [7] and got[1]["points"] == 5
+    assert got[2]["reverts"] == tx.lsn and got[2]["removed"] == 2
+    events.close()
+    # Resumed after the commit: the bulk load and the revert, then live.
+    again = list(db.watch(DATASET, from_lsn=tx.lsn, timeout=0.5))
+    assert [e["kind"] for e in again] == ["bulk", "revert", "live"]
+    assert again[-1]["lsn"] == undo["lsn"]
+    with pytest.raises(hvdb.InvalidArgument, match="past"):
+        next(db.watch(DATASET, from_lsn=undo["lsn"] + 10))
+    with pytest.raises(hvdb.NotFound, match="no_such_dataset"):
+        next(db.watch("no_such_dataset"))
