@@ -404,8 +404,10 @@ void Session::WriteNext() {
       OutFrame& done = self->out_.front();
       self->bytes_queued_ -= done.bytes();
       if (done.watch != 0) {
-        if (auto w = self->ops_.find(done.watch); w != self->ops_.end()) {
+        if (auto w = self->ops_.find(done.watch);
+            w != self->ops_.end() && w->second->watch_flow != nullptr) {
           w->second->watch_queued -= std::min(w->second->watch_queued, done.bytes());
+          w->second->watch_flow->Written(done.watch_cost);
         }
       }
       self->server_->AddBuffered(-static_cast<int64_t>(done.bytes()));

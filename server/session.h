@@ -8,6 +8,7 @@
 
 #include <atomic>
 #include <chrono>
+#include <condition_variable>
 #include <deque>
 #include <map>
 #include <memory>
@@ -60,6 +61,7 @@ class Session : public std::enable_shared_from_this<Session> {
     std::unique_ptr<Cursor> cursor;
     void Cancel() {
       cancelled = true;
+      if (watch_flow) watch_flow->Close();
       std::lock_guard<std::mutex> l(mu);
       if (cursor) cursor->Cancel();
     }
@@ -80,6 +82,22 @@ class Session : public std::enable_shared_from_this<Session> {
     struct WatchFlow {
       std::atomic<uint32_t> inflight{0};
       std::atomic<bool> overflow{false};
+      // Events posted and not yet written, by WatchCost: a replay waits while kReplayWindow
+      // are (pacing).
+      std::mutex mu;
+      std::condition_variable cv;
+      size_t unwritten = 0;
+      bool closed = false;
+      void Close() {
+        std::lock_guard<std::mutex> l(mu);
+        closed = true;
+        cv.notify_all();
+      }
+      void Written(size_t cost) {
+        std::lock_guard<std::mutex> l(mu);
+        unwritten -= std::min(unwritten, cost);
+        cv.notify_all();
+      }
     };
     std::unique_ptr<WatchHandle> watch;
     std::shared_ptr<WatchFlow> watch_flow;
@@ -118,6 +136,11 @@ class Session : public std::enable_shared_from_this<Session> {
   void OnWatchEvent(uint64_t id, const ChangeEvent* ev);
   // Events on their way from the publishing thread to the strand, per watch.
   static constexpr uint32_t kMaxWatchInflight = 4096;
+  // A replay (a watch resumed from an LSN) runs ahead of what the client has read by at most
+  // this many bytes of events (WatchCost); stuck for kNotReading, it ends with LAGGED.
+  static constexpr size_t kReplayWindow = 256u << 10;
+  // An event's size on the wire, about (its frames dominate).
+  static size_t WatchCost(const ChangeEvent& ev) { return 64 + 5 * ev.frames.size(); }
 
   // ---- session_stream.cc ----
   void HandleQuery(std::shared_ptr<Op> op, const wire::Query& q);

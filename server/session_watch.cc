@@ -1,8 +1,9 @@
 // Watch requests (docs/PROTOCOL.md, "Watching"): a subscription to a dataset's changes whose
-// events are queued on the connection as they are published. Memory stays bounded for a client
-// that stops reading: past the connection's high-water mark with nothing drained for a second,
-// past four times the mark, or with kMaxWatchInflight events not yet on the strand, the watch
-// ends with LAGGED, naming the LSN to resume from.
+// events are queued on the connection as they are published; a replay from the log is paced by
+// what the client reads. Memory stays bounded for a client that stops reading: with its events
+// past the connection's high-water mark and nothing drained for a second, past four times the
+// mark, with kMaxWatchInflight events not yet on the strand, or a replay stuck for a second, the
+// watch ends with LAGGED, naming the LSN to resume from.
 #include "protocol/convert.h"
 #include "server/requests.h"
 #include "server/session.h"
@@ -20,11 +21,27 @@ void Session::HandleWatch(std::shared_ptr<Op> op, const wire::Watch& w) {
   op->watch_sent_lsn = from.value_or(0);
   std::weak_ptr<Session> weak = shared_from_this();
   const uint64_t id = op->id;
-  // Runs on the publishing thread (a commit's leader, a follower's refresh): it only posts.
+  // Runs on the publishing thread (a commit's leader, a follower's refresh), where it only
+  // posts; or, for a replay, on the worker that subscribes, outside every lock, where it waits
+  // for the client to read what came before (pacing), at most kNotReading.
   ChangeFn fn = [weak, flow, strand = strand_, id](const ChangeEvent& ev) {
     if (flow->overflow.load()) return;
-    if (flow->inflight.fetch_add(1) >= kMaxWatchInflight) {
-      flow->inflight.fetch_sub(1);
+    bool lag = false;
+    {
+      std::unique_lock<std::mutex> l(flow->mu);
+      if (ev.replayed) {
+        lag = !flow->cv.wait_for(l, kNotReading, [&] {
+          return flow->unwritten < kReplayWindow || flow->closed;
+        });
+      }
+      if (flow->closed) return;
+      if (!lag && flow->inflight.load() >= kMaxWatchInflight) lag = true;
+      if (!lag) {
+        flow->unwritten += WatchCost(ev);
+        flow->inflight.fetch_add(1);
+      }
+    }
+    if (lag) {
       flow->overflow = true;
       asio::post(strand, [weak, id] {
         if (auto s = weak.lock()) s->OnWatchEvent(id, nullptr);
@@ -73,14 +90,19 @@ void Session::OnWatchEvent(uint64_t id, const ChangeEvent* ev) {
     lag.lsn = op.watch_sent_lsn;
     wire::ToWire(lag, r.mutable_event());
     Send(r);
+    it->second->Cancel();  // a replay waiting to send more stops
     return Finish(id);
   }
   wire::ToWire(*ev, r.mutable_event());
   OutFrame f = transport_->Encode(r, {}, 0);
   f.watch = id;
+  f.watch_cost = WatchCost(*ev);
   op.watch_queued += f.bytes();
   Enqueue(std::move(f));
-  if (ev->kind == ChangeEvent::Kind::kDropped) return Finish(id);
+  if (ev->kind == ChangeEvent::Kind::kDropped) {
+    it->second->Cancel();
+    return Finish(id);
+  }
   op.watch_sent_lsn = ev->lsn;
 }
 

@@ -36,7 +36,8 @@ struct OutFrame {
   size_t count = 0;
   std::string tail;
   bool text = false;  // a WebSocket text message
-  uint64_t watch = 0;  // the watch request whose event this is (its own queue is bounded)
+  uint64_t watch = 0;       // the watch request whose event this is (its own queue is bounded)
+  size_t watch_cost = 0;    // and the event's Session::WatchCost
   size_t bytes() const { return head.size() + count * sizeof(Point) + tail.size(); }
 };
 

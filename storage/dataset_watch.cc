@@ -44,7 +44,10 @@ Result<std::unique_ptr<WatchHandle>> DatasetImpl::Watch(std::optional<uint64_t> 
   }
   if (after < upto) {
     HVDB_ASSIGN_OR_RETURN(std::vector<ChangeEvent> past, EventsBetween(after, upto));
-    for (const ChangeEvent& ev : past) fn(ev);
+    for (ChangeEvent& ev : past) {
+      ev.replayed = true;
+      fn(ev);
+    }
   }
   sub->Go(upto, info_.name);
   return sub;

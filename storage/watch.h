@@ -35,6 +35,9 @@ struct ChangeEvent {
   uint64_t points = 0;           // points added
   uint64_t removed = 0;          // points removed
   uint64_t reverts = 0;          // kRevert: the transaction undone
+  // Read from the log by a watch that resumed from an LSN, on the thread that asked for the
+  // watch and outside every lock: the only events a subscriber may wait on (to pace a replay).
+  bool replayed = false;
 };
 const char* ChangeKindName(ChangeEvent::Kind kind);
 // The event of a log record (a transaction, a revert, or a bulk-load marker).
