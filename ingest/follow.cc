@@ -25,7 +25,11 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-std::string Normal(const std::string& path) { return fs::path(path).lexically_normal().string(); }
+// Absolute: inotify names events by the watched directory, which may be the recording's parent.
+std::string Normal(const std::string& path) {
+  std::error_code ec;
+  return fs::absolute(path, ec).lexically_normal().string();
+}
 
 double RealtimeNowS() {
   timespec ts{};
@@ -33,13 +37,15 @@ double RealtimeNowS() {
   return static_cast<double>(ts.tv_sec) + ts.tv_nsec * 1e-9;
 }
 
-// Newest modification time of the files (seconds since the epoch; 0 when none is there).
-double NewestMtime(const std::vector<std::string>& paths) {
+// When the last of the files landed (seconds since the epoch; 0 when none is there): the newest
+// of their mtimes and ctimes (a rename into place sets the ctime, not the mtime).
+double Landed(const std::vector<std::string>& paths) {
   double newest = 0;
   for (const std::string& p : paths) {
     struct stat st {};
-    if (::stat(p.c_str(), &st) == 0)
-      newest = std::max(newest, static_cast<double>(st.st_mtim.tv_sec) + st.st_mtim.tv_nsec * 1e-9);
+    if (::stat(p.c_str(), &st) != 0) continue;
+    newest = std::max({newest, static_cast<double>(st.st_mtim.tv_sec) + st.st_mtim.tv_nsec * 1e-9,
+                       static_cast<double>(st.st_ctim.tv_sec) + st.st_ctim.tv_nsec * 1e-9});
   }
   return newest;
 }
@@ -171,7 +177,8 @@ struct Slot {
   bool failed = false;                      // timed out
   std::string why;                          // what it still waits for
   std::optional<Clock::time_point> due, settled;
-  double landed = 0;                        // newest mtime of its files (epoch seconds)
+  double landed = 0;                        // when its last file landed (epoch seconds)
+  double load_ms = 0;                       // reading and decoding its files
 };
 
 double Median(std::vector<double> v) {
@@ -262,6 +269,7 @@ Result<FollowReport> FollowRecording(const std::string& dir, client::Backend& ba
     const int lo = std::max(0, next - radius), hi = std::min(rec.frames - 1, next + radius);
     std::vector<std::string> awaited;
     std::string waiting;
+    int settle_ms = follow.poll_ms;  // a file without an end marker settles then, with no event
     for (int j = lo; j <= hi; ++j) {
       Slot& s = slots[j];
       if (s.input || s.failed) continue;
@@ -272,16 +280,19 @@ Result<FollowReport> FollowRecording(const std::string& dir, client::Backend& ba
         const FileCheck c = files.Check(p, watcher.Closed(p));
         any = any || c.why != "missing";
         if (!c.complete) why += (why.empty() ? "" : "; ") + p + ": " + c.why;
+        if (c.settle_left_ms > 0) settle_ms = std::min(settle_ms, c.settle_left_ms);
       }
       started = started || any;
       if (why.empty()) {
         // Every file looks whole: decoding it is the final test (a file the markers were
         // wrong about is looked at again on its next change, until the timeout).
+        const auto t_load = Clock::now();
         Result<FrameInput> f = LoadFrame(rec, j, opt.skip_invalid);
+        s.load_ms = std::chrono::duration<double, std::milli>(Clock::now() - t_load).count();
         if (f.ok()) {
           s.input = std::make_shared<const FrameInput>(std::move(f).value());
           s.settled = Clock::now();
-          s.landed = NewestMtime(paths);
+          s.landed = Landed(paths);
           for (const std::string& p : paths) watcher.Forget(p);
           continue;
         }
@@ -305,13 +316,17 @@ Result<FollowReport> FollowRecording(const std::string& dir, client::Backend& ba
                      j, rec.SourceFrame(j), follow.frame_timeout, why.c_str());
         continue;
       }
-      if (waiting.empty()) waiting = why;
+      if (waiting.empty()) {  // the first file it lacks, for the status line
+        const size_t cut = why.find("; ");
+        waiting = (j == next ? "" : "frame " + std::to_string(j) + " (in its window): ") + why.substr(0, cut);
+        if (cut != std::string::npos) waiting += " (and more)";
+      }
       awaited.insert(awaited.end(), paths.begin(), paths.end());
     }
     if (!awaited.empty()) {
       status_line(next, waiting);
       if (watcher.WatchFor(awaited)) continue;  // look again now the watches are in place
-      int wait_ms = follow.poll_ms;
+      int wait_ms = settle_ms;
       for (int j = lo; j <= hi; ++j) {
         const Slot& s = slots[j];
         if (s.due && !s.input && !s.failed)
@@ -335,18 +350,19 @@ Result<FollowReport> FollowRecording(const std::string& dir, client::Backend& ba
       if (wlo > lo || whi < hi)
         std::fprintf(stderr, "hvdb-ingest: frame %d is made with frames %d..%d around it, not %d..%d "
                              "(a frame next to it timed out)\n", next, wlo, whi, lo, hi);
-      if (follow.verbose) {
-        std::printf("frame %d: taken\n", next);
-        std::fflush(stdout);
-      }
       double landed = 0;
       for (int j = wlo; j <= whi; ++j) landed = std::max(landed, slots[j].landed);
+      if (follow.verbose) {
+        std::printf("frame %d: taken %.0f ms after its last file landed\n", next, 1000 * (RealtimeNowS() - landed));
+        std::fflush(stdout);
+      }
       const FrameLoader load = [&](int w) -> Result<std::shared_ptr<const FrameInput>> {
         auto s = slots.find(w);
         if (s == slots.end() || !s->second.input) return Status::Internal("frame " + std::to_string(w) + " is not loaded");
         return s->second.input;
       };
       PreparedFrame d = PrepareFrame(rec, proc, opt, next, wlo, whi, load, &fr);
+      fr.stage_ms["load"] = centre.load_ms;  // read when it completed, before it was taken
       if (!d.status.ok()) {
         fr.status = "skipped";
         fr.error = d.status.ToString();

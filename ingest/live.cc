@@ -70,7 +70,7 @@ std::optional<FileCheck> PlyComplete(int fd, int64_t size) {
       expected += count * stride;
       count = std::atoll(b.c_str());
       stride = 0;
-    } else if (key == "property") {
+    } else if (key == "property" && count > 0) {  // "element face 0" with a list: no bytes
       if (a == "list") return std::nullopt;
       const int s = PlyTypeSize(a);
       if (s == 0) return std::nullopt;
@@ -136,13 +136,19 @@ FileCheck FileCompleteness::Check(const std::string& path, bool closed) {
   ::close(fd);
   if (marker) return *marker;
   // No end marker to look for: complete once the writer closed it, or when it has not
-  // changed for settle_ms.
+  // changed for settle_ms: by its mtime (a file already there when we first look), or between
+  // two looks (a filesystem whose clock is not ours).
   Seen& s = seen_[path];
   const int64_t now = NowMs();
   if (s.size != size || s.mtime_ns != mtime) s = Seen{size, mtime, now};
   if (size == 0) return {false, "empty"};
-  if (closed || now - s.since_ms >= settle_ms_) return {true, ""};
-  return {false, "still being written (changed in the last " + std::to_string(settle_ms_) + " ms)"};
+  timespec real{};
+  ::clock_gettime(CLOCK_REALTIME, &real);
+  const int64_t age_ms = (int64_t{real.tv_sec} * 1000000000 + real.tv_nsec - mtime) / 1000000;
+  if (closed || age_ms >= settle_ms_ || now - s.since_ms >= settle_ms_) return {true, ""};
+  FileCheck c{false, "still being written (changed in the last " + std::to_string(settle_ms_) + " ms)"};
+  c.settle_left_ms = static_cast<int>(std::max<int64_t>(1, settle_ms_ - std::max(age_ms, now - s.since_ms)));
+  return c;
 }
 
 // ---------------------------------------------------------------- replay

@@ -34,14 +34,15 @@ std::vector<std::string> FrameFiles(const Recording& recording, int i);
 //   EXR   OpenEXR finds every scanline/tile in it (InputFile::isComplete)
 //   PLY   its header is complete and, for binary bodies of fixed-size properties, the file
 //         holds every element; otherwise (ASCII, list properties) as "other"
-//   other (pose text files, ...) not modified for `settle_ms` (size and mtime unchanged
-//         between two looks that far apart), or closed by its writer / renamed into place
-//         since its last change (`closed`, from inotify)
+//   other (pose text files, ...) not modified for `settle_ms` (by its mtime, or size and
+//         mtime unchanged between two looks that far apart), or closed by its writer /
+//         renamed into place since its last change (`closed`, from inotify)
 // A file is only looked at under its final name; writers that write a temporary file and
 // rename it into place are complete at once.
 struct FileCheck {
   bool complete = false;
   std::string why;  // not complete: "missing", "incomplete: no IEND chunk yet", ...
+  int settle_left_ms = 0;  // "other" files: when to look again without an event
 };
 class FileCompleteness {
  public:
@@ -71,8 +72,9 @@ struct FollowReport {
   IngestReport ingest;  // frames: handled ones, in frame order (status ingested/present/skipped)
   int timed_out = 0;    // frames left out because their files did not complete in time
   bool interrupted = false;
-  // Per committed frame: seconds from its last file landing (the newest mtime of its files,
-  // and of the frames it waited for) to its points committed.
+  // Per committed frame: seconds from its last file landing (the newest mtime or ctime, which
+  // a rename into place sets, of its files and of the frames it waited for) to its points
+  // committed.
   std::vector<double> latency_s;
   int max_behind = 0;   // the most frames that were complete but not yet handled
 };

@@ -250,7 +250,7 @@ TEST(Live, SigtermFinishesTheFrameInHand) {
   ssize_t n;
   while ((n = ::read(out[0], buf, sizeof buf)) > 0) {
     output.append(buf, static_cast<size_t>(n));
-    if (!signalled && output.find("frame 1: taken") != std::string::npos) {
+    if (!signalled && output.find("frame 1: taken ") != std::string::npos) {
       ASSERT_EQ(::kill(pid, SIGTERM), 0);
       signalled = true;
     }
@@ -263,7 +263,7 @@ TEST(Live, SigtermFinishesTheFrameInHand) {
   EXPECT_EQ(WEXITSTATUS(st), 0) << output;
   EXPECT_NE(output.find("frame 1: committed"), std::string::npos) << output;
   EXPECT_NE(output.find("(stopped by a signal)"), std::string::npos) << output;
-  EXPECT_EQ(output.find("frame 2: taken"), std::string::npos) << output;
+  EXPECT_EQ(output.find("frame 2: taken "), std::string::npos) << output;
   auto backend = client::MakeEmbeddedBackend(dir / "data", 32 << 20);
   for (int f : {0, 1}) EXPECT_TRUE(FramePoints(*backend, "v", f, rec->fps) == reference.at(f)) << f;
   EXPECT_TRUE(FramePoints(*backend, "v", 2, rec->fps).empty());
