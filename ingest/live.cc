@@ -132,6 +132,19 @@ FileCheck FileCompleteness::Check(const std::string& path, bool closed) {
     }
   } else if (magic.rfind("ply", 0) == 0) {
     marker = PlyComplete(fd, size);
+  } else if (path.size() > 4 && path.compare(path.size() - 4, 4, ".txt") == 0 && size < (1 << 16)) {
+    // A pose: whole once it holds 16 numbers and ends with a newline (a cut can only end in
+    // one after a complete number). Otherwise the "other" rule below decides.
+    const std::string text = ReadAt(fd, 0, static_cast<size_t>(size));
+    std::istringstream in(text);
+    std::string tok;
+    int numbers = 0;
+    while (in >> tok) {
+      char* end = nullptr;
+      std::strtod(tok.c_str(), &end);
+      numbers += end != tok.c_str() && *end == '\0';
+    }
+    if (numbers >= 16 && !text.empty() && text.back() == '\n') marker = FileCheck{true, ""};
   }
   ::close(fd);
   if (marker) return *marker;

@@ -34,7 +34,8 @@ std::vector<std::string> FrameFiles(const Recording& recording, int i);
 //   EXR   OpenEXR finds every scanline/tile in it (InputFile::isComplete)
 //   PLY   its header is complete and, for binary bodies of fixed-size properties, the file
 //         holds every element; otherwise (ASCII, list properties) as "other"
-//   other (pose text files, ...) not modified for `settle_ms` (by its mtime, or size and
+//   .txt  (poses) 16 numbers and a final newline; else as "other"
+//   other not modified for `settle_ms` (by its mtime, or size and
 //         mtime unchanged between two looks that far apart), or closed by its writer /
 //         renamed into place since its last change (`closed`, from inotify)
 // A file is only looked at under its final name; writers that write a temporary file and

@@ -171,14 +171,17 @@ void RegisterRun(CLI::App& app, int* rc) {
                 "live: ingest the recording while it is being written (REC and its files may not "
                 "exist yet). Frames are taken in order, each when all its files are complete "
                 "(PNG: IEND chunk, JPEG: EOI marker, EXR: every scanline, binary PLY: every "
-                "element; other files: closed by the writer or unchanged for 0.3 s) and it "
-                "decodes, and committed at once; ends when the recording's `frames` are "
-                "handled, or on Ctrl-C/SIGTERM after committing the frame in hand (exit 0). "
-                "docs/RECORDING.md, \"Live ingest\"");
+                "element; pose: 16 numbers and a newline; other files: closed by the writer or "
+                "unchanged for 0.3 s) and it "
+                "decodes, and committed at once, one at a time with every core; ends when the "
+                "recording's `frames` are handled, or on Ctrl-C/SIGTERM after committing the "
+                "frame in hand (exit 0). docs/RECORDING.md, \"Live ingest\"");
   cmd->add_option("--frame-timeout", a->f.frame_timeout,
                   "--follow: seconds a frame's files may take to complete, counted from when the "
-                  "frame before it completed; a frame that does not is reported with the files it "
-                  "lacks, not committed, and the frames after it are still taken")
+                  "follower starts waiting for it or, if later, when the frame before it completed "
+                  "(no limit before the capture's first file appears); a frame that does not is "
+                  "reported with the files it lacks, not committed, and the frames after it are "
+                  "still taken (exit code 3)")
       ->capture_default_str()->check(CLI::Range(0.01, 86400.0));
   cmd->add_option("--status-every", a->f.status_every,
                   "--follow: seconds between status lines on stderr (frames handled, how far "

@@ -24,7 +24,9 @@
 #include "client/backend.h"
 #include "formats/ply.h"
 #include "ingest/generator.h"
+#include "storage/database.h"
 #include "tests/ingest/test_util.h"
+#include "tests/server/server_process.h"
 
 namespace hvdb::ingest {
 namespace {
@@ -44,9 +46,9 @@ GeneratorOptions Rig(int frames) {
   return g;
 }
 
-IngestOptions Options() {
+IngestOptions Options(const std::string& dataset = "v") {
   IngestOptions o;
-  o.dataset = "v";
+  o.dataset = dataset;  // not a literal here: GCC 12 warns falsely (-Wrestrict) on that
   o.stereo.num_disparities = 32;
   return o;
 }
@@ -83,6 +85,22 @@ std::map<uint32_t, std::vector<Point>> Reference(const Recording& rec, const std
   EXPECT_TRUE(rep.ok()) << rep.status().ToString();
   std::map<uint32_t, std::vector<Point>> out;
   for (int f = 0; f < rec.frames; ++f) out[f] = FramePoints(*backend, "v", f, rec.fps);
+  return out;
+}
+
+// Dataset "v"'s photos of frame f in data directory `data`: per camera id, the image's bytes.
+std::map<uint16_t, std::string> FramePhotos(const std::string& data, uint32_t f) {
+  std::map<uint16_t, std::string> out;
+  auto db = Database::Open(data);
+  EXPECT_TRUE(db.ok()) << db.status().ToString();
+  if (!db.ok()) return out;
+  auto ds = (*db)->GetDataset("v");
+  EXPECT_TRUE(ds.ok());
+  if (!ds.ok()) return out;
+  auto photos = (*ds)->Photos(f);
+  EXPECT_TRUE(photos.ok());
+  if (photos.ok())
+    for (const Photo& p : *photos) out[p.camera.id] = p.image;
   return out;
 }
 
@@ -126,12 +144,20 @@ TEST(Live, CompletenessOfEachFormat) {
   const std::string pb = ReadAll(ply);
   WriteAll(ply, pb.substr(0, pb.size() - 5));
   EXPECT_FALSE(files.Check(ply).complete);
-  // A pose text file: complete once closed by its writer, or unchanged for settle_ms.
+  // A pose: whole with its 16 numbers and final newline; cut short, it is not (a cut after
+  // "0 0 0 1" may be one in the middle of "0 0 0 1.5").
   const std::string pose = dir / "p.pose.txt";
   WriteAll(pose, "1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n");
+  EXPECT_TRUE(files.Check(pose).complete);
+  WriteAll(pose, "1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1");
   EXPECT_FALSE(files.Check(pose).complete);
-  EXPECT_TRUE(files.Check(pose, /*closed=*/true).complete);
+  // Any other file: complete once closed by its writer, or unchanged for settle_ms.
+  const std::string yml = dir / "r.yml";
+  WriteAll(yml, "%YAML:1.0\n");
+  EXPECT_FALSE(files.Check(yml).complete);
+  EXPECT_TRUE(files.Check(yml, /*closed=*/true).complete);
   std::this_thread::sleep_for(milliseconds(200));
+  EXPECT_TRUE(files.Check(yml).complete);
   EXPECT_TRUE(files.Check(pose).complete);
 }
 
@@ -187,6 +213,13 @@ TEST(Live, FollowEqualsIngestingTheFinishedRecording) {
     EXPECT_GT(got.size(), 100u);
     EXPECT_EQ(got.size(), reference.at(f).size()) << "frame " << f;
     EXPECT_TRUE(got == reference.at(f)) << "frame " << f;
+  }
+  backend.reset();
+  // The same photos, too.
+  for (uint32_t f = 0; f < frames; ++f) {
+    const auto got = FramePhotos(dir / "data", f);
+    EXPECT_EQ(got.size(), 2u);
+    EXPECT_TRUE(got == FramePhotos(dir / "ref", f)) << "frame " << f;
   }
 }
 
@@ -267,6 +300,76 @@ TEST(Live, SigtermFinishesTheFrameInHand) {
   auto backend = client::MakeEmbeddedBackend(dir / "data", 32 << 20);
   for (int f : {0, 1}) EXPECT_TRUE(FramePoints(*backend, "v", f, rec->fps) == reference.at(f)) << f;
   EXPECT_TRUE(FramePoints(*backend, "v", 2, rec->fps).empty());
+}
+
+// Runs argv (argv[0] the binary) with its stdout on a pipe; returns the child and the read end.
+std::pair<pid_t, int> Spawn(std::vector<std::string> argv) {
+  int fds[2];
+  if (::pipe(fds) != 0) return {-1, -1};
+  const pid_t pid = ::fork();
+  if (pid == 0) {
+    ::dup2(fds[1], 1);
+    ::close(fds[0]);
+    ::close(fds[1]);
+    std::vector<char*> args;
+    for (auto& a : argv) args.push_back(a.data());
+    args.push_back(nullptr);
+    ::execv(args[0], args.data());
+    ::_exit(127);
+  }
+  ::close(fds[1]);
+  return {pid, fds[0]};
+}
+
+// hvdb-ingest run --follow --server on a recording replayed at 2 fps: each frame is in the
+// server, exactly as a normal run commits it, when the follower says it committed it, while
+// the capture is still going on.
+TEST(Live, FollowThroughTheServerCommitsEachFrameAsItCompletes) {
+  TempDir dir;
+  const int frames = 6;
+  ASSERT_TRUE(GenerateRecording(Rig(frames), dir / "src").ok());
+  auto rec = OpenRecording(dir / "src");
+  ASSERT_TRUE(rec.ok());
+  const auto reference = Reference(*rec, dir / "ref");
+  hvdb::testing::ServerProcess server(dir / "data");
+  ASSERT_TRUE(server.running());
+  const std::string addr = "127.0.0.1:" + std::to_string(server.port());
+  auto [follower, out] = Spawn({HVDB_INGEST_PATH, "run", dir / "live", "--follow", "--verbose", "--quiet",
+                                "--dataset", "v", "--server", addr, "--num-disparities", "32"});
+  ASSERT_GT(follower, 0);
+  auto [replay, replay_out] = Spawn({HVDB_INGEST_PATH, "replay", dir / "src", dir / "live", "--realtime", "2",
+                                     "--quiet"});
+  ASSERT_GT(replay, 0);
+  auto reader = client::MakeRemoteBackend({addr, ""});
+  ASSERT_TRUE(reader.ok());
+  std::string output, line;
+  int seen = 0;
+  bool replay_done_first = false;
+  char c;
+  while (::read(out, &c, 1) == 1) {
+    if (c != '\n') {
+      line += c;
+      continue;
+    }
+    output += line + "\n";
+    if (line.rfind("frame " + std::to_string(seen) + ": committed", 0) == 0) {
+      // Committed means visible: a reader sees the frame whole now.
+      EXPECT_TRUE(FramePoints(**reader, "v", seen, rec->fps) == reference.at(seen)) << seen;
+      if (seen == 0) replay_done_first = ::waitpid(replay, nullptr, WNOHANG) == replay;
+      ++seen;
+    }
+    line.clear();
+  }
+  ::close(out);
+  int st = 0;
+  ::waitpid(follower, &st, 0);
+  EXPECT_TRUE(WIFEXITED(st) && WEXITSTATUS(st) == 0) << output;
+  EXPECT_EQ(seen, frames) << output;
+  EXPECT_NE(output.find("followed"), std::string::npos) << output;
+  // Frame 0 was committed before the capture ended (the replay takes 2.5 s).
+  EXPECT_FALSE(replay_done_first);
+  if (!replay_done_first) ::waitpid(replay, &st, 0);
+  ::close(replay_out);
 }
 
 // The real 7-Scenes RGB-D sequence (PNG colour, 16-bit PNG depth, text poses) replayed at
