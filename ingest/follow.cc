@@ -218,16 +218,18 @@ Result<FollowReport> FollowRecording(const std::string& dir, client::Backend& ba
   report.frames_total = last - opt.first;
   std::map<int, Slot> slots;
   bool started = false;  // a file of the recording's frames has appeared
-  int probe = opt.first;  // frames below this one have all their files (for "behind")
+  // How far behind the capture: frames up to the newest with all its files there, from the
+  // next to handle. The scan stops at the first frame with no file yet (the capture's front).
+  int newest = opt.first - 1;
   auto behind = [&](int next) {
-    probe = std::max(probe, next);
-    while (probe < last) {
-      bool all = true;
-      for (const std::string& p : FrameFiles(rec, probe)) all = all && fs::exists(p);
-      if (!all) break;
-      ++probe;
+    for (int j = std::max(newest + 1, next); j < last; ++j) {
+      size_t have = 0;
+      const std::vector<std::string> paths = FrameFiles(rec, j);
+      for (const std::string& p : paths) have += fs::exists(p);
+      if (have == 0) break;
+      if (have == paths.size()) newest = j;
     }
-    return probe - next;
+    return std::max(0, newest + 1 - next);
   };
   auto status_line = [&](int next, const std::string& waiting) {
     if (follow.status_every <= 0 || Clock::now() - last_status < std::chrono::duration<double>(follow.status_every)) return;

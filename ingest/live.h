@@ -77,7 +77,7 @@ struct FollowReport {
   // a rename into place sets, of its files and of the frames it waited for) to its points
   // committed.
   std::vector<double> latency_s;
-  int max_behind = 0;   // the most frames that were complete but not yet handled
+  int max_behind = 0;   // the most frames it was behind the capture (see the status line)
 };
 
 // Waits for REC/recording.yml (and the calibration) to be readable, then follows it. `dir`
