@@ -56,7 +56,7 @@ double Landed(const std::vector<std::string>& paths) {
 // the caller looks at the files again after every wait, event or not.
 class DirWatcher {
  public:
-  DirWatcher() : fd_(::inotify_init1(IN_NONBLOCK | IN_CLOEXEC)) {}
+  explicit DirWatcher(bool inotify) : fd_(inotify ? ::inotify_init1(IN_NONBLOCK | IN_CLOEXEC) : -1) {}
   ~DirWatcher() {
     if (fd_ >= 0) ::close(fd_);
   }
@@ -192,7 +192,7 @@ double Median(std::vector<double> v) {
 Result<FollowReport> FollowRecording(const std::string& dir, client::Backend& backend,
                                      const IngestOptions& options, const FollowOptions& follow) {
   FollowReport out;
-  DirWatcher watcher;
+  DirWatcher watcher(follow.inotify);
   FileCompleteness files;
   Result<Recording> opened = WaitForRecording(dir, follow, &watcher, &files, &out.interrupted);
   if (out.interrupted) return out;

@@ -66,6 +66,7 @@ struct FollowOptions {
   double status_every = 5;    // seconds between status lines on stderr (0: none)
   bool verbose = false;       // a line per frame on stdout (taken, committed, latency)
   int poll_ms = 250;          // the safety net's poll period (filesystems without inotify)
+  bool inotify = true;        // false: the poll alone (tests of the safety net)
   const std::atomic<bool>* stop = nullptr;  // set by a signal handler: stop after this frame
 };
 

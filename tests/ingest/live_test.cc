@@ -223,6 +223,49 @@ TEST(Live, FollowEqualsIngestingTheFinishedRecording) {
   }
 }
 
+// Without inotify events (as on NFS) the bounded poll alone still takes every frame: a PLY
+// video replayed at 20 fps, followed by polling, is the finished video's ingest.
+TEST(Live, ThePollAloneTakesEveryFrame) {
+  TempDir dir;
+  const int frames = 6;
+  fs::create_directories(dir / "ply/frames");
+  for (int f = 0; f < frames; ++f) {
+    std::vector<Point> pts(2000);
+    for (size_t i = 0; i < pts.size(); ++i) {
+      pts[i].x = static_cast<float>(i % 50) * 0.01f + f * 0.1f;
+      pts[i].y = static_cast<float>(i / 50) * 0.01f;
+      pts[i].z = 1;
+      pts[i].r = static_cast<uint8_t>(i);
+    }
+    char name[64];
+    std::snprintf(name, sizeof name, "/frames/%06d.ply", f);
+    ASSERT_TRUE(formats::WritePly(dir / "ply" + name, pts).ok());
+  }
+  WriteAll(dir / "ply/recording.yml", "%YAML:1.0\n---\nformat: \"hvdb-recording\"\nversion: 1\nkind: \"ply\"\nframes: " +
+                                          std::to_string(frames) + "\nfps: 20\n");
+  auto rec = OpenRecording(dir / "ply");
+  ASSERT_TRUE(rec.ok()) << rec.status().ToString();
+  const auto reference = Reference(*rec, dir / "ref");
+  std::thread writer([&] {
+    ReplayOptions ro;
+    ro.fps = 20;
+    EXPECT_TRUE(ReplayRecording(dir / "ply", dir / "live", ro).ok());
+  });
+  auto backend = client::MakeEmbeddedBackend(dir / "data", 32 << 20);
+  FollowOptions fo;
+  fo.status_every = 0;
+  fo.inotify = false;
+  auto rep = FollowRecording(dir / "live", *backend, Options(), fo);
+  writer.join();
+  ASSERT_TRUE(rep.ok()) << rep.status().ToString();
+  EXPECT_EQ(rep->ingest.ingested, frames);
+  for (int f = 0; f < frames; ++f) {
+    const auto got = FramePoints(*backend, "v", f, rec->fps);
+    EXPECT_EQ(got.size(), 2000u);
+    EXPECT_TRUE(got == reference.at(f)) << f;
+  }
+}
+
 // A file of frame 2 never appears: frame 2 is reported by that file's name and not committed;
 // the frames after it still are (frame 4 exactly as in the finished recording: its window does
 // not reach frame 2).
