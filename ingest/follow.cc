@@ -260,6 +260,10 @@ Result<FollowReport> FollowRecording(const std::string& dir, client::Backend& ba
       present_checked = next;
       HVDB_ASSIGN_OR_RETURN(bool present, FramePresent(backend, opt.dataset, fr.dataset_frame, rec.fps));
       if (present) {
+        if (follow.verbose) {
+          std::printf("frame %d: already in the dataset (resumed), not taken again\n", next);
+          std::fflush(stdout);
+        }
         fr.status = "present";
         ++report.present;
         report.frames.push_back(fr);
