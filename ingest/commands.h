@@ -8,6 +8,7 @@ namespace hvdb::ingest {
 
 void RegisterStereoCommand(CLI::App& app);     // stereo_command.cc: the matcher on one pair
 void RegisterGenerateCommand(CLI::App& app);   // generate_command.cc: synthetic recordings
+void RegisterReplayCommand(CLI::App& app);     // generate_command.cc: a recording at its rate
 
 }  // namespace hvdb::ingest
 

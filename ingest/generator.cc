@@ -1,13 +1,8 @@
 #include "ingest/generator.h"
 
-#include <ImfChannelList.h>
-#include <ImfFrameBuffer.h>
-#include <ImfHeader.h>
-#include <ImfInputFile.h>
-#include <ImfOutputFile.h>
-
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <exception>
@@ -481,6 +476,7 @@ Status GeneratorOptions::Validate() const {
   if (supersample < 1 || supersample > 8) return range("supersample", "1..8 rays per pixel and axis");
   if (!(noise_sigma >= 0 && noise_sigma <= 64)) return range("noise_sigma", "in [0, 64] grey levels");
   if (!(baseline >= 0.01 && baseline <= 1)) return range("baseline", "in [0.01, 1] metres");
+  if (!(realtime_fps >= 0 && realtime_fps <= 1000)) return range("realtime", "in [0, 1000] fps");
   return Status::OK();
 }
 
@@ -724,8 +720,27 @@ Result<GeneratedRecording> GenerateRecording(const GeneratorOptions& options,
   rec.fps = options.fps;
   HVDB_RETURN_IF_ERROR(rec.calibration.Validate());
   const fs::path root(out_dir);
-  HVDB_RETURN_IF_ERROR(WriteRecordingYaml(options, (root / "recording.yml").string()));
-  HVDB_RETURN_IF_ERROR(SaveCalibration(rec.calibration, (root / "calibration.yml").string()));
+  // realtime: every file a reader may be waiting for is written under a temporary name and
+  // renamed into place whole; a frame's images at start + f / realtime_fps (or when rendered).
+  const bool live = options.realtime_fps > 0;
+  auto publish = [&](const std::string& path, auto&& write) -> Status {
+    if (!live) return write(path);
+    const fs::path p(path);
+    std::string name = ".";  // appended piecewise: GCC 12 warns falsely on chained operator+
+    name += p.stem().string();
+    name += ".tmp";
+    name += p.extension().string();
+    const std::string tmp = (p.parent_path() / name).string();
+    HVDB_RETURN_IF_ERROR(write(tmp));
+    std::error_code ec;
+    fs::rename(tmp, path, ec);
+    return ec ? Status::IOError(path + ": cannot rename into place: " + ec.message()) : Status::OK();
+  };
+  HVDB_RETURN_IF_ERROR(publish((root / "recording.yml").string(),
+                               [&](const std::string& p) { return WriteRecordingYaml(options, p); }));
+  HVDB_RETURN_IF_ERROR(publish((root / "calibration.yml").string(),
+                               [&](const std::string& p) { return SaveCalibration(rec.calibration, p); }));
+  const auto start = std::chrono::steady_clock::now();
 
   for (int f = 0; f < options.frames; ++f) {
     const std::string frame_dir = (root / "frames" / FrameDir(f)).string();
@@ -735,64 +750,26 @@ Result<GeneratedRecording> GenerateRecording(const GeneratorOptions& options,
     const SyntheticScene scene(options.seed, f, options.fps);
     std::vector<Projector> projectors;
     for (int k = 0; k < options.bricks; ++k) projectors.push_back(MakeProjector(options, k, f));
+    std::vector<std::pair<std::string, cv::Mat>> images;  // written together at the frame's time
     for (const Brick& b : rec.calibration.bricks) {
       for (int idx : {b.left, b.right, b.colour}) {
         const CameraModel& cam = rec.calibration.cameras[static_cast<size_t>(idx)];
         const CameraImages img =
             RenderCamera(scene, cam, idx != b.colour, projectors, options, f, idx);
-        HVDB_RETURN_IF_ERROR(WritePng(frame_dir + "/" + cam.name + ".png", img.image));
+        images.emplace_back(frame_dir + "/" + cam.name + ".png", img.image);
         HVDB_RETURN_IF_ERROR(WriteDepthExr(gt_dir + "/" + cam.name + ".depth.exr", img.depth));
         HVDB_RETURN_IF_ERROR(WritePng(gt_dir + "/" + cam.name + ".object.png", img.object));
       }
     }
+    if (live) {
+      std::this_thread::sleep_until(start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                                std::chrono::duration<double>(f / options.realtime_fps)));
+    }
+    for (const auto& [path, image] : images)
+      HVDB_RETURN_IF_ERROR(publish(path, [&](const std::string& p) { return WritePng(p, image); }));
     if (progress) progress(f + 1, options.frames);
   }
   return rec;
-}
-
-// ---------------------------------------------------------------- EXR depth
-
-Status WriteDepthExr(const std::string& path, const cv::Mat& depth) {
-  if (depth.empty() || depth.type() != CV_32FC1)
-    return Status::InvalidArgument(path + ": a depth map must be a non-empty one-channel float32 image");
-  try {
-    Imf::Header header(depth.cols, depth.rows);
-    header.channels().insert("Z", Imf::Channel(Imf::FLOAT));
-    Imf::OutputFile file(path.c_str(), header);
-    Imf::FrameBuffer fb;
-    fb.insert("Z", Imf::Slice(Imf::FLOAT, const_cast<char*>(reinterpret_cast<const char*>(depth.ptr<float>())),
-                              sizeof(float), depth.step[0]));
-    file.setFrameBuffer(fb);
-    file.writePixels(depth.rows);
-  } catch (const std::exception& e) {
-    return Status::IOError(path + ": cannot write EXR depth: " + e.what());
-  }
-  return Status::OK();
-}
-
-Result<cv::Mat> ReadDepthExr(const std::string& path) {
-  std::error_code ec;
-  if (!fs::is_regular_file(path, ec)) return Status::NotFound(path + ": no such EXR depth file");
-  try {
-    Imf::InputFile file(path.c_str());
-    const Imf::Header& header = file.header();
-    if (!header.channels().findChannel("Z"))
-      return Status::Corruption(path + ": EXR depth file has no channel \"Z\"");
-    const Imath::Box2i dw = header.dataWindow();
-    const int64_t w = int64_t{dw.max.x} - dw.min.x + 1, h = int64_t{dw.max.y} - dw.min.y + 1;
-    if (w <= 0 || h <= 0 || w > 65536 || h > 65536)
-      return Status::Corruption(path + ": EXR depth file has an invalid data window");
-    cv::Mat depth(static_cast<int>(h), static_cast<int>(w), CV_32FC1);
-    Imf::FrameBuffer fb;
-    // Slice::Make handles the data window's origin; HALF/UINT channels are converted to float.
-    fb.insert("Z", Imf::Slice::Make(Imf::FLOAT, depth.ptr<float>(), dw, sizeof(float),
-                                    static_cast<size_t>(depth.step[0])));
-    file.setFrameBuffer(fb);
-    file.readPixels(dw.min.y, dw.max.y);
-    return depth;
-  } catch (const std::exception& e) {
-    return Status::Corruption(path + ": not a readable EXR depth file: " + e.what());
-  }
 }
 
 }  // namespace hvdb::ingest

@@ -66,8 +66,12 @@ struct GeneratorOptions {
   int supersample = 3;     // per-axis rays per pixel (antialiasing: realistic subpixel behaviour)
   double noise_sigma = 1.0;  // grey-level Gaussian sensor noise (8-bit units)
   double baseline = 0.12;    // metres between a brick's two grey cameras
+  // > 0: live capture for rehearsing `hvdb-ingest run --follow`: recording.yml and
+  // calibration.yml first, then frame f's images no earlier than start + f / realtime_fps (later
+  // when rendering is slower), every file written to a temporary name and renamed into place.
+  double realtime_fps = 0;
   // bricks 1..16, width/height 16..4096, frames 1..100000, fps in (0, 1000], supersample 1..8,
-  // noise_sigma in [0, 64], baseline in [0.01, 1] metres.
+  // noise_sigma in [0, 64], baseline in [0.01, 1] metres, realtime_fps in [0, 1000].
   Status Validate() const;
 };
 

@@ -1,12 +1,17 @@
 // hvdb-ingest: recordings into hvdb datasets (docs/RECORDING.md), and the tools around it.
 //
 //   hvdb-ingest run REC --dataset NAME (--data DIR | --server HOST:PORT)   the pipeline
+//   hvdb-ingest run REC --follow ...              the same on a recording being written (live)
+//   hvdb-ingest replay SRC OUT --realtime FPS     write a recording frame by frame at a rate
 //   hvdb-ingest check REC                         load every frame, report what is wrong
 //   hvdb-ingest calibrate --left IMG... [--right IMG...] --out calibration.yml
 //   hvdb-ingest stereo LEFT RIGHT ... --out DISP.pfm                      the matcher alone
 //   hvdb-ingest generate OUT ...                  a synthetic recording with ground truth
+#include <signal.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <atomic>
 #include <cstdio>
 #include <fstream>
 #include <iostream>
@@ -16,15 +21,68 @@
 
 #include "client/backend.h"
 #include "ingest/commands.h"
+#include "ingest/live.h"
 #include "ingest/pipeline.h"
 #include "ingest/recording.h"
 
 namespace hvdb::ingest {
 namespace {
 
+std::atomic<bool> g_stop{false};
+
+// Ctrl-C / SIGTERM: finish the frame in hand, then stop; a second one kills (SA_RESETHAND).
+void OnStopSignal(int) {
+  g_stop = true;
+  static const char kMsg[] = "\nhvdb-ingest: stopping after the frame in hand (again to kill)\n";
+  ssize_t ignored = ::write(2, kMsg, sizeof kMsg - 1);
+  (void)ignored;
+}
+
+void InstallStopHandlers() {
+  struct sigaction sa {};
+  sa.sa_handler = OnStopSignal;
+  sa.sa_flags = SA_RESETHAND;  // no SA_RESTART: a wait returns at once to look at the flag
+  sigemptyset(&sa.sa_mask);
+  ::sigaction(SIGINT, &sa, nullptr);
+  ::sigaction(SIGTERM, &sa, nullptr);
+}
+
 int Fail(const Status& st) {
   std::cerr << "hvdb-ingest: " << st.ToString() << "\n";
   return st.IsInvalidArgument() || st.IsNotFound() ? 2 : 1;
+}
+
+// run --follow: the follower, its JSON report and its summary.
+int RunFollow(const std::string& dir, client::Backend& backend, const IngestOptions& o,
+              FollowOptions f, bool quiet, const std::string& report_path) {
+  if (quiet) f.status_every = 0;
+  f.stop = &g_stop;
+  InstallStopHandlers();
+  auto r = FollowRecording(dir, backend, o, f);
+  if (!r.ok()) return Fail(r.status());
+  nlohmann::json j = r->ingest.ToJson();
+  std::vector<double> lat = r->latency_s;
+  std::sort(lat.begin(), lat.end());
+  auto pct = [&](double p) { return lat.empty() ? 0.0 : lat[static_cast<size_t>(p * (lat.size() - 1))]; };
+  j["timed_out"] = r->timed_out;
+  j["interrupted"] = r->interrupted;
+  j["max_behind_frames"] = r->max_behind;
+  j["landed_to_committed_s"] = {{"median", pct(0.5)}, {"p90", pct(0.9)}, {"max", pct(1.0)}};
+  if (!report_path.empty()) {
+    std::ofstream out(report_path);
+    out << j.dump(2) << "\n";
+    if (!out) return Fail(Status::IOError(report_path + ": cannot write the report"));
+  }
+  const IngestReport& rep = r->ingest;
+  std::printf("followed %s: %d of %d frames handled: %d ingested, %d already present, %d timed out, "
+              "%d skipped as bad; %llu points in %.1f s; landed->committed median %.0f ms, p90 %.0f "
+              "ms, max %.0f ms; at most %d frames behind%s\n",
+              dir.c_str(), static_cast<int>(rep.frames.size()), rep.frames_total, rep.ingested,
+              rep.present, r->timed_out, rep.skipped - r->timed_out,
+              static_cast<unsigned long long>(rep.points), rep.seconds, 1000 * pct(0.5),
+              1000 * pct(0.9), 1000 * pct(1.0), r->max_behind,
+              r->interrupted ? " (stopped by a signal)" : "");
+  return rep.skipped ? 3 : 0;
 }
 
 void RegisterRun(CLI::App& app, int* rc) {
@@ -36,6 +94,8 @@ void RegisterRun(CLI::App& app, int* rc) {
     double y = 0.40, uv = 0.15;
     bool no_photo = false, quiet = false, no_geometric = false, no_photos = false;
     std::string subpixel = "lm", filter = "none";
+    bool follow = false;
+    FollowOptions f;
   };
   auto a = std::make_shared<Args>();
   cmd->add_option("recording", a->rec, "recording directory (with recording.yml)")->required();
@@ -106,7 +166,30 @@ void RegisterRun(CLI::App& app, int* rc) {
   cmd->add_option("--y-threshold", a->y, "photo-consistency: max luminance deviation (0..1)")->capture_default_str();
   cmd->add_option("--uv-threshold", a->uv, "photo-consistency: max chrominance deviation (0..1)")->capture_default_str();
   cmd->add_option("--cache-mb", a->cache_mb, "--data: block cache in MiB")->capture_default_str();
-  cmd->add_flag("--quiet", a->quiet, "no progress bar");
+  cmd->add_flag("--quiet", a->quiet, "no progress bar (with --follow: no status lines)");
+  cmd->add_flag("--follow", a->follow,
+                "live: ingest the recording while it is being written (REC and its files may not "
+                "exist yet). Frames are taken in order, each when all its files are complete "
+                "(PNG: IEND chunk, JPEG: EOI marker, EXR: every scanline, binary PLY: every "
+                "element; pose: 16 numbers and a newline; other files: closed by the writer or "
+                "unchanged for 0.3 s) and it "
+                "decodes, and committed at once, one at a time with every core; ends when the "
+                "recording's `frames` are handled, or on Ctrl-C/SIGTERM after committing the "
+                "frame in hand (exit 0). docs/RECORDING.md, \"Live ingest\"");
+  cmd->add_option("--frame-timeout", a->f.frame_timeout,
+                  "--follow: seconds a frame's files may take to complete, counted from when the "
+                  "follower starts waiting for it or, if later, when the frame before it completed "
+                  "(no limit before the capture's first file appears); a frame that does not is "
+                  "reported with the files it lacks, not committed, and the frames after it are "
+                  "still taken (exit code 3)")
+      ->capture_default_str()->check(CLI::Range(0.01, 86400.0));
+  cmd->add_option("--status-every", a->f.status_every,
+                  "--follow: seconds between status lines on stderr (frames handled, how far "
+                  "behind the capture, latency)")
+      ->capture_default_str()->check(CLI::Range(0.0, 3600.0));
+  cmd->add_flag("--verbose", a->f.verbose,
+                "--follow: a line per frame on stdout: when it is taken, and when it is "
+                "committed with the time from its last file landing");
   cmd->callback([a, rc, subpixel_opt] {
     if (a->data.empty() == a->server.empty()) {
       *rc = Fail(Status::InvalidArgument("give exactly one of --data DIR and --server HOST:PORT"));
@@ -116,7 +199,7 @@ void RegisterRun(CLI::App& app, int* rc) {
       *rc = Fail(Status::InvalidArgument("--y-threshold and --uv-threshold must be in (0, 1]"));
       return;
     }
-    auto rec = OpenRecording(a->rec);
+    Result<Recording> rec = a->follow ? Result<Recording>(Recording{}) : OpenRecording(a->rec);
     if (!rec.ok()) {
       *rc = Fail(rec.status());
       return;
@@ -147,6 +230,10 @@ void RegisterRun(CLI::App& app, int* rc) {
     o.photo.max_dy = a->y;
     o.photo.max_du = o.photo.max_dv = a->uv;
     o.progress = !a->quiet && ::isatty(2);
+    if (a->follow) {
+      *rc = RunFollow(a->rec, *backend, o, a->f, a->quiet, a->report);
+      return;
+    }
     auto report = RunIngest(*rec, *backend, o);
     if (!report.ok()) {
       *rc = Fail(report.status());
@@ -259,6 +346,7 @@ int main(int argc, char** argv) {
   hvdb::ingest::RegisterCalibrate(app, &rc);
   hvdb::ingest::RegisterStereoCommand(app);
   hvdb::ingest::RegisterGenerateCommand(app);
+  hvdb::ingest::RegisterReplayCommand(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

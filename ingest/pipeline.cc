@@ -30,12 +30,6 @@ double MsSince(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
 
-double PeakRssMb() {
-  rusage u{};
-  getrusage(RUSAGE_SELF, &u);
-  return static_cast<double>(u.ru_maxrss) / 1024.0;  // ru_maxrss is in KiB on Linux
-}
-
 int HardwareThreads() { return std::max(1, static_cast<int>(std::thread::hardware_concurrency())); }
 
 double ValidPct(const cv::Mat& depth) {
@@ -44,6 +38,12 @@ double ValidPct(const cv::Mat& depth) {
 }
 
 }  // namespace
+
+double PeakRssMb() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return static_cast<double>(u.ru_maxrss) / 1024.0;  // ru_maxrss is in KiB on Linux
+}
 
 CameraInfo ToCameraInfo(const CameraModel& c, uint16_t id) {
   const render::Camera rc = c.ToRenderCamera();
@@ -121,18 +121,6 @@ Window FrameWindow(uint32_t f, double fps) {
   return w;
 }
 
-// Whether dataset frame f holds any point: the first batch of a query on it.
-Result<bool> FramePresent(client::Backend& backend, const std::string& dataset, uint32_t f,
-                          double fps) {
-  HVDB_ASSIGN_OR_RETURN(auto q, backend.Query(dataset, FrameWindow(f, fps), QueryOptions{}));
-  Batch b;
-  while (true) {
-    HVDB_ASSIGN_OR_RETURN(bool more, q->Next(&b));
-    if (!more) return false;
-    if (!b.points.empty()) return true;
-  }
-}
-
 void Progress(int done, int total, double secs, bool final) {
   const int width = 30;
   const int fill = total ? done * width / total : width;
@@ -146,6 +134,18 @@ void Progress(int done, int total, double secs, bool final) {
 }
 
 }  // namespace
+
+// Whether dataset frame f holds any point: the first batch of a query on it.
+Result<bool> FramePresent(client::Backend& backend, const std::string& dataset, uint32_t f,
+                          double fps) {
+  HVDB_ASSIGN_OR_RETURN(auto q, backend.Query(dataset, FrameWindow(f, fps), QueryOptions{}));
+  Batch b;
+  while (true) {
+    HVDB_ASSIGN_OR_RETURN(bool more, q->Next(&b));
+    if (!more) return false;
+    if (!b.points.empty()) return true;
+  }
+}
 
 nlohmann::json IngestReport::ToJson() const {
   nlohmann::json j;
@@ -588,6 +588,64 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
   return points;
 }
 
+PreparedFrame PrepareFrame(const Recording& rec, const FrameProcessor& proc,
+                           const IngestOptions& opt, int i, int lo, int hi,
+                           const FrameLoader& load, FrameReport* fr) {
+  PreparedFrame d;
+  d.index = i;
+  auto t0 = Clock::now();
+  std::vector<std::shared_ptr<const FrameInput>> loaded;
+  for (int w = lo; w <= hi && d.status.ok(); ++w) {
+    Result<std::shared_ptr<const FrameInput>> f = load(w);
+    if (f.ok()) {
+      loaded.push_back(std::move(f).value());
+    } else {
+      d.status = f.status();
+    }
+  }
+  fr->stage_ms["load"] = MsSince(t0);
+  if (!d.status.ok()) return d;
+  std::vector<const FrameInput*> window;
+  for (const auto& f : loaded) window.push_back(f.get());
+  const size_t centre = static_cast<size_t>(i - lo);
+  for (const auto& f : loaded) d.bytes += f->bytes_read;
+  std::map<uint16_t, PhotoBillboard> billboards;
+  Result<std::vector<Point>> points =
+      proc.Process(*window[centre], fr, window.size() > 1 ? window : std::vector<const FrameInput*>{},
+                   centre, opt.photos ? &billboards : nullptr);
+  if (!points.ok()) {
+    d.status = points.status();
+    return d;
+  }
+  d.points = std::move(points).value();
+  if (opt.photos) {
+    auto photos = FramePhotos(rec, *window[centre], &billboards);
+    if (!photos.ok()) {
+      d.status = photos.status();
+      d.points.clear();
+      return d;
+    }
+    d.photos = std::move(photos).value();
+  }
+  return d;
+}
+
+Result<uint64_t> CommitFrame(client::Backend& backend, const IngestOptions& opt,
+                             PreparedFrame&& d, FrameReport* fr) {
+  HVDB_RETURN_IF_ERROR(d.status);
+  auto t0 = Clock::now();
+  // Photos first: a frame whose points are in is skipped when an ingest resumes, so its
+  // photos must be in already.
+  for (const Photo& photo : d.photos) HVDB_RETURN_IF_ERROR(backend.PutPhoto(opt.dataset, fr->dataset_frame, photo));
+  if (!d.photos.empty()) fr->stage_ms["photos"] = MsSince(t0);
+  t0 = Clock::now();
+  const uint64_t n = d.points.size();
+  auto loaded = n ? backend.BulkLoad(opt.dataset, fr->dataset_frame, std::move(d.points))
+                  : Result<uint64_t>(uint64_t{0});
+  fr->stage_ms["commit"] = MsSince(t0);
+  return loaded;
+}
+
 Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
                                const IngestOptions& options_in) {
   IngestOptions opt = options_in;
@@ -626,15 +684,13 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
   }
 
   // Workers -> bounded queue of finished frames -> this thread commits.
-  struct Done {
-    int index;
-    Result<std::vector<Point>> points;
-    uint64_t bytes;
-    std::vector<Photo> photos;
+  const FrameLoader load = [&](int w) -> Result<std::shared_ptr<const FrameInput>> {
+    HVDB_ASSIGN_OR_RETURN(FrameInput f, LoadFrame(rec, w, opt.skip_invalid));
+    return std::make_shared<const FrameInput>(std::move(f));
   };
   std::mutex mu;
   std::condition_variable cv_space, cv_ready;
-  std::deque<Done> ready;
+  std::deque<PreparedFrame> ready;
   std::atomic<size_t> next{0};
   std::atomic<bool> stop{false};
   int in_flight = 0;  // claimed and not yet committed (bounds memory)
@@ -655,43 +711,11 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
       }
       const int i = pending[k];
       FrameReport& fr = reports[static_cast<size_t>(i - opt.first)];
-      auto t0 = Clock::now();
       // With the spacetime matcher or the billboard filter, the frames on either side too
       // (within the recording).
       const int st = proc.window_radius();
-      const int lo = std::max(0, i - st), hi = std::min(rec.frames - 1, i + st);
-      std::vector<FrameInput> loaded;
-      Status load_error;
-      for (int w = lo; w <= hi && load_error.ok(); ++w) {
-        Result<FrameInput> f = LoadFrame(rec, w, opt.skip_invalid);
-        if (f.ok()) {
-          loaded.push_back(std::move(f).value());
-        } else {
-          load_error = f.status();
-        }
-      }
-      fr.stage_ms["load"] = MsSince(t0);
-      std::vector<const FrameInput*> window;
-      for (const FrameInput& f : loaded) window.push_back(&f);
-      const size_t centre = static_cast<size_t>(i - lo);
-      uint64_t bytes = 0;
-      for (const FrameInput& f : loaded) bytes += f.bytes_read;
-      std::map<uint16_t, PhotoBillboard> billboards;
-      Done d{i,
-             load_error.ok()
-                 ? proc.Process(*window[centre], &fr, window.size() > 1 ? window
-                                                                        : std::vector<const FrameInput*>{},
-                                centre, opt.photos ? &billboards : nullptr)
-                 : Result<std::vector<Point>>(load_error),
-             bytes, {}};
-      if (d.points.ok() && opt.photos) {
-        auto photos = FramePhotos(rec, *window[centre], &billboards);
-        if (photos.ok()) {
-          d.photos = std::move(photos).value();
-        } else {
-          d.points = photos.status();
-        }
-      }
+      PreparedFrame d = PrepareFrame(rec, proc, opt, i, std::max(0, i - st),
+                                     std::min(rec.frames - 1, i + st), load, &fr);
       std::lock_guard lk(mu);
       ready.push_back(std::move(d));
       cv_ready.notify_all();
@@ -705,7 +729,7 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
   const int total = static_cast<int>(pending.size());
   if (opt.progress) Progress(0, total, 0, false);
   while (handled < pending.size()) {
-    Done d{0, Status::Internal("unset"), 0, {}};
+    PreparedFrame d;
     {
       std::unique_lock lk(mu);
       cv_ready.wait(lk, [&] { return !ready.empty(); });
@@ -713,37 +737,25 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
       ready.pop_front();
     }
     FrameReport& fr = reports[static_cast<size_t>(d.index - opt.first)];
-    if (d.points.ok()) {
-      auto t0 = Clock::now();
-      // Photos first: a frame whose points are in is skipped when an ingest resumes, so its
-      // photos must be in already.
-      Status photos_stored;
-      for (const Photo& photo : d.photos) {
-        photos_stored = backend.PutPhoto(opt.dataset, fr.dataset_frame, photo);
-        if (!photos_stored.ok()) break;
-      }
-      if (!d.photos.empty()) fr.stage_ms["photos"] = MsSince(t0);
-      t0 = Clock::now();
-      const uint64_t n = d.points->size();
-      auto loaded = !photos_stored.ok() ? Result<uint64_t>(photos_stored)
-                    : n ? backend.BulkLoad(opt.dataset, fr.dataset_frame, std::move(d.points).value())
-                        : Result<uint64_t>(uint64_t{0});
-      fr.stage_ms["commit"] = MsSince(t0);
+    if (d.status.ok()) {
+      const int index = d.index;
+      const uint64_t bytes = d.bytes;
+      auto loaded = CommitFrame(backend, opt, std::move(d), &fr);
       if (!loaded.ok()) {
-        failure = Status(loaded.status().code(), "frame " + std::to_string(d.index) + ": commit: " +
+        failure = Status(loaded.status().code(), "frame " + std::to_string(index) + ": commit: " +
                                                      loaded.status().message());
       } else {
         ++report.ingested;
         report.points += *loaded;
         report.skipped_invalid += fr.skipped_invalid;
-        report.bytes_read += d.bytes;
+        report.bytes_read += bytes;
       }
     } else {
       fr.status = "skipped";
-      fr.error = d.points.status().ToString();
+      fr.error = d.status.ToString();
       if (!opt.skip_bad_frames) {
-        failure = Status(d.points.status().code(),
-                         "frame " + std::to_string(d.index) + ": " + d.points.status().message() +
+        failure = Status(d.status.code(),
+                         "frame " + std::to_string(d.index) + ": " + d.status.message() +
                              " (--skip-bad-frames goes on without it)");
       } else {
         ++report.skipped;

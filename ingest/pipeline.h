@@ -154,6 +154,39 @@ class FrameProcessor {
   std::vector<cv::Mat> strokes_;
 };
 
+// One frame made ready to commit: its points and photos, exactly what RunIngest commits for it
+// (the follower of a live recording, ingest/live.h, commits the same).
+struct PreparedFrame {
+  int index = 0;
+  Status status;               // not ok: a bad frame (nothing to commit)
+  std::vector<Point> points;
+  std::vector<Photo> photos;
+  uint64_t bytes = 0;          // read from the recording for it (its window's frames too)
+};
+
+// Loads one recording frame; RunIngest's reads the files (LoadFrame), the follower's hands out
+// the frames it has already read.
+using FrameLoader = std::function<Result<std::shared_ptr<const FrameInput>>(int index)>;
+
+// Loads recording frame i with the frames [lo, hi] around it that the processor's window needs
+// (lo <= i <= hi; the recording's ends, or for the follower the frames that completed), makes
+// its points and (options.photos) its photos; fr gets the frame's statistics.
+PreparedFrame PrepareFrame(const Recording& recording, const FrameProcessor& processor,
+                           const IngestOptions& options, int i, int lo, int hi,
+                           const FrameLoader& load, FrameReport* fr);
+
+// Commits a prepared frame: its photos, then its points in one bulk load (atomic per frame).
+// Returns the points committed.
+Result<uint64_t> CommitFrame(client::Backend& backend, const IngestOptions& options,
+                             PreparedFrame&& frame, FrameReport* fr);
+
+// Whether dataset frame f already holds points (resume: such frames are skipped).
+Result<bool> FramePresent(client::Backend& backend, const std::string& dataset, uint32_t f,
+                          double fps);
+
+// The peak resident memory of this process in MiB.
+double PeakRssMb();
+
 // Runs the whole ingest. Returns an error for the first bad frame unless skip_bad_frames; the
 // frames committed before it stay (run again to continue).
 Result<IngestReport> RunIngest(const Recording& recording, client::Backend& backend,

@@ -820,7 +820,7 @@ TEST(Pipeline, UsageErrors) {
   EXPECT_EQ(bb.exit_code, 2) << bb.output;
   EXPECT_NE(bb.output.find("--billboard-baseline"), std::string::npos) << bb.output;
   EXPECT_FALSE(std::filesystem::exists(dir / "d/x"));
-  for (const char* sub : {"run", "check", "calibrate", "stereo", "generate"}) {
+  for (const char* sub : {"run", "check", "calibrate", "stereo", "generate", "replay"}) {
     auto h = testing::RunCommand(std::string(HVDB_INGEST_PATH) + " " + sub + " --help");
     EXPECT_EQ(h.exit_code, 0) << sub << ": " << h.output;
   }
