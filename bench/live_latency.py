@@ -11,7 +11,8 @@ Chromium follows it in Live mode (`?live=1`). Per frame it timestamps, on this m
   committed  landed + the follower's own landed->committed time (its --report)
   event      the watch event's arrival at the Python client
   page_event the event's arrival in the page (window.hvdbLive.onScreen[].eventWall)
-  drawn      the frame first on screen in the page (onScreen[].drawnWall)
+  first      the frame's first picture in the page, its coarse levels (onScreen[].firstDrawnWall)
+  drawn      the frame complete on screen (onScreen[].drawnWall)
 
 and writes medians and p99 of each step and of landed->drawn as JSON, with the frames the
 follower dropped (timed out: it never skips one silently) and how far behind it fell. The page
@@ -144,11 +145,17 @@ def main():
         stop = threading.Event()
 
         def watch():
-            for ev in db.watch("live", timeout=1):
-                if ev["kind"] == "bulk":
-                    events[ev["frames"][0]] = time.time()
-                if stop.is_set():
-                    return
+            # Resumed from the last LSN seen each time it has been quiet for 0.25 s, until told
+            # to stop (the watch's own resume: nothing lost, nothing twice).
+            last = None
+            while not stop.is_set():
+                for ev in db.watch("live", from_lsn=last, timeout=0.25):
+                    if ev["kind"] == "bulk" and ev["frames"][0] not in events:
+                        events[ev["frames"][0]] = time.time()
+                    if ev["kind"] != "live" or last is None:
+                        last = ev["lsn"]
+                    if stop.is_set():
+                        return
 
         watcher = threading.Thread(target=watch)
         watcher.start()
@@ -174,11 +181,12 @@ def main():
         frames = {f["dataset_frame"]: f for f in report["frames"]}
         total = per_loop * loops
         steps = {"landed_to_committed": [], "committed_to_event": [], "event_to_page": [],
-                 "page_event_to_drawn": [], "landed_to_event": [], "landed_to_drawn": []}
+                 "page_event_to_first_picture": [], "page_event_to_drawn": [], "landed_to_event": [],
+                 "landed_to_first_picture": [], "landed_to_drawn": []}
         drawn = {s["frame"]: s for s in on_screen if s.get("kind") != "catch-up"}
         for f in range(total):
             rec = frames.get(f)
-            if rec is None or rec.get("status") != "ok":
+            if rec is None or rec.get("status") != "ingested":
                 continue
             t_landed = landed(live, f)
             t_committed = t_landed + rec["stage_ms"]["landed_to_committed"] / 1000
@@ -190,9 +198,12 @@ def main():
                 s = drawn[f]
                 if f in events:
                     steps["event_to_page"].append(s["eventWall"] - 1000 * events[f])
+                first = s.get("firstDrawnWall", s["drawnWall"])
+                steps["page_event_to_first_picture"].append(first - s["eventWall"])
                 steps["page_event_to_drawn"].append(s["drawnWall"] - s["eventWall"])
+                steps["landed_to_first_picture"].append(first - 1000 * t_landed)
                 steps["landed_to_drawn"].append(s["drawnWall"] - 1000 * t_landed)
-        ingested = sum(1 for f in frames.values() if f.get("status") == "ok")
+        ingested = sum(1 for f in frames.values() if f.get("status") == "ingested")
         out = {
             "bench": "live_latency",
             "recording": "7-Scenes red kitchen RGB-D 640x480 (../shared/data), looped",
@@ -203,13 +214,14 @@ def main():
             "frames_drawn_by_page": len(steps["landed_to_drawn"]),
             "replay_late_note": replay.stdout.strip().splitlines()[-1:] if replay.stdout else [],
             "steps": {k: summary(v) for k, v in steps.items()},
-            "targets": {"landed_to_drawn_p99_ms": 1000, "frames_dropped_by_ingest": 0},
+            "targets": {"landed_to_first_picture_p99_ms": 1000, "frames_dropped_by_ingest": 0},
             "wall_seconds": time.time() - t0,
         }
-        ltd = out["steps"]["landed_to_drawn"]["median_ms"]
+        ltd = out["steps"]["landed_to_first_picture"]["median_ms"]
         if ltd:
             med = {k: out["steps"][k]["median_ms"] or 0 for k in
-                   ("landed_to_committed", "committed_to_event", "event_to_page", "page_event_to_drawn")}
+                   ("landed_to_committed", "committed_to_event", "event_to_page",
+                    "page_event_to_first_picture")}
             out["shares_of_median"] = {k: v / ltd for k, v in med.items()}
         text = json.dumps(out, indent=2)
         if a.out:

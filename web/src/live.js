@@ -39,7 +39,7 @@ export class Live {
     this.events = 0;
     this.resumes = 0;         // LAGGED watches resumed
     this.frames = [];         // arrivals: {frame, lsn, kind, points, eventMs, eventWall}
-    this.onScreen = [];       // first draws: {frame, lsn, kind, eventMs, drawnMs, eventWall, drawnWall, latencyMs, points, queryMs}
+    this.onScreen = [];       // first draws: {frame, lsn, kind, eventMs, drawnMs, eventWall, drawnWall, latencyMs, points, queryMs, firstDrawnWall, firstLatencyMs}
     this.pending = null;      // the newest arrival not yet shown (while following)
     this.refresh = null;      // the paused frame, changed: shown anew
     this.pumping = false;
@@ -266,6 +266,9 @@ export class Live {
         frame: job.frame, lsn: job.lsn, kind: job.kind, eventMs: job.eventMs, drawnMs,
         eventWall: job.eventWall, drawnWall, latencyMs: drawnMs - job.eventMs, points: a.shown ? a.shown.points : 0,
         queryMs: a.shown ? a.shown.loadMs : null,
+        // The first picture of the frame (its coarse levels), before the complete one (drawnWall).
+        firstDrawnWall: a.shown?.firstDrawnWall ?? drawnWall,
+        firstLatencyMs: (a.shown?.firstDrawnMs ?? drawnMs) - job.eventMs,
       });
     }
     this.updateUi();

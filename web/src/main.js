@@ -387,6 +387,12 @@ class App {
     const d = this.shown;
     const layers = d && !d.disposed ? [d.layer] : [];
     const n = this.renderer.draw(layers, cam, { selMask: (1 << this.bit) >>> 0, overlay: this.overlay, zFar: this.zFar(d), resolution });
+    // A frame's first picture (its coarsest level, when it comes progressively): live mode's
+    // "on screen" (window.hvdbLive.onScreen[].firstDrawnWall).
+    if (n > 0 && d && d.firstDrawnWall === undefined) {
+      d.firstDrawnWall = Date.now();
+      d.firstDrawnMs = performance.now();
+    }
     if (n > 0 && this.metrics.firstPictureMs === null && this.firstQueryAt !== null) {
       this.metrics.firstPictureMs = performance.now() - this.firstQueryAt;
     }
