@@ -74,6 +74,43 @@ def write_recording(d, fps):
     return frames
 
 
+SJTU = os.path.join(SHARED, "sjtu-fvv-multiview-rgbd")
+
+
+def write_sjtu_recording(d, fps):
+    """The SJTU stage frame (8 cameras, 1920x1080 colour + inverse depth), one frame whose files
+    replay replicates: as bench/real_recordings.cc writes it for ingest-bench."""
+    os.makedirs(d)
+    tok = open(os.path.join(SJTU, "para_cameras.txt")).read().split()
+    zmin, zmax, i = float(tok[0]), float(tok[1]), 2
+
+    def mat(rows, cols, v):
+        return (f"!!opencv-matrix\n       rows: {rows}\n       cols: {cols}\n       dt: d\n"
+                f"       data: [ {', '.join(repr(float(x)) for x in v)} ]\n")
+    cams, files = "cameras:\n", "cameras:\n"
+    for _ in range(10):
+        cid = int(tok[i + 1]); w, h = int(tok[i + 3]), int(tok[i + 4])
+        fx, fy, cx, cy = map(float, tok[i + 6:i + 10])
+        R = list(map(float, tok[i + 11:i + 20])); C = list(map(float, tok[i + 21:i + 24]))
+        i += 24
+        if not os.path.exists(os.path.join(SJTU, "frame_0", "images", f"{cid}.png")):
+            continue  # cameras held out of the shared copy
+        T = [-(R[3 * r] * C[0] + R[3 * r + 1] * C[1] + R[3 * r + 2] * C[2]) for r in range(3)]
+        name = f"cam{cid}"
+        cams += (f"   - name: {name}\n     width: {w}\n     height: {h}\n     K: "
+                 + mat(3, 3, [fx, 0, cx, 0, fy, cy, 0, 0, 1]) + "     R: " + mat(3, 3, R)
+                 + "     T: " + mat(3, 1, T) + "     reprojection_error: 0.5\n")
+        files += (f"   - {{ name: {name}, colour: \"{SJTU}/frame_0/images/{cid}.png\", "
+                  f"depth: \"{SJTU}/frame_0/depths/{cid}.png\" }}\n")
+    with open(os.path.join(d, "calibration.yml"), "w") as f:
+        f.write("%YAML:1.0\n---\n" + cams)
+    with open(os.path.join(d, "recording.yml"), "w") as f:
+        f.write("%YAML:1.0\n---\nformat: \"hvdb-recording\"\nversion: 1\nkind: \"depth\"\n"
+                f"frames: 1\nfps: {fps}\ndepth_encoding: \"inverse8\"\ndepth_invalid: [ 0 ]\n"
+                f"z_near: {zmin!r}\nz_far: {zmax!r}\nworld_scale: 0.37\n" + files)
+    return 1
+
+
 def landed(live_dir, frame):
     d = os.path.join(live_dir, "frames", f"{frame:06d}")
     times = []
@@ -105,6 +142,11 @@ def main():
     ap.add_argument("--fps", type=float, default=30)
     ap.add_argument("--out", default="")
     ap.add_argument("--no-browser", action="store_true", help="stop at the watch event")
+    ap.add_argument("--source", choices=["7scenes", "sjtu"], default="7scenes",
+                    help="7-Scenes RGB-D 640x480, or the SJTU stage frame (8 cameras, 1080p) replicated")
+    ap.add_argument("--stride", type=int, default=1, help="depth: every n-th pixel (hvdb-ingest --stride)")
+    ap.add_argument("--ingest-arg", action="append", default=[],
+                    help="more arguments for hvdb-ingest run (e.g. --ingest-arg=--no-photo-consistency)")
     a = ap.parse_args()
     sys.path.insert(0, os.path.join(a.build, "python"))
     import hvdb
@@ -114,7 +156,8 @@ def main():
     work = tempfile.mkdtemp(prefix="hvdb_live_latency_")
     procs = []
     try:
-        per_loop = write_recording(os.path.join(work, "src"), a.fps)
+        write = write_sjtu_recording if a.source == "sjtu" else write_recording
+        per_loop = write(os.path.join(work, "src"), a.fps)
         loops = max(1, round(a.seconds * a.fps / per_loop))
         port_file = os.path.join(work, "port")
         srv = subprocess.Popen([server_bin, "--data", os.path.join(work, "data"), "--listen",
@@ -161,7 +204,7 @@ def main():
         watcher.start()
         follow = subprocess.Popen([ingest_bin, "run", live, "--follow", "--dataset", "live",
                                    "--server", address, "--report", os.path.join(work, "report.json"),
-                                   "--status-every", "5"],
+                                   "--status-every", "5", "--stride", str(a.stride)] + a.ingest_arg,
                                   stdout=subprocess.DEVNULL, stderr=open(os.path.join(work, "follow.log"), "w"))
         procs.append(follow)
         t0 = time.time()
@@ -206,7 +249,10 @@ def main():
         ingested = sum(1 for f in frames.values() if f.get("status") == "ingested")
         out = {
             "bench": "live_latency",
-            "recording": "7-Scenes red kitchen RGB-D 640x480 (../shared/data), looped",
+            "recording": ("SJTU stage frame, 8 cameras 1920x1080 colour + depth, replicated"
+                          if a.source == "sjtu" else
+                          "7-Scenes red kitchen RGB-D 640x480 (../shared/data), looped"),
+            "stride": a.stride, "ingest_args": a.ingest_arg,
             "fps": a.fps, "frames_captured": total, "capture_seconds": total / a.fps,
             "frames_ingested": ingested,
             "frames_dropped_by_ingest": report.get("timed_out", 0) + total - len(frames),

@@ -19,9 +19,9 @@ struct WatchArgs {
   bool json = false;
 } watch_args;
 
-// The line a script reads: names fixed by docs/PROTOCOL.md ("Watching").
-json WatchEventJson(const ChangeEvent& ev) {
-  json j = {{"lsn", ev.lsn}, {"kind", ChangeKindName(ev.kind)}};
+// The line a script reads: names fixed by docs/PROTOCOL.md ("Watching"), in that order.
+nlohmann::ordered_json WatchEventJson(const ChangeEvent& ev) {
+  nlohmann::ordered_json j = {{"lsn", ev.lsn}, {"kind", ChangeKindName(ev.kind)}};
   if (ev.kind == ChangeEvent::Kind::kLive || ev.kind == ChangeEvent::Kind::kLagged ||
       ev.kind == ChangeEvent::Kind::kDropped) {
     return j;
