@@ -18,7 +18,7 @@ cmake --build build-asan --target storage_tests server_tests service_tests codec
   ingest_points_tests
 ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
   ctest --test-dir build-asan --output-on-failure -j2 --timeout 900 \
-  -R '^(Crc32c|Point|BufferPool|ConvertTest|ServiceTest|Lod|KdTree|Hyperslice|Wal|Dataset|FollowerTest|Photos|Crash|Corruption|FaultInjection|Server|HttpServer|Hardening|HttpHeadCheck|Printable|WsCodec|WebPath|OriginAllowed|CodecTest|DepthSigma|PhotoConsistency|GeometricConsistencyTest|BillboardTest|SegmentationTest)' \
+  -R '^(Crc32c|Point|BufferPool|ConvertTest|ServiceTest|Lod|KdTree|Hyperslice|Wal|Dataset|FollowerTest|WatchTest|WatchServerTest|Photos|Crash|Corruption|FaultInjection|Server|HttpServer|Hardening|HttpHeadCheck|Printable|WsCodec|WebPath|OriginAllowed|CodecTest|DepthSigma|PhotoConsistency|GeometricConsistencyTest|BillboardTest|SegmentationTest)' \
   -E 'SlowReaderDoesNotGrowServerMemory|PipelinedQueriesOfClientsThatDoNotRead|TheServerWideBudgetHolds|PingsOfAClientThatDoesNotRead|PingPayloadsOverTheLimit|ConnectionsBeforeTheirHelloCannotAnnounce|AClientThatNeverReleasesHoldsOnlyItsRing|ClientsKilledWhileHoldingSlotsLeakNothing|PhotoConsistency.Throughput'
 
 # Fuzz the decoders with clang's libFuzzer, 20 seconds each: the frame and message decoder of

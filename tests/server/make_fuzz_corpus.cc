@@ -76,6 +76,11 @@ int main(int argc, char** argv) {
   r.set_id(7);
   r.mutable_release()->add_slots(2);
   write("release", r);
+  r.Clear();
+  r.set_id(8);
+  r.mutable_watch()->set_dataset("d");
+  r.mutable_watch()->set_from_lsn(3);
+  write("watch", r);
   // The client's side: responses with batches.
   wire::Response resp;
   resp.set_id(2);
@@ -95,5 +100,13 @@ int main(int argc, char** argv) {
   b->set_encoding(wire::COLUMNS);
   wire::EncodeColumns(pts, b->mutable_columns());
   std::ofstream(dir + "/response_columns", std::ios::binary) << wire::Frame(resp);
+  wire::Response ev;
+  ev.set_id(8);
+  ev.mutable_event()->set_dataset("d");
+  ev.mutable_event()->set_lsn(4);
+  ev.mutable_event()->set_kind(wire::WATCH_BULK);
+  ev.mutable_event()->add_frames(7);
+  ev.mutable_event()->set_points(75012);
+  std::ofstream(dir + "/response_watch", std::ios::binary) << wire::Frame(ev);
   return 0;
 }
