@@ -269,7 +269,8 @@ TEST_F(WatchServerTest, AReplayNobodyReadsEndsWithLagged) {
   for (int i = 0; i < 60; ++i) {
     Transaction t;
     std::vector<Point> pts;
-    for (uint32_t f = 0; f < 4000; ++f) pts.push_back(RandomPoints(rng_, 1, f)[0]);
+    // Events of ~16 KB: the replay (~1 MB) outgrows the socket's buffers and the window.
+    for (uint32_t f = 0; f < 8000; ++f) pts.push_back(RandomPoints(rng_, 1, f)[0]);
     t.Insert(std::move(pts));
     ASSERT_TRUE(writer_->Commit("live", t).ok());
   }
@@ -281,7 +282,20 @@ TEST_F(WatchServerTest, AReplayNobodyReadsEndsWithLagged) {
     req.mutable_watch()->set_from_lsn(0);
     ASSERT_TRUE(idle.back()->Send(&req).ok());
   }
-  std::this_thread::sleep_for(milliseconds(3000));
+  // Until the server has ended all four watches (its request statistics count a watch when it
+  // ends): reading the log may take a while (sanitizer builds), the stall a second more.
+  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(120);
+  for (;;) {
+    auto st = writer_->Stats();
+    ASSERT_TRUE(st.ok());
+    uint64_t ended = 0;
+    for (const auto& l : st->requests()) {
+      if (l.kind() == "watch") ended = l.count();
+    }
+    if (ended >= idle.size()) break;
+    ASSERT_LT(std::chrono::steady_clock::now(), until) << ended << " of the watches ended";
+    std::this_thread::sleep_for(milliseconds(200));
+  }
   // The workers are free: a commit (run on a worker) answers at once.
   const auto t0 = std::chrono::steady_clock::now();
   Transaction t;
@@ -295,6 +309,8 @@ TEST_F(WatchServerTest, AReplayNobodyReadsEndsWithLagged) {
       auto r = c->Receive(1);
       ASSERT_TRUE(r.ok()) << r.status().ToString();
       ASSERT_TRUE(r->has_event());
+      ASSERT_NE(r->event().kind(), wire::WATCH_LIVE) << "the whole replay was sent to a client "
+                                                        "that did not read";
       if (r->event().kind() == wire::WATCH_LAGGED) {
         EXPECT_EQ(r->event().lsn(), seen);
         break;
