@@ -174,9 +174,10 @@ void RegisterRun(CLI::App& app, int* rc) {
                 "(PNG: IEND chunk, JPEG: EOI marker, EXR: every scanline, binary PLY: every "
                 "element; pose: 16 numbers and a newline; other files: closed by the writer or "
                 "unchanged for 0.3 s) and it "
-                "decodes, and committed at once, one at a time with every core; ends when the "
-                "recording's `frames` are handled, or on Ctrl-C/SIGTERM after committing the "
-                "frame in hand (exit 0). docs/RECORDING.md, \"Live ingest\"");
+                "decodes; --workers frames are prepared at once and committed in frame order "
+                "as soon as they are done; ends when the recording's `frames` are handled, or on "
+                "Ctrl-C/SIGTERM after committing the frames in hand, in order (exit 0). "
+                "docs/RECORDING.md, \"Live ingest\"");
   cmd->add_option("--frame-timeout", a->f.frame_timeout,
                   "--follow: seconds a frame's files may take to complete, counted from when the "
                   "follower starts waiting for it or, if later, when the frame before it completed "
