@@ -1,6 +1,7 @@
 // The follower of a recording being written (ingest/live.h): waits for each frame's files with
-// inotify, takes the frames in order, commits each through the batch pipeline's PrepareFrame
-// and CommitFrame.
+// inotify, takes the frames in order, prepares several at once on a pool of workers
+// (PrepareFrame) and commits them in frame order (CommitFrame), as the batch pipeline does.
+#include <fcntl.h>
 #include <poll.h>
 #include <sys/inotify.h>
 #include <sys/stat.h>
@@ -8,9 +9,13 @@
 
 #include <algorithm>
 #include <chrono>
+#include <condition_variable>
 #include <cstdio>
+#include <deque>
 #include <filesystem>
+#include <functional>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <set>
 #include <thread>
@@ -101,13 +106,16 @@ class DirWatcher {
 
   // Sleeps until an event or timeout_ms; remembers which files were closed after writing or
   // renamed into place since their last change.
-  void Wait(int timeout_ms) {
-    if (fd_ < 0) {
-      std::this_thread::sleep_for(std::chrono::milliseconds(timeout_ms));
-      return;
+  // wake_fd (optional): a pipe the workers write to when a frame is prepared; drained here.
+  void Wait(int timeout_ms, int wake_fd = -1) {
+    pollfd p[2] = {{fd_, POLLIN, 0}, {wake_fd, POLLIN, 0}};  // negative fds are ignored
+    if (::poll(p, 2, timeout_ms) <= 0) return;  // timeout, or EINTR (a signal: look at stop)
+    if (p[1].revents & POLLIN) {
+      char drain[64];
+      while (::read(wake_fd, drain, sizeof drain) > 0) {
+      }
     }
-    pollfd p{fd_, POLLIN, 0};
-    if (::poll(&p, 1, timeout_ms) <= 0) return;  // timeout, or EINTR (a signal: look at stop)
+    if (fd_ < 0 || !(p[0].revents & POLLIN)) return;
     alignas(inotify_event) char buf[16384];
     while (true) {
       const ssize_t n = ::read(fd_, buf, sizeof buf);
@@ -181,6 +189,87 @@ struct Slot {
   double load_ms = 0;                       // reading and decoding its files
 };
 
+// A frame taken, in frame order until it is committed: prepared by a worker (`job`), or
+// reported as it is (already present, timed out).
+struct Taken {
+  int frame = 0;
+  FrameReport fr;
+  bool job = false;
+  int wlo = 0, whi = 0;                                   // its window
+  std::vector<std::shared_ptr<const FrameInput>> window;  // frames wlo..whi, loaded
+  double landed = 0, load_ms = 0;
+  PreparedFrame prepared;  // the worker's, read once done
+  bool done = false;       // under Workers::mu_
+};
+
+// Prepares taken frames on `n` threads, any order; each finished one is marked done and
+// announced on a pipe the follower's wait polls. Queued frames not begun are dropped on
+// destruction, those begun are finished (their threads joined).
+class Workers {
+ public:
+  Workers(int n, std::function<void(Taken&)> work) : work_(std::move(work)) {
+    if (::pipe2(pipe_, O_NONBLOCK | O_CLOEXEC) != 0) pipe_[0] = pipe_[1] = -1;
+    for (int i = 0; i < n; ++i) threads_.emplace_back([this] { Run(); });
+  }
+  ~Workers() {
+    {
+      std::lock_guard lk(mu_);
+      stop_ = true;
+      queue_.clear();
+    }
+    cv_.notify_all();
+    for (auto& t : threads_) t.join();
+    for (int fd : pipe_)
+      if (fd >= 0) ::close(fd);
+  }
+  Workers(const Workers&) = delete;
+  Workers& operator=(const Workers&) = delete;
+
+  void Add(std::shared_ptr<Taken> t) {
+    {
+      std::lock_guard lk(mu_);
+      queue_.push_back(std::move(t));
+    }
+    cv_.notify_one();
+  }
+  bool Done(const Taken& t) {
+    std::lock_guard lk(mu_);
+    return t.done;
+  }
+  int wake_fd() const { return pipe_[0]; }
+
+ private:
+  void Run() {
+    while (true) {
+      std::shared_ptr<Taken> t;
+      {
+        std::unique_lock lk(mu_);
+        cv_.wait(lk, [&] { return stop_ || !queue_.empty(); });
+        if (queue_.empty()) return;
+        t = std::move(queue_.front());
+        queue_.pop_front();
+      }
+      work_(*t);
+      {
+        std::lock_guard lk(mu_);
+        t->done = true;
+      }
+      if (pipe_[1] >= 0) {
+        const char c = 1;
+        [[maybe_unused]] const ssize_t n = ::write(pipe_[1], &c, 1);  // full: a wake is pending
+      }
+    }
+  }
+
+  std::function<void(Taken&)> work_;
+  int pipe_[2] = {-1, -1};
+  std::mutex mu_;
+  std::condition_variable cv_;
+  std::deque<std::shared_ptr<Taken>> queue_;
+  bool stop_ = false;
+  std::vector<std::thread> threads_;
+};
+
 double Median(std::vector<double> v) {
   if (v.empty()) return 0;
   std::sort(v.begin(), v.end());
@@ -204,10 +293,14 @@ Result<FollowReport> FollowRecording(const std::string& dir, client::Backend& ba
     return Status::InvalidArgument("--first " + std::to_string(opt.first) +
                                    " is outside the recording's frames 0.." + std::to_string(rec.frames - 1));
   const int last = opt.count < 0 ? rec.frames : std::min(rec.frames, opt.first + opt.count);
-  // One frame at a time, in order, each with all the cores (RunIngest with --workers 1).
+  // Frames prepared at once, as RunIngest's workers (each frame's stages then share the cores
+  // among them); committed in frame order by this thread. --workers 1: one frame at a time,
+  // each with every core, the next prepared while this one commits.
   const int cores = std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
-  opt.workers = 1;
-  if (opt.stereo.threads <= 0) opt.stereo.threads = cores;
+  if (opt.workers <= 0) opt.workers = cores;
+  opt.workers = std::clamp(opt.workers, 1, std::max(1, last - opt.first));
+  if (opt.max_in_flight <= 0) opt.max_in_flight = opt.workers + 1;  // taken and not committed
+  if (opt.stereo.threads <= 0) opt.stereo.threads = std::max(1, cores / opt.workers);
   HVDB_ASSIGN_OR_RETURN(FrameProcessor proc, FrameProcessor::Make(rec, opt));
   HVDB_RETURN_IF_ERROR(EnsureDataset(backend, rec, opt.dataset));
   const int radius = proc.window_radius();
@@ -234,10 +327,11 @@ Result<FollowReport> FollowRecording(const std::string& dir, client::Backend& ba
   auto status_line = [&](int next, const std::string& waiting) {
     if (follow.status_every <= 0 || Clock::now() - last_status < std::chrono::duration<double>(follow.status_every)) return;
     last_status = Clock::now();
-    const int b = behind(next);
+    const int handled = static_cast<int>(report.frames.size());
+    const int b = behind(opt.first + handled);
     out.max_behind = std::max(out.max_behind, b);
-    std::fprintf(stderr, "follow: %d/%d frames handled (%d ingested, %d timed out), behind by %d frames (%.2f s)",
-                 next - opt.first, last - opt.first, report.ingested, out.timed_out, b, b / rec.fps);
+    std::fprintf(stderr, "follow: %d/%d frames handled (%d ingested, %d timed out, %d in flight), behind by %d frames (%.2f s)",
+                 handled, last - opt.first, report.ingested, out.timed_out, next - opt.first - handled, b, b / rec.fps);
     if (!out.latency_s.empty())
       std::fprintf(stderr, ", landed->committed median %.0f ms, last %.0f ms", 1000 * Median(out.latency_s),
                    1000 * out.latency_s.back());
@@ -245,13 +339,81 @@ Result<FollowReport> FollowRecording(const std::string& dir, client::Backend& ba
     std::fprintf(stderr, "\n");
   };
 
-  int next = opt.first;
-  std::optional<int> present_checked;
-  while (next < last) {
-    if (Stopped(follow)) {
-      out.interrupted = true;
-      break;
+  // Frames taken and not yet committed, in frame order; `jobs` of them are being prepared or
+  // wait to be committed (at most max_in_flight: that bounds the memory).
+  std::deque<std::shared_ptr<Taken>> taken;
+  int jobs = 0;
+  Workers workers(opt.workers, [&](Taken& t) {
+    const FrameLoader load = [&](int w) -> Result<std::shared_ptr<const FrameInput>> {
+      if (w < t.wlo || w > t.whi) return Status::Internal("frame " + std::to_string(w) + " is not loaded");
+      return t.window[static_cast<size_t>(w - t.wlo)];
+    };
+    t.prepared = PrepareFrame(rec, proc, opt, t.frame, t.wlo, t.whi, load, &t.fr);
+    t.window.clear();  // the slots hold them while a later window needs them
+  });
+  // Commits (or reports) the frames at the front that are ready, in frame order.
+  auto commit_ready = [&]() -> Status {
+    while (!taken.empty() && (!taken.front()->job || workers.Done(*taken.front()))) {
+      std::shared_ptr<Taken> t = std::move(taken.front());
+      taken.pop_front();
+      FrameReport& fr = t->fr;
+      if (t->job) {
+        --jobs;
+        PreparedFrame d = std::move(t->prepared);
+        fr.stage_ms["load"] = t->load_ms;  // read when it completed, before it was taken
+        if (!d.status.ok()) {
+          fr.status = "skipped";
+          fr.error = d.status.ToString();
+          if (!opt.skip_bad_frames)
+            return Status(d.status.code(), "frame " + std::to_string(t->frame) + ": " + d.status.message() +
+                                               " (--skip-bad-frames goes on without it)");
+          ++report.skipped;
+          std::fprintf(stderr, "hvdb-ingest: skipped frame %d: %s\n", t->frame, fr.error.c_str());
+        } else {
+          const uint64_t bytes = d.bytes;
+          auto n = CommitFrame(backend, opt, std::move(d), &fr);
+          if (!n.ok())
+            return Status(n.status().code(), "frame " + std::to_string(t->frame) + ": commit: " + n.status().message());
+          ++report.ingested;
+          report.points += *n;
+          report.bytes_read += bytes;
+          report.skipped_invalid += fr.skipped_invalid;
+          const double latency = std::max(0.0, RealtimeNowS() - t->landed);
+          out.latency_s.push_back(latency);
+          fr.stage_ms["landed_to_committed"] = 1000 * latency;
+          if (follow.verbose) {
+            std::printf("frame %d: committed %llu points, %.0f ms after its last file landed\n", t->frame,
+                        static_cast<unsigned long long>(*n), 1000 * latency);
+            std::fflush(stdout);
+          }
+        }
+      }
+      report.frames.push_back(std::move(fr));
     }
+    return Status::OK();
+  };
+
+  int next = opt.first;  // the next frame to take
+  std::optional<int> present_checked;
+  while (true) {
+    HVDB_RETURN_IF_ERROR(commit_ready());
+    // Stopped: no frame more is taken; those taken are prepared and committed, in order.
+    if (next < last && Stopped(follow)) out.interrupted = true;
+    if (out.interrupted || next >= last || jobs >= opt.max_in_flight) {
+      if (taken.empty()) {
+        if (out.interrupted || next >= last) break;
+      } else {
+        watcher.Wait(follow.poll_ms, workers.wake_fd());
+      }
+      continue;
+    }
+    auto take = [&](FrameReport fr) {
+      auto t = std::make_shared<Taken>();
+      t->frame = next;
+      t->fr = std::move(fr);
+      taken.push_back(std::move(t));
+      return taken.back().get();
+    };
     FrameReport fr;
     fr.frame = next;
     fr.dataset_frame = opt.frame_offset + static_cast<uint32_t>(next);
@@ -266,7 +428,7 @@ Result<FollowReport> FollowRecording(const std::string& dir, client::Backend& ba
         }
         fr.status = "present";
         ++report.present;
-        report.frames.push_back(fr);
+        take(std::move(fr));
         ++next;
         continue;
       }
@@ -339,7 +501,7 @@ Result<FollowReport> FollowRecording(const std::string& dir, client::Backend& ba
           wait_ms = std::min<int>(wait_ms, static_cast<int>(std::chrono::duration_cast<std::chrono::milliseconds>(
                                                                *s.due - Clock::now()).count()) + 1);
       }
-      watcher.Wait(std::max(1, wait_ms));
+      watcher.Wait(std::max(1, wait_ms), workers.wake_fd());  // a prepared frame wakes it too
       continue;
     }
     Slot& centre = slots[next];
@@ -347,6 +509,7 @@ Result<FollowReport> FollowRecording(const std::string& dir, client::Backend& ba
       fr.status = "skipped";
       fr.error = "timed out: " + centre.why;
       ++report.skipped;
+      take(std::move(fr));
     } else {
       // The window: the loaded frames next to it; a neighbour that timed out shortens it (as
       // the recording's ends do).
@@ -356,50 +519,26 @@ Result<FollowReport> FollowRecording(const std::string& dir, client::Backend& ba
       if (wlo > lo || whi < hi)
         std::fprintf(stderr, "hvdb-ingest: frame %d is made with frames %d..%d around it, not %d..%d "
                              "(a frame next to it timed out)\n", next, wlo, whi, lo, hi);
-      double landed = 0;
-      for (int j = wlo; j <= whi; ++j) landed = std::max(landed, slots[j].landed);
+      Taken* t = take(std::move(fr));
+      t->job = true;
+      t->wlo = wlo;
+      t->whi = whi;
+      for (int j = wlo; j <= whi; ++j) {
+        t->window.push_back(slots[j].input);
+        t->landed = std::max(t->landed, slots[j].landed);
+      }
+      t->load_ms = centre.load_ms;
       if (follow.verbose) {
-        std::printf("frame %d: taken %.0f ms after its last file landed\n", next, 1000 * (RealtimeNowS() - landed));
+        std::printf("frame %d: taken %.0f ms after its last file landed\n", next, 1000 * (RealtimeNowS() - t->landed));
         std::fflush(stdout);
       }
-      const FrameLoader load = [&](int w) -> Result<std::shared_ptr<const FrameInput>> {
-        auto s = slots.find(w);
-        if (s == slots.end() || !s->second.input) return Status::Internal("frame " + std::to_string(w) + " is not loaded");
-        return s->second.input;
-      };
-      PreparedFrame d = PrepareFrame(rec, proc, opt, next, wlo, whi, load, &fr);
-      fr.stage_ms["load"] = centre.load_ms;  // read when it completed, before it was taken
-      if (!d.status.ok()) {
-        fr.status = "skipped";
-        fr.error = d.status.ToString();
-        if (!opt.skip_bad_frames)
-          return Status(d.status.code(), "frame " + std::to_string(next) + ": " + d.status.message() +
-                                             " (--skip-bad-frames goes on without it)");
-        ++report.skipped;
-        std::fprintf(stderr, "hvdb-ingest: skipped frame %d: %s\n", next, fr.error.c_str());
-      } else {
-        const uint64_t bytes = d.bytes;
-        auto n = CommitFrame(backend, opt, std::move(d), &fr);
-        if (!n.ok())
-          return Status(n.status().code(), "frame " + std::to_string(next) + ": commit: " + n.status().message());
-        ++report.ingested;
-        report.points += *n;
-        report.bytes_read += bytes;
-        report.skipped_invalid += fr.skipped_invalid;
-        const double latency = std::max(0.0, RealtimeNowS() - landed);
-        out.latency_s.push_back(latency);
-        fr.stage_ms["landed_to_committed"] = 1000 * latency;
-        if (follow.verbose) {
-          std::printf("frame %d: committed %llu points, %.0f ms after its last file landed\n", next,
-                      static_cast<unsigned long long>(*n), 1000 * latency);
-          std::fflush(stdout);
-        }
-      }
+      ++jobs;
+      out.max_in_flight = std::max(out.max_in_flight, jobs);
+      workers.Add(taken.back());
     }
-    report.frames.push_back(fr);
     ++next;
     out.max_behind = std::max(out.max_behind, behind(next));
-    // Frames no later window needs are dropped.
+    // Frames no later window needs are dropped (a frame being prepared holds its own).
     for (auto it = slots.begin(); it != slots.end() && it->first < next - radius;) it = slots.erase(it);
     status_line(next, "");
   }

@@ -3,11 +3,13 @@
 //
 // The follower takes recording frames in order, each as soon as all its cameras' files are
 // present and complete (FileCompleteness below), processes it with the same per-frame pipeline
-// as RunIngest (PrepareFrame, CommitFrame: the same points and photos) and commits it at once,
-// so readers see frames appear live. A frame whose files do not complete within
+// as RunIngest (PrepareFrame, CommitFrame: the same points and photos) and commits it as soon
+// as it and the frames before it are done, so readers see frames appear live. Up to `workers`
+// frames are prepared at once (a frame's stages are mostly serial: one frame at a time cannot
+// use the cores), always committed in frame order. A frame whose files do not complete within
 // `frame_timeout` is reported by name and left out; later frames still are taken. It ends
 // when the recording's declared frames are handled, or when *stop becomes true (Ctrl-C,
-// SIGTERM) after committing the frame in hand. docs/RECORDING.md, "Live ingest".
+// SIGTERM) after committing, in order, the frames in hand. docs/RECORDING.md, "Live ingest".
 #ifndef HVDB_INGEST_LIVE_H_
 #define HVDB_INGEST_LIVE_H_
 
@@ -67,7 +69,8 @@ struct FollowOptions {
   bool verbose = false;       // a line per frame on stdout (taken, committed, latency)
   int poll_ms = 250;          // the safety net's poll period (filesystems without inotify)
   bool inotify = true;        // false: the poll alone (tests of the safety net)
-  const std::atomic<bool>* stop = nullptr;  // set by a signal handler: stop after this frame
+  // Set by a signal handler: take no more frames, commit those taken (in order), return.
+  const std::atomic<bool>* stop = nullptr;
 };
 
 struct FollowReport {
@@ -79,11 +82,12 @@ struct FollowReport {
   // committed.
   std::vector<double> latency_s;
   int max_behind = 0;   // the most frames it was behind the capture (see the status line)
+  int max_in_flight = 0;  // the most frames taken and not yet committed at once
 };
 
 // Waits for REC/recording.yml (and the calibration) to be readable, then follows it. `dir`
-// may not exist yet. Options as RunIngest's (workers: frames are taken one at a time, each
-// with every core).
+// may not exist yet. Options as RunIngest's (workers: frames prepared at once, 0: the cores;
+// max_in_flight: frames taken and not yet committed, 0: workers + 1).
 Result<FollowReport> FollowRecording(const std::string& dir, client::Backend& backend,
                                      const IngestOptions& options, const FollowOptions& follow);
 

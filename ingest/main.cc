@@ -30,10 +30,10 @@ namespace {
 
 std::atomic<bool> g_stop{false};
 
-// Ctrl-C / SIGTERM: finish the frame in hand, then stop; a second one kills (SA_RESETHAND).
+// Ctrl-C / SIGTERM: finish the frames in hand, then stop; a second one kills (SA_RESETHAND).
 void OnStopSignal(int) {
   g_stop = true;
-  static const char kMsg[] = "\nhvdb-ingest: stopping after the frame in hand (again to kill)\n";
+  static const char kMsg[] = "\nhvdb-ingest: stopping after the frames in hand (again to kill)\n";
   ssize_t ignored = ::write(2, kMsg, sizeof kMsg - 1);
   (void)ignored;
 }
@@ -67,6 +67,7 @@ int RunFollow(const std::string& dir, client::Backend& backend, const IngestOpti
   j["timed_out"] = r->timed_out;
   j["interrupted"] = r->interrupted;
   j["max_behind_frames"] = r->max_behind;
+  j["max_in_flight"] = r->max_in_flight;
   j["landed_to_committed_s"] = {{"median", pct(0.5)}, {"p90", pct(0.9)}, {"max", pct(1.0)}};
   if (!report_path.empty()) {
     std::ofstream out(report_path);
@@ -103,7 +104,7 @@ void RegisterRun(CLI::App& app, int* rc) {
   cmd->add_option("--data", a->data, "data directory: write it directly (no server)");
   cmd->add_option("--server", a->server, "HOST:PORT of a running hvdb-server to stream into");
   cmd->add_option("--token", a->token, "access token for the server (read-write role)");
-  cmd->add_option("--workers", a->o.workers, "frames processed in parallel (0: all cores)")->capture_default_str();
+  cmd->add_option("--workers", a->o.workers, "frames processed in parallel (0: all cores; with --follow too, committed in order)")->capture_default_str();
   cmd->add_option("--first", a->o.first, "first recording frame")->capture_default_str();
   cmd->add_option("--count", a->o.count, "frames to ingest (-1: to the end)")->capture_default_str();
   cmd->add_option("--frame-offset", a->o.frame_offset, "dataset frame of recording frame 0")->capture_default_str();
@@ -173,9 +174,10 @@ void RegisterRun(CLI::App& app, int* rc) {
                 "(PNG: IEND chunk, JPEG: EOI marker, EXR: every scanline, binary PLY: every "
                 "element; pose: 16 numbers and a newline; other files: closed by the writer or "
                 "unchanged for 0.3 s) and it "
-                "decodes, and committed at once, one at a time with every core; ends when the "
-                "recording's `frames` are handled, or on Ctrl-C/SIGTERM after committing the "
-                "frame in hand (exit 0). docs/RECORDING.md, \"Live ingest\"");
+                "decodes; --workers frames are prepared at once and committed in frame order "
+                "as soon as they are done; ends when the recording's `frames` are handled, or on "
+                "Ctrl-C/SIGTERM after committing the frames in hand, in order (exit 0). "
+                "docs/RECORDING.md, \"Live ingest\"");
   cmd->add_option("--frame-timeout", a->f.frame_timeout,
                   "--follow: seconds a frame's files may take to complete, counted from when the "
                   "follower starts waiting for it or, if later, when the frame before it completed "

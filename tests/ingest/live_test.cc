@@ -1,7 +1,8 @@
 // Live ingest (ingest/live.h): the completeness test on real files, `run --follow` on
 // recordings written frame by frame (renamed into place, or written in place in pieces) against
-// ingesting the finished recording, a frame that never completes, SIGTERM during a follow, and
-// replay of the real 7-Scenes sequence.
+// ingesting the finished recording, a frame that never completes, SIGTERM during a follow (with
+// one and with several frames in flight), frames in flight committed in order, and replay of
+// the real 7-Scenes sequence.
 #include "ingest/live.h"
 
 #include <signal.h>
@@ -13,10 +14,12 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <sstream>
 #include <thread>
 
 #include <opencv2/imgcodecs.hpp>
@@ -343,6 +346,101 @@ TEST(Live, SigtermFinishesTheFrameInHand) {
   auto backend = client::MakeEmbeddedBackend(dir / "data", 32 << 20);
   for (int f : {0, 1}) EXPECT_TRUE(FramePoints(*backend, "v", f, rec->fps) == reference.at(f)) << f;
   EXPECT_TRUE(FramePoints(*backend, "v", 2, rec->fps).empty());
+}
+
+// A recording written at once, followed with two workers: frames are prepared together
+// (several in flight), committed in frame order, each exactly as a normal run commits it.
+TEST(Live, FramesInFlightCommitInOrderAndEqualARun) {
+  TempDir dir;
+  const int frames = 6;
+  ASSERT_TRUE(GenerateRecording(Rig(frames), dir / "src").ok());
+  auto rec = OpenRecording(dir / "src");
+  ASSERT_TRUE(rec.ok());
+  const auto reference = Reference(*rec, dir / "ref");
+  fs::copy(dir / "src", dir / "live", fs::copy_options::recursive);
+  auto backend = client::MakeEmbeddedBackend(dir / "data", 32 << 20);
+  FollowOptions fo;
+  fo.status_every = 0;
+  IngestOptions o = Options();
+  o.workers = 2;
+  auto rep = FollowRecording(dir / "live", *backend, o, fo);
+  ASSERT_TRUE(rep.ok()) << rep.status().ToString();
+  EXPECT_EQ(rep->ingest.ingested, frames);
+  EXPECT_GE(rep->max_in_flight, 2);
+  EXPECT_LE(rep->max_in_flight, 3);  // workers + 1
+  ASSERT_EQ(rep->ingest.frames.size(), static_cast<size_t>(frames));
+  for (int f = 0; f < frames; ++f) {
+    EXPECT_EQ(rep->ingest.frames[f].frame, f);  // reported (committed) in order
+    const auto got = FramePoints(*backend, "v", f, rec->fps);
+    EXPECT_GT(got.size(), 100u);
+    EXPECT_TRUE(got == reference.at(f)) << "frame " << f;
+  }
+}
+
+// SIGTERM while several frames are in flight (--workers 2, the whole recording there): every
+// frame taken is committed whole, in order, and none after; the dataset holds frames 0..k
+// exactly as a normal run, nothing after k.
+TEST(Live, SigtermWithFramesInFlightCommitsThemInOrder) {
+  TempDir dir;
+  const int frames = 10;
+  ASSERT_TRUE(GenerateRecording(Rig(frames), dir / "src").ok());
+  auto rec = OpenRecording(dir / "src");
+  ASSERT_TRUE(rec.ok());
+  const auto reference = Reference(*rec, dir / "ref");
+  fs::copy(dir / "src", dir / "live", fs::copy_options::recursive);
+  int out[2];
+  ASSERT_EQ(::pipe(out), 0);
+  const pid_t pid = ::fork();
+  if (pid == 0) {
+    ::dup2(out[1], 1);
+    ::close(out[0]);
+    ::close(out[1]);
+    ::execl(HVDB_INGEST_PATH, HVDB_INGEST_PATH, "run", (dir / "live").c_str(), "--follow", "--verbose",
+            "--workers", "2", "--dataset", "v", "--data", (dir / "data").c_str(), "--num-disparities", "32",
+            "--quiet", static_cast<char*>(nullptr));
+    ::_exit(127);
+  }
+  ::close(out[1]);
+  std::string output;
+  bool signalled = false;
+  char buf[256];
+  ssize_t n;
+  while ((n = ::read(out[0], buf, sizeof buf)) > 0) {
+    output.append(buf, static_cast<size_t>(n));
+    if (!signalled && output.find("frame 1: taken ") != std::string::npos) {
+      ASSERT_EQ(::kill(pid, SIGTERM), 0);
+      signalled = true;
+    }
+  }
+  ::close(out[0]);
+  int st = 0;
+  ::waitpid(pid, &st, 0);
+  ASSERT_TRUE(signalled) << output;
+  ASSERT_TRUE(WIFEXITED(st)) << output;
+  EXPECT_EQ(WEXITSTATUS(st), 0) << output;
+  EXPECT_NE(output.find("(stopped by a signal)"), std::string::npos) << output;
+  // The frames taken and those committed, in the order said.
+  std::vector<int> taken, committed;
+  std::istringstream lines(output);
+  for (std::string line; std::getline(lines, line);) {
+    int f = -1;
+    char what[16] = {};
+    if (std::sscanf(line.c_str(), "frame %d: %15s", &f, what) != 2) continue;
+    if (std::string(what) == "taken") taken.push_back(f);
+    if (std::string(what) == "committed") committed.push_back(f);
+  }
+  ASSERT_GE(committed.size(), 2u) << output;
+  EXPECT_LT(committed.size(), static_cast<size_t>(frames)) << output;
+  EXPECT_EQ(committed, taken) << output;
+  for (size_t k = 0; k < committed.size(); ++k) EXPECT_EQ(committed[k], static_cast<int>(k)) << output;
+  auto backend = client::MakeEmbeddedBackend(dir / "data", 32 << 20);
+  for (int f = 0; f < frames; ++f) {
+    if (f < static_cast<int>(committed.size())) {
+      EXPECT_TRUE(FramePoints(*backend, "v", f, rec->fps) == reference.at(f)) << f;
+    } else {
+      EXPECT_TRUE(FramePoints(*backend, "v", f, rec->fps).empty()) << f;
+    }
+  }
 }
 
 // Runs argv (argv[0] the binary) with its stdout on a pipe; returns the child and the read end.
