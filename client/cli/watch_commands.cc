@@ -92,7 +92,8 @@ void AddWatchCommands(CLI::App& app, Context& ctx) {
       "Print a dataset's changes as they are committed (commits, reverts, bulk loads), one line "
       "each; with --from-lsn, the changes after that LSN first (from the log), then a 'live' "
       "line, then the new ones. Runs until Ctrl-C, --count or --seconds, or the dataset is "
-      "dropped");
+      "dropped. Use --server: with --data this process holds the directory, so only the log's "
+      "past changes (--from-lsn) can come");
   cmd->add_option("name", w.name, "Dataset")->required();
   w.from_opt = cmd->add_option("--from-lsn", w.from_lsn,
                                "Replay the changes after this LSN first (resume where you were)");
