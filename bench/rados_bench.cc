@@ -242,7 +242,8 @@ json RunReaders(Env* env, const std::string& store, const std::string& bin, cons
     per_count.push_back({{"servers", k}, {"windows_per_s", qps}, {"over_one", qps / base},
                          {"runs", runs}});
   }
-  // A commit on the writer until a reader answers with it (the reader looks every 100 ms).
+  // A commit on the writer until a reader answers with it (the reader follows the writer's
+  // watch events, and looks every 100 ms besides).
   auto writer = ConnectTo(servers[0].port), reader = ConnectTo(servers[1].port);
   std::vector<double> lag;
   std::mt19937 phase(3);
