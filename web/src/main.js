@@ -251,7 +251,10 @@ class App {
       throw e;
     }
     if (this.target !== d) return d;  // superseded by a later request
-    this.showFrameData(d, this.frame, true);
+    // Following a live capture on a software rasteriser: drawn at playback's resolution, as
+    // playing is (the page keeps up with the frames; a pause draws the still at full size).
+    const following = this.live.on && this.live.following;
+    this.showFrameData(d, this.frame, true, following ? this.playResolution : 1);
     await nextFrame();
     if (this.viewMode === 'frames') this.player.prefetch(this.frame, 2);
     return d;
