@@ -45,33 +45,27 @@ std::unique_ptr<WatchHub::Subscription> WatchHub::Subscribe(ChangeFn fn, bool ho
   return std::make_unique<Subscription>(shared_from_this(), std::move(e));
 }
 
+// A subscriber still replaying holds the event for Go(); a live one gets it now.
+void WatchHub::Deliver(Entry& e, const ChangeEvent& ev) {
+  if (e.hold) {
+    e.held.push_back(ev);
+  } else {
+    e.fn(ev);
+  }
+}
+
 void WatchHub::Publish(const ChangeEvent& ev) {
   std::lock_guard<std::mutex> l(mu_);
-  for (const auto& e : subs_) {
-    if (e->hold) {
-      e->held.push_back(ev);
-    } else {
-      e->fn(ev);
-    }
-  }
+  for (const auto& e : subs_) Deliver(*e, ev);
 }
 
 void WatchHub::EndAll(const ChangeEvent& last) {
   std::lock_guard<std::mutex> l(mu_);
   for (const auto& e : subs_) {
-    // A subscriber still replaying gets what it held first: the end comes last.
-    if (e->hold) {
-      e->held.push_back(last);
-    } else {
-      e->fn(last);
-    }
+    Deliver(*e, last);  // after what a replaying subscriber held: the end comes last
     e->ended = true;
   }
-  std::vector<std::shared_ptr<Entry>> held;
-  for (auto& e : subs_) {
-    if (e->hold) held.push_back(e);  // Go() delivers their end
-  }
-  subs_ = std::move(held);
+  std::erase_if(subs_, [](const auto& e) { return !e->hold; });  // Go() ends the others
 }
 
 size_t WatchHub::size() const {

@@ -66,6 +66,7 @@ class WatchHub : public std::enable_shared_from_this<WatchHub> {
     std::deque<ChangeEvent> held;
     bool ended = false;
   };
+  static void Deliver(Entry& e, const ChangeEvent& ev);  // under mu_
   mutable std::mutex mu_;
   std::vector<std::shared_ptr<Entry>> subs_;
   friend class Subscription;

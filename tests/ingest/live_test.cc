@@ -298,6 +298,48 @@ TEST(Live, AFrameThatNeverCompletesIsReportedAndSkipped) {
   for (int f : {0, 4}) EXPECT_TRUE(FramePoints(*backend, "v", f, rec->fps) == reference.at(f)) << f;
 }
 
+// `hvdb-ingest run LIVE --follow --verbose` (into DATA, plus `extra`) in a child, sent SIGTERM
+// once it says "frame 1: taken"; its output and wait status.
+struct SigtermRun {
+  std::string output;
+  bool signalled = false;
+  int status = 0;
+};
+SigtermRun FollowUntilSigterm(const std::string& live, const std::string& data,
+                              std::vector<std::string> extra) {
+  std::vector<std::string> args = {HVDB_INGEST_PATH, "run", live, "--follow", "--verbose"};
+  args.insert(args.end(), extra.begin(), extra.end());
+  for (const char* a : {"--dataset", "v", "--data"}) args.push_back(a);
+  args.push_back(data);
+  for (const char* a : {"--num-disparities", "32", "--quiet"}) args.push_back(a);
+  SigtermRun run;
+  int out[2];
+  if (::pipe(out) != 0) return run;
+  const pid_t pid = ::fork();
+  if (pid == 0) {
+    ::dup2(out[1], 1);
+    ::close(out[0]);
+    ::close(out[1]);
+    std::vector<char*> argv;
+    for (auto& a : args) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    ::execv(argv[0], argv.data());
+    ::_exit(127);
+  }
+  ::close(out[1]);
+  char buf[256];
+  ssize_t n;
+  while ((n = ::read(out[0], buf, sizeof buf)) > 0) {
+    run.output.append(buf, static_cast<size_t>(n));
+    if (!run.signalled && run.output.find("frame 1: taken ") != std::string::npos) {
+      run.signalled = ::kill(pid, SIGTERM) == 0;
+    }
+  }
+  ::close(out[0]);
+  ::waitpid(pid, &run.status, 0);
+  return run;
+}
+
 // hvdb-ingest run --follow gets SIGTERM while it processes frame 1: it commits frame 1 whole,
 // exits 0 with its summary, and takes no frame after it.
 TEST(Live, SigtermFinishesTheFrameInHand) {
@@ -310,36 +352,11 @@ TEST(Live, SigtermFinishesTheFrameInHand) {
   // Frames 0..2 of 5 are there: frame 1 can be taken, frame 2 waits for frame 3.
   fs::copy(dir / "src", dir / "live", fs::copy_options::recursive);
   for (int f : {3, 4}) fs::remove_all(fs::path(dir / "live") / "frames" / ("00000" + std::to_string(f)));
-  int out[2];
-  ASSERT_EQ(::pipe(out), 0);
-  const pid_t pid = ::fork();
-  if (pid == 0) {
-    ::dup2(out[1], 1);
-    ::close(out[0]);
-    ::close(out[1]);
-    ::execl(HVDB_INGEST_PATH, HVDB_INGEST_PATH, "run", (dir / "live").c_str(), "--follow", "--verbose",
-            "--dataset", "v", "--data", (dir / "data").c_str(), "--num-disparities", "32", "--quiet",
-            static_cast<char*>(nullptr));
-    ::_exit(127);
-  }
-  ::close(out[1]);
-  std::string output;
-  bool signalled = false;
-  char buf[256];
-  ssize_t n;
-  while ((n = ::read(out[0], buf, sizeof buf)) > 0) {
-    output.append(buf, static_cast<size_t>(n));
-    if (!signalled && output.find("frame 1: taken ") != std::string::npos) {
-      ASSERT_EQ(::kill(pid, SIGTERM), 0);
-      signalled = true;
-    }
-  }
-  ::close(out[0]);
-  int st = 0;
-  ::waitpid(pid, &st, 0);
-  ASSERT_TRUE(signalled) << output;
-  ASSERT_TRUE(WIFEXITED(st)) << output;
-  EXPECT_EQ(WEXITSTATUS(st), 0) << output;
+  const SigtermRun run = FollowUntilSigterm(dir / "live", dir / "data", {});
+  const std::string& output = run.output;
+  ASSERT_TRUE(run.signalled) << output;
+  ASSERT_TRUE(WIFEXITED(run.status)) << output;
+  EXPECT_EQ(WEXITSTATUS(run.status), 0) << output;
   EXPECT_NE(output.find("frame 1: committed"), std::string::npos) << output;
   EXPECT_NE(output.find("(stopped by a signal)"), std::string::npos) << output;
   EXPECT_EQ(output.find("frame 2: taken "), std::string::npos) << output;
@@ -388,36 +405,11 @@ TEST(Live, SigtermWithFramesInFlightCommitsThemInOrder) {
   ASSERT_TRUE(rec.ok());
   const auto reference = Reference(*rec, dir / "ref");
   fs::copy(dir / "src", dir / "live", fs::copy_options::recursive);
-  int out[2];
-  ASSERT_EQ(::pipe(out), 0);
-  const pid_t pid = ::fork();
-  if (pid == 0) {
-    ::dup2(out[1], 1);
-    ::close(out[0]);
-    ::close(out[1]);
-    ::execl(HVDB_INGEST_PATH, HVDB_INGEST_PATH, "run", (dir / "live").c_str(), "--follow", "--verbose",
-            "--workers", "2", "--dataset", "v", "--data", (dir / "data").c_str(), "--num-disparities", "32",
-            "--quiet", static_cast<char*>(nullptr));
-    ::_exit(127);
-  }
-  ::close(out[1]);
-  std::string output;
-  bool signalled = false;
-  char buf[256];
-  ssize_t n;
-  while ((n = ::read(out[0], buf, sizeof buf)) > 0) {
-    output.append(buf, static_cast<size_t>(n));
-    if (!signalled && output.find("frame 1: taken ") != std::string::npos) {
-      ASSERT_EQ(::kill(pid, SIGTERM), 0);
-      signalled = true;
-    }
-  }
-  ::close(out[0]);
-  int st = 0;
-  ::waitpid(pid, &st, 0);
-  ASSERT_TRUE(signalled) << output;
-  ASSERT_TRUE(WIFEXITED(st)) << output;
-  EXPECT_EQ(WEXITSTATUS(st), 0) << output;
+  const SigtermRun run = FollowUntilSigterm(dir / "live", dir / "data", {"--workers", "2"});
+  const std::string& output = run.output;
+  ASSERT_TRUE(run.signalled) << output;
+  ASSERT_TRUE(WIFEXITED(run.status)) << output;
+  EXPECT_EQ(WEXITSTATUS(run.status), 0) << output;
   EXPECT_NE(output.find("(stopped by a signal)"), std::string::npos) << output;
   // The frames taken and those committed, in the order said.
   std::vector<int> taken, committed;
