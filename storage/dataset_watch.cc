@@ -87,14 +87,23 @@ Result<std::vector<ChangeEvent>> DatasetImpl::EventsBetween(uint64_t after, uint
         if (r.lsn > after && r.lsn <= upto) out.push_back(EventOfRecord(info_.name, r));
       }
     }
-    if (!raced) {
-      // Markers of older logs repeat an LSN: keep the log's order, which is LSN order.
-      std::stable_sort(out.begin(), out.end(),
-                       [](const ChangeEvent& a, const ChangeEvent& b) { return a.lsn < b.lsn; });
-      return out;
+    // Markers of older logs repeat an LSN: keep the log's order, which is LSN order.
+    std::stable_sort(out.begin(), out.end(),
+                     [](const ChangeEvent& a, const ChangeEvent& b) { return a.lsn < b.lsn; });
+    // LSNs are dense, so a gap means a checkpoint renamed wal.log after the listing and the
+    // name now holds the next segment: list again.
+    uint64_t next = after + 1;
+    for (const ChangeEvent& ev : out) {
+      if (ev.lsn > next) break;
+      next = std::max(next, ev.lsn + 1);
     }
+    if (!raced && next > upto) return out;
     if (attempt == 4) {
-      return Status::IOError(dir_ + ": the log was rotated during five reads in a row; try again");
+      if (raced) {
+        return Status::IOError(dir_ + ": the log was rotated during five reads in a row; try again");
+      }
+      return Status::NotFound(dir_ + ": the log no longer holds the changes from LSN " +
+                              std::to_string(next) + " (resume from a later LSN)");
     }
   }
 }
