@@ -411,6 +411,7 @@ Status DatasetImpl::Load(bool writer, const FrameMap& reuse, Loaded* out) {
     for (const FrameEffect& step : rec.frames) {
       for (const Point& p : step.removed) max_id = std::max(max_id, p.id);
       for (const Point& p : step.added) max_id = std::max(max_id, p.id);
+      for (const Relabel& g : step.relabels) max_id = std::max(max_id, g.ids.back());
     }
   }
   out->last_lsn = last;

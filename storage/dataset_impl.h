@@ -51,7 +51,12 @@ struct RegionPlan {
 Result<RegionPlan> PlanRegion(const Region& region, int lod, bool temporal_lod,
                               const FrameMap& frames, const DatasetInfo& info,
                               const Options& opts);
-// A copy of `old` with `step` applied; each removed point is found by id and position, and, when
+// Fills step->removed/added from step->relabels: each relabelled point of `v` before and after.
+// InvalidArgument if a point's flipped bits are not as the relabel left them (changed later),
+// NotFound if a point is gone.
+Status ResolveRelabels(const FrameVersion& v, FrameEffect* step);
+// A copy of `old` with `step` applied (resolved first if it is relabels read from the log);
+// each removed point is found by id and position, and, when
 // `exact`, must also hold the very record given (a revert: a point a later transaction changed,
 // e.g. relabelled, is an error rather than silently restored to its old value).
 Result<std::shared_ptr<FrameVersion>> ApplyStep(const FrameVersion& old, const FrameEffect& step,

@@ -170,8 +170,62 @@ Status LocateMany(const FrameVersion& v, const FrameEffect& step, const std::vec
 
 }  // namespace
 
-Result<std::shared_ptr<FrameVersion>> ApplyStep(const FrameVersion& old, const FrameEffect& step,
+Status ResolveRelabels(const FrameVersion& v, FrameEffect* step) {
+  step->removed.clear();
+  step->added.clear();
+  std::unordered_map<uint64_t, std::pair<const Relabel*, bool>> wanted;  // id -> group, found
+  for (const Relabel& g : step->relabels) {
+    for (uint64_t id : g.ids) wanted.emplace(id, std::make_pair(&g, false));
+  }
+  Status mismatch;
+  auto visit = [&](const Point& p) {
+    auto it = wanted.find(p.id);
+    if (it == wanted.end() || it->second.second) return;
+    const Relabel& g = *it->second.first;
+    if ((p.label & g.flip) != (g.after ^ g.flip)) {
+      if (mismatch.ok()) mismatch = ChangedLater(p, step->frame);
+      return;
+    }
+    it->second.second = true;
+    step->removed.push_back(p);
+    step->added.push_back(p);
+    step->added.back().label = (p.label & ~g.flip) | g.after;
+  };
+  v.t0.ForEach(visit);
+  BoxTest everything = [](const Box3&) { return Relation::kCrosses; };
+  for (const TreeSlot& slot : v.slots) {
+    if (!slot.tree || step->removed.size() == wanted.size()) continue;
+    std::vector<KdTree::BucketHit> hits;
+    HVDB_RETURN_IF_ERROR(slot.tree->FindBuckets(everything, &hits));
+    HVDB_RETURN_IF_ERROR(ReadHits(*slot.tree, hits, [&](const auto&, const uint8_t* rec, size_t n) {
+      for (size_t j = 0; j < n; ++j) {
+        const uint8_t* r = rec + j * kPointRecordSize;
+        const uint64_t id = DecodeLE<uint64_t>(r);
+        if (!wanted.count(id) || slot.IsDead(id)) continue;
+        visit(DecodePoint(r));
+      }
+    }));
+  }
+  HVDB_RETURN_IF_ERROR(mismatch);
+  for (const auto& [id, w] : wanted) {
+    if (!w.second) {
+      return Status::NotFound("point " + std::to_string(id) + " to relabel not found in frame " +
+                              std::to_string(step->frame));
+    }
+  }
+  return Status::OK();
+}
+
+Result<std::shared_ptr<FrameVersion>> ApplyStep(const FrameVersion& old, const FrameEffect& given,
                                                 uint64_t lsn, bool exact) {
+  // A relabel read from the log names only ids: find its points first.
+  FrameEffect resolved;
+  const bool resolve = !given.relabels.empty() && given.removed.empty();
+  if (resolve) {
+    resolved = given;
+    HVDB_RETURN_IF_ERROR(ResolveRelabels(old, &resolved));
+  }
+  const FrameEffect& step = resolve ? resolved : given;
   auto v = std::make_shared<FrameVersion>(old);
   v->frame = step.frame;
   v->applied_lsn = std::max(v->applied_lsn, lsn);
@@ -503,14 +557,27 @@ Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
       for (auto& [f, pts] : sel.by_frame) {
         FrameEffect step;
         step.frame = f;
+        // The log keeps the ids in groups by the bits that flip (one group for a whole
+        // selection, as a rule); the points before and after are applied here.
+        std::map<std::pair<uint32_t, uint32_t>, std::vector<uint64_t>> groups;
         for (const Point& p : pts) {
           Point q = p;
           q.label = lab->set ? (p.label | lab->bits) : (p.label & ~lab->bits);
           if (q.label == p.label) continue;
           step.removed.push_back(p);
           step.added.push_back(q);
+          const uint32_t flip = p.label ^ q.label;
+          groups[{flip, q.label & flip}].push_back(p.id);
         }
         if (step.removed.empty()) continue;
+        for (auto& [key, ids] : groups) {
+          std::sort(ids.begin(), ids.end());
+          if (std::adjacent_find(ids.begin(), ids.end()) != ids.end()) {
+            step.relabels.clear();  // one id twice in a frame: logged as whole points
+            break;
+          }
+          step.relabels.push_back(Relabel{key.first, key.second, std::move(ids)});
+        }
         info->removed += step.removed.size();
         info->inserted += step.added.size();
         HVDB_RETURN_IF_ERROR(apply(std::move(step)));
@@ -598,10 +665,19 @@ void DatasetImpl::LeadCommits(std::vector<WriteRequest*>& group) {
         rec.reverts = w->revert_lsn;
         // The inverse: steps in reverse order, removed and added swapped.
         for (auto it = orig->frames.rbegin(); it != orig->frames.rend() && st.ok(); ++it) {
-          FrameEffect inv{it->frame, it->added, it->removed};
+          FrameEffect inv = InverseEffect(*it);
           auto basev = attempt.Get(inv.frame);
           FrameVersion empty;
           empty.frame = inv.frame;
+          if (!inv.relabels.empty()) {
+            st = ResolveRelabels(basev ? *basev : empty, &inv);
+            if (!st.ok()) {
+              st = Status::InvalidArgument("cannot revert transaction " +
+                                           std::to_string(w->revert_lsn) + ": " + st.message() +
+                                           "; revert the later one first");
+              break;
+            }
+          }
           auto applied = ApplyStep(basev ? *basev : empty, inv, rec.lsn, /*exact=*/true);
           if (!applied.ok()) {
             st = Status::InvalidArgument(

@@ -11,6 +11,10 @@ static constexpr char kWalMagic[8] = {'H', 'V', 'D', 'B', 'W', 'A', 'L', '\0'};
 static constexpr uint32_t kWalVersion = 1;
 static constexpr uint8_t kTypeTxn = 1;
 static constexpr uint8_t kTypeBulk = 2;
+// A transaction whose frame effects each say their form: points (as kTypeTxn) or relabels.
+static constexpr uint8_t kTypeTxnForms = 3;
+static constexpr uint8_t kFormPoints = 0;
+static constexpr uint8_t kFormRelabels = 1;
 static constexpr uint32_t kMaxRecord = 1u << 30;
 
 static void PutPoints(Writer* w, const std::vector<Point>& pts) {
@@ -31,11 +35,93 @@ static bool GetPoints(Reader* r, std::vector<Point>* pts) {
   return true;
 }
 
+FrameEffect InverseEffect(const FrameEffect& f) {
+  FrameEffect inv{f.frame, f.added, f.removed, f.relabels};
+  for (Relabel& r : inv.relabels) r.after ^= r.flip;
+  return inv;
+}
+
+uint64_t EffectAdded(const FrameEffect& f) {
+  if (!f.added.empty() || f.relabels.empty()) return f.added.size();
+  uint64_t n = 0;
+  for (const Relabel& r : f.relabels) n += r.ids.size();
+  return n;
+}
+
+uint64_t EffectRemoved(const FrameEffect& f) {
+  return f.removed.empty() && !f.relabels.empty() ? EffectAdded(f) : f.removed.size();
+}
+
+static bool HasRelabels(const TxnRecord& t) {
+  for (const FrameEffect& f : t.frames) {
+    if (!f.relabels.empty()) return true;
+  }
+  return false;
+}
+
+// LEB128, as protobuf's varints: ids ascending are stored as their gaps, a byte or two each.
+static void PutVarint(std::string* out, uint64_t v) {
+  while (v >= 0x80) {
+    out->push_back(static_cast<char>(v | 0x80));
+    v >>= 7;
+  }
+  out->push_back(static_cast<char>(v));
+}
+
+static bool GetVarint(Reader* r, uint64_t* v) {
+  *v = 0;
+  for (int shift = 0; shift < 64; shift += 7) {
+    uint8_t b;
+    if (!r->Get(&b)) return false;
+    *v |= uint64_t{b & 0x7fu} << shift;
+    if (!(b & 0x80)) return shift < 63 || b <= 1;
+  }
+  return false;
+}
+
+static void PutRelabels(Writer* w, const std::vector<Relabel>& groups) {
+  w->Put<uint32_t>(static_cast<uint32_t>(groups.size()));
+  for (const Relabel& g : groups) {
+    w->Put<uint32_t>(g.flip);
+    w->Put<uint32_t>(g.after);
+    w->Put<uint32_t>(static_cast<uint32_t>(g.ids.size()));
+    uint64_t prev = 0;
+    for (uint64_t id : g.ids) {
+      PutVarint(&w->data(), id - prev);
+      prev = id;
+    }
+  }
+}
+
+static bool GetRelabels(Reader* r, std::vector<Relabel>* groups) {
+  uint32_t n;
+  if (!r->Get(&n) || n > 32 * 32 + 1) return false;  // at most one group per (flip, after)
+  groups->resize(n);
+  for (Relabel& g : *groups) {
+    uint32_t count;
+    if (!r->Get(&g.flip) || !r->Get(&g.after) || !r->Get(&count)) return false;
+    if (g.flip == 0 || (g.after & ~g.flip) != 0 || count == 0 || count > r->remaining()) {
+      return false;
+    }
+    g.ids.resize(count);
+    uint64_t prev = 0;
+    for (uint32_t i = 0; i < count; ++i) {
+      uint64_t gap;
+      if (!GetVarint(r, &gap) || (i > 0 && gap == 0) || gap > UINT64_MAX - prev) return false;
+      prev += gap;
+      g.ids[i] = prev;
+    }
+  }
+  return true;
+}
+
 // Appends the payload of `t` to *out (the log's writer encodes it in place after its header).
-static void AppendTxnPayload(const TxnRecord& t, std::string* out) {
+// `forms`: the kTypeTxnForms layout (a form byte per frame effect) instead of kTypeTxn's.
+static void AppendTxnPayload(const TxnRecord& t, bool forms, std::string* out) {
   size_t bytes = 12;
   for (const FrameEffect& f : t.frames) {
-    bytes += 12 + (f.removed.size() + f.added.size()) * kPointRecordSize;
+    bytes += 13 + (f.relabels.empty() ? (f.removed.size() + f.added.size()) * kPointRecordSize
+                                      : 12 * f.relabels.size() + 2 * EffectAdded(f));
   }
   out->reserve(out->size() + bytes);
   Writer w(std::move(*out));
@@ -43,13 +129,18 @@ static void AppendTxnPayload(const TxnRecord& t, std::string* out) {
   w.Put<uint32_t>(static_cast<uint32_t>(t.frames.size()));
   for (const FrameEffect& f : t.frames) {
     w.Put<uint32_t>(f.frame);
+    if (forms) w.Put<uint8_t>(f.relabels.empty() ? kFormPoints : kFormRelabels);
+    if (forms && !f.relabels.empty()) {
+      PutRelabels(&w, f.relabels);
+      continue;
+    }
     PutPoints(&w, f.removed);
     PutPoints(&w, f.added);
   }
   *out = std::move(w.data());
 }
 
-Result<TxnRecord> DecodeTxnPayload(const std::string& payload, uint64_t lsn) {
+Result<TxnRecord> DecodeTxnPayload(const std::string& payload, uint64_t lsn, bool forms) {
   Reader r(reinterpret_cast<const uint8_t*>(payload.data()), payload.size());
   TxnRecord t;
   t.lsn = lsn;
@@ -59,9 +150,14 @@ Result<TxnRecord> DecodeTxnPayload(const std::string& payload, uint64_t lsn) {
   }
   for (uint32_t i = 0; i < nframes; ++i) {
     FrameEffect f;
-    if (!r.Get(&f.frame) || !GetPoints(&r, &f.removed) || !GetPoints(&r, &f.added)) {
-      return Status::Corruption("log record " + std::to_string(lsn) + ": bad frame effect");
+    uint8_t form = kFormPoints;
+    bool ok = r.Get(&f.frame) && (!forms || r.Get(&form));
+    if (ok && form == kFormRelabels) {
+      ok = GetRelabels(&r, &f.relabels) && !f.relabels.empty();
+    } else {
+      ok = ok && form == kFormPoints && GetPoints(&r, &f.removed) && GetPoints(&r, &f.added);
     }
+    if (!ok) return Status::Corruption("log record " + std::to_string(lsn) + ": bad frame effect");
     t.frames.push_back(std::move(f));
   }
   if (r.remaining() != 0) {
@@ -71,7 +167,9 @@ Result<TxnRecord> DecodeTxnPayload(const std::string& payload, uint64_t lsn) {
 }
 
 static Result<TxnRecord> DecodePayload(uint8_t type, const std::string& payload, uint64_t lsn) {
-  if (type == kTypeTxn) return DecodeTxnPayload(payload, lsn);
+  if (type == kTypeTxn || type == kTypeTxnForms) {
+    return DecodeTxnPayload(payload, lsn, type == kTypeTxnForms);
+  }
   if (type != kTypeBulk) {
     return Status::Corruption("log record " + std::to_string(lsn) + ": unknown type " +
                               std::to_string(type));
@@ -170,7 +268,7 @@ Result<WalContents> ReadWal(Env* env, const std::string& path) {
       }
       return corrupt(pos, "checksum mismatch, with valid-looking data after it");
     }
-    if (type != kTypeTxn && type != kTypeBulk) {
+    if (type != kTypeTxn && type != kTypeBulk && type != kTypeTxnForms) {
       return corrupt(pos, "unknown type " + std::to_string(type));
     }
     // A record's LSN is above the one before; a bulk-load marker of an older log may repeat it.
@@ -222,7 +320,7 @@ Status WalWriter::Append(const std::vector<TxnRecord>& records) {
       EncodeLE(m, t.frames.at(0).frame);
       EncodeLE(m + 4, t.bulk_points);
     } else {
-      AppendTxnPayload(t, &out);
+      AppendTxnPayload(t, HasRelabels(t), &out);
     }
     const size_t len = out.size() - at - kWalRecordHeaderSize;
     if (len > kMaxRecord) {
@@ -232,7 +330,7 @@ Status WalWriter::Append(const std::vector<TxnRecord>& records) {
     auto* h = reinterpret_cast<uint8_t*>(out.data() + at);
     EncodeLE(h + 4, static_cast<uint32_t>(len));
     EncodeLE(h + 8, t.lsn);
-    h[16] = t.bulk ? kTypeBulk : kTypeTxn;
+    h[16] = t.bulk ? kTypeBulk : HasRelabels(t) ? kTypeTxnForms : kTypeTxn;
     EncodeLE(h + 17, crc32c::Mask(crc32c::Value(h + kWalRecordHeaderSize, len)));
     EncodeLE(h, crc32c::Mask(crc32c::Value(h + 4, 17)));
   }

@@ -14,11 +14,30 @@
 
 namespace hvdb {
 
+// Labels changed in place (a selection, a graph cut): which points and which bits, not whole
+// points. The bits `flip` of each point of `ids` flipped to the values `after` (after & ~flip
+// is 0); ids ascending.
+struct Relabel {
+  uint32_t flip = 0;
+  uint32_t after = 0;
+  std::vector<uint64_t> ids;
+};
+
 struct FrameEffect {
   uint32_t frame = 0;
   std::vector<Point> removed;  // exact records as they were
   std::vector<Point> added;
+  // When not empty, the step is these relabels: the log stores only them (a few bytes a point),
+  // and removed/added are their resolution (each point before and after, pairwise), filled by
+  // the writer or, for a step read from the log, by ResolveRelabels against the frame.
+  std::vector<Relabel> relabels;
 };
+
+// The inverse step (what Revert applies): removed and added swapped, relabels flipped back.
+FrameEffect InverseEffect(const FrameEffect& f);
+// Points the step adds and removes (a relabel removes and adds each of its points).
+uint64_t EffectAdded(const FrameEffect& f);
+uint64_t EffectRemoved(const FrameEffect& f);
 
 struct TxnRecord {
   uint64_t lsn = 0;
@@ -32,7 +51,8 @@ struct TxnRecord {
   uint64_t bulk_points = 0;
 };
 
-Result<TxnRecord> DecodeTxnPayload(const std::string& payload, uint64_t lsn);
+// `forms`: record type 3's layout (a form byte per frame effect; docs/FORMAT.md).
+Result<TxnRecord> DecodeTxnPayload(const std::string& payload, uint64_t lsn, bool forms = false);
 
 struct WalContents {
   uint64_t start_lsn = 1;  // first sequence number this file may hold

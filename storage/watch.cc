@@ -27,8 +27,8 @@ ChangeEvent EventOfRecord(const std::string& dataset, const TxnRecord& rec) {
   ev.reverts = rec.reverts;
   for (const FrameEffect& f : rec.frames) {
     ev.frames.push_back(f.frame);
-    ev.points += f.added.size();
-    ev.removed += f.removed.size();
+    ev.points += EffectAdded(f);
+    ev.removed += EffectRemoved(f);
   }
   if (rec.bulk) ev.points = rec.bulk_points;
   std::sort(ev.frames.begin(), ev.frames.end());

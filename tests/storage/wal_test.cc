@@ -1,5 +1,7 @@
 #include "storage/wal.h"
 
+#include "storage/coding.h"
+
 #include <gtest/gtest.h>
 
 #include <filesystem>
@@ -51,6 +53,77 @@ TEST_F(WalTest, RoundTrip) {
     EXPECT_EQ(got.frames[0].added, want.frames[0].added);
     EXPECT_EQ(got.frames[0].removed, want.frames[0].removed);
   }
+}
+
+TEST_F(WalTest, RelabelsAreLoggedAsIdsAndFlippedBits) {
+  // 10 000 relabelled points with ids 1..3 apart, next to a frame effect of whole points.
+  std::mt19937_64 rng(3);
+  TxnRecord t;
+  t.lsn = 7;
+  FrameEffect f;
+  f.frame = 4;
+  Relabel set{0x4, 0x4, {}}, cleared{0x6, 0x0, {}};
+  uint64_t id = 1000;
+  for (int i = 0; i < 10000; ++i) {
+    id += 1 + rng() % 3;
+    (i % 4 ? set : cleared).ids.push_back(id);
+  }
+  f.relabels = {set, cleared};
+  f.removed = testing::RandomPoints(rng, 3, 4);  // the resolution: not logged
+  t.frames.push_back(f);
+  FrameEffect whole;
+  whole.frame = 5;
+  whole.added = testing::RandomPoints(rng, 2, 5);
+  t.frames.push_back(whole);
+  const std::string path = dir_.path() + "/wal.log";
+  auto w = WalWriter::Open(Env::Default(), path, 1, 0, false);
+  ASSERT_TRUE(w.ok());
+  ASSERT_TRUE((*w)->Append({t}).ok());
+  ASSERT_TRUE((*w)->Sync().ok());
+  // A byte a point (gaps under 128), not 128 (the point before and after).
+  EXPECT_LT((*w)->size(), kWalHeaderSize + kWalRecordHeaderSize + 10000 + 200 + 2 * kPointRecordSize);
+  auto c = ReadWal(Env::Default(), path);
+  ASSERT_TRUE(c.ok()) << c.status().ToString();
+  ASSERT_EQ(c->records.size(), 1u);
+  const TxnRecord& got = c->records[0];
+  ASSERT_EQ(got.frames.size(), 2u);
+  ASSERT_EQ(got.frames[0].relabels.size(), 2u);
+  EXPECT_TRUE(got.frames[0].removed.empty());
+  for (size_t g = 0; g < 2; ++g) {
+    EXPECT_EQ(got.frames[0].relabels[g].flip, f.relabels[g].flip);
+    EXPECT_EQ(got.frames[0].relabels[g].after, f.relabels[g].after);
+    EXPECT_EQ(got.frames[0].relabels[g].ids, f.relabels[g].ids);
+  }
+  EXPECT_EQ(EffectAdded(got.frames[0]), 10000u);
+  EXPECT_EQ(EffectRemoved(got.frames[0]), 10000u);
+  EXPECT_EQ(got.frames[1].added, whole.added);
+  // The inverse flips the same bits back.
+  FrameEffect inv = InverseEffect(got.frames[0]);
+  EXPECT_EQ(inv.relabels[0].after, 0x0u);
+  EXPECT_EQ(inv.relabels[1].after, 0x6u);
+  // Bad relabels (no bit flips; a value outside the flipped bits; ids not ascending) are
+  // corruption, not points relabelled wrongly.
+  std::string payload;
+  {
+    Writer wr;
+    wr.Put<uint64_t>(0);
+    wr.Put<uint32_t>(1);
+    wr.Put<uint32_t>(0);  // frame
+    wr.Put<uint8_t>(1);   // relabels
+    wr.Put<uint32_t>(1);
+    wr.Put<uint32_t>(0x1);
+    wr.Put<uint32_t>(0x3);  // after outside flip
+    wr.Put<uint32_t>(1);
+    wr.Put<uint8_t>(5);
+    payload = wr.data();
+  }
+  EXPECT_TRUE(DecodeTxnPayload(payload, 1, true).status().IsCorruption());
+  payload[payload.size() - 9] = 0x1;  // after = flip: valid
+  EXPECT_TRUE(DecodeTxnPayload(payload, 1, true).ok());
+  payload.back() = 0;  // a first id of 0 is allowed; a second gap of 0 is not
+  payload[payload.size() - 5] = 2;
+  payload += std::string(1, '\0');
+  EXPECT_TRUE(DecodeTxnPayload(payload, 1, true).status().IsCorruption());
 }
 
 TEST_F(WalTest, TornTailIsDroppedAndRepaired) {
