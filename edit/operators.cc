@@ -47,7 +47,8 @@ Status ForEach(Dataset& ds, const Region& region, uint32_t label_mask,
   }
 }
 
-Selection Explicit(const std::set<Key>& keys) {
+template <typename Keys>
+Selection Explicit(const Keys& keys) {
   Selection s;
   s.ids.assign(keys.begin(), keys.end());
   return s;
@@ -316,11 +317,11 @@ Result<GraphCutReply> GraphCutSelect(Dataset& ds, const GraphCutRequest& req,
   }
   t0 = Clock::now();
   const uint32_t omask = 1u << req.out_bit;
-  std::set<Key> to_set, to_clear;
+  std::vector<Key> to_set, to_clear;  // a query's points are distinct: no set needed
   for (size_t i = 0; i < pts.size(); ++i) {
     bool has = pts[i].label & omask;
-    if (cut.selected[i] && !has) to_set.insert({pts[i].frame, pts[i].id});
-    if (!cut.selected[i] && has) to_clear.insert({pts[i].frame, pts[i].id});
+    if (cut.selected[i] && !has) to_set.push_back({pts[i].frame, pts[i].id});
+    if (!cut.selected[i] && has) to_clear.push_back({pts[i].frame, pts[i].id});
     reply.selected += cut.selected[i];
   }
   if (!to_set.empty() || !to_clear.empty()) {

@@ -178,7 +178,8 @@ Status ResolveRelabels(const FrameVersion& v, FrameEffect* step) {
     for (uint64_t id : g.ids) wanted.emplace(id, std::make_pair(&g, false));
   }
   Status mismatch;
-  auto visit = [&](const Point& p) {
+  step->found_in.clear();
+  auto visit = [&](const Point& p, int32_t where) {
     auto it = wanted.find(p.id);
     if (it == wanted.end() || it->second.second) return;
     const Relabel& g = *it->second.first;
@@ -188,12 +189,14 @@ Status ResolveRelabels(const FrameVersion& v, FrameEffect* step) {
     }
     it->second.second = true;
     step->removed.push_back(p);
+    step->found_in.push_back(where);
     step->added.push_back(p);
     step->added.back().label = (p.label & ~g.flip) | g.after;
   };
-  v.t0.ForEach(visit);
+  v.t0.ForEach([&](const Point& p) { visit(p, -1); });
   BoxTest everything = [](const Box3&) { return Relation::kCrosses; };
-  for (const TreeSlot& slot : v.slots) {
+  for (size_t s = 0; s < v.slots.size(); ++s) {
+    const TreeSlot& slot = v.slots[s];
     if (!slot.tree || step->removed.size() == wanted.size()) continue;
     std::vector<KdTree::BucketHit> hits;
     HVDB_RETURN_IF_ERROR(slot.tree->FindBuckets(everything, &hits));
@@ -202,7 +205,7 @@ Status ResolveRelabels(const FrameVersion& v, FrameEffect* step) {
         const uint8_t* r = rec + j * kPointRecordSize;
         const uint64_t id = DecodeLE<uint64_t>(r);
         if (!wanted.count(id) || slot.IsDead(id)) continue;
-        visit(DecodePoint(r));
+        visit(DecodePoint(r), static_cast<int32_t>(s));
       }
     }));
   }
@@ -230,27 +233,43 @@ Result<std::shared_ptr<FrameVersion>> ApplyStep(const FrameVersion& old, const F
   v->frame = step.frame;
   v->applied_lsn = std::max(v->applied_lsn, lsn);
   // Removals from T0 in one pass over it (T0 holds tens of thousands of points): each removed
-  // point matches the first T0 point with its id and position.
-  std::vector<bool> in_t0(step.removed.size(), false);
-  if (!step.removed.empty() && !v->t0.empty()) {
-    std::unordered_multimap<uint64_t, size_t> wanted;
-    for (size_t i = 0; i < step.removed.size(); ++i) wanted.emplace(step.removed[i].id, i);
+  // point matches the first T0 point with its id and position. placed[i]: removed[i] is found.
+  std::vector<bool> placed(step.removed.size(), false);
+  std::vector<std::vector<uint64_t>> new_dead(v->slots.size());
+  // Where the writer found each point: those of the trees are marked dead at once, and only
+  // those of T0 are searched for (in T0).
+  bool known = step.found_in.size() == step.removed.size();
+  for (size_t i = 0; known && i < step.removed.size(); ++i) {
+    known = step.found_in[i] >= -1 && step.found_in[i] < static_cast<int32_t>(v->slots.size()) &&
+            (step.found_in[i] < 0 || v->slots[static_cast<size_t>(step.found_in[i])].tree);
+  }
+  if (known) {
+    for (size_t i = 0; i < step.removed.size(); ++i) {
+      if (step.found_in[i] < 0) continue;
+      new_dead[static_cast<size_t>(step.found_in[i])].push_back(step.removed[i].id);
+      placed[i] = true;
+    }
+  }
+  std::unordered_multimap<uint64_t, size_t> wanted;
+  for (size_t i = 0; i < step.removed.size() && !v->t0.empty(); ++i) {
+    if (!placed[i]) wanted.emplace(step.removed[i].id, i);
+  }
+  if (!wanted.empty()) {
     v->t0.RemoveIf([&](const Point& p) {
       auto [lo, hi] = wanted.equal_range(p.id);
       for (auto it = lo; it != hi; ++it) {
         const Point& want = step.removed[it->second];
-        if (!in_t0[it->second] && SamePoint(p, want) && (!exact || SameRecord(p, want))) {
-          in_t0[it->second] = true;
+        if (!placed[it->second] && SamePoint(p, want) && (!exact || SameRecord(p, want))) {
+          placed[it->second] = true;
           return true;
         }
       }
       return false;
     });
   }
-  std::vector<std::vector<uint64_t>> new_dead(v->slots.size());
-  std::vector<size_t> rest;  // removed points not in T0: in the trees
+  std::vector<size_t> rest;  // removed points not in T0 (nor placed above): in the trees
   for (size_t i = 0; i < step.removed.size(); ++i) {
-    if (!in_t0[i]) rest.push_back(i);
+    if (!placed[i]) rest.push_back(i);
   }
   if (rest.size() >= kBatchLocate) {
     // Many points (a selection relabelled, a region deleted): one pass over each tree's
@@ -283,17 +302,22 @@ Result<std::shared_ptr<FrameVersion>> ApplyStep(const FrameVersion& old, const F
 
 namespace {
 
-// Calls fn(point) for every live point of `v` in the region (nullptr: all), label-filtered.
+// Calls fn(point, where) for every live point of `v` in the region (nullptr: all),
+// label-filtered; `where` is -1 for T0, else the point's tree slot. With `ids`, only points of
+// those ids (checked before a record is decoded).
 Status ScanVersion(const FrameVersion& v, const RegionPlan* plan, uint32_t label_mask,
-                   const std::function<void(const Point&)>& fn) {
+                   const std::function<void(const Point&, int32_t)>& fn,
+                   const std::unordered_set<uint64_t>* ids = nullptr) {
   auto accept = [&](const Point& p) {
     if (label_mask != 0 && (p.label & label_mask) == 0) return false;
+    if (ids != nullptr && !ids->count(p.id)) return false;
     return plan == nullptr || plan->Contains(p);
   };
   v.t0.ForEach([&](const Point& p) {
-    if (accept(p)) fn(p);
+    if (accept(p)) fn(p, -1);
   });
-  for (const TreeSlot& slot : v.slots) {
+  for (size_t s = 0; s < v.slots.size(); ++s) {
+    const TreeSlot& slot = v.slots[s];
     if (!slot.tree) continue;
     BoxTest test = [&](const Box3& b) {
       return plan == nullptr ? Relation::kInside : plan->Classify(b, v.frame);
@@ -303,11 +327,13 @@ Status ScanVersion(const FrameVersion& v, const RegionPlan* plan, uint32_t label
     HVDB_RETURN_IF_ERROR(ReadHits(*slot.tree, hits, [&](const KdTree::BucketHit& hit,
                                                         const uint8_t* rec, size_t n) {
       for (size_t j = 0; j < n; ++j) {
-        Point p = DecodePoint(rec + j * kPointRecordSize);
+        const uint8_t* r = rec + j * kPointRecordSize;
+        if (ids != nullptr && !ids->count(DecodeLE<uint64_t>(r))) continue;
+        Point p = DecodePoint(r);
         if (slot.IsDead(p.id)) continue;
         if (label_mask != 0 && (p.label & label_mask) == 0) continue;
         if (!hit.inside && plan != nullptr && !plan->Contains(p)) continue;
-        fn(p);
+        fn(p, static_cast<int32_t>(s));
       }
     }));
   }
@@ -440,6 +466,7 @@ namespace {
 
 struct Selected {
   std::map<uint32_t, std::vector<Point>> by_frame;
+  std::map<uint32_t, std::vector<int32_t>> where;  // FrameEffect::found_in of each point
 };
 
 }  // namespace
@@ -466,8 +493,11 @@ Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
     };
     std::unordered_set<std::pair<uint32_t, uint64_t>, PairHash> seen;
     seen.reserve(sel.ids.size() + 1024);
-    auto add = [&](const Point& p) {
-      if (seen.insert({p.frame, p.id}).second) out.by_frame[p.frame].push_back(p);
+    auto add = [&](const Point& p, int32_t where) {
+      if (seen.insert({p.frame, p.id}).second) {
+        out.by_frame[p.frame].push_back(p);
+        out.where[p.frame].push_back(where);
+      }
     };
     if (sel.region) {
       HVDB_ASSIGN_OR_RETURN(RegionPlan plan,
@@ -489,12 +519,10 @@ Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
       auto v = ws->Get(f);
       if (!v) return Status::NotFound("frame " + std::to_string(f) + " has no points");
       size_t found = 0;
-      HVDB_RETURN_IF_ERROR(ScanVersion(*v, nullptr, sel.label_mask, [&](const Point& p) {
-        if (ids.count(p.id)) {
-          add(p);
-          ++found;
-        }
-      }));
+      HVDB_RETURN_IF_ERROR(ScanVersion(*v, nullptr, sel.label_mask, [&](const Point& p, int32_t w) {
+        add(p, w);
+        ++found;
+      }, &ids));
       if (found < ids.size()) {
         return Status::NotFound(std::to_string(ids.size() - found) + " selected id(s) not found in frame " +
                                 std::to_string(f));
@@ -549,23 +577,27 @@ Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
         FrameEffect step;
         step.frame = f;
         step.removed = std::move(pts);
+        step.found_in = std::move(sel.where[f]);
         info->removed += step.removed.size();
         HVDB_RETURN_IF_ERROR(apply(std::move(step)));
       }
     } else if (const auto* lab = std::get_if<Transaction::LabelOp>(&op)) {
       HVDB_ASSIGN_OR_RETURN(Selected sel, select(lab->sel));
       for (auto& [f, pts] : sel.by_frame) {
+        const std::vector<int32_t>& where = sel.where[f];
         FrameEffect step;
         step.frame = f;
         // The log keeps the ids in groups by the bits that flip (one group for a whole
         // selection, as a rule); the points before and after are applied here.
         std::map<std::pair<uint32_t, uint32_t>, std::vector<uint64_t>> groups;
-        for (const Point& p : pts) {
+        for (size_t i = 0; i < pts.size(); ++i) {
+          const Point& p = pts[i];
           Point q = p;
           q.label = lab->set ? (p.label | lab->bits) : (p.label & ~lab->bits);
           if (q.label == p.label) continue;
           step.removed.push_back(p);
           step.added.push_back(q);
+          step.found_in.push_back(where[i]);
           const uint32_t flip = p.label ^ q.label;
           groups[{flip, q.label & flip}].push_back(p.id);
         }
@@ -587,11 +619,13 @@ Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
       HVDB_ASSIGN_OR_RETURN(Selected sel, select(tr->sel));
       std::map<uint32_t, FrameEffect> removes, adds;
       for (auto& [f, pts] : sel.by_frame) {
-        for (const Point& p : pts) {
+        for (size_t i = 0; i < pts.size(); ++i) {
+          const Point& p = pts[i];
           HVDB_ASSIGN_OR_RETURN(Point q, map.Apply(p));
           HVDB_RETURN_IF_ERROR(ValidatePoint(q));
           removes[p.frame].frame = p.frame;
           removes[p.frame].removed.push_back(p);
+          removes[p.frame].found_in.push_back(sel.where[f][i]);
           adds[q.frame].frame = q.frame;
           adds[q.frame].added.push_back(q);
         }

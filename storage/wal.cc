@@ -36,7 +36,7 @@ static bool GetPoints(Reader* r, std::vector<Point>* pts) {
 }
 
 FrameEffect InverseEffect(const FrameEffect& f) {
-  FrameEffect inv{f.frame, f.added, f.removed, f.relabels};
+  FrameEffect inv{f.frame, f.added, f.removed, f.relabels, {}};
   for (Relabel& r : inv.relabels) r.after ^= r.flip;
   return inv;
 }

@@ -31,6 +31,10 @@ struct FrameEffect {
   // and removed/added are their resolution (each point before and after, pairwise), filled by
   // the writer or, for a step read from the log, by ResolveRelabels against the frame.
   std::vector<Relabel> relabels;
+  // Not logged: where each removed point was found in the frame version the step is applied
+  // to (-1: T0, else its tree slot), when the writer read it there; ApplyStep then marks it
+  // dead without searching the frame again. Empty: ApplyStep searches.
+  std::vector<int32_t> found_in;
 };
 
 // The inverse step (what Revert applies): removed and added swapped, relabels flipped back.
