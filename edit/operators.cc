@@ -96,10 +96,10 @@ Result<SelectResult> Select(Dataset& ds, const SelectRequest& req) {
   HVDB_RETURN_IF_ERROR(CheckBit(req.bit, "select"));
   const uint32_t mask = 1u << req.bit;
   SelectResult res;
-  std::set<Key> target;
+  std::vector<Key> target;  // sorted below (a query's points are distinct)
   if (std::holds_alternative<std::monostate>(req.shape)) {
     HVDB_RETURN_IF_ERROR(ForEach(ds, req.region, 0, [&](const Point& p) {
-      target.insert({p.frame, p.id});
+      target.push_back({p.frame, p.id});
     }));
   } else if (const auto* lasso = std::get_if<Lasso>(&req.shape)) {
     HVDB_RETURN_IF_ERROR(CheckCamera(lasso->camera));
@@ -115,7 +115,7 @@ Result<SelectResult> Select(Dataset& ds, const SelectRequest& req) {
       double u, v, depth;
       if (ProjectToPixel(lasso->camera, p.x, p.y, p.z, &u, &v, &depth) &&
           InPolygon(lasso->polygon, u, v)) {
-        target.insert({p.frame, p.id});
+        target.push_back({p.frame, p.id});
       }
     }));
   } else {
@@ -162,40 +162,37 @@ Result<SelectResult> Select(Dataset& ds, const SelectRequest& req) {
     res.brush_center = centre;
     for (const Point& p : seen) {
       double dx = p.x - centre[0], dy = p.y - centre[1], dz = p.z - centre[2];
-      if (dx * dx + dy * dy + dz * dz <= brush.radius * brush.radius) target.insert({p.frame, p.id});
+      if (dx * dx + dy * dy + dz * dz <= brush.radius * brush.radius) target.push_back({p.frame, p.id});
     }
   }
+  std::sort(target.begin(), target.end());
   res.matched = target.size();
 
-  // Points carrying the bit now, for replace / intersect and the final count.
-  std::set<Key> current;
+  // Points carrying the bit now, for replace / intersect and the final count. Sorted vectors
+  // and set operations: a marquee over a frame is tens of thousands of keys.
+  std::vector<Key> current;
   HVDB_RETURN_IF_ERROR(ForEach(ds, Everything(), mask, [&](const Point& p) {
-    current.insert({p.frame, p.id});
+    current.push_back({p.frame, p.id});
   }));
-  std::set<Key> to_set, to_clear;
+  std::sort(current.begin(), current.end());
+  std::vector<Key> to_set, to_clear;
+  auto minus = [](const std::vector<Key>& a, const std::vector<Key>& b, std::vector<Key>* out) {
+    std::set_difference(a.begin(), a.end(), b.begin(), b.end(), std::back_inserter(*out));
+  };
   switch (req.mode) {
     case SelectMode::kReplace:
-      for (const Key& k : target) {
-        if (!current.count(k)) to_set.insert(k);
-      }
-      for (const Key& k : current) {
-        if (!target.count(k)) to_clear.insert(k);
-      }
+      minus(target, current, &to_set);
+      minus(current, target, &to_clear);
       break;
     case SelectMode::kAdd:
-      for (const Key& k : target) {
-        if (!current.count(k)) to_set.insert(k);
-      }
+      minus(target, current, &to_set);
       break;
     case SelectMode::kSubtract:
-      for (const Key& k : target) {
-        if (current.count(k)) to_clear.insert(k);
-      }
+      std::set_intersection(target.begin(), target.end(), current.begin(), current.end(),
+                            std::back_inserter(to_clear));
       break;
     case SelectMode::kIntersect:
-      for (const Key& k : current) {
-        if (!target.count(k)) to_clear.insert(k);
-      }
+      minus(current, target, &to_clear);
       break;
   }
   res.selected = current.size() + to_set.size() - to_clear.size();
