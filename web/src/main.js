@@ -10,6 +10,10 @@ import { FrameStore, Player } from './player.js';
 import { Editor } from './editor.js';
 import { UI } from './ui.js';
 import { Live } from './live.js';
+import { SliceTool } from './slice_tool.js';
+import { Transformer } from './transform.js';
+import { Gizmo } from './gizmo.js';
+import { toWire } from './transform.js';
 
 const kMaxLod = 12;
 
@@ -103,8 +107,13 @@ class App {
       shouldNavigate: (e) => !this.editor.wantsPointer(e),
       onChange: () => this.requestDraw(true),
     });
+    this.sliceTool = new SliceTool(this);
+    this.transformer = new Transformer(this);
+    this.gizmo = new Gizmo(this, this.transformer);
+    this.preview = null;  // a pending transform's preview: {m, t} of the displayed space
     this.ui = new UI(this);
     this.editor.setTool('navigate');
+    this.editor.setMode('SELECT_REPLACE');
     if (this.renderer.mode === 'points') this.setStatus('edit', `point renderer${this.renderer.fallbackReason ? ` (${this.renderer.fallbackReason})` : ''}`);
     else if (this.renderer.software) this.setStatus('edit', `software WebGL (${this.renderer.rendererName.slice(0, 60)}): half resolution while moving or playing`);
     await this.conn.open();
@@ -214,7 +223,9 @@ class App {
   currentRegion() {
     if (this.viewMode === 'slice') {
       const r = sliceRegion(this.slice.normal, this.slice.offset, this.slice.thickness);
-      if (this.box) r.slice.clip = allTimeWindow(this.box).window;
+      const times = this.slice.times;  // the timeline's in / out points (slice_tool.js)
+      if (this.box || times) r.slice.clip = allTimeWindow(this.box).window;
+      if (times) { r.slice.clip.lo[3] = times[0]; r.slice.clip.hi[3] = times[1]; }
       return r;
     }
     return frameWindow(this.frame / this.info.fps, this.box);
@@ -308,9 +319,10 @@ class App {
     await this.showCurrent();
   }
 
-  async showSlice(normal, offset, thickness) {
+  // times: [t0, t1] seconds the slice is clipped to (in / out points), or null.
+  async showSlice(normal, offset, thickness, times = null) {
     this.player.stop();
-    this.slice = { normal, offset, thickness };
+    this.slice = { normal, offset, thickness, times };
     this.viewMode = 'slice';
     await this.showCurrent();
   }
@@ -389,7 +401,8 @@ class App {
     const cam = this.cam.camera(this.canvas.width, this.canvas.height);
     const d = this.shown;
     const layers = d && !d.disposed ? [d.layer] : [];
-    const n = this.renderer.draw(layers, cam, { selMask: (1 << this.bit) >>> 0, overlay: this.overlay, zFar: this.zFar(d), resolution });
+    const n = this.renderer.draw(layers, cam, { selMask: (1 << this.bit) >>> 0, overlay: this.overlay, zFar: this.zFar(d), resolution, preview: this.preview });
+    if (this.editor?.tool === 'transform' && (!this.editor.drag || this.editor.drag.gizmo)) this.editor.clearOverlay();  // the gizmo follows
     // A frame's first picture (its coarsest level, when it comes progressively): live mode's
     // "on screen" (window.hvdbLive.onScreen[].firstDrawnWall).
     if (n > 0 && d && d.firstDrawnWall === undefined) {
@@ -582,6 +595,14 @@ function exposeHooks(app, ready) {
     redo: () => app.editor.redo(),
     request: (obj) => app.conn.request(obj),
     renderStill: () => app.renderStill(),
+    // The region the page queries (and edits within): the frame's window or the slice.
+    region: () => app.currentRegion(),
+    // The pending transform ({matrix, offset} as sent) and the preview of the displayed space.
+    pendingTransform: () => (app.transformer.pending ? toWire(app.transformer.pending, app.transformer.scale) : null),
+    get preview() { return app.preview; },
+    gizmo: () => app.gizmo.layout(),
+    applyTransform: () => app.transformer.apply(),
+    get lastBrushRequest() { return app.lastBrushRequest || null; },
   };
 }
 
