@@ -36,14 +36,29 @@ def wait_loaded(browser):
         lambda d: d.execute_script("const a = window.hvdbApp.app; return !!a.shown && a.shown.done && a.shown === a.target"))
 
 
-def slice_formula(cam, p0, p1):
-    """web/README.md's formula: the plane through the eye and both rays, as a frame's 4D slice."""
+def slice_basis(normal):
+    """V2, V3, V4 of storage/hyperslice.cc: Gram-Schmidt over the axes but the most parallel."""
+    n = np.array(normal, dtype=float) / np.linalg.norm(normal)
+    drop = int(np.argmax(np.abs(n)))
+    basis = [n]
+    for axis in range(4):
+        if axis == drop:
+            continue
+        v = np.eye(4)[axis]
+        for b in basis:
+            v = v - (v @ b) * b
+        basis.append(v / np.linalg.norm(v))
+    return np.array(basis[1:])
+
+
+def slice_formula(cam, p0, p1, basis=np.eye(4)[:3]):
+    """web/README.md's formula: the plane through the eye and both rays, n, b; N = B^T n."""
     fx, fy, cx, cy = cam["intrinsics"]
     m = np.array(cam["world_from_camera"], dtype=float).reshape(4, 4)
     rays = [m[:3, :3] @ np.array([(u - cx) / fx, (v - cy) / fy, 1.0]) for u, v in (p0, p1)]
     n = np.cross(rays[0], rays[1])
     n /= np.linalg.norm(n)
-    return list(n) + [0.0], float(n @ m[:3, 3])
+    return list(basis.T @ n), float(n @ m[:3, 3])
 
 
 def test_line_drawn_gives_the_theses_slice_and_the_slider_moves_it(browser, server):
@@ -82,6 +97,19 @@ def test_line_drawn_gives_the_theses_slice_and_the_slider_moves_it(browser, serv
         assert math.isclose(after["offset"], offset + moved, abs_tol=1e-9)
         want = len(db.hyperslice(DATASET, after["normal"], after["offset"], after["thickness"]))
         assert js(browser, "window.hvdbApp.pointsShown()") == want
+        # A line drawn in that slice: its displayed space is B (x, y, z, s t), N = B^T n.
+        cam = js(browser, "window.hvdbApp.camera()")
+        drag(browser, [(200, 270), (760, 300)])
+        WebDriverWait(browser, 60).until(
+            lambda d: d.execute_script("return window.hvdbApp.region().slice.normal[3]") != 0)
+        wait_loaded(browser)
+        line = js(browser, "window.hvdbApp.app.sliceTool.lastLine")
+        normal2, offset2 = slice_formula(cam, line["p0"], line["p1"], slice_basis(after["normal"]))
+        r2 = js(browser, "window.hvdbApp.region()")["slice"]
+        assert np.allclose(r2["normal"], normal2, atol=1e-9) and math.isclose(r2["offset"], offset2, abs_tol=1e-9)
+        assert abs(r2["normal"][3]) > 1e-3  # time is no longer orthogonal to it
+        want = len(db.hyperslice(DATASET, r2["normal"], r2["offset"], r2["thickness"]))
+        assert want > 100 and js(browser, "window.hvdbApp.pointsShown()") == want
     finally:
         db.close()
     browser.find_element(By.ID, "slice-back").click()
@@ -326,3 +354,55 @@ def test_brush_depth_nearest_or_median_is_the_command_lines(browser, server, nea
     assert selected_ids(server, 7) != page
     call(browser, "window.hvdbApp.undo()")
     call(browser, "window.hvdbApp.app.editor.clearSelection(64 | 128)")
+
+
+def test_numeric_translation_in_time_moves_the_selection_frames_later(browser, server, tmp_path):
+    open_page(browser, server)
+    select_rect(browser, RECT_A)
+    before = window_csv(server, tmp_path, "tb")
+    for field, value in (("xf-translate", f"0.1,0,0,{2 / FPS}"), ("xf-angle", "0"), ("xf-scale", "1")):
+        el = browser.find_element(By.ID, field)
+        el.clear()
+        el.send_keys(value)
+    browser.find_element(By.ID, "xf-add").click()
+    canvas = browser.find_element(By.ID, "view")
+    canvas.click()
+    ActionChains(browser).send_keys(Keys.ENTER).perform()  # Enter applies
+    WebDriverWait(browser, 60).until(lambda d: d.execute_script("return window.hvdbApp.pendingTransform()") is None)
+    call(browser, "window.hvdbApp.idle()")
+    after = window_csv(server, tmp_path, "ta", 0, 100)
+    assert set(after) == set(before)
+    for i, (f, x, y, z) in before.items():
+        fa, xa, ya, za = after[i]
+        assert fa == f + 2 and abs(xa - x - 0.1) < 1e-5 and abs(ya - y) < 1e-6 and abs(za - z) < 1e-6
+    call(browser, "window.hvdbApp.undo()")
+    assert window_csv(server, tmp_path, "tu") == before
+    call(browser, "window.hvdbApp.app.editor.clearSelection()")
+
+
+def test_brush_strokes_subtract_and_intersect(browser, server):
+    open_page(browser, server)
+    browser.find_element(By.ID, "tool-brush-fg").click()
+    drag(browser, [(470, 150), (490, 200), (500, 260)])
+    call(browser, "window.hvdbApp.idle()")
+    first = selected_ids(server, 1)
+    # Alt: subtract a crossing stroke; then intersect (the button) with another.
+    canvas = browser.find_element(By.ID, "view")
+    (ActionChains(browser).key_down(Keys.ALT).move_to_element_with_offset(canvas, 440 - W // 2, 200 - H // 2)
+     .click_and_hold().move_by_offset(30, 0).move_by_offset(30, 0).release().key_up(Keys.ALT).perform())
+    call(browser, "window.hvdbApp.idle()")
+    erased = selected_ids(server, 1)
+    assert js(browser, "window.hvdbApp.lastBrushRequest.select.mode") == "SELECT_SUBTRACT"
+    assert erased < first and len(erased) > 10
+    browser.find_element(By.ID, "mode-intersect").click()
+    drag(browser, [(490, 230), (495, 280), (500, 330)])
+    call(browser, "window.hvdbApp.idle()")
+    kept = selected_ids(server, 1)
+    assert js(browser, "window.hvdbApp.lastBrushRequest.select.bit") == 30
+    assert 0 < len(kept) < len(erased) and kept < erased
+    pts = frame_points(server, FRAME)
+    assert not ((pts["label"] & (3 << 30)) != 0).any()
+    browser.find_element(By.ID, "mode-replace").click()
+    for _ in range(3):
+        call(browser, "window.hvdbApp.undo()")
+    assert not selected_ids(server, 1)

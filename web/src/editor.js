@@ -210,6 +210,8 @@ export class Editor {
     this.app.lastRequest = req;
     this.app.setStatus('edit', `${label}…`);
     const reply = await this.app.conn.request(req);
+    // A transform is now in the data: its preview must not move the refreshed points again.
+    if (label === 'transform') this.app.preview = null;
     const body = pick(reply);
     const lsn = body && body.lsn !== undefined ? String(body.lsn) : '0';
     if (record && lsn !== '0') this.record(label, dataset, [lsn]);
@@ -237,15 +239,17 @@ export class Editor {
 
   // Stamps go out as the pointer moves (one in flight per stroke); the stroke's undo entry and
   // refresh run in the edit queue.
-  // mode: replace (the stroke replaces the bit's earlier strokes), add, subtract, or intersect
-  // (painted into a scratch bit, combined when the stroke ends).
+  // mode: add (and replace: strokes accumulate, as the graph cut wants more of them; Clear
+  // strokes drops them), subtract (erases), or intersect (painted into a scratch bit, combined
+  // when the stroke ends).
   startStroke(p, mode = 'SELECT_ADD') {
     const bit = this.tool === 'brush-fg' ? FOREGROUND_BIT : BACKGROUND_BIT;
     const intersect = mode === 'SELECT_INTERSECT';
     const s = {
       lsns: [], busy: null, pending: null, error: null, ended: false, dataset: this.app.dataset,
       bit, writeBit: intersect ? SCRATCH_BIT : bit, intersect, nearest: this.brushNearest,
-      firstMode: intersect ? 'SELECT_REPLACE' : mode, mode: mode === 'SELECT_SUBTRACT' ? mode : 'SELECT_ADD',
+      mode: mode === 'SELECT_SUBTRACT' ? mode : 'SELECT_ADD',
+      firstMode: intersect ? 'SELECT_REPLACE' : (mode === 'SELECT_SUBTRACT' ? mode : 'SELECT_ADD'),
     };
     this.stroke = s;
     this.stamp(s, p);
