@@ -241,7 +241,10 @@ class App {
     if (!this.info) throw new Error('no dataset open');
     const n = this.info.frame_count;
     if (!Number.isInteger(i) || i < 0 || i >= Math.max(1, n)) throw new Error(`frame ${i} is outside 0..${n - 1}`);
-    if (this.viewMode !== 'frames') this.viewMode = 'frames';
+    if (this.viewMode !== 'frames') {
+      this.sliceTool.restoreView();
+      this.viewMode = 'frames';
+    }
     this.frame = i;
     return this.showCurrent();
   }
@@ -328,6 +331,7 @@ class App {
   }
 
   async showFrames() {
+    this.sliceTool.restoreView();
     this.viewMode = 'frames';
     await this.showCurrent();
   }

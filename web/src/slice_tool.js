@@ -56,6 +56,7 @@ export function sliceFromLine(cam, p0, p1, basis = FRAME_BASIS) {
   return { normal, offset: dot3(n3, cameraEye(cam)) };
 }
 
+const unit4 = (v) => { const l = Math.hypot(...v); return v.map((x) => x / l); };
 const $ = (id) => document.getElementById(id);
 
 // The Slice panel: the drawn slice, its slider, the in / out points and the typed entry.
@@ -81,11 +82,24 @@ export class SliceTool {
     this.lastLine = { p0, p1, camera: cam };  // (a test hook: the formula's inputs)
     const thickness = Number($('slice-thickness').value);
     if (!(thickness >= 0)) throw new Error('slice thickness: a number >= 0 (metres along the normal)');
-    return this.show({ ...s, thickness }, true);
+    // The new view looks along the ray through the line's middle (it lies in the new slice);
+    // the line keeps its angle on screen and the old slice's normal (time, for a frame) takes
+    // the place of the direction across the line: screen down = sin(a) L + cos(a) T.
+    const B = this.shownBasis();
+    const to4 = (d) => [0, 1, 2, 3].map((c) => B[0][c] * d[0] + B[1][c] * d[1] + B[2][c] * d[2]);
+    const mid = pixelRay(cam, 0.5 * (p0[0] + p1[0]), 0.5 * (p0[1] + p1[1]));
+    const du = p1[0] - p0[0], dv = p1[1] - p0[1], len = Math.hypot(du, dv);
+    const m = cam.world_from_camera;
+    const L = to4([0, 1, 2].map((i) => (du * m[4 * i] + dv * m[4 * i + 1]) / len));
+    const T = this.app.viewMode === 'slice' ? unit4(this.app.slice.normal) : [0, 0, 0, 1];
+    const up = L.map((x, i) => -(dv * x + du * T[i]) / len);
+    if (this.app.viewMode === 'frames') this.savedView = this.app.cam.state();
+    return this.show({ ...s, thickness }, { look: to4(mid), up });
   }
 
-  // Shows a slice and makes it the slider's origin (reframing the camera on a new basis).
-  async show(slice, reframe) {
+  // Shows a slice and makes it the slider's origin; reframe: {look, up} (4D directions) to
+  // point the camera at the new slice's points along.
+  async show(slice, reframe = null) {
     this.base = slice;
     const slider = $('slice-move');
     const b = this.app.info?.bounds_min, e = this.app.info?.bounds_max;
@@ -96,11 +110,30 @@ export class SliceTool {
     slider.value = '0';
     this.syncInputs(slice);
     await this.app.showSlice(slice.normal, slice.offset, slice.thickness, this.timesFor(slice));
-    if (reframe && this.app.shown?.points) {
-      const d = this.app.shown;
-      this.app.cam.frameBounds(d.bboxLo, d.bboxHi, this.app.cam.fovDeg, this.app.canvas.width / this.app.canvas.height);
-      this.app.requestDraw();
-    }
+    if (reframe && this.app.shown?.points) this.fit(this.app.shown, reframe);
+  }
+
+  // Looks at the slice's points along the displayed image of reframe.look, up as reframe.up.
+  fit(d, { look, up }) {
+    const B = sliceBasis(this.app.slice.normal);
+    const disp = (v) => B.map((r) => r[0] * v[0] + r[1] * v[1] + r[2] * v[2] + r[3] * v[3]);
+    const unit = (v) => { const l = Math.hypot(...v); return l > 1e-9 ? v.map((x) => x / l) : null; };
+    const dir = unit(disp(look));
+    if (!dir) return;
+    const u = disp(up), k = dot3(u, dir);
+    const upv = unit(u.map((x, i) => x - k * dir[i])) || (Math.abs(dir[1]) < 0.9 ? [0, -1, 0] : [0, 0, 1]);
+    const c = [0, 1, 2].map((i) => 0.5 * (d.bboxLo[i] + d.bboxHi[i]));
+    const diag = Math.hypot(...[0, 1, 2].map((i) => d.bboxHi[i] - d.bboxLo[i]));
+    const dist = (0.55 * diag) / Math.tan((this.app.cam.fovDeg * Math.PI) / 360) + 1e-3;
+    this.app.cam.set(c.map((x, i) => x - dist * dir[i]), c, this.app.cam.fovDeg, upv);
+    this.app.requestDraw();
+  }
+
+  // Back to frames: the view the first drawn slice replaced.
+  restoreView() {
+    const v = this.savedView;
+    this.savedView = null;
+    if (v) this.app.cam.set(v.eye, v.target, v.fovDeg, v.up);
   }
 
   // The slider moves the slice along its normal: offset = the drawn offset + the slider's value.
