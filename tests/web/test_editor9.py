@@ -406,3 +406,36 @@ def test_brush_strokes_subtract_and_intersect(browser, server):
     for _ in range(3):
         call(browser, "window.hvdbApp.undo()")
     assert not selected_ids(server, 1)
+
+
+def test_gizmo_ring_rotates_about_the_view_and_corner_scales(browser, server):
+    open_page(browser, server)
+    select_rect(browser, RECT_A)
+    browser.find_element(By.ID, "tool-transform").click()
+    g = js(browser, "window.hvdbApp.gizmo()")
+    o = (g["o"]["u"], g["o"]["v"])
+    # A quarter of the ring, from its right to its bottom (v down): +90 degrees on screen.
+    r = 110
+    pts = [(round(o[0] + r * math.cos(a)), round(o[1] + r * math.sin(a))) for a in np.linspace(0, math.pi / 2, 6)]
+    drag(browser, pts)
+    m = np.array(js(browser, "window.hvdbApp.pendingTransform()")["matrix"]).reshape(4, 4)
+    ang = math.atan2(pts[-1][1] - o[1], pts[-1][0] - o[0]) - math.atan2(pts[0][1] - o[1], pts[0][0] - o[0])
+    # The camera looks along +z with x right and y down: a rotation in the x-y plane by ang.
+    want = np.eye(4)
+    want[0, 0], want[0, 1], want[1, 0], want[1, 1] = math.cos(ang), -math.sin(ang), math.sin(ang), math.cos(ang)
+    assert np.allclose(m, want, atol=0.02), m  # a pixel of the mouse: 0.01 rad
+    assert np.allclose(m @ m.T, np.eye(4), atol=1e-9)  # a rotation, not just close to one
+    browser.find_element(By.ID, "xf-cancel").click()
+    assert js(browser, "window.hvdbApp.pendingTransform()") is None and js(browser, "window.hvdbApp.preview") is None
+    # The corner square: scale by the ratio of distances from the centre.
+    g = js(browser, "window.hvdbApp.gizmo()")
+    o = np.array([g["o"]["u"], g["o"]["v"]])
+    start = np.round(g["scaleAt"]).astype(int)
+    end = np.round(o + (start - o) * 1.5).astype(int)
+    drag(browser, [tuple(start), tuple(end)])
+    m = np.array(js(browser, "window.hvdbApp.pendingTransform()")["matrix"]).reshape(4, 4)
+    k = np.linalg.norm(end - o) / np.linalg.norm(start - o)
+    assert np.allclose(m, np.diag([k, k, k, 1]), atol=0.02), m
+    browser.find_element(By.ID, "xf-cancel").click()
+    browser.find_element(By.ID, "tool-navigate").click()
+    call(browser, "window.hvdbApp.app.editor.clearSelection()")
