@@ -439,3 +439,43 @@ def test_gizmo_ring_rotates_about_the_view_and_corner_scales(browser, server):
     browser.find_element(By.ID, "xf-cancel").click()
     browser.find_element(By.ID, "tool-navigate").click()
     call(browser, "window.hvdbApp.app.editor.clearSelection()")
+
+
+def test_gizmo_in_a_slice_through_time_translates_in_time(browser, server, tmp_path):
+    open_page(browser, server, frame=5)
+    browser.find_element(By.ID, "slice-in").click()
+    wait_loaded(browser)
+    call(browser, "window.hvdbApp.gotoFrame(9)")
+    browser.find_element(By.ID, "slice-out").click()
+    wait_loaded(browser)
+    browser.find_element(By.ID, "tool-slice").click()
+    drag(browser, [(480, 60), (480, 500)])
+    WebDriverWait(browser, 60).until(lambda d: d.execute_script("return window.hvdbApp.region().slice.normal[3]") == 0)
+    wait_loaded(browser)
+    select_rect(browser, (0, 0, W - 1, H - 1))  # every point of the slice on screen (frames 5..9)
+    before = window_csv(server, tmp_path, "sb", 0, 100)
+    assert len(before) > 100 and {f for f, *_ in before.values()} <= set(range(5, 10))
+    browser.find_element(By.ID, "tool-transform").click()
+    g = js(browser, "window.hvdbApp.gizmo()")
+    # The displayed z axis of a slice parallel to t is s t (storage/hyperslice.cc's basis).
+    a = g["axes"][2]
+    assert math.hypot(a["du"], a["dv"]) > 30  # time lies across the screen
+    tip = (round(a["u"]), round(a["v"]))
+    step = np.round(np.array([a["du"], a["dv"]]) / math.hypot(a["du"], a["dv"]) * 20).astype(int)
+    drag(browser, [tip, (tip[0] + step[0], tip[1] + step[1])])
+    pending = js(browser, "window.hvdbApp.pendingTransform()")
+    dt = pending["offset"][3]
+    assert np.allclose(pending["matrix"], np.eye(4).ravel()) and np.allclose(pending["offset"][:3], 0, atol=1e-12)
+    assert 0.5 / FPS < abs(dt) < 4 / FPS
+    browser.find_element(By.ID, "xf-apply").click()
+    call(browser, "window.hvdbApp.idle()")
+    after = window_csv(server, tmp_path, "sa", 0, 100)
+    assert set(after) == set(before)
+    for i, (f, x, y, z) in before.items():
+        fa, xa, ya, za = after[i]
+        assert fa == round((f / FPS + dt) * FPS) and (xa, ya, za) == (x, y, z)
+    call(browser, "window.hvdbApp.undo()")
+    assert window_csv(server, tmp_path, "su", 0, 100) == before
+    browser.find_element(By.ID, "tool-navigate").click()
+    call(browser, "window.hvdbApp.app.editor.clearSelection()")
+    browser.find_element(By.ID, "slice-clear-in-out").click()
