@@ -120,16 +120,16 @@ def test_in_and_out_points_show_frames_and_bound_a_slice(browser, server):
     scale = float(js(browser, "window.hvdbApp.app.info.space_time_scale")) or 1.0
     browser.find_element(By.ID, "slice-in").click()
     wait_loaded(browser)
-    call(browser, "window.hvdbApp.gotoFrame(8)")
+    call(browser, "window.hvdbApp.gotoFrame(5)")
     browser.find_element(By.ID, "slice-out").click()
     WebDriverWait(browser, 60).until(lambda d: d.execute_script("return window.hvdbApp.app.viewMode") == "slice")
     wait_loaded(browser)
     r = js(browser, "window.hvdbApp.region()")["slice"]
-    t3, t8 = 3 / FPS, 8 / FPS
+    t3, t8 = 3 / FPS, 5 / FPS
     assert r["normal"] == [0, 0, 0, 1]
     assert math.isclose(r["offset"], scale * (t3 + t8) / 2, rel_tol=1e-12)
     assert math.isclose(r["thickness"], scale * ((t8 - t3) / 2 + 0.5 / FPS), rel_tol=1e-12)
-    want = sum(len(frame_points(server, f)["id"]) for f in range(3, 9))
+    want = sum(len(frame_points(server, f)["id"]) for f in range(3, 6))
     assert js(browser, "window.hvdbApp.pointsShown()") == want
     # A line drawn now: a slice through time, bounded by the in and out points.
     browser.find_element(By.ID, "tool-slice").click()
@@ -144,7 +144,7 @@ def test_in_and_out_points_show_frames_and_bound_a_slice(browser, server):
     finally:
         db.close()
     assert len(pts) > 100 and js(browser, "window.hvdbApp.pointsShown()") == len(pts)
-    assert set(np.unique(pts["frame"]).tolist()) == set(range(3, 9))  # the trajectory over time
+    assert set(np.unique(pts["frame"]).tolist()) == set(range(3, 6))  # the trajectory over time
     browser.find_element(By.ID, "slice-clear-in-out").click()
     wait_loaded(browser)
 
@@ -445,16 +445,16 @@ def test_gizmo_in_a_slice_through_time_translates_in_time(browser, server, tmp_p
     open_page(browser, server, frame=5)
     browser.find_element(By.ID, "slice-in").click()
     wait_loaded(browser)
-    call(browser, "window.hvdbApp.gotoFrame(9)")
+    call(browser, "window.hvdbApp.gotoFrame(7)")
     browser.find_element(By.ID, "slice-out").click()
     wait_loaded(browser)
     browser.find_element(By.ID, "tool-slice").click()
     drag(browser, [(480, 60), (480, 500)])
     WebDriverWait(browser, 60).until(lambda d: d.execute_script("return window.hvdbApp.region().slice.normal[3]") == 0)
     wait_loaded(browser)
-    select_rect(browser, (0, 0, W - 1, H - 1))  # every point of the slice on screen (frames 5..9)
+    select_rect(browser, (0, 0, W - 1, H - 1))  # every point of the slice on screen (frames 5..7)
     before = window_csv(server, tmp_path, "sb", 0, 100)
-    assert len(before) > 100 and {f for f, *_ in before.values()} <= set(range(5, 10))
+    assert len(before) > 100 and {f for f, *_ in before.values()} <= set(range(5, 8))
     browser.find_element(By.ID, "tool-transform").click()
     g = js(browser, "window.hvdbApp.gizmo()")
     # The displayed z axis of a slice parallel to t is s t (storage/hyperslice.cc's basis).
