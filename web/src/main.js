@@ -13,7 +13,7 @@ import { Live } from './live.js';
 import { SliceTool } from './slice_tool.js';
 import { Transformer } from './transform.js';
 import { Gizmo } from './gizmo.js';
-import { toWire } from './transform.js';
+import { editingHooks } from './transform.js';
 
 const kMaxLod = 12;
 
@@ -599,15 +599,9 @@ function exposeHooks(app, ready) {
     redo: () => app.editor.redo(),
     request: (obj) => app.conn.request(obj),
     renderStill: () => app.renderStill(),
-    // The region the page queries (and edits within): the frame's window or the slice.
-    region: () => app.currentRegion(),
-    // The pending transform ({matrix, offset} as sent) and the preview of the displayed space.
-    pendingTransform: () => (app.transformer.pending ? toWire(app.transformer.pending, app.transformer.scale) : null),
-    get preview() { return app.preview; },
-    gizmo: () => app.gizmo.layout(),
-    applyTransform: () => app.transformer.apply(),
-    get lastBrushRequest() { return app.lastBrushRequest || null; },
   };
+  // The slice, transform and brush hooks (transform.js).
+  Object.defineProperties(window.hvdbApp, Object.getOwnPropertyDescriptors(editingHooks(app)));
 }
 
 function boot() {

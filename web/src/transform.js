@@ -166,3 +166,17 @@ export function numericMap(c, tr, plane, deg, k, s) {
   const d = [tr[0], tr[1], tr[2], s * tr[3]];
   return about(mul4(K, R), c, d);
 }
+
+// window.hvdbApp's hooks for the ch. 9 tools (web/README.md, "Test hooks").
+export function editingHooks(app) {
+  return {
+    // The region the page queries (and edits within): the frame's window or the slice.
+    region: () => app.currentRegion(),
+    // The pending transform ({matrix, offset} as Apply sends it) and the displayed preview.
+    pendingTransform: () => (app.transformer.pending ? toWire(app.transformer.pending, app.transformer.scale) : null),
+    get preview() { return app.preview; },
+    gizmo: () => app.gizmo.layout(),
+    applyTransform: () => app.transformer.apply(),
+    get lastBrushRequest() { return app.lastBrushRequest || null; },
+  };
+}
