@@ -69,7 +69,10 @@ export class ViewCamera {
     this.changed();
   }
 
-  changed() { this.version++; }
+  // A copy of the view (slice_tool.js restores it when the page goes back to frames).
+  state() { return { eye: this.eye.slice(), target: this.target.slice(), fovDeg: this.fovDeg, up: this.up.slice() }; }
+
+    changed() { this.version++; }
 
   // Frames an axis-aligned box: look along +z at its centre from in front of it.
   frameBounds(lo, hi, fovDeg = 40, aspect = 16 / 9) {

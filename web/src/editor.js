@@ -3,11 +3,13 @@
 // the server; undo reverts its LSN, redo reverts the undo's LSN. LSNs are per dataset: each undo
 // entry keeps its dataset. Edits, undo and redo run one at a time, in the order asked (queue).
 import { allTimeWindow } from './connection.js';
+import { combineOps, checkTarget, graphCutWithMode, SCRATCH_BIT } from './selection_modes.js';
 
-export const TOOLS = ['navigate', 'marquee', 'lasso', 'brush-fg', 'brush-bg'];
+export const TOOLS = ['navigate', 'marquee', 'lasso', 'brush-fg', 'brush-bg', 'slice', 'transform'];
 export const FOREGROUND_BIT = 1;
 export const BACKGROUND_BIT = 2;
 const kClipboard = 'web';
+
 
 export class Editor {
   constructor(app, canvas, overlay) {
@@ -25,6 +27,8 @@ export class Editor {
     this.brushRadius = 0.05;
     this.pasteOffset = [0, 0, 0, 0];
     this.graphCutAllFrames = false;
+    this.mode = 'SELECT_REPLACE';    // the mode buttons' choice (modifier keys override it)
+    this.brushNearest = false;       // brush depth: nearest z under the brush, else the median
     canvas.addEventListener('pointerdown', (e) => this.down(e));
     window.addEventListener('pointermove', (e) => this.move(e));
     window.addEventListener('pointerup', (e) => this.up(e));
@@ -35,6 +39,7 @@ export class Editor {
     this.tool = tool;
     this.canvas.style.cursor = tool === 'navigate' ? 'grab' : 'crosshair';
     this.app.ui?.setTool(tool);
+    this.clearOverlay();  // the gizmo shows with the transform tool only
   }
 
   // Left drags belong to the tool unless navigating (or shift-dragging to pan).
@@ -47,18 +52,31 @@ export class Editor {
     return [(e.clientX - r.left) * sx - 0.5 * (sx - 1), (e.clientY - r.top) * sy - 0.5 * (sy - 1)];
   }
 
+  // Shift: add, Alt: subtract, Shift+Alt: intersect; no modifier: the mode buttons' choice.
   modeOf(e) {
+    if (e.shiftKey && e.altKey) return 'SELECT_INTERSECT';
     if (e.shiftKey) return 'SELECT_ADD';
     if (e.altKey) return 'SELECT_SUBTRACT';
-    return 'SELECT_REPLACE';
+    return this.mode;
+  }
+
+  setMode(mode) {
+    this.mode = selectMode(mode);
+    this.app.ui?.setMode?.(this.mode);
   }
 
   down(e) {
     if (this.tool === 'navigate' || e.button !== 0) return;
     e.preventDefault();
     const p = this.pixel(e);
+    if (this.tool === 'transform') {
+      try {
+        if (this.app.gizmo.down(p)) this.drag = { gizmo: true, start: p, points: [p], last: p };
+      } catch (err) { this.app.showError(err); }
+      return;
+    }
     this.drag = { start: p, points: [p], mode: this.modeOf(e), last: p };
-    if (this.tool.startsWith('brush')) this.startStroke(p);
+    if (this.tool.startsWith('brush')) this.startStroke(p, this.drag.mode);
     this.drawOutline();
   }
 
@@ -68,6 +86,7 @@ export class Editor {
       return;
     }
     const p = this.pixel(e);
+    if (this.drag.gizmo) return this.app.gizmo.move(p);
     const last = this.drag.points[this.drag.points.length - 1];
     if (Math.hypot(p[0] - last[0], p[1] - last[1]) >= 2) this.drag.points.push(p);
     this.drag.last = p;
@@ -80,7 +99,10 @@ export class Editor {
     const d = this.drag;
     this.drag = null;
     const p = this.pixel(e);
-    if (this.tool === 'marquee') {
+    if (d.gizmo) return this.app.gizmo.up(p);
+    if (this.tool === 'slice') {
+      if (Math.hypot(p[0] - d.start[0], p[1] - d.start[1]) >= 3) this.app.sliceTool.fromLine(d.start, p).catch((err) => this.app.showError(err));
+    } else if (this.tool === 'marquee') {
       this.marquee(d.start[0], d.start[1], p[0], p[1], d.mode).catch((err) => this.app.showError(err));
     } else if (this.tool === 'lasso') {
       const poly = d.points.concat([p]);
@@ -91,7 +113,10 @@ export class Editor {
     this.clearOverlay();
   }
 
-  clearOverlay() { this.ctx.clearRect(0, 0, this.overlay.width, this.overlay.height); }
+  clearOverlay() {
+    this.ctx.clearRect(0, 0, this.overlay.width, this.overlay.height);
+    if (this.tool === 'transform') this.app.gizmo?.draw(this.ctx);
+  }
 
   drawOutline() {
     const c = this.ctx, d = this.drag;
@@ -103,8 +128,13 @@ export class Editor {
     c.strokeStyle = '#ffb000';
     c.fillStyle = 'rgba(255, 176, 0, 0.12)';
     c.beginPath();
-    if (this.tool === 'marquee') {
-      const [u0, v0] = d.start, [u1, v1] = d.last;
+    if (this.tool === 'slice') {
+      c.setLineDash([]);
+      c.lineWidth = 2;
+      c.strokeStyle = '#3c8cff';
+      c.moveTo(d.start[0], d.start[1]);
+      c.lineTo(d.last[0], d.last[1]);
+    } else if (this.tool === 'marquee') {
       c.rect(Math.min(u0, u1), Math.min(v0, v1), Math.abs(u1 - u0), Math.abs(v1 - v0));
     } else if (this.tool === 'lasso') {
       d.points.forEach(([u, v], i) => (i ? c.lineTo(u, v) : c.moveTo(u, v)));
@@ -152,6 +182,7 @@ export class Editor {
   // ---- Requests. ----
 
   async select(shape, mode, bit = this.app.bit) {
+    checkTarget(bit);
     const req = { select: { dataset: this.app.dataset, region: this.app.currentRegion(), bit, mode: selectMode(mode), ...shape } };
     return this.commit('select', req, (r) => r.selected);
   }
@@ -179,6 +210,8 @@ export class Editor {
     this.app.lastRequest = req;
     this.app.setStatus('edit', `${label}…`);
     const reply = await this.app.conn.request(req);
+    // A transform is now in the data: its preview must not move the refreshed points again.
+    if (label === 'transform') this.app.preview = null;
     const body = pick(reply);
     const lsn = body && body.lsn !== undefined ? String(body.lsn) : '0';
     if (record && lsn !== '0') this.record(label, dataset, [lsn]);
@@ -206,10 +239,17 @@ export class Editor {
 
   // Stamps go out as the pointer moves (one in flight per stroke); the stroke's undo entry and
   // refresh run in the edit queue.
-  startStroke(p) {
+  // mode: add (and replace: strokes accumulate, as the graph cut wants more of them; Clear
+  // strokes drops them), subtract (erases), or intersect (painted into a scratch bit, combined
+  // when the stroke ends).
+  startStroke(p, mode = 'SELECT_ADD') {
+    const bit = this.tool === 'brush-fg' ? FOREGROUND_BIT : BACKGROUND_BIT;
+    const intersect = mode === 'SELECT_INTERSECT';
     const s = {
       lsns: [], busy: null, pending: null, error: null, ended: false, dataset: this.app.dataset,
-      bit: this.tool === 'brush-fg' ? FOREGROUND_BIT : BACKGROUND_BIT,
+      bit, writeBit: intersect ? SCRATCH_BIT : bit, intersect, nearest: this.brushNearest,
+      mode: mode === 'SELECT_SUBTRACT' ? mode : 'SELECT_ADD',
+      firstMode: intersect ? 'SELECT_REPLACE' : (mode === 'SELECT_SUBTRACT' ? mode : 'SELECT_ADD'),
     };
     this.stroke = s;
     this.stamp(s, p);
@@ -225,10 +265,12 @@ export class Editor {
   stamp(s, [u, v]) {
     const req = {
       select: {
-        dataset: s.dataset, region: this.app.currentRegion(), bit: s.bit, mode: 'SELECT_ADD',
-        brush: { camera: this.app.wireCamera(), u, v, pixel_radius: this.brushPixelRadius, radius: this.brushRadius, nearest: false },
+        dataset: s.dataset, region: this.app.currentRegion(), bit: s.writeBit, mode: s.stamped ? s.mode : s.firstMode,
+        brush: { camera: this.app.wireCamera(), u, v, pixel_radius: this.brushPixelRadius, radius: this.brushRadius, nearest: s.nearest },
       },
     };
+    s.stamped = true;
+    this.app.lastBrushRequest = req;
     s.busy = this.app.conn.request(req).then((r) => {
       if (r.selected && String(r.selected.lsn) !== '0') s.lsns.push(String(r.selected.lsn));
       this.app.lastSelect = r.selected;
@@ -250,6 +292,12 @@ export class Editor {
     return this.enqueue(async () => {
       while (s.busy) await s.busy;
       if (this.stroke === s) this.stroke = null;  // a stroke started meanwhile stays
+      if (s.intersect && !s.error) {
+        try {
+          const r = await this.app.conn.request({ edit: { dataset: s.dataset, ops: combineOps(s.bit, 'SELECT_INTERSECT') } });
+          if (String(r.commit.lsn) !== '0') s.lsns.push(String(r.commit.lsn));
+        } catch (err) { s.error = err; }
+      }
       this.record(s.bit === FOREGROUND_BIT ? 'foreground stroke' : 'background stroke', s.dataset, s.lsns);
       this.app.ui?.updateEditButtons();
       if (s.error) throw s.error;
@@ -263,8 +311,10 @@ export class Editor {
 
   // ---- Graph cut, clipboard, labels. ----
 
-  graphCut(allFrames = this.graphCutAllFrames) {
+  // The cut's result combines with the selection bit by the mode buttons' choice.
+  graphCut(allFrames = this.graphCutAllFrames, mode = this.mode) {
     const roi = allFrames ? allTimeWindow(this.app.box) : this.app.currentRegion();
+    if (selectMode(mode) !== 'SELECT_REPLACE') return graphCutWithMode(this, roi, FOREGROUND_BIT, BACKGROUND_BIT, selectMode(mode));
     const req = { graph_cut: { dataset: this.app.dataset, roi, foreground_bit: FOREGROUND_BIT, background_bit: BACKGROUND_BIT, out_bit: this.app.bit } };
     return this.commit('graph cut', req, (r) => r.graph_cut);
   }

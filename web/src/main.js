@@ -10,6 +10,10 @@ import { FrameStore, Player } from './player.js';
 import { Editor } from './editor.js';
 import { UI } from './ui.js';
 import { Live } from './live.js';
+import { SliceTool } from './slice_tool.js';
+import { Transformer } from './transform.js';
+import { Gizmo } from './gizmo.js';
+import { editingHooks } from './transform.js';
 
 const kMaxLod = 12;
 
@@ -103,8 +107,13 @@ class App {
       shouldNavigate: (e) => !this.editor.wantsPointer(e),
       onChange: () => this.requestDraw(true),
     });
+    this.sliceTool = new SliceTool(this);
+    this.transformer = new Transformer(this);
+    this.gizmo = new Gizmo(this, this.transformer);
+    this.preview = null;  // a pending transform's preview: {m, t} of the displayed space
     this.ui = new UI(this);
     this.editor.setTool('navigate');
+    this.editor.setMode('SELECT_REPLACE');
     if (this.renderer.mode === 'points') this.setStatus('edit', `point renderer${this.renderer.fallbackReason ? ` (${this.renderer.fallbackReason})` : ''}`);
     else if (this.renderer.software) this.setStatus('edit', `software WebGL (${this.renderer.rendererName.slice(0, 60)}): half resolution while moving or playing`);
     await this.conn.open();
@@ -214,7 +223,9 @@ class App {
   currentRegion() {
     if (this.viewMode === 'slice') {
       const r = sliceRegion(this.slice.normal, this.slice.offset, this.slice.thickness);
-      if (this.box) r.slice.clip = allTimeWindow(this.box).window;
+      const times = this.slice.times;  // the timeline's in / out points (slice_tool.js)
+      if (this.box || times) r.slice.clip = allTimeWindow(this.box).window;
+      if (times) { r.slice.clip.lo[3] = times[0]; r.slice.clip.hi[3] = times[1]; }
       return r;
     }
     return frameWindow(this.frame / this.info.fps, this.box);
@@ -230,7 +241,10 @@ class App {
     if (!this.info) throw new Error('no dataset open');
     const n = this.info.frame_count;
     if (!Number.isInteger(i) || i < 0 || i >= Math.max(1, n)) throw new Error(`frame ${i} is outside 0..${n - 1}`);
-    if (this.viewMode !== 'frames') this.viewMode = 'frames';
+    if (this.viewMode !== 'frames') {
+      this.sliceTool.restoreView();
+      this.viewMode = 'frames';
+    }
     this.frame = i;
     return this.showCurrent();
   }
@@ -308,14 +322,16 @@ class App {
     await this.showCurrent();
   }
 
-  async showSlice(normal, offset, thickness) {
+  // times: [t0, t1] seconds the slice is clipped to (in / out points), or null.
+  async showSlice(normal, offset, thickness, times = null) {
     this.player.stop();
-    this.slice = { normal, offset, thickness };
+    this.slice = { normal, offset, thickness, times };
     this.viewMode = 'slice';
     await this.showCurrent();
   }
 
   async showFrames() {
+    this.sliceTool.restoreView();
     this.viewMode = 'frames';
     await this.showCurrent();
   }
@@ -389,7 +405,8 @@ class App {
     const cam = this.cam.camera(this.canvas.width, this.canvas.height);
     const d = this.shown;
     const layers = d && !d.disposed ? [d.layer] : [];
-    const n = this.renderer.draw(layers, cam, { selMask: (1 << this.bit) >>> 0, overlay: this.overlay, zFar: this.zFar(d), resolution });
+    const n = this.renderer.draw(layers, cam, { selMask: (1 << this.bit) >>> 0, overlay: this.overlay, zFar: this.zFar(d), resolution, preview: this.preview });
+    if (this.editor?.tool === 'transform' && (!this.editor.drag || this.editor.drag.gizmo)) this.editor.clearOverlay();  // the gizmo follows
     // A frame's first picture (its coarsest level, when it comes progressively): live mode's
     // "on screen" (window.hvdbLive.onScreen[].firstDrawnWall).
     if (n > 0 && d && d.firstDrawnWall === undefined) {
@@ -583,6 +600,8 @@ function exposeHooks(app, ready) {
     request: (obj) => app.conn.request(obj),
     renderStill: () => app.renderStill(),
   };
+  // The slice, transform and brush hooks (transform.js).
+  Object.defineProperties(window.hvdbApp, Object.getOwnPropertyDescriptors(editingHooks(app)));
 }
 
 function boot() {

@@ -11,6 +11,7 @@ export class FrameData {
     this.lod = lod;
     this.chunks = [];
     this.labels = [];       // Uint32Array copies per chunk (for selectedCount)
+    this.positions = [];    // Float32Array copies per chunk (xyz: the selection's centre)
     this.points = 0;
     this.scale = 1;          // splat growth: the finest complete level's splat_scale
     this.levelsDone = [];
@@ -35,6 +36,21 @@ export class FrameData {
     let n = 0;
     for (const l of this.labels) for (let i = 0; i < l.length; ++i) if (l[i] & mask) ++n;
     return n;
+  }
+
+  // Mean position and count of the points with a label bit of `mask` (displayed coordinates).
+  centroid(mask) {
+    let n = 0;
+    const c = [0, 0, 0];
+    this.labels.forEach((l, k) => {
+      const p = this.positions[k];
+      for (let i = 0; i < l.length; ++i) {
+        if (!(l[i] & mask)) continue;
+        c[0] += p[3 * i]; c[1] += p[3 * i + 1]; c[2] += p[3 * i + 2];
+        ++n;
+      }
+    });
+    return n ? { center: c.map((x) => x / n), count: n } : { center: null, count: 0 };
   }
 }
 
@@ -160,6 +176,7 @@ export class FrameStore {
       if (!cols.position || cols.position.length < 3 * n) throw new Error(`batch of ${n} points without a position column`);
       d.chunks.push(this.renderer.createChunk(cols, n));
       d.labels.push(cols.label ? new Uint32Array(cols.label) : new Uint32Array(n));
+      d.positions.push(new Float32Array(cols.position.subarray(0, 3 * n)));  // the selection's centre (gizmo.js)
       d.points += n;
       const p = cols.position;
       const lo = d.bboxLo, hi = d.bboxHi;
@@ -190,6 +207,7 @@ export class FrameStore {
     for (const c of d.chunks) this.renderer.deleteChunk(c);
     d.chunks = [];
     d.labels = [];
+    d.positions = [];
     this.cancelQuery(d);
   }
 

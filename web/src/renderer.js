@@ -24,6 +24,9 @@ uniform vec2 uSize;                    // image width, height (pixels)
 uniform float uScale2, uFilter, uCutoff2, uDefaultVar, uNear, uMaxPointSize;
 uniform uint uSelMask;
 uniform bool uOverlay;
+uniform bool uPreview;                 // a transform's preview: selected points moved
+uniform mat3 uPM;                      // (gizmo.js) by P' = uPM P + uPT, V' = uPM V uPM^T
+uniform vec3 uPT;
 flat out vec3 vConic;   // ca cb cc: inverse screen covariance
 flat out vec2 vCenter;  // u v (pixel centres at integers, v down)
 flat out vec3 vDepth;   // z, dz/dx, dz/dy
@@ -32,9 +35,11 @@ const uint kFlagHasCovariance = 2u;
 float srgbToLinear(float v) { return v <= 0.04045 ? v / 12.92 : pow((v + 0.055) / 1.055, 2.4); }
 void cull() { gl_Position = vec4(2.0, 2.0, 2.0, 1.0); gl_PointSize = 0.0; }
 void main() {
-  float xc = dot(uR0, aPos) + uT.x;
-  float yc = dot(uR1, aPos) + uT.y;
-  float zc = dot(uR2, aPos) + uT.z;
+  bool moved = uPreview && (aLabel & uSelMask) != 0u;
+  vec3 pos = moved ? uPM * aPos + uPT : aPos;
+  float xc = dot(uR0, pos) + uT.x;
+  float yc = dot(uR1, pos) + uT.y;
+  float zc = dot(uR2, pos) + uT.z;
   if (!(zc >= uNear)) { cull(); return; }
   float invZ = 1.0 / zc;
   float a = xc * invZ, b = yc * invZ;
@@ -45,6 +50,7 @@ void main() {
   vec3 c0 = aCov0, c1 = aCov1;
   if ((aFlags & kFlagHasCovariance) == 0u) { c0 = vec3(uDefaultVar, 0.0, 0.0); c1 = vec3(uDefaultVar, 0.0, uDefaultVar); }
   mat3 V = mat3(c0.x, c0.y, c0.z,  c0.y, c1.x, c1.y,  c0.z, c1.y, c1.z);
+  if (moved) V = uPM * V * transpose(uPM);
   vec3 vt0 = V * t0, vt1 = V * t1;
   float s00 = dot(t0, vt0) * uScale2 + uFilter;
   float s01 = dot(t0, vt1) * uScale2;
@@ -393,6 +399,14 @@ export class SplatRenderer {
     if (u.uMaxPointSize) gl.uniform1f(u.uMaxPointSize, this.maxPointSize);
     gl.uniform1ui(u.uSelMask, opts.selMask >>> 0);
     gl.uniform1i(u.uOverlay, opts.overlay ? 1 : 0);
+    // opts.preview: {m: row-major 3x3, t: 3} moving the selected points (a transform's preview).
+    const pv = opts.preview;
+    gl.uniform1i(u.uPreview, pv ? 1 : 0);
+    if (pv) {
+      const m = pv.m;
+      gl.uniformMatrix3fv(u.uPM, false, [m[0], m[3], m[6], m[1], m[4], m[7], m[2], m[5], m[8]]);
+      gl.uniform3f(u.uPT, pv.t[0], pv.t[1], pv.t[2]);
+    }
     if (u.uZFar) gl.uniform1f(u.uZFar, opts.zFar);
     if (u.uDz) gl.uniform1f(u.uDz, RENDER_DEFAULTS.depthThreshold);
   }

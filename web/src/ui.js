@@ -35,6 +35,9 @@ export class UI {
     for (const b of document.querySelectorAll('[data-tool]')) {
       b.addEventListener('click', this.run(() => a.editor.setTool(b.dataset.tool)));
     }
+    for (const b of document.querySelectorAll('[data-mode]')) {
+      b.addEventListener('click', this.run(() => a.editor.setMode(b.dataset.mode)));
+    }
     $('graph-cut').addEventListener('click', this.run(() => a.editor.graphCut()));
     $('graph-cut-all').addEventListener('change', (e) => { a.editor.graphCutAllFrames = e.target.checked; });
     $('clear-strokes').addEventListener('click', this.run(() => a.editor.clearStrokes()));
@@ -77,7 +80,7 @@ export class UI {
       const offset = Number($('slice-offset').value), thickness = Number($('slice-thickness').value);
       if (normal.some((x) => !Number.isFinite(x)) || normal.every((x) => x === 0)) throw new Error('slice normal: four numbers, not all zero');
       if (!Number.isFinite(offset) || !(thickness >= 0)) throw new Error('slice: offset must be a number and thickness >= 0');
-      return a.showSlice(normal, offset, thickness);
+      return a.sliceTool.show({ normal, offset, thickness }, false);
     }));
     $('slice-back').addEventListener('click', this.run(() => a.showFrames()));
     $('box-apply').addEventListener('click', this.run(() => {
@@ -89,6 +92,7 @@ export class UI {
     $('box-clear').addEventListener('click', this.run(() => a.setBox(null)));
     $('brush-pixels').addEventListener('change', (e) => { a.editor.brushPixelRadius = Math.max(1, Number(e.target.value) || 12); });
     $('brush-radius').addEventListener('change', (e) => { a.editor.brushRadius = Math.max(0, Number(e.target.value) || 0.05); });
+    $('brush-depth').addEventListener('change', (e) => { a.editor.brushNearest = e.target.value === 'nearest'; });
   }
 
   bindTimeline() {
@@ -145,7 +149,11 @@ export class UI {
       else if (k === 'End') { if (a.live.on) a.live.goLive().catch(fail); else handled = false; }
       else if (k === 'Delete') { if (clipboardOk()) edit(() => a.editor.copy(true)); else handled = false; }
       else if (k === '?' || lower === 'h') this.toggleHelp();
-      else if (k === 'Escape') this.toggleHelp(false);
+      else if (k === 'Escape') { this.toggleHelp(false); a.transformer.cancel(); }
+      else if (k === 'Enter' && a.transformer.pending) edit(() => a.transformer.apply());
+      else if (lower === 'k') a.editor.setTool('slice');
+      else if (lower === 't') a.editor.setTool('transform');
+      else if (lower === 'i') (e.shiftKey ? a.sliceTool.markOut() : a.sliceTool.markIn()).catch(fail);
       else if (lower === 'n') a.editor.setTool('navigate');
       else if (lower === 'm') a.editor.setTool('marquee');
       else if (lower === 'l') a.editor.setTool('lasso');
@@ -175,6 +183,10 @@ export class UI {
 
   setTool(tool) {
     for (const b of document.querySelectorAll('[data-tool]')) b.classList.toggle('active', b.dataset.tool === tool);
+  }
+
+  setMode(mode) {
+    for (const b of document.querySelectorAll('[data-mode]')) b.classList.toggle('active', b.dataset.mode === mode);
   }
 
   setPlaying(playing) { $('play').textContent = playing ? 'Pause' : 'Play'; }
