@@ -10,6 +10,7 @@ import { FrameStore, Player } from './player.js';
 import { Editor } from './editor.js';
 import { UI } from './ui.js';
 import { Live } from './live.js';
+import { MediaImport } from './media_import.js';
 
 const kMaxLod = 12;
 
@@ -104,6 +105,7 @@ class App {
       onChange: () => this.requestDraw(true),
     });
     this.ui = new UI(this);
+    this.mediaImport = new MediaImport(this);
     this.editor.setTool('navigate');
     if (this.renderer.mode === 'points') this.setStatus('edit', `point renderer${this.renderer.fallbackReason ? ` (${this.renderer.fallbackReason})` : ''}`);
     else if (this.renderer.software) this.setStatus('edit', `software WebGL (${this.renderer.rendererName.slice(0, 60)}): half resolution while moving or playing`);
