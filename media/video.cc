@@ -177,7 +177,12 @@ Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::strin
       avcodec_send_packet(d.codec, nullptr);
     } else {
       if (d.packet->stream_index == stream) {
-        const int r = avcodec_send_packet(d.codec, d.packet);
+        // A full decoder (EAGAIN) takes the packet once its frames are out.
+        int r = avcodec_send_packet(d.codec, d.packet);
+        if (r == AVERROR(EAGAIN)) {
+          HVDB_RETURN_IF_ERROR(drain());
+          r = avcodec_send_packet(d.codec, d.packet);
+        }
         if (r < 0 && r != AVERROR(EAGAIN)) decode_error = AvError(r);
       }
       av_packet_unref(d.packet);

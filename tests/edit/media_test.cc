@@ -90,6 +90,8 @@ std::string WriteMp4(const std::string& path, int w, int h,
   AVPacket* pkt = av_packet_alloc();
   auto drain = [&]() {
     while (avcodec_receive_packet(enc, pkt) == 0) {
+      // Each frame lasts one tick: with 0 the MP4's edit list would cut the last frame off.
+      pkt->duration = 1;
       av_packet_rescale_ts(pkt, enc->time_base, st->time_base);
       pkt->stream_index = st->index;
       av_interleaved_write_frame(fmt, pkt);
