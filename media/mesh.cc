@@ -131,7 +131,10 @@ Result<std::vector<Point>> SampleMesh(std::string_view data, const std::string& 
       cdf.push_back(area);
     }
   }
-  if (tris.empty()) return Status::InvalidArgument(what + " has no triangles with an area");
+  if (tris.empty()) {
+    return Status::InvalidArgument(what + " has no triangles with an area (a point cloud? "
+                                          "insert it with hvdb composite --ply)");
+  }
   const double s2 = place.scale * place.scale;
   const double h = spacing > 0 ? spacing : MeshSpacing(area * s2);
   const double n_real = std::ceil(area * s2 / (h * h));

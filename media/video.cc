@@ -3,7 +3,9 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <cstdarg>
 #include <memory>
+#include <mutex>
 
 extern "C" {
 #include <libavcodec/avcodec.h>
@@ -49,10 +51,34 @@ int64_t Seek(void* opaque, int64_t offset, int whence) {
   return to;
 }
 
-std::string AvError(int err) {
+// libav's messages while this thread decodes a request's video go into the request's error
+// (not the server's stderr): the first error line says what was wrong with the file.
+thread_local std::string* tl_log = nullptr;
+
+void CaptureLog(void* avcl, int level, const char* fmt, va_list vl) {
+  if (tl_log == nullptr) return av_log_default_callback(avcl, level, fmt, vl);
+  if (level > AV_LOG_ERROR || !tl_log->empty()) return;
+  char line[256];
+  int prefix = 0;  // without "[codec @ 0x...]": the same words for the same file every time
+  av_log_format_line(avcl, level, fmt, vl, line, sizeof line, &prefix);
+  std::string l = line;
+  while (!l.empty() && (l.back() == '\n' || l.back() == ' ')) l.pop_back();
+  *tl_log = l;
+}
+
+struct LogScope {
+  explicit LogScope(std::string* s) {
+    static std::once_flag once;
+    std::call_once(once, [] { av_log_set_callback(CaptureLog); });
+    tl_log = s;
+  }
+  ~LogScope() { tl_log = nullptr; }
+};
+
+std::string AvError(int err, const std::string& log = "") {
   char buf[AV_ERROR_MAX_STRING_SIZE] = {};
   av_strerror(err, buf, sizeof buf);
-  return buf;
+  return log.empty() ? std::string(buf) : std::string(buf) + ": " + log;
 }
 
 // Owners of libav's objects, freed in reverse order of creation.
@@ -82,6 +108,8 @@ Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::strin
   if (data.empty()) return Status::InvalidArgument(what + " is empty");
   MemoryFile file{reinterpret_cast<const uint8_t*>(data.data()),
                   static_cast<int64_t>(data.size())};
+  std::string log;
+  LogScope scope(&log);  // outlives the demuxer: its teardown may log too
   Demuxer d;
   constexpr int kBuffer = 64 << 10;
   auto* buffer = static_cast<uint8_t*>(av_malloc(kBuffer));
@@ -100,24 +128,24 @@ Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::strin
   if (err < 0) {
     // On failure avformat_open_input frees the context (not our custom IO).
     d.fmt = nullptr;
-    return Status::InvalidArgument(what + " could not be demuxed: " + AvError(err));
+    return Status::InvalidArgument(what + " could not be demuxed: " + AvError(err, log));
   }
   err = avformat_find_stream_info(d.fmt, nullptr);
   if (err < 0) {
-    return Status::InvalidArgument(what + ": no stream information: " + AvError(err));
+    return Status::InvalidArgument(what + ": no stream information: " + AvError(err, log));
   }
   const AVCodec* decoder = nullptr;
   const int stream = av_find_best_stream(d.fmt, AVMEDIA_TYPE_VIDEO, -1, -1, &decoder, 0);
   if (stream < 0 || decoder == nullptr) {
     return Status::InvalidArgument(what + " has no video stream that libavcodec decodes (" +
-                                   AvError(stream) + ")");
+                                   AvError(stream, log) + ")");
   }
   d.codec = avcodec_alloc_context3(decoder);
   avcodec_parameters_to_context(d.codec, d.fmt->streams[stream]->codecpar);
   err = avcodec_open2(d.codec, decoder, nullptr);
   if (err < 0) {
     return Status::InvalidArgument(what + ": the " + decoder->name +
-                                   " decoder did not open: " + AvError(err));
+                                   " decoder did not open: " + AvError(err, log));
   }
   d.packet = av_packet_alloc();
   d.frame = av_frame_alloc();
@@ -158,7 +186,7 @@ Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::strin
       const int r = avcodec_receive_frame(d.codec, d.frame);
       if (r == AVERROR(EAGAIN) || r == AVERROR_EOF) return Status::OK();
       if (r < 0) {
-        decode_error = AvError(r);
+        decode_error = AvError(r, log);
         return Status::OK();
       }
       Status st = take();
@@ -172,7 +200,7 @@ Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::strin
     err = av_read_frame(d.fmt, d.packet);
     if (err < 0) {
       // End of file, or a damaged tail: flush what the decoder holds.
-      if (err != AVERROR_EOF) decode_error = AvError(err);
+      if (err != AVERROR_EOF) decode_error = AvError(err, log);
       eof = true;
       avcodec_send_packet(d.codec, nullptr);
     } else {
@@ -183,13 +211,14 @@ Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::strin
           HVDB_RETURN_IF_ERROR(drain());
           r = avcodec_send_packet(d.codec, d.packet);
         }
-        if (r < 0 && r != AVERROR(EAGAIN)) decode_error = AvError(r);
+        if (r < 0 && r != AVERROR(EAGAIN)) decode_error = AvError(r, log);
       }
       av_packet_unref(d.packet);
     }
     HVDB_RETURN_IF_ERROR(drain());
   }
   if (out.empty()) {
+    if (decode_error.empty()) decode_error = log;
     return Status::InvalidArgument(what + ": no frame decoded" +
                                    (decode_error.empty() ? "" : " (" + decode_error + ")"));
   }
