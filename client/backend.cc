@@ -564,13 +564,16 @@ class RemoteBackend final : public Backend {
     Result<CommitInfo> r = Run<CommitInfo>(false, [&q](Connection& c) { return c.ImportMedia(q); });
     if (!r.ok()) {
       Status s = Explain(name, r.status());
-      if (bytes >= wire::kDefaultMaxFrame - 4096) {
-        // The file travels in one request, which the server bounds (--max-frame-bytes).
+      // The file travels in one request, which the server bounds (--max-frame-bytes): it says
+      // so, or closes the connection while the request is still being sent.
+      if (bytes >= wire::kDefaultMaxFrame - 4096 ||
+          s.message().find("exceeds the limit") != std::string::npos ||
+          (s.code() == StatusCode::kIOError && bytes > (64u << 10))) {
         s = Status(s.code(), s.message() + " (the file makes one request of " +
-                                 std::to_string(bytes) + " bytes, and hvdb-server takes at " +
-                                 "most " + std::to_string(wire::kDefaultMaxFrame) +
-                                 " unless started with a larger --max-frame-bytes; import it "
-                                 "with --data on the server's machine, or make it smaller)");
+                                 std::to_string(bytes) + " bytes; a server refuses one over " +
+                                 "its --max-frame-bytes, " +
+                                 std::to_string(wire::kDefaultMaxFrame) + " by default; import " +
+                                 "it with --data on the server's machine, or make it smaller)");
       }
       return s;
     }
