@@ -1,12 +1,14 @@
 // Meshes sampled into surfels (media/mesh.cc) checked against the mesh itself: the Stanford
 // bunny's samples lie on its triangles with outward normals, the sample is deterministic, and
-// vertex colours come through.
+// an embedded texture's, vertex and material colours come through.
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <fstream>
 #include <random>
 #include <sstream>
+
+#include <opencv2/imgcodecs.hpp>
 
 #include "media/media.h"
 
@@ -165,6 +167,71 @@ TEST(MediaMeshTest, TheBunnysSamplesLieOnItWithOutwardNormals) {
   auto coarse = SampleMesh(bytes, "ply", place, 0.01, 0);
   ASSERT_TRUE(coarse.ok());
   EXPECT_NEAR(static_cast<double>(coarse->size()), area / 1e-4, 1.0);
+}
+
+std::string Base64(const std::string& in) {
+  static const char* k = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+  std::string out;
+  size_t i = 0;
+  for (; i + 2 < in.size(); i += 3) {
+    const uint32_t v = (uint8_t(in[i]) << 16) | (uint8_t(in[i + 1]) << 8) | uint8_t(in[i + 2]);
+    for (int s = 18; s >= 0; s -= 6) out += k[(v >> s) & 63];
+  }
+  if (i < in.size()) {
+    uint32_t v = uint8_t(in[i]) << 16;
+    if (i + 1 < in.size()) v |= uint8_t(in[i + 1]) << 8;
+    out += k[(v >> 18) & 63];
+    out += k[(v >> 12) & 63];
+    out += i + 1 < in.size() ? k[(v >> 6) & 63] : '=';
+    out += '=';
+  }
+  return out;
+}
+
+template <typename T>
+std::string Bytes(const std::vector<T>& v) {
+  return std::string(reinterpret_cast<const char*>(v.data()), v.size() * sizeof(T));
+}
+
+TEST(MediaMeshTest, AGltfsEmbeddedTextureColoursItsSurface) {
+  // A unit quad in a self-contained glTF (data URIs): its texture is red on the left half and
+  // blue on the right (u = x).
+  const std::vector<float> pos = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0};
+  const std::vector<float> uv = {0, 1, 1, 1, 1, 0, 0, 0};
+  const std::vector<uint16_t> idx = {0, 1, 2, 0, 2, 3};
+  const std::string buf = Bytes(pos) + Bytes(uv) + Bytes(idx);
+  cv::Mat tex(1, 2, CV_8UC3);
+  tex.at<cv::Vec3b>(0, 0) = {0, 0, 255};  // BGR: red
+  tex.at<cv::Vec3b>(0, 1) = {255, 0, 0};  // blue
+  std::vector<uint8_t> png;
+  ASSERT_TRUE(cv::imencode(".png", tex, png));
+  const std::string gltf = R"({"asset":{"version":"2.0"},"scene":0,"scenes":[{"nodes":[0]}],
+    "nodes":[{"mesh":0}],
+    "meshes":[{"primitives":[{"attributes":{"POSITION":0,"TEXCOORD_0":1},"indices":2,
+      "material":0}]}],
+    "materials":[{"pbrMetallicRoughness":{"baseColorTexture":{"index":0}}}],
+    "textures":[{"source":0}],
+    "images":[{"uri":"data:image/png;base64,)" + Base64(std::string(png.begin(), png.end())) +
+                           R"("}],
+    "buffers":[{"byteLength":)" + std::to_string(buf.size()) +
+                           R"(,"uri":"data:application/octet-stream;base64,)" + Base64(buf) +
+                           R"("}],
+    "bufferViews":[{"buffer":0,"byteOffset":0,"byteLength":48},
+      {"buffer":0,"byteOffset":48,"byteLength":32},
+      {"buffer":0,"byteOffset":80,"byteLength":12}],
+    "accessors":[
+      {"bufferView":0,"componentType":5126,"count":4,"type":"VEC3","min":[0,0,0],"max":[1,1,0]},
+      {"bufferView":1,"componentType":5126,"count":4,"type":"VEC2"},
+      {"bufferView":2,"componentType":5123,"count":6,"type":"SCALAR"}]})";
+  auto pts = SampleMesh(gltf, "gltf", {}, 0.05, 0);
+  ASSERT_TRUE(pts.ok()) << pts.status().ToString();
+  ASSERT_EQ(pts->size(), 400u);
+  for (const Point& p : *pts) {
+    if (std::fabs(p.x) < 0.01) continue;  // on the seam
+    const std::array<int, 3> rgb{p.r, p.g, p.b};
+    const std::array<int, 3> red{255, 0, 0}, blue{0, 0, 255};
+    EXPECT_EQ(rgb, p.x < 0 ? red : blue) << p.x;
+  }
 }
 
 TEST(MediaMeshTest, VertexColoursAndMaterialColoursComeThrough) {
