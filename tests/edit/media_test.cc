@@ -60,12 +60,13 @@ std::string Png(const cv::Mat& m) {
   return std::string(buf.begin(), buf.end());
 }
 
-// An MPEG-4 Part 2 video in an MP4 file, frame k filled with colours[k] (RGB).
-std::string WriteMp4(const std::string& path, int w, int h,
-                     const std::vector<std::array<uint8_t, 3>>& colours) {
+// A video file (`container`: "mp4", "webm") of `codec` frames, frame k filled with colours[k]
+// (RGB).
+std::string WriteVideo(const std::string& path, const char* container, AVCodecID codec_id,
+                       int w, int h, const std::vector<std::array<uint8_t, 3>>& colours) {
   AVFormatContext* fmt = nullptr;
-  EXPECT_GE(avformat_alloc_output_context2(&fmt, nullptr, "mp4", path.c_str()), 0);
-  const AVCodec* codec = avcodec_find_encoder(AV_CODEC_ID_MPEG4);
+  EXPECT_GE(avformat_alloc_output_context2(&fmt, nullptr, container, path.c_str()), 0);
+  const AVCodec* codec = avcodec_find_encoder(codec_id);
   EXPECT_NE(codec, nullptr);
   AVStream* st = avformat_new_stream(fmt, nullptr);
   AVCodecContext* enc = avcodec_alloc_context3(codec);
@@ -122,6 +123,12 @@ std::string WriteMp4(const std::string& path, int w, int h,
   avcodec_free_context(&enc);
   avformat_free_context(fmt);
   return Slurp(path);
+}
+
+// MPEG-4 Part 2 in MP4.
+std::string WriteMp4(const std::string& path, int w, int h,
+                     const std::vector<std::array<uint8_t, 3>>& colours) {
+  return WriteVideo(path, "mp4", AV_CODEC_ID_MPEG4, w, h, colours);
 }
 
 class MediaTest : public ::testing::Test {
@@ -277,6 +284,31 @@ TEST_F(MediaTest, AVideosFramesFollowItFrameByFrameThenItsLastFrameHolds) {
     const auto& s = sums[f];
     EXPECT_EQ(s[3], 64 * 48);
     for (int c = 0; c < 3; ++c) EXPECT_NEAR(s[c] / s[3], want[c], 8.0);
+  }
+}
+
+TEST_F(MediaTest, AWebmVideoToo) {
+  const std::vector<std::array<uint8_t, 3>> colours = {{200, 40, 40}, {40, 40, 200}};
+  const std::string webm =
+      WriteVideo(dir_.path() + "/clip.webm", "webm", AV_CODEC_ID_VP8, 32, 32, colours);
+  ImportRequest req;
+  req.data = webm;
+  req.format = "webm";
+  req.first_frame = 0;
+  req.last_frame = 1;
+  auto ci = Import(*ds_, req);
+  ASSERT_TRUE(ci.ok()) << ci.status().ToString();
+  EXPECT_EQ(ci->inserted, 32u * 32 * 2);
+  std::map<uint32_t, std::array<double, 4>> sums;
+  for (const Point& p : ReadAll(*ds_)) {
+    auto& s = sums[p.frame];
+    s[0] += p.r;
+    s[1] += p.g;
+    s[2] += p.b;
+    s[3] += 1;
+  }
+  for (uint32_t f = 0; f < 2; ++f) {
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(sums[f][c] / sums[f][3], colours[f][c], 12.0);
   }
 }
 
