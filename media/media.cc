@@ -61,6 +61,14 @@ Kind DetectKind(std::string_view data, const std::string& format, Kind hint) {
   return Kind::kVideo;
 }
 
+Status TooManyPoints(uint64_t per_frame, uint64_t frames, Kind kind) {
+  return Status::InvalidArgument(
+      "import_media.frames: " + std::to_string(per_frame) + " points a frame in " +
+      std::to_string(frames) + " frames is over the limit of " +
+      std::to_string(kMaxImportPoints) + " points an import; give fewer frames" +
+      (kind == Kind::kMesh ? " or a larger spacing" : " or fewer texels"));
+}
+
 Result<CommitInfo> Import(Dataset& ds, const ImportRequest& req) {
   // The request's shape first: nothing is decoded for a request that cannot be served.
   if (req.data.empty()) {
@@ -109,13 +117,6 @@ Result<CommitInfo> Import(Dataset& ds, const ImportRequest& req) {
   const uint32_t label = req.label_bit ? 1u << *req.label_bit : 0;
   const Kind kind = DetectKind(req.data, req.format, req.kind);
   const std::string fmt = Lower(req.format);
-  auto too_many = [&](uint64_t per_frame) -> Status {
-    return Status::InvalidArgument(
-        "import_media.frames: " + std::to_string(per_frame) + " points a frame in " +
-        std::to_string(frames) + " frames is over the limit of " +
-        std::to_string(kMaxImportPoints) + " points an import; give fewer frames" +
-        (kind == Kind::kMesh ? " or a larger spacing" : " or fewer texels"));
-  };
   std::vector<Point> object;
   switch (kind) {
     case Kind::kImage: {
@@ -131,12 +132,9 @@ Result<CommitInfo> Import(Dataset& ds, const ImportRequest& req) {
     case Kind::kVideo: {
       // Video frame k goes to dataset frame first + k; a shorter video holds its last frame.
       const uint32_t side = req.texels ? req.texels : kDefaultVideoTexels;
-      const uint64_t plane_max = uint64_t{side} * side;
-      if (plane_max * frames > kMaxImportPoints * 4) return too_many(plane_max);
       HVDB_ASSIGN_OR_RETURN(std::vector<Picture> pics,
                             DecodeVideo(req.data, fmt, static_cast<uint32_t>(frames), side));
       const uint64_t per = static_cast<uint64_t>(pics[0].width) * pics[0].height;
-      if (per * frames > kMaxImportPoints) return too_many(per);
       std::vector<Point> pts;
       pts.reserve(per * frames);
       for (uint64_t k = 0; k < frames; ++k) {
@@ -157,7 +155,9 @@ Result<CommitInfo> Import(Dataset& ds, const ImportRequest& req) {
     return Status::InvalidArgument(std::string("import_media: the ") + KindName(kind) +
                                    " gave no points (every pixel is transparent)");
   }
-  if (object.size() * frames > kMaxImportPoints) return too_many(object.size());
+  if (object.size() * frames > kMaxImportPoints) {
+    return TooManyPoints(object.size(), frames, kind);
+  }
   // A still medium is the same object in every frame: hvdb composite's insertion.
   return edit::Composite(ds, object, first, static_cast<uint32_t>(frames));
 }

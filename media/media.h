@@ -74,9 +74,14 @@ Result<Picture> DecodeImage(std::string_view data, const std::string& format, ui
 
 // video.cc: the first `max_frames` frames of a video file, each scaled so that the longer side
 // has at most `max_side` pixels (alpha 255). InvalidArgument naming the format when the file
-// cannot be demuxed, has no video stream or no frame decodes.
+// cannot be demuxed, has no video stream or no frame decodes, and TooManyPoints as soon as the
+// first frame shows that max_frames of its size pass `max_points`.
 Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::string& format,
-                                         uint32_t max_frames, uint32_t max_side);
+                                         uint32_t max_frames, uint32_t max_side,
+                                         uint64_t max_points = kMaxImportPoints);
+
+// The error of an import over kMaxImportPoints: `per_frame` points in each of `frames`.
+Status TooManyPoints(uint64_t per_frame, uint64_t frames, Kind kind);
 
 // plane.cc: one surfel per texel (texels with alpha < 128 are left out), in frame `frame`:
 // colour = the texel's, normal = the plane's, a Gaussian footprint of 0.6 texel spacing (so the

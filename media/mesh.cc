@@ -94,7 +94,8 @@ Result<std::vector<Point>> SampleMesh(std::string_view data, const std::string& 
   if (data.empty()) return Status::InvalidArgument(what + " is empty");
   Assimp::Importer importer;
   // Node transforms baked in, polygons split into triangles, points and lines dropped.
-  importer.SetPropertyInteger(AI_CONFIG_PP_SBP_REMOVE, aiPrimitiveType_POINT | aiPrimitiveType_LINE);
+  importer.SetPropertyInteger(AI_CONFIG_PP_SBP_REMOVE,
+                              aiPrimitiveType_POINT | aiPrimitiveType_LINE);
   const aiScene* scene = importer.ReadFileFromMemory(
       data.data(), data.size(),
       aiProcess_Triangulate | aiProcess_PreTransformVertices | aiProcess_SortByPType,

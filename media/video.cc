@@ -103,7 +103,8 @@ struct Demuxer {
 }  // namespace
 
 Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::string& format,
-                                         uint32_t max_frames, uint32_t max_side) {
+                                         uint32_t max_frames, uint32_t max_side,
+                                         uint64_t max_points) {
   const std::string what = "import_media: the video (" + (format.empty() ? "?" : format) + ")";
   if (data.empty()) return Status::InvalidArgument(what + " is empty");
   MemoryFile file{reinterpret_cast<const uint8_t*>(data.data()),
@@ -162,6 +163,10 @@ Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::strin
       const double f = static_cast<double>(max_side) / side;
       w = std::max(1, static_cast<int>(std::lround(fw * f)));
       h = std::max(1, static_cast<int>(std::lround(fh * f)));
+    }
+    // Refused before the rest is decoded (frames past the video's end repeat its last).
+    if (out.empty() && uint64_t{static_cast<uint32_t>(w)} * h * max_frames > max_points) {
+      return TooManyPoints(uint64_t{static_cast<uint32_t>(w)} * h, max_frames, Kind::kVideo);
     }
     d.sws = sws_getCachedContext(d.sws, fw, fh, static_cast<AVPixelFormat>(d.frame->format), w,
                                  h, AV_PIX_FMT_RGBA, SWS_AREA | SWS_ACCURATE_RND, nullptr,

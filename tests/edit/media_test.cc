@@ -285,6 +285,23 @@ TEST_F(MediaTest, AVideosFramesFollowItFrameByFrameThenItsLastFrameHolds) {
     EXPECT_EQ(s[3], 64 * 48);
     for (int c = 0; c < 3; ++c) EXPECT_NEAR(s[c] / s[3], want[c], 8.0);
   }
+  // 10,000 frames of 64 x 48 surfels pass the 20 M points of one import: refused after the
+  // first frame is decoded, nothing written.
+  const uint64_t lsn = ds_->Info().last_lsn;
+  req.first_frame = 0;
+  req.last_frame = 9999;
+  auto big = Import(*ds_, req);
+  ASSERT_FALSE(big.ok());
+  EXPECT_NE(big.status().message().find("import_media.frames: 3072 points a frame in 10000"),
+            std::string::npos)
+      << big.status().message();
+  req.data = Png(RandomImage(64, 48, 2));
+  req.format = "png";
+  big = Import(*ds_, req);
+  EXPECT_NE(big.status().message().find("import_media.frames: 3072 points a frame in 10000"),
+            std::string::npos)
+      << big.status().message();
+  EXPECT_EQ(ds_->Info().last_lsn, lsn);
 }
 
 TEST_F(MediaTest, AWebmVideoToo) {
