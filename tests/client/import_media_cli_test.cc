@@ -1,6 +1,6 @@
 // `hvdb import-media` through the real binary: embedded (--data) and through hvdb-server
-// (--server) the same image gives the same points, undo removes them, a corrupt file is an
-// error naming its kind, and a file over the server's frame limit says so.
+// (--server) the same image gives the same points, undo removes them, the plane renders closed,
+// a corrupt file is an error naming its kind, and a file over the server's frame limit says so.
 #include <sys/wait.h>
 
 #include <gtest/gtest.h>
@@ -12,7 +12,9 @@
 #include <string>
 
 #include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "tests/server/server_process.h"
 
@@ -145,6 +147,34 @@ TEST_F(ImportMediaCliTest, BadFilesAndOptionsAreErrors) {
   EXPECT_EQ(r.code, 0);
   EXPECT_NE(r.out.find("--label-bit"), std::string::npos);
   EXPECT_NE(r.out.find("hvdb undo"), std::string::npos);
+}
+
+// The footprints (0.6 texel spacing) close the plane: rendered on black, far and close up
+// (about 7 pixels a texel), every pixel inside it is the image's white.
+TEST_F(ImportMediaCliTest, AnImportedPlaneRendersClosed) {
+  cv::Mat white(100, 200, CV_8UC3, cv::Scalar(255, 255, 255));
+  std::vector<uint8_t> buf;
+  ASSERT_TRUE(cv::imencode(".png", white, buf));
+  const std::string png = WriteFile("white.png", std::string(buf.begin(), buf.end()));
+  ASSERT_EQ(Run("--data d create r --fps 30").code, 0);
+  ASSERT_EQ(Run("--data d import-media r " + png).code, 0);
+  const std::string render = "--data d render r --box -2 2 -2 2 -2 2 0 0 --fov 40 --size 640 480 "
+                             "--renderer cpu --background 0 0 0 ";
+  Ran r = Run(render + "--look-at 0 0 -1.5 0 0 0 --out far.png");
+  ASSERT_EQ(r.code, 0) << r.err;
+  cv::Mat far = cv::imread(dir_ + "/far.png", cv::IMREAD_GRAYSCALE);
+  ASSERT_FALSE(far.empty());
+  cv::Mat lit;
+  cv::findNonZero(far, lit);
+  const cv::Rect box = cv::boundingRect(lit);
+  EXPECT_NEAR(box.width / static_cast<double>(box.height), 2.0, 0.05);  // the image's aspect
+  double lo;
+  cv::minMaxLoc(far(cv::Rect(box.x + 4, box.y + 4, box.width - 8, box.height - 8)), &lo);
+  EXPECT_EQ(lo, 255);
+  r = Run(render + "--look-at 0.1 0.05 -0.2 0.1 0.05 0 --out close.png");
+  ASSERT_EQ(r.code, 0) << r.err;
+  cv::minMaxLoc(cv::imread(dir_ + "/close.png", cv::IMREAD_GRAYSCALE), &lo);
+  EXPECT_EQ(lo, 255);
 }
 
 TEST_F(ImportMediaCliTest, AFileOverTheServersFrameLimitIsExplained) {
