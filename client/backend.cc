@@ -222,6 +222,11 @@ class EmbeddedBackend final : public Backend {
     return Do(name, [&](service::Service& x) { return x.Composite(name, req); });
   }
 
+  Result<CommitInfo> ImportMedia(const std::string& name,
+                                 const media::ImportRequest& req) override {
+    return Do(name, [&](service::Service& x) { return x.ImportMedia(name, req); });
+  }
+
   Status Render(const wire::Render& request,
                 const std::function<Status(const wire::RenderReply&)>& on_image) override {
     // What hvdb-server's sessions do, with a renderer of this process instead of one from the
@@ -544,6 +549,31 @@ class RemoteBackend final : public Backend {
                                  " MiB, and hvdb-server takes at most 16 MiB unless started "
                                  "with a larger --max-frame-bytes; thin the object out, or "
                                  "composite it in parts)");
+      }
+      return s;
+    }
+    return r;
+  }
+
+  Result<CommitInfo> ImportMedia(const std::string& name,
+                                 const media::ImportRequest& req) override {
+    wire::ImportMediaRequest q;
+    q.set_dataset(name);
+    wire::ToWire(req, &q);
+    const size_t bytes = q.ByteSizeLong();
+    Result<CommitInfo> r = Run<CommitInfo>(false, [&q](Connection& c) { return c.ImportMedia(q); });
+    if (!r.ok()) {
+      Status s = Explain(name, r.status());
+      // The file travels in one request, which the server bounds (--max-frame-bytes): it says
+      // so, or closes the connection while the request is still being sent.
+      if (bytes >= wire::kDefaultMaxFrame - 4096 ||
+          s.message().find("exceeds the limit") != std::string::npos ||
+          (s.code() == StatusCode::kIOError && bytes > (64u << 10))) {
+        s = Status(s.code(), s.message() + " (the file makes one request of " +
+                                 std::to_string(bytes) + " bytes; a server refuses one over " +
+                                 "its --max-frame-bytes, " +
+                                 std::to_string(wire::kDefaultMaxFrame) + " by default; import " +
+                                 "it with --data on the server's machine, or make it smaller)");
       }
       return s;
     }

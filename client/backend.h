@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "edit/operators.h"
+#include "media/media.h"
 #include "protocol/wire.h"
 #include "storage/database.h"
 #include "storage/status.h"
@@ -145,6 +146,10 @@ class Backend {
   virtual Result<CommitInfo> Composite(const std::string& name, const std::vector<Point>& object,
                                        uint32_t first_frame, uint32_t frame_count,
                                        const std::vector<std::array<double, 3>>& trajectory) = 0;
+  // Inserts an image, video or mesh file (req.data: its bytes), decoded next to the data
+  // (media/media.h), in one transaction.
+  virtual Result<CommitInfo> ImportMedia(const std::string& name,
+                                         const media::ImportRequest& req) = 0;
 
   // ---- Rendering (docs/PROTOCOL.md, "Rendering"): the Render request of the wire protocol,
   // which is how render::RenderJob takes it in both modes (request.dataset names the dataset).

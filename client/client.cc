@@ -757,6 +757,13 @@ Result<CommitInfo> Connection::Composite(const wire::CompositeRequest& q) {
   return wire::FromWire(r.commit());
 }
 
+Result<CommitInfo> Connection::ImportMedia(const wire::ImportMediaRequest& q) {
+  wire::Request req;
+  *req.mutable_import_media() = q;
+  HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
+  return wire::FromWire(r.commit());
+}
+
 Status Client::EnsureConnected() {
   if (conn_ && !conn_->broken()) return Status::OK();
   if (conn_) retired_.push_back(std::move(conn_));  // streams may still point at it

@@ -153,6 +153,7 @@ class Connection {
   Result<wire::CopyReply> Copy(const wire::CopyRequest& req);
   Result<CommitInfo> Paste(const wire::PasteRequest& req);
   Result<CommitInfo> Composite(const wire::CompositeRequest& req);
+  Result<CommitInfo> ImportMedia(const wire::ImportMediaRequest& req);
   // Rendering (docs/PROTOCOL.md, "Rendering"): the image of a single-view request.
   Result<wire::RenderReply> Render(const wire::Render& req);
   // A sequence (a request with a path, or a progressive one: preview then image; a single

@@ -237,6 +237,44 @@ Result<edit::CompositeRequest> FromWire(const wire::CompositeRequest& q) {
   return c;
 }
 
+void ToWire(const media::ImportRequest& r, wire::ImportMediaRequest* out) {
+  out->set_data(r.data);
+  out->set_kind(r.kind == media::Kind::kAuto ? "" : media::KindName(r.kind));
+  out->set_format(r.format);
+  if (r.first_frame) out->set_first_frame(*r.first_frame);
+  if (r.last_frame) out->set_last_frame(*r.last_frame);
+  for (double v : r.place.at) out->add_at(v);
+  out->set_scale(r.place.scale);
+  for (double v : r.place.rotate_deg) out->add_rotate(v);
+  out->set_width(r.place.width);
+  if (r.label_bit) out->set_label_bit(BitToWire(*r.label_bit));
+  out->set_texels(r.texels);
+  out->set_spacing(r.spacing);
+}
+
+Result<media::ImportRequest> FromWire(const wire::ImportMediaRequest& q) {
+  media::ImportRequest m;
+  m.data = q.data();
+  HVDB_ASSIGN_OR_RETURN(m.kind, media::ParseKind(q.kind()));
+  m.format = q.format();
+  if (q.has_first_frame()) m.first_frame = q.first_frame();
+  if (q.has_last_frame()) m.last_frame = q.last_frame();
+  if (q.at_size() != 0 && q.at_size() != 3) {
+    return Status::InvalidArgument("import_media.at: needs x y z (3 values) or none");
+  }
+  if (q.rotate_size() != 0 && q.rotate_size() != 3) {
+    return Status::InvalidArgument("import_media.rotate: needs rx ry rz (3 values) or none");
+  }
+  for (int i = 0; i < q.at_size(); ++i) m.place.at[i] = q.at(i);
+  for (int i = 0; i < q.rotate_size(); ++i) m.place.rotate_deg[i] = q.rotate(i);
+  if (q.has_scale()) m.place.scale = q.scale();
+  if (q.has_width()) m.place.width = q.width();
+  if (q.has_label_bit()) m.label_bit = BitFromWire(q.label_bit());
+  m.texels = q.texels();
+  m.spacing = q.spacing();
+  return m;
+}
+
 // ---- Commits, statistics, query options ----
 
 void ToWire(const CommitInfo& c, wire::CommitReply* out) {

@@ -7,6 +7,7 @@
 #define HVDB_PROTOCOL_CONVERT_H_
 
 #include "edit/operators.h"
+#include "media/media.h"
 #include "protocol/wire.h"
 
 namespace hvdb::wire {
@@ -36,6 +37,10 @@ Result<edit::PasteRequest> FromWire(const wire::PasteRequest& r);
 
 void ToWire(const edit::CompositeRequest& r, wire::CompositeRequest* out);
 Result<edit::CompositeRequest> FromWire(const wire::CompositeRequest& r);
+
+// An unknown kind, or `at` / `rotate` with other than 3 values, is refused.
+void ToWire(const media::ImportRequest& r, wire::ImportMediaRequest* out);
+Result<media::ImportRequest> FromWire(const wire::ImportMediaRequest& r);
 
 void ToWire(const CommitInfo& c, wire::CommitReply* out);
 CommitInfo FromWire(const wire::CommitReply& c);

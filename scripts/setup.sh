@@ -25,6 +25,7 @@ PACKAGES=(
   libboost-dev libopencv-dev libdraco-dev libopenexr-dev libglm-dev libnanoflann-dev
   libegl-dev libgl-dev libopengl-dev libegl-mesa0 libgl1-mesa-dri
   libprotobuf-dev protobuf-compiler nlohmann-json3-dev libcli11-dev liburing-dev librados-dev
+  libavformat-dev libavcodec-dev libswscale-dev libavutil-dev libassimp-dev
   python3 python3-dev python3-numpy pybind11-dev
 )
 # The tests and benchmarks: ingest/ (Ceres), GoogleTest and Benchmark, the peers of the

@@ -28,6 +28,7 @@ const char* KindOf(const wire::Request& r) {
     case wire::Request::kCopy: return "copy";
     case wire::Request::kPaste: return "paste";
     case wire::Request::kComposite: return "composite";
+    case wire::Request::kImportMedia: return "import_media";
     case wire::Request::kRelease: return "release";
     case wire::Request::kWatch: return "watch";
     default: return "unknown";
@@ -46,7 +47,8 @@ bool Writes(const wire::Request& r) {
     case wire::Request::kGraphCut:
     case wire::Request::kCopy:
     case wire::Request::kPaste:
-    case wire::Request::kComposite: return true;
+    case wire::Request::kComposite:
+    case wire::Request::kImportMedia: return true;
     default: return false;
   }
 }
@@ -73,7 +75,8 @@ bool IsUnary(const wire::Request& r) {
     case wire::Request::kGraphCut:
     case wire::Request::kCopy:
     case wire::Request::kPaste:
-    case wire::Request::kComposite: return true;
+    case wire::Request::kComposite:
+    case wire::Request::kImportMedia: return true;
     default: return false;
   }
 }
@@ -158,6 +161,12 @@ wire::Response Execute(Server* s, uint64_t id, const wire::Request& req) {
     case wire::Request::kComposite:
       return Serve(id, req.composite(), [](const auto& q) { return wire::FromWire(q); },
                    [&](const edit::CompositeRequest& q) { return x.Composite(req.composite().dataset(), q); },
+                   EncodeCommit);
+    case wire::Request::kImportMedia:
+      return Serve(id, req.import_media(), [](const auto& q) { return wire::FromWire(q); },
+                   [&](const media::ImportRequest& q) {
+                     return x.ImportMedia(req.import_media().dataset(), q);
+                   },
                    EncodeCommit);
     default:
       return ErrorResponse(id, Status::InvalidArgument("request: not a unary request"), wire::MALFORMED);

@@ -120,6 +120,12 @@ Result<CommitInfo> Service::Composite(const std::string& name, const edit::Compo
   return edit::Composite(*ds, req.object, req.first_frame, req.frame_count, req.trajectory);
 }
 
+Result<CommitInfo> Service::ImportMedia(const std::string& name,
+                                       const media::ImportRequest& req) {
+  HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
+  return media::Import(*ds, req);
+}
+
 Result<std::unique_ptr<render::RenderJob>> Service::Render(const wire::Render& request,
                                                            const render::RenderLimits& limits) {
   HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(request.dataset()));

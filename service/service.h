@@ -22,6 +22,7 @@
 #include <vector>
 
 #include "edit/operators.h"
+#include "media/media.h"
 #include "render/job.h"
 #include "storage/database.h"
 
@@ -83,6 +84,8 @@ class Service {
   Result<edit::CopyResult> Copy(const std::string& name, const edit::CopyRequest& req);
   Result<CommitInfo> Paste(const std::string& name, const edit::PasteRequest& req);
   Result<CommitInfo> Composite(const std::string& name, const edit::CompositeRequest& req);
+  // An image, video or mesh file decoded here (media/media.h) and inserted in one transaction.
+  Result<CommitInfo> ImportMedia(const std::string& name, const media::ImportRequest& req);
 
   // ---- Rendering: the request checked and the job made; the caller brings a renderer (the
   // server's pool, or one made in this process) and asks for the images one by one.

@@ -18,6 +18,8 @@ void AddEditCommands(CLI::App& app, Context& ctx);
 void AddSelectCommands(CLI::App& app, Context& ctx);
 // edit_commands.cc: copy, cut, paste, composite.
 void AddClipboardCommands(CLI::App& app, Context& ctx);
+// media_commands.cc: import-media.
+void AddMediaCommands(CLI::App& app, Context& ctx);
 // render_commands.cc: render.
 void AddRenderCommands(CLI::App& app, Context& ctx);
 // admin_commands.cc: stats, check, drop, ping.

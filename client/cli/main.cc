@@ -46,8 +46,9 @@ void AddGlobalOptions(CLI::App& app, GlobalArgs& g) {
   app.footer(
       "Positions are metres, times seconds (t = frame / fps). Each command has --help.\n"
       "Editing: select and graphcut mark points in label bits; copy, cut and paste move them\n"
-      "through named clipboards; composite inserts an object; every change prints an lsn for\n"
-      "undo (and redo). render draws a region through a camera into PNG or EXR images.\n"
+      "through named clipboards; composite inserts an object, import-media an image, video or\n"
+      "mesh; every change prints an lsn for undo (and redo). render draws a region through a\n"
+      "camera into PNG or EXR images.\n"
       "With --server HOST:PORT every command but check runs on an hvdb-server instead of --data;\n"
       "a server that needs a token gets it from --token or the environment variable HVDB_TOKEN.\n"
       "Exit status: 0 success, 1 error (printed as 'hvdb: <status>'), 2 usage error.\n"
@@ -116,6 +117,7 @@ void AddCommands(CLI::App& app, Context& ctx) {
   AddEditCommands(app, ctx);
   AddSelectCommands(app, ctx);
   AddClipboardCommands(app, ctx);
+  AddMediaCommands(app, ctx);
   AddRenderCommands(app, ctx);
   AddWatchCommands(app, ctx);
   AddAdminCommands(app, ctx);
@@ -126,7 +128,7 @@ int Run(const CLI::App& app, Context& ctx) {
     return Usage(
         "",
         "a command is required: datasets, create, describe, import, export, window, slice, "
-        "edit, undo, redo, select, graphcut, copy, cut, paste, composite, render, "
+        "edit, undo, redo, select, graphcut, copy, cut, paste, composite, import-media, render, "
         "stats, check, drop or ping");
   }
   if (std::optional<int> rc = MakeBackend(ctx)) return *rc;

@@ -365,5 +365,53 @@ TEST(ConvertTest, CommitStatsPhotoCreateAndQueryOptions) {
   EXPECT_EQ(ob->label_mask, 0x10u);
 }
 
+TEST(ConvertTest, ImportMedia) {
+  media::ImportRequest m;
+  m.data = std::string("\x89PNG\0bytes", 11);
+  m.kind = media::Kind::kVideo;
+  m.format = "webm";
+  m.first_frame = 3;
+  m.last_frame = 9;
+  m.place.at = {1, -2, 3.5};
+  m.place.scale = 0.25;
+  m.place.rotate_deg = {10, 20, -30};
+  m.place.width = 1.5;
+  m.label_bit = -1;  // refused by the executor, with the caller's number
+  m.texels = 64;
+  m.spacing = 0.004;
+  wire::ImportMediaRequest w;
+  ToWire(m, &w);
+  auto b = FromWire(w);
+  ASSERT_TRUE(b.ok()) << b.status().ToString();
+  EXPECT_EQ(b->data, m.data);
+  EXPECT_EQ(b->kind, media::Kind::kVideo);
+  EXPECT_EQ(b->format, "webm");
+  EXPECT_EQ(b->first_frame, 3u);
+  EXPECT_EQ(b->last_frame, 9u);
+  EXPECT_EQ(b->place.at, m.place.at);
+  EXPECT_EQ(b->place.scale, 0.25);
+  EXPECT_EQ(b->place.rotate_deg, m.place.rotate_deg);
+  EXPECT_EQ(b->place.width, 1.5);
+  EXPECT_EQ(b->label_bit, -1);
+  EXPECT_EQ(b->texels, 64u);
+  EXPECT_EQ(b->spacing, 0.004);
+  // Absent fields take the defaults.
+  wire::ImportMediaRequest bare;
+  bare.set_data("x");
+  b = FromWire(bare);
+  ASSERT_TRUE(b.ok());
+  EXPECT_EQ(b->kind, media::Kind::kAuto);
+  EXPECT_FALSE(b->first_frame.has_value());
+  EXPECT_FALSE(b->label_bit.has_value());
+  EXPECT_EQ(b->place.scale, 1);
+  EXPECT_EQ(b->place.width, 1);
+  // The shape: a known kind, 3 values or none.
+  w.set_kind("sound");
+  EXPECT_NE(FromWire(w).status().message().find("import_media.kind"), std::string::npos);
+  w.set_kind("");
+  w.add_at(1);
+  EXPECT_NE(FromWire(w).status().message().find("import_media.at"), std::string::npos);
+}
+
 }  // namespace
 }  // namespace hvdb

@@ -225,6 +225,48 @@ std::vector<Case> Cases() {
           wire::ToWire(t, r->mutable_composite());
         });
   }
+  {
+    auto import = [&](std::string name, StatusCode code, wire::ErrorCode wire_code,
+                      media::ImportRequest req, std::string ds = "d") {
+      add(name, code, wire_code, [req, ds](Service& x) { return x.ImportMedia(ds, req); },
+          [req, ds](wire::Request* r) {
+            r->mutable_import_media()->set_dataset(ds);
+            wire::ToWire(req, r->mutable_import_media());
+          });
+    };
+    media::ImportRequest m;
+    m.data = "\x89PNG\r\n\x1a\n but not a picture";
+    m.format = "png";
+    m.kind = media::Kind::kImage;
+    import("import_media: a corrupt image", StatusCode::kInvalidArgument,
+           wire::INVALID_PARAMETER, m);
+    media::ImportRequest b = m;
+    b.kind = media::Kind::kVideo;
+    import("import_media: a corrupt video", StatusCode::kInvalidArgument,
+           wire::INVALID_PARAMETER, b);
+    b.kind = media::Kind::kMesh;
+    b.format = "obj";
+    b.data = "v 0 0 0\nf 1 2 3\n";
+    import("import_media: a corrupt mesh", StatusCode::kInvalidArgument,
+           wire::INVALID_PARAMETER, b);
+    b = m;
+    b.label_bit = 40;
+    import("import_media: label bit 40", StatusCode::kInvalidArgument, wire::INVALID_PARAMETER,
+           b);
+    b = m;
+    b.first_frame = 3;
+    b.last_frame = 1;
+    import("import_media: frames backwards", StatusCode::kInvalidArgument,
+           wire::INVALID_PARAMETER, b);
+    b = m;
+    b.place.scale = kNaN;
+    import("import_media: scale NaN", StatusCode::kInvalidArgument, wire::INVALID_PARAMETER, b);
+    b = m;
+    b.data.clear();
+    import("import_media: no bytes", StatusCode::kInvalidArgument, wire::INVALID_PARAMETER, b);
+    import("import_media: a dataset that does not exist", StatusCode::kNotFound,
+           wire::UNKNOWN_DATASET, m, "nope");
+  }
   add("describe: a dataset that does not exist", StatusCode::kNotFound, wire::UNKNOWN_DATASET,
       [](Service& x) { return x.Describe("nope"); },
       [](wire::Request* r) { r->mutable_describe()->set_dataset("nope"); });

@@ -14,6 +14,7 @@ import { SliceTool } from './slice_tool.js';
 import { Transformer } from './transform.js';
 import { Gizmo } from './gizmo.js';
 import { editingHooks } from './transform.js';
+import { MediaImport } from './media_import.js';
 
 const kMaxLod = 12;
 
@@ -112,6 +113,7 @@ class App {
     this.gizmo = new Gizmo(this, this.transformer);
     this.preview = null;  // a pending transform's preview: {m, t} of the displayed space
     this.ui = new UI(this);
+    this.mediaImport = new MediaImport(this);
     this.editor.setTool('navigate');
     this.editor.setMode('SELECT_REPLACE');
     if (this.renderer.mode === 'points') this.setStatus('edit', `point renderer${this.renderer.fallbackReason ? ` (${this.renderer.fallbackReason})` : ''}`);

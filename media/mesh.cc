@@ -1,0 +1,229 @@
+// Mesh files (OBJ, PLY, glTF/GLB, STL, ... through assimp) sampled into surfels: area-uniform,
+// deterministic, with the surface's normals and colours.
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <random>
+
+#include <assimp/Importer.hpp>
+#include <assimp/material.h>
+#include <assimp/postprocess.h>
+#include <assimp/scene.h>
+#include <opencv2/imgcodecs.hpp>
+
+#include "media/media.h"
+#include "media/surfel.h"
+
+namespace hvdb::media {
+namespace {
+
+// The seed of every mesh's sample: the same file and placement give the same points.
+constexpr uint64_t kSeed = 0x68766462'6d657368ull;
+constexpr double kMinSpacing = 0.002;      // metres
+constexpr double kMaxMeshPoints = 200000;  // a frame, at the default spacing
+
+// A mesh's colour source: a texture (BGR(A) as OpenCV decodes), vertex colours, or one colour.
+struct Colours {
+  cv::Mat texture;
+  int uv_channel = -1;
+  bool vertex_colours = false;
+  std::array<uint8_t, 3> flat{200, 200, 200};
+};
+
+uint8_t ToByte(double v) {
+  return static_cast<uint8_t>(std::clamp(std::lround(v * 255.0), 0L, 255L));
+}
+
+Colours ColoursOf(const aiScene* scene, const aiMesh* mesh) {
+  Colours c;
+  if (mesh->HasVertexColors(0)) c.vertex_colours = true;
+  if (mesh->mMaterialIndex >= scene->mNumMaterials) return c;
+  const aiMaterial* mat = scene->mMaterials[mesh->mMaterialIndex];
+  aiColor4D diffuse;
+  if (mat->Get(AI_MATKEY_BASE_COLOR, diffuse) == AI_SUCCESS ||
+      mat->Get(AI_MATKEY_COLOR_DIFFUSE, diffuse) == AI_SUCCESS) {
+    c.flat = {ToByte(diffuse.r), ToByte(diffuse.g), ToByte(diffuse.b)};
+  }
+  for (aiTextureType type : {aiTextureType_BASE_COLOR, aiTextureType_DIFFUSE}) {
+    aiString path;
+    unsigned uv = 0;
+    if (mat->GetTexture(type, 0, &path, nullptr, &uv) != AI_SUCCESS) continue;
+    // Only embedded textures travel with the bytes (GLB, data URIs); a file beside an OBJ does
+    // not, and the mesh keeps its other colours.
+    const aiTexture* tex = scene->GetEmbeddedTexture(path.C_Str());
+    if (tex == nullptr || !mesh->HasTextureCoords(uv)) continue;
+    if (tex->mHeight == 0) {
+      const cv::Mat buf(1, static_cast<int>(tex->mWidth), CV_8UC1,
+                        const_cast<aiTexel*>(tex->pcData));
+      c.texture = cv::imdecode(buf, cv::IMREAD_COLOR);
+    } else {
+      // Raw texels are BGRA already.
+      cv::Mat raw(static_cast<int>(tex->mHeight), static_cast<int>(tex->mWidth), CV_8UC4,
+                  const_cast<aiTexel*>(tex->pcData));
+      c.texture = raw.clone();
+    }
+    if (!c.texture.empty()) {
+      c.uv_channel = static_cast<int>(uv);
+      break;
+    }
+  }
+  return c;
+}
+
+Vec3 Sub(const aiVector3D& a, const aiVector3D& b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
+Vec3 Cross(const Vec3& a, const Vec3& b) {
+  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+}
+double Norm(const Vec3& a) { return std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]); }
+
+struct Triangle {
+  const aiMesh* mesh;
+  const Colours* colours;
+  unsigned v[3];
+};
+
+}  // namespace
+
+double MeshSpacing(double area) {
+  return std::max(kMinSpacing, std::sqrt(area / kMaxMeshPoints));
+}
+
+Result<std::vector<Point>> SampleMesh(std::string_view data, const std::string& format,
+                                      const Placement& place, double spacing, uint32_t label) {
+  const std::string what = "import_media: the mesh (" + (format.empty() ? "?" : format) + ")";
+  if (data.empty()) return Status::InvalidArgument(what + " is empty");
+  Assimp::Importer importer;
+  // Node transforms baked in, polygons split into triangles, points and lines dropped.
+  importer.SetPropertyInteger(AI_CONFIG_PP_SBP_REMOVE,
+                              aiPrimitiveType_POINT | aiPrimitiveType_LINE);
+  const aiScene* scene = importer.ReadFileFromMemory(
+      data.data(), data.size(),
+      aiProcess_Triangulate | aiProcess_PreTransformVertices | aiProcess_SortByPType,
+      format.c_str());
+  if (scene == nullptr) {
+    return Status::InvalidArgument(what + " could not be read: " + importer.GetErrorString());
+  }
+  std::vector<Colours> colours(scene->mNumMeshes);
+  std::vector<Triangle> tris;
+  std::vector<double> cdf;  // cumulative area (model units^2)
+  aiVector3D lo(INFINITY, INFINITY, INFINITY), hi(-INFINITY, -INFINITY, -INFINITY);
+  double area = 0;
+  for (unsigned m = 0; m < scene->mNumMeshes; ++m) {
+    const aiMesh* mesh = scene->mMeshes[m];
+    if (!(mesh->mPrimitiveTypes & aiPrimitiveType_TRIANGLE)) continue;
+    colours[m] = ColoursOf(scene, mesh);
+    for (unsigned f = 0; f < mesh->mNumFaces; ++f) {
+      const aiFace& face = mesh->mFaces[f];
+      if (face.mNumIndices != 3) continue;
+      Triangle t{mesh, &colours[m], {face.mIndices[0], face.mIndices[1], face.mIndices[2]}};
+      const aiVector3D* v = mesh->mVertices;
+      for (unsigned k : t.v) {
+        const aiVector3D& p = v[k];
+        if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) {
+          return Status::InvalidArgument(what + " has a vertex that is not finite");
+        }
+        lo = aiVector3D(std::min(lo.x, p.x), std::min(lo.y, p.y), std::min(lo.z, p.z));
+        hi = aiVector3D(std::max(hi.x, p.x), std::max(hi.y, p.y), std::max(hi.z, p.z));
+      }
+      const double a = 0.5 * Norm(Cross(Sub(v[t.v[1]], v[t.v[0]]), Sub(v[t.v[2]], v[t.v[0]])));
+      if (!(a > 0)) continue;  // degenerate: nothing to sample
+      area += a;
+      tris.push_back(t);
+      cdf.push_back(area);
+    }
+  }
+  if (tris.empty()) {
+    return Status::InvalidArgument(what + " has no triangles with an area (a point cloud? "
+                                          "insert it with hvdb composite --ply)");
+  }
+  const double s2 = place.scale * place.scale;
+  const double h = spacing > 0 ? spacing : MeshSpacing(area * s2);
+  const double n_real = std::ceil(area * s2 / (h * h));
+  if (n_real > static_cast<double>(kMaxImportPoints)) {
+    return Status::InvalidArgument(
+        "import_media.spacing: " + std::to_string(h) + " m over the mesh's " +
+        std::to_string(area * s2) + " m^2 gives " + std::to_string(n_real) +
+        " points, over the limit of " + std::to_string(kMaxImportPoints) + "; use a larger one");
+  }
+  const size_t n = static_cast<size_t>(std::max(1.0, n_real));
+  const std::array<double, 9> R = RotationMatrix(place.rotate_deg);
+  const Vec3 c{(lo.x + hi.x) / 2.0, (lo.y + hi.y) / 2.0, (lo.z + hi.z) / 2.0};
+  auto rotate = [&R](const Vec3& v) {
+    return Vec3{R[0] * v[0] + R[1] * v[1] + R[2] * v[2], R[3] * v[0] + R[4] * v[1] + R[5] * v[2],
+                R[6] * v[0] + R[7] * v[1] + R[8] * v[2]};
+  };
+  std::mt19937_64 rng(kSeed);
+  // 53-bit uniforms in [0, 1): the same sequence on every standard library.
+  auto uniform = [&rng]() { return static_cast<double>(rng() >> 11) * 0x1.0p-53; };
+  std::vector<Point> out(n);
+  for (size_t i = 0; i < n; ++i) {
+    const size_t k = std::min<size_t>(
+        std::upper_bound(cdf.begin(), cdf.end(), uniform() * area) - cdf.begin(), tris.size() - 1);
+    const Triangle& t = tris[k];
+    // Uniform barycentrics (Osada et al. 2002).
+    const double r1 = std::sqrt(uniform()), r2 = uniform();
+    const double w[3] = {1 - r1, r1 * (1 - r2), r1 * r2};
+    const aiMesh* m = t.mesh;
+    Vec3 pos{0, 0, 0};
+    for (int j = 0; j < 3; ++j) {
+      const aiVector3D& v = m->mVertices[t.v[j]];
+      pos[0] += w[j] * v.x;
+      pos[1] += w[j] * v.y;
+      pos[2] += w[j] * v.z;
+    }
+    Vec3 nrm = Cross(Sub(m->mVertices[t.v[1]], m->mVertices[t.v[0]]),
+                     Sub(m->mVertices[t.v[2]], m->mVertices[t.v[0]]));
+    if (m->HasNormals()) {
+      Vec3 sn{0, 0, 0};
+      for (int j = 0; j < 3; ++j) {
+        const aiVector3D& v = m->mNormals[t.v[j]];
+        sn[0] += w[j] * v.x;
+        sn[1] += w[j] * v.y;
+        sn[2] += w[j] * v.z;
+      }
+      if (Norm(sn) > 1e-12) nrm = sn;
+    }
+    const double l = Norm(nrm);
+    for (double& x : nrm) x /= l;
+    nrm = rotate(nrm);  // a rotation and a uniform scale keep normals normal
+    const Vec3 q = rotate({(pos[0] - c[0]) * place.scale, (pos[1] - c[1]) * place.scale,
+                           (pos[2] - c[2]) * place.scale});
+    Point& p = out[i];
+    p.x = static_cast<float>(place.at[0] + q[0]);
+    p.y = static_cast<float>(place.at[1] + q[1]);
+    p.z = static_cast<float>(place.at[2] + q[2]);
+    p.label = label;
+    Vec3 t1, t2;
+    Tangents(nrm, &t1, &t2);
+    SetSurfel(p, nrm, t1, t2, kSigmaPerSpacing * h);
+    const Colours& col = *t.colours;
+    std::array<double, 3> rgb{col.flat[0] / 255.0, col.flat[1] / 255.0, col.flat[2] / 255.0};
+    if (col.uv_channel >= 0) {
+      double u = 0, v = 0;
+      for (int j = 0; j < 3; ++j) {
+        u += w[j] * m->mTextureCoords[col.uv_channel][t.v[j]].x;
+        v += w[j] * m->mTextureCoords[col.uv_channel][t.v[j]].y;
+      }
+      // Repeat wrapping; v runs up the image.
+      const int tw = col.texture.cols, th = col.texture.rows;
+      const int x = std::clamp(static_cast<int>((u - std::floor(u)) * tw), 0, tw - 1);
+      const int y = std::clamp(static_cast<int>((1 - (v - std::floor(v))) * th), 0, th - 1);
+      const uint8_t* px = col.texture.ptr(y) + x * col.texture.channels();
+      rgb = {px[2] / 255.0, px[1] / 255.0, px[0] / 255.0};
+    } else if (col.vertex_colours) {
+      rgb = {0, 0, 0};
+      for (int j = 0; j < 3; ++j) {
+        const aiColor4D& vc = m->mColors[0][t.v[j]];
+        rgb[0] += w[j] * vc.r;
+        rgb[1] += w[j] * vc.g;
+        rgb[2] += w[j] * vc.b;
+      }
+    }
+    p.r = ToByte(rgb[0]);
+    p.g = ToByte(rgb[1]);
+    p.b = ToByte(rgb[2]);
+  }
+  return out;
+}
+
+}  // namespace hvdb::media
