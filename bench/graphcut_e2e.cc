@@ -79,6 +79,7 @@ int main(int argc, char** argv) {
                "through hvdb-server (JSON)"};
   std::string shared = "../shared/data", out, work = "/tmp/hvdb-graphcut-e2e";
   int frames = 5, reps = 5;
+  bool keep = false;
   double plane_spacing = 0.006;
   app.add_option("--shared-data", shared, "the shared data folder")->capture_default_str();
   app.add_option("--frames", frames, "frames of the scene")->capture_default_str();
@@ -86,6 +87,7 @@ int main(int argc, char** argv) {
   app.add_option("--repetitions", reps, "runs of each command")->capture_default_str();
   app.add_option("--work", work, "scratch directory (replaced)")->capture_default_str();
   app.add_option("--out", out, "JSON output file");
+  app.add_flag("--keep", keep, "keep the scratch directory (its data/ holds the scene)");
   CLI11_PARSE(app, argc, argv);
 
   auto scene = hvdb::testing::PanopticScene(shared, static_cast<uint32_t>(frames), plane_spacing);
@@ -195,6 +197,6 @@ int main(int argc, char** argv) {
                  {"served_recut", Report(recut, 500)}};
   std::printf("%s\n", result.dump(2).c_str());
   if (!out.empty()) std::ofstream(out) << result.dump(2) << "\n";
-  fs::remove_all(work, ec);
+  if (!keep) fs::remove_all(work, ec);
   return 0;
 }
