@@ -19,6 +19,8 @@ find_package(OpenGL REQUIRED COMPONENTS EGL OpenGL)
 find_package(Protobuf REQUIRED)
 find_package(nlohmann_json 3.10 REQUIRED)
 find_package(CLI11 REQUIRED)
+# render/video_encoder.cc: `hvdb render --video` and the page's video export (MP4, WebM).
+pkg_check_modules(LIBAV REQUIRED IMPORTED_TARGET libavcodec libavformat libavutil libswscale)
 if(HVDB_BUILD_TESTS)
   find_package(GTest REQUIRED)
 endif()

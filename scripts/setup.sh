@@ -24,6 +24,7 @@ PACKAGES=(
   build-essential cmake ninja-build pkg-config ca-certificates
   libboost-dev libopencv-dev libdraco-dev libopenexr-dev libglm-dev libnanoflann-dev
   libegl-dev libgl-dev libopengl-dev libegl-mesa0 libgl1-mesa-dri
+  libavcodec-dev libavformat-dev libswscale-dev
   libprotobuf-dev protobuf-compiler nlohmann-json3-dev libcli11-dev liburing-dev librados-dev
   python3 python3-dev python3-numpy pybind11-dev
 )
