@@ -4,17 +4,13 @@
 // last, in this process and through hvdb-server; bad requests are refused naming the field.
 #include <gtest/gtest.h>
 
-extern "C" {
-#include <libavcodec/avcodec.h>
-#include <libavformat/avformat.h>
-}
-
 #include <fstream>
 
 #include "client/client.h"
 #include "render/job.h"
 #include "render/video_encoder.h"
 #include "tests/render/job_helpers.h"
+#include "tests/render/video_probe.h"
 #include "tests/server/server_process.h"
 #include "tests/storage/test_util.h"
 
@@ -24,67 +20,8 @@ namespace {
 using namespace render_test;  // NOLINT: the shared scene
 using render::RenderJob;
 using testing::TempDir;
-
-// What a player sees in a video file.
-struct Probe {
-  int frames = 0;
-  int width = 0, height = 0;
-  double fps = 0;
-  std::string codec, container;
-  std::vector<std::array<double, 3>> centre_rgb;  // each frame's centre pixel, RGB 0..255
-  std::string error;
-};
-
-Probe Decode(const std::string& bytes, const std::string& dir) {
-  Probe p;
-  const std::string path = dir + "/probe.bin";
-  std::ofstream(path, std::ios::binary) << bytes;
-  AVFormatContext* fmt = nullptr;
-  if (avformat_open_input(&fmt, path.c_str(), nullptr, nullptr) < 0) {
-    p.error = "not a video file";
-    return p;
-  }
-  avformat_find_stream_info(fmt, nullptr);
-  p.container = fmt->iformat->name;
-  const int si = av_find_best_stream(fmt, AVMEDIA_TYPE_VIDEO, -1, -1, nullptr, 0);
-  const AVStream* st = fmt->streams[si];
-  const AVCodec* dec = avcodec_find_decoder(st->codecpar->codec_id);
-  AVCodecContext* ctx = avcodec_alloc_context3(dec);
-  avcodec_parameters_to_context(ctx, st->codecpar);
-  avcodec_open2(ctx, dec, nullptr);
-  p.codec = dec->name;
-  p.fps = av_q2d(st->avg_frame_rate);
-  AVPacket* pkt = av_packet_alloc();
-  AVFrame* frame = av_frame_alloc();
-  auto drain = [&] {
-    while (avcodec_receive_frame(ctx, frame) == 0) {
-      ++p.frames;
-      p.width = frame->width;
-      p.height = frame->height;
-      // YUV 4:2:0 (BT.601, limited range, as swscale wrote it) at the centre, back to RGB.
-      const int x = frame->width / 2, y = frame->height / 2;
-      const double Y = frame->data[0][y * frame->linesize[0] + x] - 16.0;
-      const double U = frame->data[1][(y / 2) * frame->linesize[1] + x / 2] - 128.0;
-      const double V = frame->data[2][(y / 2) * frame->linesize[2] + x / 2] - 128.0;
-      p.centre_rgb.push_back({1.164 * Y + 1.596 * V, 1.164 * Y - 0.392 * U - 0.813 * V,
-                              1.164 * Y + 2.017 * U});
-    }
-  };
-  while (av_read_frame(fmt, pkt) >= 0) {
-    if (pkt->stream_index == si) {
-      avcodec_send_packet(ctx, pkt);
-      drain();
-    }
-    av_packet_unref(pkt);
-  }
-  avcodec_send_packet(ctx, nullptr);
-  drain();
-  av_frame_free(&frame);
-  av_packet_free(&pkt);
-  avcodec_free_context(&ctx);
-  avformat_close_input(&fmt);
-  return p;
-}
+using testing::Decode;
+using testing::Probe;
 
 // A flat colour image.
 render::Image Flat(uint32_t w, uint32_t h, float r, float g, float b) {

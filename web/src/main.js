@@ -10,6 +10,7 @@ import { FrameStore, Player } from './player.js';
 import { Editor } from './editor.js';
 import { UI } from './ui.js';
 import { Live } from './live.js';
+import { RenderExport } from './render_export.js';
 
 const kMaxLod = 12;
 
@@ -104,6 +105,7 @@ class App {
       onChange: () => this.requestDraw(true),
     });
     this.ui = new UI(this);
+    this.exporter = new RenderExport(this);  // the Shadows toggle, Render video
     this.editor.setTool('navigate');
     if (this.renderer.mode === 'points') this.setStatus('edit', `point renderer${this.renderer.fallbackReason ? ` (${this.renderer.fallbackReason})` : ''}`);
     else if (this.renderer.software) this.setStatus('edit', `software WebGL (${this.renderer.rendererName.slice(0, 60)}): half resolution while moving or playing`);
@@ -429,7 +431,7 @@ class App {
   async renderStill() {
     this.setStatus('edit', 'server render…');
     const reply = await this.conn.request({
-      render: { dataset: this.dataset, region: this.currentRegion(), lod: this.lod, view: this.renderView(), renderer: 'RENDERER_CPU' },
+      render: { dataset: this.dataset, region: this.currentRegion(), lod: this.lod, view: this.renderView(), renderer: 'RENDERER_CPU', ...this.exporter.shadowFields() },
     });
     const png = reply.sections.png;
     if (!png) throw new Error('render reply without a png section');
@@ -582,6 +584,8 @@ function exposeHooks(app, ready) {
     redo: () => app.editor.redo(),
     request: (obj) => app.conn.request(obj),
     renderStill: () => app.renderStill(),
+    renderVideo: () => app.exporter.renderVideo(),
+    setShadows: (on) => { app.exporter.toggle.checked = on; app.exporter.shadows = on; },
   };
 }
 
