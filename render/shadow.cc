@@ -135,17 +135,17 @@ std::vector<float> ShadowMap(std::span<const Point> casters, const View& view) {
   return std::move(maps[0]);
 }
 
-// The normalised image coordinates of a pixel: (u - cx) / fx, (v - cy) / fy, with the lens
-// distortion undone (fixed-point iteration of the OpenCV model).
-void Undistort(const Camera& c, double* x, double* y) {
+// The normalised image coordinates of a pixel: (u - cx) / fx, (v - cy) / fy = (xd, yd), with
+// the lens distortion undone (fixed-point iteration of the OpenCV model) from the guess (*x, *y):
+// the previous pixel's answer shifted by the step, so that a row needs one or two iterations.
+void Undistort(const Camera& c, double xd, double yd, double* x, double* y) {
   const auto& k = c.distortion;
-  const double xd = *x, yd = *y;
   for (int it = 0; it < 20; ++it) {
     const double r2 = *x * *x + *y * *y;
-    const double radial = 1 + r2 * (k[0] + r2 * (k[1] + r2 * k[4]));
+    const double inv = 1 / (1 + r2 * (k[0] + r2 * (k[1] + r2 * k[4])));
     const double tx = 2 * k[2] * *x * *y + k[3] * (r2 + 2 * *x * *x);
     const double ty = k[2] * (r2 + 2 * *y * *y) + 2 * k[3] * *x * *y;
-    const double nx = (xd - tx) / radial, ny = (yd - ty) / radial;
+    const double nx = (xd - tx) * inv, ny = (yd - ty) * inv;
     const bool done = std::abs(nx - *x) + std::abs(ny - *y) < 1e-7;  // ~0.1 um at 1 m
     *x = nx;
     *y = ny;
@@ -218,12 +218,19 @@ Status ApplyShadows(std::span<const Point> points, const Camera& camera_in,
   const unsigned threads = std::max(1u, std::thread::hardware_concurrency());
   std::vector<uint64_t> shadowed(image->height, 0);
   ParallelFor(image->height, threads, [&](size_t y) {
+    double gx = 0, gy = 0, last_xd = 0, last_yd = 0;  // the last pixel's undistortion
+    bool have_guess = false;
     for (uint32_t x = 0; x < image->width; ++x) {
       const size_t i = y * image->width + x;
       const float z = image->depth[i];
       if (!std::isfinite(z) || image->coverage[i] <= 0) continue;
       double nx = (x - camera.cx) / camera.fx, ny = (double(y) - camera.cy) / camera.fy;
-      if (distorted) Undistort(camera, &nx, &ny);
+      if (distorted) {
+        double ux = have_guess ? gx + (nx - last_xd) : nx, uy = have_guess ? gy + (ny - last_yd) : ny;
+        Undistort(camera, nx, ny, &ux, &uy);
+        last_xd = nx, last_yd = ny, gx = ux, gy = uy, have_guess = true;
+        nx = ux, ny = uy;
+      }
       const double pc[3] = {nx * z, ny * z, z};
       float pw[3];
       for (int r = 0; r < 3; ++r) {

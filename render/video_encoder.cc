@@ -11,6 +11,7 @@ extern "C" {
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <future>
 #include <mutex>
 #include <thread>
 #include <vector>
@@ -67,6 +68,7 @@ struct MemoryFile {
 class AvEncoder : public VideoEncoder {
  public:
   ~AvEncoder() override {
+    if (pending_.valid()) pending_.wait();  // it uses the contexts freed below
     if (sws_ != nullptr) sws_freeContext(sws_);
     av_frame_free(&frame_);
     av_packet_free(&packet_);
@@ -163,6 +165,8 @@ class AvEncoder : public VideoEncoder {
 
   Status Add(const Image& image) override {
     if (finished_) return Status::InvalidArgument("video: Add after Finish");
+    // The previous frame's conversion and encoding ran while the caller drew this one.
+    HVDB_RETURN_IF_ERROR(Wait());
     if (image.width != width_ || image.height != height_) {
       return Status::InvalidArgument("video: image " + std::to_string(frames_) + " is " +
                                      std::to_string(image.width) + "x" + std::to_string(image.height) +
@@ -182,18 +186,22 @@ class AvEncoder : public VideoEncoder {
         }
       }
     });
-    if (av_frame_make_writable(frame_) < 0) return Status::Internal("video: frame not writable");
-    const uint8_t* src[1] = {rgb_.data()};
-    const int stride[1] = {int(width_ * 3)};
-    sws_scale(sws_, src, stride, 0, int(height_), frame_->data, frame_->linesize);
-    frame_->pts = int64_t(frames_);
-    ++frames_;
-    return Send(frame_);
+    const int64_t pts = int64_t(frames_++);
+    pending_ = std::async(std::launch::async, [this, pts] {
+      if (av_frame_make_writable(frame_) < 0) return Status::Internal("video: frame not writable");
+      const uint8_t* src[1] = {rgb_.data()};
+      const int stride[1] = {int(width_ * 3)};
+      sws_scale(sws_, src, stride, 0, int(height_), frame_->data, frame_->linesize);
+      frame_->pts = pts;
+      return Send(frame_);
+    });
+    return Status::OK();
   }
 
   Result<std::string> Finish() override {
     if (finished_) return Status::InvalidArgument("video: Finish twice");
     finished_ = true;
+    HVDB_RETURN_IF_ERROR(Wait());
     HVDB_RETURN_IF_ERROR(Send(nullptr));
     int err = av_write_trailer(format_);
     if (err < 0) return Status::Internal("video: cannot finish the file: " + AvError(err));
@@ -205,6 +213,12 @@ class AvEncoder : public VideoEncoder {
   uint64_t frames() const override { return frames_; }
 
  private:
+  // The encoding of the last frame added (on a thread of its own), finished; its status.
+  Status Wait() {
+    if (!pending_.valid()) return Status::OK();
+    return pending_.get();
+  }
+
   // Sends a frame (nullptr: flush) and writes the packets the encoder has ready.
   Status Send(const AVFrame* frame) {
     int err = avcodec_send_frame(codec_, frame);
@@ -229,7 +243,8 @@ class AvEncoder : public VideoEncoder {
   AVPacket* packet_ = nullptr;
   SwsContext* sws_ = nullptr;
   MemoryFile file_;
-  std::vector<uint8_t> rgb_;
+  std::vector<uint8_t> rgb_;  // the frame being encoded (written only after Wait())
+  std::future<Status> pending_;
   uint64_t frames_ = 0;
   bool finished_ = false;
 };

@@ -30,7 +30,9 @@ class VideoEncoder {
                                                       uint32_t height, double fps);
   virtual ~VideoEncoder() = default;
   // Encodes the next frame (its linear RGBA composited over black, as sRGB). InvalidArgument
-  // when its size is not the video's.
+  // when its size is not the video's. The image is converted before Add returns; the YUV
+  // conversion and encoding run on a thread of their own while the caller draws the next one
+  // (their errors come back from the next Add or Finish).
   virtual Status Add(const Image& image) = 0;
   // Flushes the encoder and returns the file's bytes; Add afterwards fails.
   virtual Result<std::string> Finish() = 0;
