@@ -457,7 +457,7 @@ void AddRenderCommands(CLI::App& app, Context& ctx) {
       ->capture_default_str()
       ->needs(light)
       ->group(shadows);
-  const std::string output = "Output (--out, or --path with --out-dir)";
+  const std::string output = "Output (--out, or --path with --out-dir or --video)";
   CLI::Option* out =
       render_cmd
           ->add_option("--out", ra.out, "FILE.png (8-bit sRGB) or FILE.exr (float RGBA and Z)")
