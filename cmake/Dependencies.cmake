@@ -15,7 +15,8 @@ endif()
 find_package(draco REQUIRED)
 find_package(OpenEXR REQUIRED)
 find_package(glm REQUIRED)
-# media/: videos through FFmpeg's libraries, meshes through assimp (hvdb import-media).
+# FFmpeg's libraries: videos read by media/ (hvdb import-media) and written by
+# render/video_encoder.cc (hvdb render --video, the page's video export); meshes through assimp.
 pkg_check_modules(LIBAV REQUIRED IMPORTED_TARGET libavformat libavcodec libswscale libavutil)
 find_package(assimp REQUIRED)
 find_package(OpenGL REQUIRED COMPONENTS EGL OpenGL)

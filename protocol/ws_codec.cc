@@ -47,6 +47,7 @@ std::vector<Section> TakeBulk(Response* r) {
   if (r->has_render()) {
     Take("png", r->mutable_render()->mutable_png(), &s);
     Take("exr", r->mutable_render()->mutable_exr(), &s);
+    Take("video", r->mutable_render()->mutable_video(), &s);
   }
   return s;
 }

@@ -546,7 +546,9 @@ class Database {
                   const std::array<double, 3>& eye, const std::array<double, 3>& target,
                   const std::array<double, 3>& up, double fov, uint32_t width, uint32_t height,
                   const std::string& mode, uint32_t lod, const std::string& renderer, bool exr,
-                  bool view_dependent, bool texture, bool billboards) {
+                  bool view_dependent, bool texture, bool billboards,
+                  const std::vector<double>& shadow_light, bool shadow_directional,
+                  uint32_t shadow_casters, float shadow_strength) {
     wire::Render req;
     req.set_dataset(name);
     wire::ToWire(ToRegion(region), req.mutable_region());
@@ -565,6 +567,12 @@ class Database {
     req.set_view_dependent(view_dependent);
     req.set_texture(texture);
     req.set_billboards(billboards);
+    if (!shadow_light.empty()) {  // render/job.cc checks the values (render.shadow_*)
+      for (double v : shadow_light) req.add_shadow_light(v);
+      req.set_shadow_directional(shadow_directional);
+      req.set_shadow_casters(shadow_casters);
+      req.set_shadow_strength(shadow_strength == 0 ? 1e-30f : shadow_strength);
+    }
     if (renderer == "auto") {
       req.set_renderer(wire::RENDERER_AUTO);
     } else if (renderer == "egl") {

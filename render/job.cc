@@ -53,6 +53,13 @@ constexpr uint32_t kMaxRenderLod = 16;
 // Replies must fit the client's frame limit (256 MiB) with room to spare.
 constexpr size_t kMaxEncodedImage = 200u << 20;
 
+Status CheckReplySize(const std::string& bytes) {
+  if (bytes.size() <= kMaxEncodedImage) return Status::OK();
+  return Status::LimitExceeded("render: the encoded image has " +
+                               std::to_string(bytes.size() >> 20) +
+                               " MiB, more than a reply may carry; ask for PNG or a smaller size");
+}
+
 }  // namespace
 
 Status CheckPhoto(const Photo& photo) {
@@ -144,6 +151,10 @@ Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> da
     return Invalid("render.format", "unknown value " + std::to_string(r.format()));
   }
   job->format_ = r.format();
+  if ((r.format() == wire::IMAGE_MP4 || r.format() == wire::IMAGE_WEBM) && r.path_size() == 0) {
+    return Invalid("render.path", "a video (format MP4 or WebM) needs a camera path with at "
+                                  "least one view; it has none");
+  }
   RenderOptions& o = job->options_;
   switch (r.mode()) {
     case wire::RENDER_VISIBILITY:
@@ -199,6 +210,22 @@ Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> da
     for (const CameraInfo& c : info.cameras)
       o.source_cameras.push_back({c.id, c.world_from_camera});
   }
+  if (r.shadow_light_size() == 3) {
+    job->shadow_ = true;
+    for (int i = 0; i < 3; ++i) job->shadow_opts_.light[size_t(i)] = r.shadow_light(i);
+    job->shadow_opts_.directional = r.shadow_directional();
+    job->shadow_opts_.caster_bit = r.shadow_casters();
+    if (r.shadow_strength() != 0) job->shadow_opts_.strength = r.shadow_strength();
+    if (r.shadow_map_size() != 0) job->shadow_opts_.map_size = r.shadow_map_size();
+    HVDB_RETURN_IF_ERROR(CheckShadowOptions(job->shadow_opts_));
+  } else if (r.shadow_light_size() != 0) {
+    return Invalid("render.shadow_light", "needs 3 values (a position, or with "
+                                          "shadow_directional a direction), or none for no shadows");
+  } else if (r.shadow_directional() || r.shadow_casters() != 0 || r.shadow_strength() != 0 ||
+             r.shadow_map_size() != 0) {
+    return Invalid("render.shadow_light", "shadow options were given without a light: give "
+                                          "shadow_light (3 values)");
+  }
   job->texture_ = r.texture();
   if (r.texture() && r.path_size() > 0) {
     return Invalid("render.texture", "textures a single view of one frame, not a sequence");
@@ -229,6 +256,32 @@ Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> da
     std::string field =
         r.path_size() > 0 ? "render.path[" + std::to_string(i) + "]" : std::string("render.view");
     HVDB_RETURN_IF_ERROR(InField(field, CheckRenderArguments(job->views_[i], o)));
+  }
+  if (r.format() == wire::IMAGE_MP4 || r.format() == wire::IMAGE_WEBM) {
+    if (r.video_fps() != 0) job->video_fps_ = r.video_fps();
+    if (!(job->video_fps_ > 0 && job->video_fps_ <= 1000)) {
+      return Invalid("render.video_fps", "must be in (0, 1000] frames a second (0: 30)");
+    }
+    // One size for the whole video, even on both sides (YUV 4:2:0).
+    const uint32_t w0 = o.width != 0 ? o.width : job->views_[0].width;
+    const uint32_t h0 = o.height != 0 ? o.height : job->views_[0].height;
+    for (size_t i = 0; i < job->views_.size(); ++i) {
+      const uint32_t w = o.width != 0 ? o.width : job->views_[i].width;
+      const uint32_t h = o.height != 0 ? o.height : job->views_[i].height;
+      const std::string field = "render.path[" + std::to_string(i) + "]";
+      if (w != w0 || h != h0) {
+        return Invalid(field, "is " + std::to_string(w) + "x" + std::to_string(h) +
+                                  ", the video's first view " + std::to_string(w0) + "x" +
+                                  std::to_string(h0) + ": give every view one size (or width "
+                                  "and height)");
+      }
+      if (w % 2 != 0 || h % 2 != 0) {
+        return Invalid(field, "a video needs an even width and height (YUV 4:2:0), got " +
+                                  std::to_string(w) + "x" + std::to_string(h));
+      }
+    }
+  } else if (r.video_fps() != 0) {
+    return Invalid("render.video_fps", "is for videos: set format to IMAGE_MP4 or IMAGE_WEBM");
   }
   // Regions.
   if (r.frames_size() > 0) {
@@ -364,11 +417,13 @@ Status RenderJob::Draw(size_t i, Renderer& renderer, const std::atomic<bool>* ca
     const auto t0 = std::chrono::steady_clock::now();
     HVDB_RETURN_IF_ERROR(Billboards(view, o));
     billboards_ms_ = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-    return Status::OK();
+  } else {
+    billboards_ms_ = -1;
+    HVDB_RETURN_IF_ERROR(renderer.RenderInto(current_.points, view, o, &image_));
+    if (texture_ && !steps_[i].preview) HVDB_RETURN_IF_ERROR(Texture(view, o, renderer));
   }
-  billboards_ms_ = -1;
-  HVDB_RETURN_IF_ERROR(renderer.RenderInto(current_.points, view, o, &image_));
-  if (texture_ && !steps_[i].preview) HVDB_RETURN_IF_ERROR(Texture(view, o, renderer));
+  // One pass over whichever renderer's image and depth (render/shadow.h).
+  if (shadow_) HVDB_RETURN_IF_ERROR(ApplyShadows(current_.points, view, o, shadow_opts_, &image_));
   return Status::OK();
 }
 
@@ -471,19 +526,18 @@ Result<wire::RenderReply> RenderJob::Render(size_t i, Renderer& renderer,
   HVDB_RETURN_IF_ERROR(Draw(i, renderer, cancelled));
   const Image& img = image_;
   wire::RenderReply reply;
-  HVDB_ASSIGN_OR_RETURN(std::string bytes,
-                        format_ == wire::IMAGE_EXR ? EncodeExr(img) : EncodePng(img));
-  if (bytes.size() > kMaxEncodedImage) {
-    return Status::LimitExceeded("render: the encoded image has " +
-                                 std::to_string(bytes.size() >> 20) +
-                                 " MiB, more than a reply "
-                                 "may carry; ask for PNG or a smaller size");
-  }
-  if (format_ == wire::IMAGE_EXR) {
+  if (format_ == wire::IMAGE_MP4 || format_ == wire::IMAGE_WEBM) {
+    HVDB_RETURN_IF_ERROR(EncodeVideoFrame(i, &reply));
+  } else if (format_ == wire::IMAGE_EXR) {
+    HVDB_ASSIGN_OR_RETURN(std::string bytes, EncodeExr(img));
+    HVDB_RETURN_IF_ERROR(CheckReplySize(bytes));
     reply.set_exr(std::move(bytes));
   } else {
+    HVDB_ASSIGN_OR_RETURN(std::string bytes, EncodePng(img));
+    HVDB_RETURN_IF_ERROR(CheckReplySize(bytes));
     reply.set_png(std::move(bytes));
   }
+  reply.set_images(static_cast<uint32_t>(steps_.size()));
   reply.set_width(img.width);
   reply.set_height(img.height);
   reply.set_renderer_used(renderer.name());
@@ -494,6 +548,30 @@ Result<wire::RenderReply> RenderJob::Render(size_t i, Renderer& renderer,
   reply.set_lod(static_cast<uint32_t>(steps_[i].lod));
   reply.set_last(i + 1 == steps_.size());
   return reply;
+}
+
+Status RenderJob::EncodeVideoFrame(size_t i, wire::RenderReply* reply) {
+  if (video_ == nullptr) {
+    const VideoContainer c = format_ == wire::IMAGE_MP4 ? VideoContainer::kMp4 : VideoContainer::kWebm;
+    HVDB_ASSIGN_OR_RETURN(video_, VideoEncoder::Create(c, image_.width, image_.height, video_fps_));
+  }
+  if (video_->frames() != i) {
+    return Status::InvalidArgument("render: a video's images go in order; image " +
+                                   std::to_string(i) + " came after " +
+                                   std::to_string(video_->frames()));
+  }
+  HVDB_RETURN_IF_ERROR(video_->Add(image_));
+  reply->set_video_codec(video_->codec());
+  if (i + 1 < steps_.size()) return Status::OK();
+  HVDB_ASSIGN_OR_RETURN(std::string bytes, video_->Finish());
+  video_.reset();
+  if (bytes.size() > kMaxEncodedImage) {
+    return Status::LimitExceeded("render: the video has " + std::to_string(bytes.size() >> 20) +
+                                 " MiB, more than a reply may carry; render fewer or smaller "
+                                 "images");
+  }
+  reply->set_video(std::move(bytes));
+  return Status::OK();
 }
 
 Status ParseCameraPath(const std::string& json_text, wire::Render* request) {

@@ -25,6 +25,8 @@
 #include "protocol/wire.h"
 #include "render/billboard_render.h"
 #include "render/renderer.h"
+#include "render/shadow.h"
+#include "render/video_encoder.h"
 #include "storage/database.h"
 
 namespace hvdb::render {
@@ -57,7 +59,8 @@ class RenderJob {
   Result<Image> RenderImage(size_t i, Renderer& renderer,
                             const std::atomic<bool>* cancelled = nullptr);
   // The same, encoded as the request's format into a reply (index, last, preview, lod,
-  // timings filled in).
+  // timings filled in). A video (IMAGE_MP4 / IMAGE_WEBM) must be rendered in order: each
+  // image is fed to the encoder and its reply carries none; the last one carries the file.
   Result<wire::RenderReply> Render(size_t i, Renderer& renderer,
                                    const std::atomic<bool>* cancelled = nullptr);
 
@@ -83,6 +86,8 @@ class RenderJob {
   Status Query(const Step& step, const std::atomic<bool>* cancelled, Points* out) const;
   // Draws image i into image_.
   Status Draw(size_t i, Renderer& renderer, const std::atomic<bool>* cancelled);
+  // Feeds image_ (image i of a video) to video_; the last one's reply gets the file.
+  Status EncodeVideoFrame(size_t i, wire::RenderReply* reply);
   // Render.texture: recolours image_ from the photos of the frame current_ shows.
   Status Texture(const Camera& view, const RenderOptions& o, Renderer& renderer);
   // Render.billboards: redraws image_ from the billboards of the frame current_ shows.
@@ -111,6 +116,11 @@ class RenderJob {
   std::vector<BillboardSource> boards_;          // the billboards of boards_frame_
   uint32_t boards_frame_ = UINT32_MAX;
   double billboards_ms_ = -1;                    // the last image's billboard draw (-1: none)
+  // IMAGE_MP4 / IMAGE_WEBM: the path's images go into video_ (made at the first image).
+  std::unique_ptr<VideoEncoder> video_;
+  double video_fps_ = 30;
+  bool shadow_ = false;                          // Render.shadow_light given
+  ShadowOptions shadow_opts_;
   uint32_t highlight_mask_ = 0;                  // the selection overlay (Render.highlight_*)
   std::array<float, 4> highlight_{1.f, 0.45f, 0.f, 0.5f};
   std::vector<Camera> views_;

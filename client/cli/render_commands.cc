@@ -1,5 +1,5 @@
 // The render command of `hvdb`: a region's points through a camera into PNG or EXR images,
-// or a camera path into a sequence; the same render job runs in this process (--data) or in
+// or a camera path into a sequence or a video (MP4, WebM); the same render job runs in this process (--data) or in
 // hvdb-server (--server).
 #include <cctype>
 #include <cerrno>
@@ -41,8 +41,15 @@ struct RenderArgs {
   std::string out;
   std::string path, out_dir;
   std::string format = "png";
+  std::string video;  // --video OUT.mp4|webm
+  double fps = 30;
+  std::vector<double> shadow_light;  // --shadow-light X Y Z
+  bool shadow_directional = false;
+  uint32_t shadow_casters = 0;
+  float shadow_strength = 0.6f;
   bool json = false;
-  CLI::Option *dataset_camera_opt = nullptr, *size_opt = nullptr, *path_opt = nullptr;
+  CLI::Option *dataset_camera_opt = nullptr, *size_opt = nullptr, *path_opt = nullptr,
+              *video_opt = nullptr, *out_dir_opt = nullptr;
 };
 
 // What CLI11 fills in for these subcommands: static, so that registering them allocates
@@ -78,7 +85,20 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
              camera_file = a.camera.file_opt->count() > 0,
              dataset_camera = a.dataset_camera_opt->count() > 0;
   wire::ImageFormat format = wire::IMAGE_PNG;
-  if (sequence) {
+  const bool video = a.video_opt->count() > 0;
+  if (video) {
+    if (HasExtension(a.video, ".mp4")) {
+      format = wire::IMAGE_MP4;
+    } else if (HasExtension(a.video, ".webm")) {
+      format = wire::IMAGE_WEBM;
+    } else {
+      return Usage(cmd, "--video '" + a.video + "': the file name must end in .mp4 or .webm");
+    }
+    if (!sequence) return Usage(cmd, "--video needs --path CAMERAS.json: one frame per camera");
+  } else if (sequence) {
+    if (a.out_dir_opt->count() == 0) {
+      return Usage(cmd, "--path needs --out-dir DIR for images, or --video OUT.mp4|webm");
+    }
     format = a.format == "exr" ? wire::IMAGE_EXR : wire::IMAGE_PNG;
   } else {
     if (!look_at && !camera_file && !dataset_camera) {
@@ -119,10 +139,18 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
                    : a.renderer == "cpu" ? wire::RENDERER_CPU
                                          : wire::RENDERER_AUTO);
   req.set_format(format);
+  if (video) req.set_video_fps(a.fps);
   if (!a.background.empty()) {
     // Given as the PNG shows it (sRGB); the renderer blends in linear light.
     for (double v : a.background) req.add_background(render::SrgbToLinear(static_cast<float>(v)));
     req.add_background(1.0f);
+  }
+  if (!a.shadow_light.empty()) {
+    for (double v : a.shadow_light) req.add_shadow_light(v);
+    req.set_shadow_directional(a.shadow_directional);
+    req.set_shadow_casters(a.shadow_casters);
+    // 0 on the wire means the default; a user's 0 means no darkening: the smallest float.
+    req.set_shadow_strength(a.shadow_strength == 0 ? 1e-30f : a.shadow_strength);
   }
   if (region) wire::ToWire(*region, req.mutable_region());
   // --size: the size of a look-at camera; for any other camera, the size it is scaled to.
@@ -179,9 +207,28 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
   std::string renderer, choice;
   bool fallback = false;
   bool made_dir = false;
+  std::string codec;
   Status st = ctx.db().Render(req, [&](const wire::RenderReply& r) -> Status {
     std::string file = a.out;
-    if (sequence) {
+    if (video) {
+      file = a.video;
+      codec = r.video_codec();
+      if (!a.json) {
+        std::fprintf(stderr, "\rhvdb: frame %u of %u", r.index() + 1, r.images());
+        if (r.last()) std::fprintf(stderr, "\n");
+      }
+      if (r.last()) {
+        // Written whole at the end, through a temporary name: a failed render leaves nothing.
+        const std::string tmp = a.video + ".partial";
+        HVDB_RETURN_IF_ERROR(WriteFileBytes(tmp, r.video()));
+        std::error_code ec;
+        fs::rename(tmp, a.video, ec);
+        if (ec) {
+          fs::remove(tmp, ec);
+          return Status::IOError("cannot write '" + a.video + "': " + ec.message());
+        }
+      }
+    } else if (sequence) {
       if (!made_dir) {
         std::error_code ec;
         fs::create_directories(a.out_dir, ec);
@@ -194,7 +241,9 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
               Printf("frame_%04u.%s", r.index(), format == wire::IMAGE_EXR ? "exr" : "png"))
                  .string();
     }
-    HVDB_RETURN_IF_ERROR(WriteFileBytes(file, format == wire::IMAGE_EXR ? r.exr() : r.png()));
+    if (!video) {
+      HVDB_RETURN_IF_ERROR(WriteFileBytes(file, format == wire::IMAGE_EXR ? r.exr() : r.png()));
+    }
     if (images.empty()) {
       renderer = r.renderer_used();
       choice = r.renderer_choice();
@@ -214,7 +263,7 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
                       {"height", r.height()},
                       {"points", r.points()},
                       {"render_ms", r.render_ms()}});
-    if (!a.json) {
+    if (!a.json && !video) {
       if (sequence) {
         std::printf("%s (%ux%u): %llu points in %.1f ms\n", file.c_str(), r.width(), r.height(),
                     static_cast<unsigned long long>(r.points()), r.render_ms());
@@ -230,7 +279,7 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
   });
   render::SetLogHandler(nullptr);
   if (!st.ok()) {
-    if (sequence && !images.empty()) {
+    if (sequence && !video && !images.empty()) {
       st = Status(st.code(), st.message() + " (" + std::to_string(images.size()) + " of " +
                                  std::to_string(req.path_size()) + " images were written to " +
                                  a.out_dir + ")");
@@ -238,7 +287,25 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
     return Fail(st);
   }
   const double ms = MsSince(start);
-  if (a.json) {
+  if (video) {
+    if (a.json) {
+      PrintJson({{"dataset", a.name},
+                 {"video", a.video},
+                 {"codec", codec},
+                 {"frames", images.size()},
+                 {"fps", a.fps},
+                 {"width", images.empty() ? 0u : images[0]["width"].get<uint32_t>()},
+                 {"height", images.empty() ? 0u : images[0]["height"].get<uint32_t>()},
+                 {"renderer", renderer},
+                 {"points", total_points},
+                 {"render_ms", total_ms},
+                 {"elapsed_ms", ms}});
+    } else {
+      std::printf("rendered %zu frames into %s (%s, %g fps) with %s: %.2f s in all (%.1f frames/s)\n",
+                  images.size(), a.video.c_str(), codec.c_str(), a.fps, renderer.c_str(), ms / 1e3,
+                  images.size() * 1e3 / ms);
+    }
+  } else if (a.json) {
     PrintJson({{"dataset", a.name},
                {"renderer", renderer},
                {"renderer_choice", choice},
@@ -363,7 +430,34 @@ void AddRenderCommands(CLI::App& app, Context& ctx) {
       ->capture_default_str()
       ->check(CLI::IsMember({"auto", "egl", "cpu"}))
       ->group(look);
-  const std::string output = "Output (--out, or --path with --out-dir)";
+  const std::string shadows = "Shadows (thesis 9.4)";
+  CLI::Option* light =
+      render_cmd
+          ->add_option("--shadow-light", ra.shadow_light,
+                       "X Y Z: a point light there (outside the casters) casts the shadows of "
+                       "the --shadow-casters points onto everything else")
+          ->expected(3)
+          ->group(shadows);
+  render_cmd
+      ->add_flag("--shadow-directional", ra.shadow_directional,
+                 "--shadow-light X Y Z is the direction towards a light infinitely far away "
+                 "(the sun) instead of a position")
+      ->needs(light)
+      ->group(shadows);
+  CLI::Option* casters =
+      render_cmd
+          ->add_option("--shadow-casters", ra.shadow_casters,
+                       "BIT: points carrying this label bit (0..31) cast the shadows")
+          ->needs(light)
+          ->group(shadows);
+  light->needs(casters);
+  render_cmd
+      ->add_option("--shadow-strength", ra.shadow_strength,
+                   "S in [0, 1]: how much a fully shadowed pixel is darkened")
+      ->capture_default_str()
+      ->needs(light)
+      ->group(shadows);
+  const std::string output = "Output (--out, or --path with --out-dir or --video)";
   CLI::Option* out =
       render_cmd
           ->add_option("--out", ra.out, "FILE.png (8-bit sRGB) or FILE.exr (float RGBA and Z)")
@@ -380,14 +474,25 @@ void AddRenderCommands(CLI::App& app, Context& ctx) {
                     ->excludes(rc.file_opt)
                     ->excludes(ra.dataset_camera_opt)
                     ->group(output);
-  CLI::Option* out_dir =
+  ra.out_dir_opt =
       render_cmd
           ->add_option("--out-dir", ra.out_dir,
                        "With --path: the directory for frame_0000.png, frame_0001.png, ... "
                        "(made if missing)")
           ->needs(ra.path_opt)
           ->group(output);
-  ra.path_opt->needs(out_dir);
+  ra.video_opt = render_cmd
+                     ->add_option("--video", ra.video,
+                                  "With --path: OUT.mp4 (H.264) or OUT.webm (VP9), one frame per "
+                                  "camera of the path, written when the last is encoded")
+                     ->needs(ra.path_opt)
+                     ->excludes(ra.out_dir_opt)
+                     ->group(output);
+  render_cmd->add_option("--fps", ra.fps, "With --video: frames a second of the video")
+      ->capture_default_str()
+      ->check(CLI::Range(0.001, 1000.0))
+      ->needs(ra.video_opt)
+      ->group(output);
   render_cmd->add_option("--format", ra.format, "With --path: png or exr")
       ->capture_default_str()
       ->check(CLI::IsMember({"png", "exr"}))
@@ -400,7 +505,10 @@ void AddRenderCommands(CLI::App& app, Context& ctx) {
       "Example, frame 5 of the demo dataset (29.97 fps) seen from 3 m in front:\n"
       "  hvdb render panoptic --box -10 10 -10 10 -10 10 0.15 0.18 \\\n"
       "      --look-at -0.4 -0.9 -3 -0.4 -0.9 0 --fov 40 --size 640 480 --out demo.png\n"
-      "A sequence: hvdb render panoptic --path cameras.json --out-dir frames/");
+      "A sequence: hvdb render panoptic --path cameras.json --out-dir frames/\n"
+      "A video of it: hvdb render panoptic --path cameras.json --video walk.mp4 --fps 30\n"
+      "Shadows of the points labelled with bit 2 from a lamp 2 m above (y down):\n"
+      "  hvdb render panoptic ... --shadow-light 0 -2 0 --shadow-casters 2 --out lit.png");
   ctx.Add(render_cmd, [](Context& c) { return CmdRender(c, render_args); });
 }
 

@@ -569,14 +569,19 @@ class Database:
     # -- rendering --
     def render(self, dataset, t, look_at, fov=50.0, size=(640, 480), mode="visibility",
                level=0, renderer="auto", depth=False, up=(0.0, -1.0, 0.0),
-               view_dependent=False, texture=False, billboards=False):
+               view_dependent=False, texture=False, billboards=False, shadow=None):
         """Renders frame time t (seconds) from a look-at camera (EWA splatting, thesis 5.1.2):
         look_at = (ex, ey, ez, tx, ty, tz), eye and target in metres, up = (0, -1, 0) as in
         `hvdb render`. Returns an H x W x 3 uint8 sRGB image; with depth=True a pair
         (image, depth) with depth H x W float32 metres (inf where empty). texture=True colours
         the view from the frame's stored photos over the points' depth (thesis 6.3; NotFound
         when the frame has none); billboards=True draws the frame's billboards instead of its
-        points (ingested with --filter billboard; NotFound when the frame has none)."""
+        points (ingested with --filter billboard; NotFound when the frame has none).
+        shadow = {"light": (x, y, z), "casters": BIT, "directional": False, "strength": 0.6}
+        casts the shadows of the points carrying label BIT from a point light at (x, y, z), or
+        with directional=True from a light infinitely far in direction (x, y, z), onto the rest
+        (thesis 9.4; `hvdb render --shadow-light`); InvalidArgument for a bit over 31 or a point
+        light inside the casters."""
         la = _vector("look_at", look_at, 6)
         w, h = size
         w, h = _uint32("size", w), _uint32("size", h)
@@ -586,10 +591,22 @@ class Database:
         if not 0 < fov < 180:
             raise InvalidArgument(f"fov: must be in (0, 180) degrees, got {fov}")
         tt = _number("t", t)
+        light, directional, casters, strength = [], False, 0, 0.6
+        if shadow is not None:
+            if not isinstance(shadow, dict) or "light" not in shadow or "casters" not in shadow:
+                raise InvalidArgument('shadow: expected {"light": (x, y, z), "casters": BIT, '
+                                      '"directional": False, "strength": 0.6}')
+            unknown = set(shadow) - {"light", "casters", "directional", "strength"}
+            if unknown:
+                raise InvalidArgument(f"shadow: unknown keys {sorted(unknown)}")
+            light = _vector("shadow.light", shadow["light"], 3)
+            casters = _uint32("shadow.casters", shadow["casters"])
+            directional = bool(shadow.get("directional", False))
+            strength = _number("shadow.strength", shadow.get("strength", 0.6))
         r = self._call("render", dataset, _window(t=(tt, tt)), la[:3], la[3:],
                        _vector("up", up, 3), fov, w, h, str(mode), _level(level),
                        str(renderer), bool(depth), bool(view_dependent), bool(texture),
-                       bool(billboards))
+                       bool(billboards), light, directional, casters, strength)
         if not depth:
             img = r["image"]
             return img[:, :, :3] if img.shape[2] == 4 else img

@@ -107,4 +107,5 @@ class Database:
     def render(self, dataset: str, t: float, look_at: Sequence[float], fov: float = ...,
                size: Tuple[int, int] = ..., mode: str = ..., level: int = ...,
                renderer: str = ..., depth: bool = ..., up: Sequence[float] = ...,
-               view_dependent: bool = ...) -> Any: ...
+               view_dependent: bool = ..., texture: bool = ..., billboards: bool = ...,
+               shadow: Optional[dict] = ...) -> Any: ...

@@ -242,6 +242,30 @@ def test_render_equals_the_cli_image(env, tmp_path):
                       billboards=True)
 
 
+def test_render_shadow_equals_the_cli_image(env, tmp_path):
+    import open3d as o3d
+    look = (-0.4, -0.9, -3, -0.4, -0.9, 0)
+    t = 5 / FPS
+    # The head and shoulders (y down: above -1.3 m) cast, from the sun above.
+    env.db.select(DATASET, 6, y=(-10.0, -1.3), t=(t, t))
+    shadow = {"light": (0.2, -1.0, 0.1), "casters": 6, "directional": True, "strength": 0.7}
+    kw = dict(look_at=look, fov=40, size=(160, 120), renderer="cpu")
+    plain = env.db.render(DATASET, t, **kw).astype(int)
+    lit = env.db.render(DATASET, t, shadow=shadow, **kw).astype(int)
+    assert (lit <= plain).all() and (lit.sum(axis=2) < plain.sum(axis=2)).sum() > 50
+    out = str(tmp_path / "cli.png")
+    env.cli("render", DATASET, "--box", "-1e9", "1e9", "-1e9", "1e9", "-1e9", "1e9", str(t),
+            str(t), "--look-at", *map(str, look), "--fov", "40", "--size", "160", "120",
+            "--renderer", "cpu", "--shadow-light", "0.2", "-1", "0.1", "--shadow-directional",
+            "--shadow-casters", "6", "--shadow-strength", "0.7", "--out", out)
+    cli = np.asarray(o3d.io.read_image(out))
+    assert np.array_equal(cli[:, :, :3], lit)
+    with pytest.raises(hvdb.InvalidArgument, match="render.shadow_casters"):
+        env.db.render(DATASET, t, shadow={"light": (0, -3, 0), "casters": 40}, **kw)
+    with pytest.raises(hvdb.InvalidArgument, match="shadow"):
+        env.db.render(DATASET, t, shadow={"light": (0, -3), "casters": 6}, **kw)
+
+
 def test_queries_run_in_threads(env):
     # The GIL is released while the library waits: threads see their own results.
     results = {}

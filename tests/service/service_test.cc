@@ -322,6 +322,33 @@ std::vector<Case> Cases() {
           wire::ToWire(q, r->mutable_put_photo());
         });
   }
+  {
+    // Render: shadows and video export (render/job.cc checks them when the job is made).
+    auto render = [&](std::string name, wire::Render req) {
+      req.set_dataset("d");
+      add(name, StatusCode::kInvalidArgument, wire::INVALID_PARAMETER,
+          [req](Service& x) { return x.Render(req); },
+          [req](wire::Request* r) { *r->mutable_render() = req; });
+    };
+    wire::Render base;
+    wire::ToWire(Box(), base.mutable_region());
+    wire::ToWire(Cam(), base.mutable_view()->mutable_camera());
+    wire::Render shadow = base;
+    for (double v : {0.0, -3.0, 0.0}) shadow.add_shadow_light(v);
+    shadow.set_shadow_casters(32);
+    render("render: shadow casters bit 32", shadow);
+    shadow.set_shadow_casters(1);
+    shadow.set_shadow_strength(1.5f);
+    render("render: shadow strength 1.5", shadow);
+    wire::Render video = base;
+    video.set_format(wire::IMAGE_MP4);
+    render("render: a video without a path", video);
+    video.clear_view();
+    wire::ToWire(Cam(), video.add_path()->mutable_camera());
+    video.set_width(63);
+    video.set_height(48);
+    render("render: a video of odd width", video);
+  }
   return cases;
 }
 

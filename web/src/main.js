@@ -15,6 +15,7 @@ import { Transformer } from './transform.js';
 import { Gizmo } from './gizmo.js';
 import { editingHooks } from './transform.js';
 import { MediaImport } from './media_import.js';
+import { RenderExport } from './render_export.js';
 
 const kMaxLod = 12;
 
@@ -114,6 +115,7 @@ class App {
     this.preview = null;  // a pending transform's preview: {m, t} of the displayed space
     this.ui = new UI(this);
     this.mediaImport = new MediaImport(this);
+    this.exporter = new RenderExport(this);  // the Shadows toggle, Render video
     this.editor.setTool('navigate');
     this.editor.setMode('SELECT_REPLACE');
     if (this.renderer.mode === 'points') this.setStatus('edit', `point renderer${this.renderer.fallbackReason ? ` (${this.renderer.fallbackReason})` : ''}`);
@@ -448,7 +450,7 @@ class App {
   async renderStill() {
     this.setStatus('edit', 'server render…');
     const reply = await this.conn.request({
-      render: { dataset: this.dataset, region: this.currentRegion(), lod: this.lod, view: this.renderView(), renderer: 'RENDERER_CPU' },
+      render: { dataset: this.dataset, region: this.currentRegion(), lod: this.lod, view: this.renderView(), renderer: 'RENDERER_CPU', ...this.exporter.shadowFields() },
     });
     const png = reply.sections.png;
     if (!png) throw new Error('render reply without a png section');
@@ -601,6 +603,8 @@ function exposeHooks(app, ready) {
     redo: () => app.editor.redo(),
     request: (obj) => app.conn.request(obj),
     renderStill: () => app.renderStill(),
+    renderVideo: () => app.exporter.renderVideo(),
+    setShadows: (on) => { app.exporter.toggle.checked = on; app.exporter.shadows = on; },
   };
   // The slice, transform and brush hooks (transform.js).
   Object.defineProperties(window.hvdbApp, Object.getOwnPropertyDescriptors(editingHooks(app)));
