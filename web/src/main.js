@@ -356,7 +356,13 @@ class App {
     const fresh = await d.promise;
     if (fresh.superseded) return null;  // a later edit's reload (or another dataset) took over
     if (this.currentKey() === key && this.store.map.get(key) === fresh) {
-      this.showFrameData(fresh, this.viewMode === 'slice' ? -1 : this.frame, true);
+      // An edit's result is drawn as a move is: at once, at half resolution on a software
+      // rasteriser (a full draw of 75k splats takes it ~300 ms), and in full once it rests.
+      this.showFrameData(fresh, this.viewMode === 'slice' ? -1 : this.frame, true, this.playResolution);
+      if (this.renderer.software) {
+        clearTimeout(this.settleTimer);
+        this.settleTimer = setTimeout(() => this.requestDraw(), 250);
+      }
       await nextFrame();
     }
     if (this.viewMode === 'frames') this.player.prefetch(this.frame, 2);
