@@ -9,8 +9,9 @@
 #include <assimp/material.h>
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
-#include <opencv2/imgcodecs.hpp>
+#include <opencv2/core.hpp>
 
+#include "formats/image_io.h"
 #include "media/media.h"
 #include "media/surfel.h"
 
@@ -53,9 +54,9 @@ Colours ColoursOf(const aiScene* scene, const aiMesh* mesh) {
     const aiTexture* tex = scene->GetEmbeddedTexture(path.C_Str());
     if (tex == nullptr || !mesh->HasTextureCoords(uv)) continue;
     if (tex->mHeight == 0) {
-      const cv::Mat buf(1, static_cast<int>(tex->mWidth), CV_8UC1,
-                        const_cast<aiTexel*>(tex->pcData));
-      c.texture = cv::imdecode(buf, cv::IMREAD_COLOR);
+      c.texture = formats::DecodeToMat(
+          std::string_view(reinterpret_cast<const char*>(tex->pcData), tex->mWidth),
+          /*colour=*/true);
     } else {
       // Raw texels are BGRA already.
       cv::Mat raw(static_cast<int>(tex->mHeight), static_cast<int>(tex->mWidth), CV_8UC4,

@@ -1,3 +1,4 @@
+#include "formats/image_io.h"
 #include "render/billboard_render.h"
 
 #include <algorithm>
@@ -6,7 +7,7 @@
 #include <thread>
 
 #include <opencv2/calib3d.hpp>
-#include <opencv2/imgcodecs.hpp>
+#include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "render/camera_pose.h"
@@ -23,12 +24,7 @@ namespace {
 // A map of a photo's billboard decoded from its PNG bytes; empty on failure.
 cv::Mat DecodeMap(const std::string& bytes) {
   if (bytes.empty()) return {};
-  const cv::Mat raw(1, static_cast<int>(bytes.size()), CV_8U, const_cast<char*>(bytes.data()));
-  try {
-    return cv::imdecode(raw, cv::IMREAD_UNCHANGED);
-  } catch (const cv::Exception&) {
-    return {};
-  }
+  return formats::DecodeToMat(bytes, /*colour=*/false);
 }
 
 }  // namespace
