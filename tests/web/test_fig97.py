@@ -190,6 +190,7 @@ def test_fig97_session(browser, server, tmp_path):
             clone[f] = p[(p["label"] & 1) != 0]
             assert len(clone[f]) == len(cut[f]), f"frame {f}: the clone has {len(clone[f])} points, the cut {len(cut[f])}"
             assert not set(clone[f]["id"].tolist()) & set(cut[f]["id"].tolist())  # new points
+        assert js(browser, "window.hvdbApp.selectedCount()") == selected  # the clone alone
         pos = np.concatenate([clone[f]["position"] for f in FRAMES]).astype(np.float64)
         centre = pos.mean(axis=0)
         depth = 0.5 * (pos[:, 2].max() - centre[2])  # the scaled clone's back, behind its centre
