@@ -609,7 +609,8 @@ function exposeHooks(app, ready) {
     redo: () => app.editor.redo(),
     request: (obj) => app.conn.request(obj),
     renderStill: () => app.renderStill(),
-    renderVideo: () => app.exporter.renderVideo(),
+    renderVideo: (opts) => app.exporter.renderVideo(opts),
+    get lastVideo() { return app.exporter.lastVideo || null; },
     setShadows: (on) => { app.exporter.toggle.checked = on; app.exporter.shadows = on; },
   };
   // The slice, transform and brush hooks (transform.js).
