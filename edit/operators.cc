@@ -281,7 +281,14 @@ Result<GraphCutReply> GraphCutSelect(Dataset& ds, const GraphCutRequest& req,
     // differs from the last one's (a relabelled point moves within its frame's trees).
     std::vector<uint32_t> node(pts.size());
     bool hit = cache->graph_ && fp == cache->fingerprint_ && cache->graph_->size() == pts.size();
+    const std::vector<uint32_t>& dense = cache->dense_;
     for (size_t i = 0; i < pts.size() && hit; ++i) {
+      const uint64_t off = pts[i].id - cache->dense_base_;
+      if (!dense.empty()) {
+        hit = pts[i].id >= cache->dense_base_ && off < dense.size() && dense[off] != UINT32_MAX;
+        if (hit) node[i] = dense[off];
+        continue;
+      }
       auto it = std::lower_bound(cache->nodes_.begin(), cache->nodes_.end(),
                                  std::make_pair(pts[i].id, uint32_t{0}));
       hit = it != cache->nodes_.end() && it->first == pts[i].id;
@@ -290,6 +297,7 @@ Result<GraphCutReply> GraphCutSelect(Dataset& ds, const GraphCutRequest& req,
     if (!hit) {
       cache->graph_.reset();
       cache->nodes_.clear();
+      cache->dense_.clear();
       if (pts.size() <= cache->max_points_) {
         HVDB_ASSIGN_OR_RETURN(cache->graph_, GraphCut::Build(pts, req.params));
         cache->fingerprint_ = fp;
@@ -299,6 +307,14 @@ Result<GraphCutReply> GraphCutSelect(Dataset& ds, const GraphCutRequest& req,
           node[i] = static_cast<uint32_t>(i);
         }
         std::sort(cache->nodes_.begin(), cache->nodes_.end());
+        if (!pts.empty()) {
+          const uint64_t lo = cache->nodes_.front().first, hi = cache->nodes_.back().first;
+          if (hi - lo < 4 * uint64_t{pts.size()}) {
+            cache->dense_base_ = lo;
+            cache->dense_.assign(hi - lo + 1, UINT32_MAX);
+            for (const auto& [id, n] : cache->nodes_) cache->dense_[id - lo] = n;
+          }
+        }
       }
     }
     if (cache->graph_) {

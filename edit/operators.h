@@ -83,7 +83,11 @@ class GraphCutCache {
   std::mutex mu_;
   size_t max_points_;
   std::array<uint64_t, 2> fingerprint_{};  // of the points (not labels) and the parameters
-  std::vector<std::pair<uint64_t, uint32_t>> nodes_;  // (frame << 40 ^ id hash, node), sorted
+  std::vector<std::pair<uint64_t, uint32_t>> nodes_;  // (point id, node), sorted
+  // The same as a table indexed by id - dense_base_, when the ids are that dense (they are
+  // given out in sequence): a re-cut maps a million points in milliseconds, not 100 ms.
+  uint64_t dense_base_ = 0;
+  std::vector<uint32_t> dense_;
   std::unique_ptr<GraphCut> graph_;
 };
 
