@@ -6,6 +6,8 @@
 #include <cstddef>
 #include <cstdio>  // before jpeglib.h, which uses FILE and size_t without including them
 #include <cstring>
+#include <string>
+#include <vector>
 
 #include <jpeglib.h>
 #include <jerror.h>
@@ -32,8 +34,18 @@ Status TooLarge(const std::string& what, uint32_t w, uint32_t h) {
                                  " pixels is over the limit of 16384 a side");
 }
 
-// libpng's simplified API: any colour type and depth to 8-bit grey, RGB or RGBA.
+struct MemorySource;
+bool ReadPng16(MemorySource* src, cv::Mat* out, std::vector<png_bytep>* rows, std::string* msg);
+Result<Srgb8Image> DecodePng16To8(std::string_view bytes, const std::string& what);
+
+bool Is16BitPng(std::string_view b) {  // IHDR's bit depth is byte 24
+  return IsPng(b) && b.size() > 24 && static_cast<uint8_t>(b[24]) == 16;
+}
+
+// libpng's simplified API: any colour type and depth to 8-bit grey, RGB or RGBA. (16-bit
+// files go by DecodePng16To8: the simplified API takes their samples for linear light.)
 Result<Srgb8Image> DecodePng(std::string_view bytes, const std::string& what) {
+  if (Is16BitPng(bytes)) return DecodePng16To8(bytes, what);
   png_image img;
   std::memset(&img, 0, sizeof img);
   img.version = PNG_IMAGE_VERSION;
@@ -129,6 +141,85 @@ void FlushNothing(png_structp) {}
 
 void QuietPngWarning(png_structp, png_const_charp) {}
 
+struct MemorySource {
+  const uint8_t* data;
+  size_t size, at;
+};
+
+void ReadFromMemory(png_structp png, png_bytep out, size_t n) {
+  auto* src = static_cast<MemorySource*>(png_get_io_ptr(png));
+  if (n > src->size - src->at) png_error(png, "unexpected end of file");
+  std::memcpy(out, src->data + src->at, n);
+  src->at += n;
+}
+
+// A 16-bit PNG with its samples as stored (the simplified API would apply a gamma to them):
+// billboards keep their displacement maps so. Everything the longjmp may skip lives in the
+// caller; out is BGR(A) ordered, as OpenCV's.
+bool ReadPng16(MemorySource* src, cv::Mat* out, std::vector<png_bytep>* rows, std::string* msg) {
+  png_structp png = png_create_read_struct(PNG_LIBPNG_VER_STRING, msg, OnPngError,
+                                           QuietPngWarning);
+  png_infop info = png ? png_create_info_struct(png) : nullptr;
+  if (png == nullptr || info == nullptr) {
+    png_destroy_read_struct(&png, &info, nullptr);
+    return false;
+  }
+  if (setjmp(png_jmpbuf(png))) {
+    png_destroy_read_struct(&png, &info, nullptr);
+    return false;
+  }
+  png_set_read_fn(png, src, ReadFromMemory);
+  png_read_info(png, info);
+  const png_uint_32 w = png_get_image_width(png, info), h = png_get_image_height(png, info);
+  if (w > 16384 || h > 16384) png_error(png, "image too large");
+  png_set_swap(png);  // the file's big-endian samples as the machine's
+  if (png_get_color_type(png, info) & PNG_COLOR_MASK_COLOR) png_set_bgr(png);
+  png_read_update_info(png, info);
+  const int channels = png_get_channels(png, info);
+  out->create(static_cast<int>(h), static_cast<int>(w), CV_16UC(channels));
+  rows->resize(h);
+  for (png_uint_32 y = 0; y < h; ++y) (*rows)[y] = out->ptr(static_cast<int>(y));
+  png_read_image(png, rows->data());
+  png_read_end(png, nullptr);
+  png_destroy_read_struct(&png, &info, nullptr);
+  return true;
+}
+
+// A 16-bit PNG's high bytes, as OpenCV's 8-bit decode gives them; grey with alpha as RGBA.
+Result<Srgb8Image> DecodePng16To8(std::string_view bytes, const std::string& what) {
+  MemorySource src{reinterpret_cast<const uint8_t*>(bytes.data()), bytes.size(), 0};
+  cv::Mat m;
+  std::vector<png_bytep> rows;
+  std::string msg;
+  if (!ReadPng16(&src, &m, &rows, &msg)) {
+    return Status::InvalidArgument(what + ": corrupt PNG (" + msg + ")");
+  }
+  const int in = m.channels();
+  Srgb8Image out;
+  out.width = static_cast<uint32_t>(m.cols);
+  out.height = static_cast<uint32_t>(m.rows);
+  out.channels = in == 1 ? 1 : in == 3 ? 3 : 4;
+  out.data.resize(size_t{out.width} * out.height * out.channels);
+  uint8_t* o = out.data.data();
+  for (int y = 0; y < m.rows; ++y) {
+    const uint16_t* r = m.ptr<uint16_t>(y);
+    for (int x = 0; x < m.cols; ++x, r += in, o += out.channels) {
+      if (in == 1) {
+        o[0] = static_cast<uint8_t>(r[0] >> 8);
+      } else if (in == 2) {
+        o[0] = o[1] = o[2] = static_cast<uint8_t>(r[0] >> 8);
+        o[3] = static_cast<uint8_t>(r[1] >> 8);
+      } else {  // BGR(A) to RGB(A)
+        o[0] = static_cast<uint8_t>(r[2] >> 8);
+        o[1] = static_cast<uint8_t>(r[1] >> 8);
+        o[2] = static_cast<uint8_t>(r[0] >> 8);
+        if (in == 4) o[3] = static_cast<uint8_t>(r[3] >> 8);
+      }
+    }
+  }
+  return out;
+}
+
 }  // namespace
 
 Result<Srgb8Image> DecodePngOrJpeg(std::string_view bytes, const std::string& what) {
@@ -175,6 +266,14 @@ Result<std::string> EncodePngBytes(const Srgb8Image& s) {
 }
 
 cv::Mat DecodeToMat(std::string_view bytes, bool colour) {
+  if (!colour && Is16BitPng(bytes)) {
+    MemorySource src{reinterpret_cast<const uint8_t*>(bytes.data()), bytes.size(), 0};
+    cv::Mat out;
+    std::vector<png_bytep> rows;
+    std::string msg;
+    if (!ReadPng16(&src, &out, &rows, &msg)) return {};
+    return out;
+  }
   auto img = DecodePngOrJpeg(bytes, "image");
   if (!img.ok()) return {};
   const int ch = static_cast<int>(img->channels);

@@ -65,8 +65,8 @@ Srgb8Image ToSrgb8(const Image& image);
 Result<Srgb8Image> DecodePngOrJpeg(std::string_view bytes, const std::string& what);
 // An 8-bit PNG of 1, 3 or 4 channels.
 Result<std::string> EncodePngBytes(const Srgb8Image& image);
-// PNG or JPEG bytes as OpenCV's imdecode gives them: BGR with `colour`, else as stored in
-// BGR(A) order; an empty Mat for bytes that do not decode.
+// PNG or JPEG bytes as OpenCV's imdecode gives them: 8-bit BGR with `colour`, else as stored
+// in BGR(A) order (16-bit PNGs as 16-bit samples); an empty Mat for bytes that do not decode.
 cv::Mat DecodeToMat(std::string_view bytes, bool colour);
 // Reads PNG or JPEG, colour channels in RGB order.
 Result<Srgb8Image> ReadSrgb8(const std::string& path);

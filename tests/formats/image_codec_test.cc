@@ -55,6 +55,33 @@ TEST(ImageCodecTest, PngRoundTripsAndOpenCvReadsWhatItWrites) {
   }
 }
 
+TEST(ImageCodecTest, SixteenBitPngsKeepTheirSamples) {
+  // Billboards store displacement maps as 16-bit grey PNGs: every sample as written.
+  std::mt19937_64 rng(16);
+  for (int type : {CV_16UC1, CV_16UC3, CV_16UC4}) {
+    SCOPED_TRACE("type " + std::to_string(type));
+    cv::Mat m(23, 31, type);
+    for (int y = 0; y < m.rows; ++y) {
+      auto* row = m.ptr<uint16_t>(y);
+      for (int x = 0; x < m.cols * m.channels(); ++x) row[x] = static_cast<uint16_t>(rng());
+    }
+    std::vector<uint8_t> png;
+    ASSERT_TRUE(cv::imencode(".png", m, png));
+    const std::string bytes(png.begin(), png.end());
+    cv::Mat got = DecodeToMat(bytes, /*colour=*/false);
+    ASSERT_EQ(got.type(), type);
+    EXPECT_EQ(cv::norm(m, got, cv::NORM_INF), 0);
+    cv::Mat want_colour = cv::imdecode(png, cv::IMREAD_COLOR);
+    cv::Mat got_colour = DecodeToMat(bytes, /*colour=*/true);
+    ASSERT_EQ(got_colour.type(), want_colour.type());
+    if (type != CV_16UC4) {
+      EXPECT_LE(cv::norm(want_colour, got_colour, cv::NORM_INF), 1);
+    }
+  }
+  std::string cut(200, '\0');
+  EXPECT_TRUE(DecodeToMat(cut, false).empty());
+}
+
 TEST(ImageCodecTest, RealPngAndJpegFilesDecodeAsOpenCvDecodesThem) {
   const std::string data = HVDB_SHARED_DATA;
   for (const std::string& path :

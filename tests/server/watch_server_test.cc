@@ -206,7 +206,7 @@ TEST_F(WatchServerTest, AWatcherThatStopsReadingLagsWithinABoundAndResumes) {
   const int kCommits = 250;
   uint64_t last = 0;
   int64_t max_buffered = 0;
-  for (int i = 0; i < kCommits; ++i) {
+  auto commit = [&] {
     Transaction t;
     std::vector<Point> pts;
     for (uint32_t f = 0; f < 4000; ++f) {
@@ -217,6 +217,9 @@ TEST_F(WatchServerTest, AWatcherThatStopsReadingLagsWithinABoundAndResumes) {
     auto c = writer_->Commit("live", t);
     ASSERT_TRUE(c.ok()) << c.status().ToString();
     last = c->lsn;
+  };
+  for (int i = 0; i < kCommits; ++i) {
+    commit();
     if (i % 20 == 19) {
       auto st = writer_->Stats();
       ASSERT_TRUE(st.ok());
@@ -245,8 +248,9 @@ TEST_F(WatchServerTest, AWatcherThatStopsReadingLagsWithinABoundAndResumes) {
   EXPECT_EQ(resume, seen);
   EXPECT_LT(seen, last) << "the watcher never lagged";
   // Resume: the rest, exactly, in one watch: the replay (past four times the mark) is paced by
-  // what this client reads, not cut short.
-  ASSERT_GT((last - resume) * 8000, 4u * (256u << 10)) << "the backlog must outgrow the mark";
+  // what this client reads, not cut short. (On a loaded machine the watch may lag late in the
+  // commits: the backlog is made that large first.)
+  while ((last - resume) * 8000 <= 5u * (256u << 10)) commit();
   auto w = slow->Watch("live", resume);
   ASSERT_TRUE(w.ok()) << w.status().ToString();
   uint64_t next = resume + 1;

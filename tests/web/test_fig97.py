@@ -96,7 +96,7 @@ def import_media(browser, path, at, rotate, scale, width, bit):
     """The Import media dialog: the file, its placement, every frame, a label bit."""
     undo = js(browser, "window.hvdbApp.app.editor.undoStack.length")
     click(browser, "import-media")
-    browser.find_element(By.ID, "media-file").send_keys(path)
+    browser.find_element(By.ID, "media-file").send_keys(os.path.realpath(path))  # Chromium wants a canonical path
     for field, value in (("media-at", ", ".join(map(str, at))), ("media-rotate", ", ".join(map(str, rotate))),
                          ("media-scale", scale), ("media-width", width), ("media-frames", ""),
                          ("media-label-bit", bit)):

@@ -22,7 +22,7 @@ def open_dialog(browser, server, path):
     browser.execute_async_script(
         "const done = arguments[0]; window.hvdbApp.ready.then(() => done(true), e => done(String(e)));")
     browser.find_element(By.ID, "import-media").click()
-    browser.find_element(By.ID, "media-file").send_keys(path)
+    browser.find_element(By.ID, "media-file").send_keys(os.path.realpath(path))  # Chromium wants a canonical path
 
 
 def set_value(browser, element_id, value):
