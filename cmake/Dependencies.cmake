@@ -12,12 +12,6 @@ if(HVDB_BUILD_INGEST)
 else()
   find_package(OpenCV REQUIRED COMPONENTS core imgproc imgcodecs calib3d)
 endif()
-# What the served and command-line paths link of OpenCV: not imgcodecs, whose ~120 shared
-# libraries (GDAL's formats) took half of every command's start (formats/image_codec.cc reads
-# and writes PNG and JPEG with libpng and libjpeg instead). Tests, bench and ingest use all.
-set(HVDB_OPENCV_CORE opencv_core opencv_imgproc opencv_calib3d)
-find_package(PNG REQUIRED)
-find_package(JPEG REQUIRED)
 find_package(draco REQUIRED)
 find_package(OpenEXR REQUIRED)
 find_package(glm REQUIRED)

@@ -1,4 +1,4 @@
-// PNG (8-bit sRGB, through image_codec.cc) and OpenEXR (float) images.
+// PNG (8-bit sRGB, through OpenCV's imgcodecs) and OpenEXR (float) images.
 #include "formats/image_io.h"
 
 #include <ImfChannelList.h>
@@ -13,10 +13,10 @@
 #include <cmath>
 #include <cstring>
 #include <fstream>
-#include <iterator>
 #include <limits>
 #include <stdexcept>
 #include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 
 namespace hvdb::formats {
 
@@ -165,7 +165,18 @@ Srgb8Image ToSrgb8(const Image& img) {
 
 Result<std::string> EncodePng(const Image& img) {
   HVDB_RETURN_IF_ERROR(CheckImage(img));
-  return EncodePngBytes(ToSrgb8(img));
+  Srgb8Image s = ToSrgb8(img);
+  cv::Mat m(static_cast<int>(s.height), static_cast<int>(s.width),
+            s.channels == 4 ? CV_8UC4 : CV_8UC3, s.data.data());
+  // OpenCV stores blue first.
+  for (size_t i = 0; i < s.data.size(); i += s.channels) std::swap(s.data[i], s.data[i + 2]);
+  std::vector<uchar> buf;
+  try {
+    if (!cv::imencode(".png", m, buf)) return Status::Internal("PNG encoding failed");
+  } catch (const cv::Exception& e) {
+    return Status::Internal(std::string("PNG encoding failed: ") + e.what());
+  }
+  return std::string(buf.begin(), buf.end());
 }
 
 Status WritePng(const Image& img, const std::string& path) {
@@ -255,16 +266,46 @@ Status WriteImage(const Image& img, const std::string& path) {
 }
 
 Status WriteSrgb8Png(const Srgb8Image& s, const std::string& path) {
-  HVDB_ASSIGN_OR_RETURN(std::string bytes, EncodePngBytes(s));
-  return WriteFile(path, bytes);
+  if (s.data.size() != size_t{s.width} * s.height * s.channels || s.width == 0 ||
+      (s.channels != 1 && s.channels != 3 && s.channels != 4)) {
+    return Status::InvalidArgument("image: size and data do not agree");
+  }
+  std::vector<uint8_t> bgr = s.data;
+  if (s.channels >= 3) {
+    for (size_t i = 0; i < bgr.size(); i += s.channels) std::swap(bgr[i], bgr[i + 2]);
+  }
+  cv::Mat m(static_cast<int>(s.height), static_cast<int>(s.width),
+            CV_8UC(static_cast<int>(s.channels)), bgr.data());
+  try {
+    if (!cv::imwrite(path, m)) return Status::IOError(path + ": cannot write PNG");
+  } catch (const cv::Exception& e) {
+    return Status::IOError(path + ": " + e.what());
+  }
+  return Status::OK();
 }
 
 Result<Srgb8Image> ReadSrgb8(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return Status::NotFound(path + ": missing or not readable");
-  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (in.bad()) return Status::IOError(path + ": read failed");
-  return DecodePngOrJpeg(bytes, path);
+  cv::Mat m;
+  try {
+    m = cv::imread(path, cv::IMREAD_UNCHANGED);
+  } catch (const cv::Exception& e) {
+    return Status::IOError(path + ": " + e.what());
+  }
+  if (m.empty()) return Status::NotFound(path + ": missing or not a readable image");
+  if (m.depth() != CV_8U) return Status::InvalidArgument(path + ": not an 8-bit image");
+  Srgb8Image s;
+  s.width = static_cast<uint32_t>(m.cols);
+  s.height = static_cast<uint32_t>(m.rows);
+  s.channels = static_cast<uint32_t>(m.channels());
+  s.data.resize(size_t{s.width} * s.height * s.channels);
+  for (int y = 0; y < m.rows; ++y) {
+    std::memcpy(s.data.data() + static_cast<size_t>(y) * s.width * s.channels, m.ptr(y),
+                size_t{s.width} * s.channels);
+  }
+  if (s.channels >= 3) {
+    for (size_t i = 0; i < s.data.size(); i += s.channels) std::swap(s.data[i], s.data[i + 2]);
+  }
+  return s;
 }
 
 }  // namespace hvdb::formats

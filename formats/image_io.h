@@ -1,4 +1,4 @@
-// Image files: 8-bit sRGB PNG (and JPEG input) through libpng and libjpeg, and OpenEXR with
+// Image files: 8-bit sRGB PNG (and JPEG input) through OpenCV's imgcodecs, and OpenEXR with
 // float colour, alpha and depth. The image types are what render/ draws into and its metrics
 // compare (render/renderer.h and render/metrics.h use them under their own names); they live
 // here, below render/, so that reading and writing images needs no renderer.
@@ -9,10 +9,7 @@
 
 #include <cstdint>
 #include <string>
-#include <string_view>
 #include <vector>
-
-#include <opencv2/core/mat.hpp>
 
 #include "storage/status.h"
 
@@ -59,16 +56,7 @@ Status WriteImage(const Image& image, const std::string& path);
 
 // The rendered image as it is written to PNG: RGB if every pixel is opaque, else RGBA.
 Srgb8Image ToSrgb8(const Image& image);
-// Decodes PNG or JPEG bytes (told apart by their signatures; image_codec.cc) to 8-bit pixels:
-// 1 (grey), 3 (RGB) or 4 (RGBA) channels as stored (grey with alpha becomes RGBA, palettes
-// RGB(A), 16-bit samples 8 bits). InvalidArgument naming `what` for anything else.
-Result<Srgb8Image> DecodePngOrJpeg(std::string_view bytes, const std::string& what);
-// An 8-bit PNG of 1, 3 or 4 channels.
-Result<std::string> EncodePngBytes(const Srgb8Image& image);
-// PNG or JPEG bytes as OpenCV's imdecode gives them: 8-bit BGR with `colour`, else as stored
-// in BGR(A) order (16-bit PNGs as 16-bit samples); an empty Mat for bytes that do not decode.
-cv::Mat DecodeToMat(std::string_view bytes, bool colour);
-// Reads PNG or JPEG, colour channels in RGB order.
+// Reads PNG or JPEG (any 8-bit image OpenCV reads), colour channels in RGB order.
 Result<Srgb8Image> ReadSrgb8(const std::string& path);
 Status WriteSrgb8Png(const Srgb8Image& image, const std::string& path);
 

@@ -1,12 +1,11 @@
-// Image files (PNG and JPEG, formats/image_codec.cc) as RGBA pictures.
+// Image files (PNG, JPEG and whatever else OpenCV's imgcodecs reads) as RGBA pictures.
 #include <algorithm>
 #include <cmath>
 #include <cstring>
 
-#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "formats/image_io.h"
 #include "media/media.h"
 
 namespace hvdb::media {
@@ -14,9 +13,19 @@ namespace hvdb::media {
 Result<Picture> DecodeImage(std::string_view data, const std::string& format, uint32_t max_side) {
   const std::string what = "import_media: the image (" + (format.empty() ? "?" : format) + ")";
   if (data.empty()) return Status::InvalidArgument(what + " is empty");
-  auto decoded = formats::DecodePngOrJpeg(data, what + " could not be decoded");
-  if (!decoded.ok()) return decoded.status();
-  cv::Mat img = formats::DecodeToMat(data, /*colour=*/false);
+  cv::Mat img;
+  try {
+    const cv::Mat buf(1, static_cast<int>(data.size()), CV_8UC1,
+                      const_cast<char*>(data.data()));
+    img = cv::imdecode(buf, cv::IMREAD_UNCHANGED);
+  } catch (const cv::Exception& e) {
+    return Status::InvalidArgument(what + " could not be decoded: " + e.what());
+  }
+  if (img.empty()) {
+    return Status::InvalidArgument(what + " could not be decoded (" +
+                                   std::to_string(data.size()) +
+                                   " bytes: not an image file OpenCV reads, or corrupt)");
+  }
   // 16-bit and float images to 8 bits.
   if (img.depth() == CV_16U) {
     img.convertTo(img, CV_8U, 1.0 / 257);

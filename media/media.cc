@@ -52,8 +52,7 @@ Kind DetectKind(std::string_view data, const std::string& format, Kind hint) {
     return Kind::kMesh;
   }
   const std::string f = Lower(format);
-  // Other still formats (BMP, TIFF, WebP, PNM) are read by libavformat as one-frame videos.
-  for (const char* e : {"png", "jpg", "jpeg"}) {
+  for (const char* e : {"png", "jpg", "jpeg", "bmp", "tif", "tiff", "webp", "pnm", "ppm"}) {
     if (f == e) return Kind::kImage;
   }
   for (const char* e : {"obj", "ply", "gltf", "glb", "stl", "off", "fbx", "dae", "3ds"}) {

@@ -9,9 +9,8 @@
 #include <assimp/material.h>
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
-#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 
-#include "formats/image_io.h"
 #include "media/media.h"
 #include "media/surfel.h"
 
@@ -54,9 +53,9 @@ Colours ColoursOf(const aiScene* scene, const aiMesh* mesh) {
     const aiTexture* tex = scene->GetEmbeddedTexture(path.C_Str());
     if (tex == nullptr || !mesh->HasTextureCoords(uv)) continue;
     if (tex->mHeight == 0) {
-      c.texture = formats::DecodeToMat(
-          std::string_view(reinterpret_cast<const char*>(tex->pcData), tex->mWidth),
-          /*colour=*/true);
+      const cv::Mat buf(1, static_cast<int>(tex->mWidth), CV_8UC1,
+                        const_cast<aiTexel*>(tex->pcData));
+      c.texture = cv::imdecode(buf, cv::IMREAD_COLOR);
     } else {
       // Raw texels are BGRA already.
       cv::Mat raw(static_cast<int>(tex->mHeight), static_cast<int>(tex->mWidth), CV_8UC4,

@@ -17,7 +17,7 @@
 #include <cstddef>
 #include <cstdlib>
 #include <mutex>
-#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "client/backend.h"
@@ -603,11 +603,15 @@ class Database {
       d["depth"] = depth;
       return d;
     }
-    auto png = formats::DecodePngOrJpeg(reply.png(), "render");
-    if (!png.ok()) Throw(Status::Internal("render: the PNG does not decode"));
-    const int ch = static_cast<int>(png->channels);
-    py::array_t<uint8_t> img({static_cast<int>(png->height), static_cast<int>(png->width), ch});
-    std::memcpy(img.mutable_data(), png->data.data(), png->data.size());
+    std::vector<uchar> bytes(reply.png().begin(), reply.png().end());
+    cv::Mat m = cv::imdecode(bytes, cv::IMREAD_UNCHANGED);
+    if (m.empty()) Throw(Status::Internal("render: the PNG does not decode"));
+    int ch = m.channels();
+    cv::cvtColor(m, m, ch == 4 ? cv::COLOR_BGRA2RGBA : cv::COLOR_BGR2RGB);
+    py::array_t<uint8_t> img({m.rows, m.cols, ch});
+    for (int y = 0; y < m.rows; ++y) {
+      std::memcpy(img.mutable_data(y), m.ptr(y), static_cast<size_t>(m.cols) * ch);
+    }
     d["image"] = img;
     return d;
   }

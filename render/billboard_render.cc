@@ -1,4 +1,3 @@
-#include "formats/image_io.h"
 #include "render/billboard_render.h"
 
 #include <algorithm>
@@ -7,7 +6,7 @@
 #include <thread>
 
 #include <opencv2/calib3d.hpp>
-#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "render/camera_pose.h"
@@ -24,7 +23,12 @@ namespace {
 // A map of a photo's billboard decoded from its PNG bytes; empty on failure.
 cv::Mat DecodeMap(const std::string& bytes) {
   if (bytes.empty()) return {};
-  return formats::DecodeToMat(bytes, /*colour=*/false);
+  const cv::Mat raw(1, static_cast<int>(bytes.size()), CV_8U, const_cast<char*>(bytes.data()));
+  try {
+    return cv::imdecode(raw, cv::IMREAD_UNCHANGED);
+  } catch (const cv::Exception&) {
+    return {};
+  }
 }
 
 }  // namespace

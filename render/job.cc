@@ -1,7 +1,6 @@
-#include "formats/image_io.h"
 #include "render/job.h"
 
-#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 
 #include "render/projective_texture.h"
 
@@ -16,9 +15,13 @@ namespace {
 // A stored photo's bytes (PNG or JPEG) as 8-bit RGB of the expected size.
 Result<std::vector<uint8_t>> DecodeRgb8(const std::string& bytes, uint32_t width, uint32_t height,
                                         const std::string& what) {
-  auto decoded = formats::DecodePngOrJpeg(bytes, what);
-  if (!decoded.ok()) return Status::Corruption(decoded.status().message());
-  cv::Mat bgr = formats::DecodeToMat(bytes, /*colour=*/true);
+  const cv::Mat raw(1, static_cast<int>(bytes.size()), CV_8U, const_cast<char*>(bytes.data()));
+  cv::Mat bgr;
+  try {
+    bgr = cv::imdecode(raw, cv::IMREAD_COLOR);
+  } catch (const cv::Exception& e) {
+    return Status::Corruption(what + ": cannot be decoded (" + e.what() + ")");
+  }
   if (bgr.empty()) return Status::Corruption(what + ": not a PNG or JPEG image");
   if (static_cast<uint32_t>(bgr.cols) != width || static_cast<uint32_t>(bgr.rows) != height) {
     return Status::Corruption(what + ": the image is " + std::to_string(bgr.cols) + "x" +
