@@ -1,7 +1,6 @@
 // `hvdb import-media` through the real binary: embedded (--data) and through hvdb-server
 // (--server) the same image gives the same points, undo removes them, the plane renders closed,
 // a corrupt file is an error naming its kind, and a file over the server's frame limit says so.
-#include <sys/wait.h>
 
 #include <gtest/gtest.h>
 
@@ -16,6 +15,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "tests/run_command.h"
 #include "tests/server/server_process.h"
 
 namespace hvdb {
@@ -24,10 +24,7 @@ namespace {
 namespace fs = std::filesystem;
 using json = nlohmann::json;
 
-struct Ran {
-  int code = -1;
-  std::string out, err;
-};
+using Ran = testing::SplitRun;
 
 class ImportMediaCliTest : public ::testing::Test {
  protected:
@@ -42,20 +39,7 @@ class ImportMediaCliTest : public ::testing::Test {
   }
   // `hvdb ARGS` run in the temporary directory.
   Ran Run(const std::string& args) {
-    const std::string err = dir_ + "/stderr.txt";
-    const std::string cmd =
-        "cd '" + dir_ + "' && '" HVDB_CLI_PATH "' " + args + " 2>'" + err + "'";
-    Ran r;
-    FILE* p = popen(cmd.c_str(), "r");
-    if (p == nullptr) return r;
-    char buf[4096];
-    size_t n;
-    while ((n = fread(buf, 1, sizeof buf, p)) > 0) r.out.append(buf, n);
-    const int status = pclose(p);
-    r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    std::ifstream in(err);
-    r.err.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-    return r;
+    return testing::RunInDir(dir_, "'" HVDB_CLI_PATH "' " + args);
   }
   json Json(const std::string& args) {
     Ran r = Run(args + " --json");

@@ -1,17 +1,16 @@
 // `hvdb render --video` and `--shadow-*` end to end (the real binary on a data directory with two
 // Panoptic frames): the video decodes to one frame per path entry at the size asked; bad paths
 // and bad shadow options fail naming the culprit and write nothing.
-#include <sys/wait.h>
 
 #include <gtest/gtest.h>
 
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
-#include <sstream>
 #include <string>
 
 #include "tests/render/video_probe.h"
+#include "tests/run_command.h"
 
 namespace hvdb {
 namespace {
@@ -21,10 +20,7 @@ namespace fs = std::filesystem;
 const std::string kPanoptic =
     std::string(HVDB_SHARED_DATA) + "/cmu-panoptic-kinoptic-171026-pose3/kinoptic_ptclouds/";
 
-struct RunResult {
-  int code = -1;
-  std::string out, err;
-};
+using RunResult = testing::SplitRun;
 
 class RenderCliTest : public ::testing::Test {
  protected:
@@ -43,22 +39,7 @@ class RenderCliTest : public ::testing::Test {
   }
   // Runs `hvdb --data DIR/data ARGS` in the temporary directory.
   RunResult Run(const std::string& args) {
-    const std::string err = dir_ + "/stderr.txt";
-    const std::string cmd = "cd '" + dir_ + "' && '" + std::string(HVDB_CLI_PATH) +
-                            "' --data data " + args + " 2>'" + err + "'";
-    RunResult r;
-    FILE* p = popen(cmd.c_str(), "r");
-    if (p == nullptr) return r;
-    char buf[4096];
-    size_t n;
-    while ((n = fread(buf, 1, sizeof buf, p)) > 0) r.out.append(buf, n);
-    const int status = pclose(p);
-    r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    std::ifstream in(err);
-    std::stringstream ss;
-    ss << in.rdbuf();
-    r.err = ss.str();
-    return r;
+    return testing::RunInDir(dir_, "'" + std::string(HVDB_CLI_PATH) + "' --data data " + args);
   }
   // A path of n views of the person (frames 0, 1, 0, ...) at w x h.
   std::string WritePath(const std::string& name, int n, int w, int h) {
