@@ -1,11 +1,8 @@
 #include "ingest/photo_consistency.h"
 
 #include <algorithm>
-#include <array>
-#include <atomic>
 #include <chrono>
 #include <cmath>
-#include <future>
 #include <limits>
 #include <thread>
 
@@ -23,11 +20,17 @@ namespace {
 using render::internal::F8;
 using render::internal::I8;
 using render::internal::ParallelFor;
-using render::internal::Splat;
 
 // Eight pixels at a time along a row (render/simd.h): image planes and the z-buffer have rows
 // padded by this many floats, so a vector that starts at a row's last pixel stays inside.
 constexpr uint32_t kLanes = 8;
+// Splats are kept in the points' order. Points made from depth maps come row by row of their
+// camera, so the splats tested one after another touch the same few rows of the image and
+// z-buffer in any view, which stay in the cache (in depth order, as fig. 5.4 walks them, they
+// jumped across the whole image: that cost 4x). Other orders give the same result, slower.
+// Later rounds redo the z-buffer and the tests only where a removal changed something, in
+// blocks of 8x8 pixels.
+constexpr int kBlock = 8;
 
 // BT.601 on sRGB-encoded values in [0, 1], U and V scaled to [-0.5, 0.5] (see the header).
 struct Yuv {
@@ -39,19 +42,51 @@ inline Yuv ToYuv(uint8_t r8, uint8_t g8, uint8_t b8) {
   return {y, (b - y) * (1.0f / 1.772f), (r - y) * (1.0f / 1.402f)};
 }
 
-// One view, ready to test: its splats sorted front to back (with the index of their point) and
-// its image in YUV, one plane per component.
+// What the test needs of a projected splat (render::internal::Splat without the renderer's
+// colour and weight), with its point's index and sRGB colour.
+struct TestSplat {
+  float u, v, ca, cb, cc, z, dzdx, dzdy;
+  int16_t x0, x1, y0, y1;
+  uint32_t point;
+  uint8_t r, g, b;
+  bool on_image;  // centred on the image: tested (else it only occludes)
+};
+
+// A splat's state in its view.
+enum : uint8_t { kUntested = 0, kSeen = 1, kOccluded = 2, kRemoved = 3 };
+
+// One view: its splats, the image in YUV (one plane per component), and per run of splats
+// (those of a chunk of points) the blocks they reach.
 struct PreparedView {
   bool ok = false;
   render::internal::View view;
-  std::vector<Splat> splats;
-  std::vector<uint32_t> index;
-  uint32_t stride = 0;                // floats per row: view.width + kLanes
-  std::vector<float> y, u, v;         // row-major planes, stride * view.height
+  std::vector<TestSplat> splats;
+  uint32_t stride = 0;         // floats per row: view.width + kLanes
+  std::vector<float> y, u, v;  // row-major planes, stride * view.height
+  int blocks_x = 0, blocks_y = 0;
+  struct Run {
+    uint32_t begin, end;         // splats[begin, end)
+    int16_t bx0, bx1, by0, by1;  // blocks touched by them
+  };
+  std::vector<Run> runs;
 };
 
+// The cross-section of the point's Gaussian through its centre along the ray from `source`
+// (the camera that made it): its covariance conditioned on the position along the ray.
+void SurfaceFootprint(Point* p, const cv::Vec3d& source) {
+  const double d[3] = {p->x - source[0], p->y - source[1], p->z - source[2]};
+  const auto& c = p->cov;  // xx xy xz yy yz zz
+  const double vd[3] = {c[0] * d[0] + c[1] * d[1] + c[2] * d[2], c[1] * d[0] + c[3] * d[1] + c[4] * d[2],
+                        c[2] * d[0] + c[4] * d[1] + c[5] * d[2]};
+  const double s = d[0] * vd[0] + d[1] * vd[1] + d[2] * vd[2];
+  if (!(s > 0)) return;
+  const int ij[6][2] = {{0, 0}, {0, 1}, {0, 2}, {1, 1}, {1, 2}, {2, 2}};
+  for (int k = 0; k < 6; ++k) p->cov[static_cast<size_t>(k)] = static_cast<float>(c[static_cast<size_t>(k)] - vd[ij[k][0]] * vd[ij[k][1]] / s);
+}
+
 PreparedView Prepare(std::span<const Point> points, const ColourView& cv, size_t v,
-                     const PhotoConsistencyOptions& o, unsigned threads) {
+                     const PhotoConsistencyOptions& o, unsigned threads,
+                     const std::vector<std::pair<int, cv::Vec3d>>& sources) {
   PreparedView pv;
   const std::string where = "photo-consistency: view " + std::to_string(v);
   if (cv.camera == nullptr || cv.image.empty() || cv.image.type() != CV_8UC3) {
@@ -78,44 +113,52 @@ PreparedView Prepare(std::span<const Point> points, const ColourView& cv, size_t
   }
   pv.view = view.value();
   const unsigned w = pv.view.width, h = pv.view.height;
+  pv.blocks_x = static_cast<int>((w + kBlock - 1) / kBlock);
+  pv.blocks_y = static_cast<int>((h + kBlock - 1) / kBlock);
+  const float umax = static_cast<float>(w) - 0.5f, vmax = static_cast<float>(h) - 0.5f;
 
-  // Projection (the renderer's EWA set-up), chunked over threads.
-  const size_t chunk = 32768;
+  // Projection (the renderer's EWA set-up), chunked over threads, in the points' order.
+  const size_t chunk = 16384;
   const size_t chunks = (points.size() + chunk - 1) / chunk;
-  std::vector<std::vector<Splat>> parts(chunks);
-  std::vector<std::vector<uint32_t>> part_index(chunks);
+  std::vector<std::vector<TestSplat>> parts(chunks);
   ParallelFor(chunks, threads, [&](size_t c) {
     const size_t lo = c * chunk, hi = std::min(points.size(), lo + chunk);
-    Splat s;
+    render::internal::Splat s;
+    // The centre of each point's source camera, by Point::camera (a short list: a rig's cameras).
+    auto source = [&](uint16_t id) -> const cv::Vec3d* {
+      for (const auto& [sid, centre] : sources)
+        if (sid == id) return &centre;
+      return nullptr;
+    };
+    parts[c].reserve(hi - lo);
     for (size_t i = lo; i < hi; ++i) {
-      if (render::internal::ProjectSplat(points[i], pv.view, {}, &s)) {
-        parts[c].push_back(s);
-        part_index[c].push_back(static_cast<uint32_t>(i));
-      }
+      Point p = points[i];
+      if (p.flags & kFlagHasCovariance)
+        if (const cv::Vec3d* centre = source(p.camera)) SurfaceFootprint(&p, *centre);
+      if (!render::internal::ProjectSplat(p, pv.view, {}, &s)) continue;
+      // Only splats centred on the image are tested: one centred outside shows just its tail,
+      // whose colour says little about the point. Such splats still occlude.
+      const bool on = s.u >= -0.5f && s.u <= umax && s.v >= -0.5f && s.v <= vmax;
+      parts[c].push_back({s.u, s.v, s.ca, s.cb, s.cc, s.z, s.dzdx, s.dzdy, s.x0, s.x1, s.y0, s.y1,
+                          static_cast<uint32_t>(i), p.r, p.g, p.b, on});
     }
   });
   size_t total = 0;
-  for (const auto& p : parts) total += p.size();
-  std::vector<Splat> splats;
-  std::vector<uint32_t> index;
-  splats.reserve(total);
-  index.reserve(total);
-  for (size_t c = 0; c < chunks; ++c) {
-    splats.insert(splats.end(), parts[c].begin(), parts[c].end());
-    index.insert(index.end(), part_index[c].begin(), part_index[c].end());
-  }
-  parts.clear();
-  part_index.clear();
-
-  // Front to back (fig. 5.4, lines 3-6): by the depth of the splat centre.
-  std::vector<float> keys(splats.size());
-  for (size_t k = 0; k < splats.size(); ++k) keys[k] = splats[k].z;
-  const std::vector<uint32_t> order = render::internal::StableOrder(keys);
-  pv.splats.resize(splats.size());
-  pv.index.resize(splats.size());
-  for (size_t k = 0; k < order.size(); ++k) {
-    pv.splats[k] = splats[order[k]];
-    pv.index[k] = index[order[k]];
+  for (const auto& part : parts) total += part.size();
+  pv.splats.reserve(total);
+  for (auto& part : parts) {
+    if (part.empty()) continue;
+    PreparedView::Run run{static_cast<uint32_t>(pv.splats.size()), 0, INT16_MAX, INT16_MIN, INT16_MAX, INT16_MIN};
+    for (const TestSplat& s : part) {
+      run.bx0 = std::min<int16_t>(run.bx0, static_cast<int16_t>(s.x0 / kBlock));
+      run.bx1 = std::max<int16_t>(run.bx1, static_cast<int16_t>(s.x1 / kBlock));
+      run.by0 = std::min<int16_t>(run.by0, static_cast<int16_t>(s.y0 / kBlock));
+      run.by1 = std::max<int16_t>(run.by1, static_cast<int16_t>(s.y1 / kBlock));
+    }
+    pv.splats.insert(pv.splats.end(), part.begin(), part.end());
+    run.end = static_cast<uint32_t>(pv.splats.size());
+    pv.runs.push_back(run);
+    std::vector<TestSplat>().swap(part);
   }
 
   pv.stride = w + kLanes;
@@ -134,76 +177,102 @@ PreparedView Prepare(std::span<const Point> points, const ColourView& cv, size_t
   return pv;
 }
 
-// Fig. 5.4 for one view: updates keep and the counters. Each row of a splat is evaluated
-// eight pixels at a time (the CPU renderer's kernel arithmetic: render/simd.h; built for
-// AVX-512, AVX2 and the baseline, picked at load time), the same operations per pixel as the
-// scalar renderer's, e^x to within a unit or two of the last place, the sums in float lanes.
+// The columns of row y (dy = y - v) that can be inside the splat's cutoff ellipse, widened by
+// a pixel against rounding (the per-pixel test decides). False: the row misses it. A splat at
+// most two vectors wide takes its whole box: the square root and divisions cost more than the
+// vector they might save.
+HVDB_SIMD_INLINE bool RowSpan(const TestSplat& s, float dy, float cutoff2, int* xa, int* xb) {
+  if (s.x1 - s.x0 < static_cast<int>(2 * kLanes)) {
+    *xa = s.x0, *xb = s.x1;
+    return true;
+  }
+  const float b = s.cb * dy, cq = s.cc * dy * dy - cutoff2;
+  const float disc = b * b - s.ca * cq;
+  if (!(disc >= 0)) return false;
+  const float root = std::sqrt(disc);
+  *xa = std::max<int>(s.x0, static_cast<int>(std::floor(s.u + (-b - root) / s.ca)) - 1);
+  *xb = std::min<int>(s.x1, static_cast<int>(std::ceil(s.u + (-b + root) / s.ca)) + 1);
+  return true;
+}
+
+// The fuzzy z-buffer: the nearest fragment depth of the listed splats (all when `list` is
+// null) that are not removed, min-ed into zbuf. Order does not matter (a min).
 HVDB_RENDER_CLONES
-void TestView(std::span<const Point> points, const PreparedView& pv,
-              const PhotoConsistencyOptions& o, std::vector<uint8_t>* keep, size_t* tested,
-              size_t* removed, size_t* skipped) {
+void RasterDepth(const PreparedView& pv, const uint32_t* list, size_t n, const uint8_t* state,
+                 float* zbuf) {
   using F = F8;
-  using I = I8;
   using render::internal::Broadcast;
-  using render::internal::Load;
-  using render::internal::Select;
-  using render::internal::Store;
   const auto& view = pv.view;
   const uint32_t S = pv.stride;
-  const float inf = std::numeric_limits<float>::infinity();
-  std::vector<float> zbuf(size_t{S} * view.height, inf);
-  const float dz = view.depth_threshold;
-  const float umax = static_cast<float>(view.width) - 0.5f;
-  const float vmax = static_cast<float>(view.height) - 0.5f;
   const F iota = render::internal::VecTraits<F>::kIota;
-  // The current splat's fragment depths, one vector per eight pixels of a row (+inf outside
-  // its cutoff), and where each vector starts in the z-buffer: written when it is kept.
-  // (Floats, not vectors: std::vector does not align its storage for them.)
-  std::vector<float> frag_z;
-  std::vector<size_t> frag_at;
-  for (size_t k = 0; k < pv.splats.size(); ++k) {
-    const uint32_t i = pv.index[k];
-    if (!(*keep)[i]) continue;  // removed in an earlier view: no longer there to occlude
-    const Splat& s = pv.splats[k];
-    frag_z.clear();
-    frag_at.clear();
-    // Only splats centred on the image are tested: one centred outside shows just its tail,
-    // whose colour says little about the point. Such splats still occlude (below), which can
-    // only spare points behind them, the conservative side.
-    const bool on_image = s.u >= -0.5f && s.u <= umax && s.v >= -0.5f && s.v <= vmax;
-    const Point& p = points[i];
-    const Yuv c = ToYuv(p.r, p.g, p.b);
-    // Eq. 5.13 over the unoccluded fragments (xi = 1: within dz of the fuzzy z-buffer, or in
-    // front of it), and the alpha they carry for the normalisation.
-    // Summed in eight float lanes, added up in double per splat: a splat of a few hundred
-    // pixels keeps its sums to ~1e-6 relative, far below what the thresholds can tell apart
-    // (adding each row into doubles instead cost 23 % of the test's time on the SJTU frame).
-    F sa{}, sy{}, su{}, sv{};
+  const F inf = Broadcast<F>(std::numeric_limits<float>::infinity());
+  for (size_t k = 0; k < n; ++k) {
+    const uint32_t j = list ? list[k] : static_cast<uint32_t>(k);
+    if (state[j] == kRemoved) continue;
+    const TestSplat& s = pv.splats[j];
     for (int y = s.y0; y <= s.y1; ++y) {
       const float dy = static_cast<float>(y) - s.v;
-      // The row's span of the cutoff ellipse, widened by a pixel against rounding; the
-      // per-pixel test decides.
-      const float b = s.cb * dy, cq = s.cc * dy * dy - view.cutoff2;
-      const float disc = b * b - s.ca * cq;
-      if (!(disc >= 0)) continue;
-      const float root = std::sqrt(disc);
-      const int xa = std::max<int>(s.x0, static_cast<int>(std::floor(s.u + (-b - root) / s.ca)) - 1);
-      const int xb = std::min<int>(s.x1, static_cast<int>(std::ceil(s.u + (-b + root) / s.ca)) + 1);
-      const size_t rowbase = static_cast<size_t>(y) * S;
-      const F fdy = Broadcast<F>(dy);
+      int xa, xb;
+      if (!RowSpan(s, dy, view.cutoff2, &xa, &xb)) continue;
+      // q = ca dx^2 + 2 cb dx dy + cc dy^2 and z = z + dzdx dx + dzdy dy, the dy terms once.
+      const float qb = 2.0f * s.cb * dy, qc = s.cc * dy * dy, zr = s.z + s.dzdy * dy;
+      float* row = zbuf + static_cast<size_t>(y) * S;
       for (int x = xa; x <= xb; x += static_cast<int>(kLanes)) {
         const F fx = Broadcast<F>(static_cast<float>(x)) + iota;
         const F dx = fx - s.u;
-        const F q = s.ca * dx * dx + 2.0f * s.cb * dx * fdy + s.cc * fdy * fdy;
-        const I inside = (q <= view.cutoff2) & (fx <= static_cast<float>(xb));
-        F z = s.z + s.dzdx * dx + s.dzdy * fdy;
+        const F q = dx * (s.ca * dx + qb) + qc;
+        const I8 inside = (q <= view.cutoff2) & (fx <= static_cast<float>(xb));
+        F z = zr + s.dzdx * dx;
+        z = render::internal::Max(z, Broadcast<F>(0.f));
+        const F old = render::internal::Load<F>(row + x);
+        render::internal::Store(row + x, render::internal::Min(old, render::internal::Select(inside, z, inf)));
+      }
+    }
+  }
+}
+
+// Eq. 5.13 for the listed splats that are centred on the image and not removed, against the
+// z-buffer: sets their state (seen and kept, fully occluded, or removed) and appends the
+// removed ones to `removed`. Each row of a splat is evaluated eight pixels at a time (the CPU
+// renderer's kernel arithmetic: render/simd.h; built for AVX-512, AVX2 and the baseline,
+// picked at load time), the same operations per pixel as the scalar renderer's, e^x to within
+// a unit or two of the last place, the sums in float lanes.
+HVDB_RENDER_CLONES
+void TestSplats(const PreparedView& pv, const uint32_t* list, size_t n, const float* zbuf,
+                const PhotoConsistencyOptions& o, uint8_t* state, std::vector<uint32_t>* removed) {
+  using F = F8;
+  using render::internal::Broadcast;
+  using render::internal::Load;
+  using render::internal::Select;
+  const auto& view = pv.view;
+  const uint32_t S = pv.stride;
+  const float dz = view.depth_threshold;
+  const F iota = render::internal::VecTraits<F>::kIota;
+  for (size_t k = 0; k < n; ++k) {
+    const uint32_t j = list ? list[k] : static_cast<uint32_t>(k);
+    const TestSplat& s = pv.splats[j];
+    if (!s.on_image || state[j] == kRemoved) continue;
+    const Yuv c = ToYuv(s.r, s.g, s.b);
+    // Eq. 5.13 over the unoccluded fragments (xi = 1: within dz of the fuzzy z-buffer), and the
+    // alpha they carry for the normalisation. Summed in eight float lanes, added up in double
+    // per splat: a splat of a few hundred pixels keeps its sums to ~1e-6 relative, far below
+    // what the thresholds can tell apart.
+    F sa{}, sy{}, su{}, sv{};
+    for (int y = s.y0; y <= s.y1; ++y) {
+      const float dy = static_cast<float>(y) - s.v;
+      int xa, xb;
+      if (!RowSpan(s, dy, view.cutoff2, &xa, &xb)) continue;
+      const size_t rowbase = static_cast<size_t>(y) * S;
+      const float qb = 2.0f * s.cb * dy, qc = s.cc * dy * dy, zr = s.z + s.dzdy * dy;
+      for (int x = xa; x <= xb; x += static_cast<int>(kLanes)) {
+        const F fx = Broadcast<F>(static_cast<float>(x)) + iota;
+        const F dx = fx - s.u;
+        const F q = dx * (s.ca * dx + qb) + qc;
+        const I8 inside = (q <= view.cutoff2) & (fx <= static_cast<float>(xb));
+        F z = zr + s.dzdx * dx;
         z = render::internal::Max(z, Broadcast<F>(0.f));
         const size_t at = rowbase + static_cast<size_t>(x);
-        frag_z.resize(frag_z.size() + kLanes);
-        Store(&frag_z[frag_z.size() - kLanes], Select(inside, z, Broadcast<F>(inf)));
-        frag_at.push_back(at);
-        if (!on_image) continue;
-        const I seen = inside & ~(z > Load<F>(&zbuf[at]) + dz);  // not occluded (xi = 1)
+        const I8 seen = inside & ~(z > Load<F>(&zbuf[at]) + dz);  // not occluded (xi = 1)
         if (!render::internal::Any(seen)) continue;
         const F a = Select(seen, render::internal::Exp(q * -0.5f), Broadcast<F>(0.f));
         sa += a;
@@ -212,25 +281,136 @@ void TestView(std::span<const Point> points, const PreparedView& pv,
         sv += a * (Load<F>(&pv.v[at]) - c.v);
       }
     }
-    if (on_image) {
-      double sum_a = 0, sum_y = 0, sum_u = 0, sum_v = 0;
-      for (uint32_t l = 0; l < kLanes; ++l) sum_a += sa[l], sum_y += sy[l], sum_u += su[l], sum_v += sv[l];
-      if (!(sum_a > 0)) {
-        ++*skipped;  // fully occluded: not tested, and behind what is drawn already
-        continue;
-      }
-      ++*tested;
-      if (std::abs(sum_y / sum_a) > o.max_dy || std::abs(sum_u / sum_a) > o.max_du ||
-          std::abs(sum_v / sum_a) > o.max_dv) {
-        (*keep)[i] = 0;
-        ++*removed;
-        continue;
-      }
+    double sum_a = 0, sum_y = 0, sum_u = 0, sum_v = 0;
+    for (uint32_t l = 0; l < kLanes; ++l) sum_a += sa[l], sum_y += sy[l], sum_u += su[l], sum_v += sv[l];
+    if (!(sum_a > 0)) {
+      state[j] = kOccluded;  // fully occluded: not tested
+    } else if (std::abs(sum_y / sum_a) > o.max_dy || std::abs(sum_u / sum_a) > o.max_du ||
+               std::abs(sum_v / sum_a) > o.max_dv) {
+      state[j] = kRemoved;
+      removed->push_back(j);
+    } else {
+      state[j] = kSeen;
     }
-    // Kept: into the fuzzy z-buffer, so it occludes the splats behind it.
-    for (size_t f = 0; f < frag_at.size(); ++f)
-      Store(&zbuf[frag_at[f]], render::internal::Min(Load<F>(&zbuf[frag_at[f]]), Load<F>(&frag_z[kLanes * f])));
   }
+}
+
+// Which of a grid's cells are flagged, with a summed-area table for "any flagged in this
+// rectangle" in O(1).
+class BlockSet {
+ public:
+  BlockSet(int w, int h) : w_(w), h_(h), flag_(static_cast<size_t>(w) * h, 0) {}
+  void Mark(int x0, int x1, int y0, int y1) {
+    for (int y = std::max(0, y0); y <= std::min(h_ - 1, y1); ++y)
+      for (int x = std::max(0, x0); x <= std::min(w_ - 1, x1); ++x) flag_[Index(x, y)] = 1;
+  }
+  bool At(int x, int y) const { return flag_[Index(x, y)] != 0; }
+  void Clear(int x, int y) { flag_[Index(x, y)] = 0; }
+  void Finish() {
+    sat_.assign(static_cast<size_t>(w_ + 1) * (h_ + 1), 0);
+    for (int y = 0; y < h_; ++y)
+      for (int x = 0; x < w_; ++x)
+        sat_[Sat(x + 1, y + 1)] = flag_[Index(x, y)] + sat_[Sat(x, y + 1)] + sat_[Sat(x + 1, y)] - sat_[Sat(x, y)];
+  }
+  bool Any(int x0, int x1, int y0, int y1) const {
+    x0 = std::max(0, x0), y0 = std::max(0, y0), x1 = std::min(w_ - 1, x1), y1 = std::min(h_ - 1, y1);
+    if (x0 > x1 || y0 > y1) return false;
+    return sat_[Sat(x1 + 1, y1 + 1)] - sat_[Sat(x0, y1 + 1)] - sat_[Sat(x1 + 1, y0)] + sat_[Sat(x0, y0)] > 0;
+  }
+  int width() const { return w_; }
+  int height() const { return h_; }
+
+ private:
+  size_t Index(int x, int y) const { return static_cast<size_t>(y) * w_ + x; }
+  size_t Sat(int x, int y) const { return static_cast<size_t>(y) * (w_ + 1) + x; }
+  int w_, h_;
+  std::vector<uint8_t> flag_;
+  std::vector<int32_t> sat_;
+};
+
+// The splats that are not removed and reach a flagged block (flags finished).
+std::vector<uint32_t> SplatsReaching(const PreparedView& pv, const BlockSet& blocks,
+                                     const std::vector<uint8_t>& state) {
+  std::vector<uint32_t> out;
+  for (const PreparedView::Run& r : pv.runs) {
+    if (!blocks.Any(r.bx0, r.bx1, r.by0, r.by1)) continue;
+    for (uint32_t j = r.begin; j < r.end; ++j) {
+      const TestSplat& s = pv.splats[j];
+      if (state[j] != kRemoved &&
+          blocks.Any(s.x0 / kBlock, s.x1 / kBlock, s.y0 / kBlock, s.y1 / kBlock))
+        out.push_back(j);
+    }
+  }
+  return out;
+}
+
+struct ViewResult {
+  std::vector<uint32_t> removed_points;  // ascending
+  size_t tested = 0, occluded = 0;
+  int rounds = 0;
+};
+
+// Fig. 5.4 in one view, to a fixed point: the z-buffer of the splats not removed, every splat
+// centred on the image tested against it, and again where removals uncovered something, until
+// a round removes nothing (at most kMaxRounds).
+ViewResult RunView(const PreparedView& pv, const PhotoConsistencyOptions& o) {
+  ViewResult res;
+  const size_t n = pv.splats.size();
+  const uint32_t S = pv.stride, w = pv.view.width, h = pv.view.height;
+  std::vector<uint8_t> state(n, kUntested);
+  std::vector<float> zbuf(size_t{S} * h, std::numeric_limits<float>::infinity());
+  RasterDepth(pv, nullptr, n, state.data(), zbuf.data());
+  std::vector<uint32_t> removed;
+  TestSplats(pv, nullptr, n, zbuf.data(), o, state.data(), &removed);
+  std::vector<uint32_t> all_removed = removed;
+  res.rounds = 1;
+  std::vector<float> old;
+  while (!removed.empty() && res.rounds < PhotoConsistencyOptions::kMaxRounds) {
+    // The blocks the removed splats covered: their depths are redone from the splats left.
+    BlockSet dirty(pv.blocks_x, pv.blocks_y);
+    for (uint32_t j : removed) {
+      const TestSplat& s = pv.splats[j];
+      dirty.Mark(s.x0 / kBlock, s.x1 / kBlock, s.y0 / kBlock, s.y1 / kBlock);
+    }
+    dirty.Finish();
+    old = zbuf;
+    for (int by = 0; by < dirty.height(); ++by)
+      for (int bx = 0; bx < dirty.width(); ++bx) {
+        if (!dirty.At(bx, by)) continue;
+        for (uint32_t y = by * kBlock; y < std::min<uint32_t>(h, (by + 1) * kBlock); ++y)
+          std::fill_n(&zbuf[y * S + bx * kBlock], std::min<uint32_t>(kBlock, w - bx * kBlock),
+                      std::numeric_limits<float>::infinity());
+      }
+    // (A splat's depth written outside the dirty blocks is no news there: min is idempotent.)
+    std::vector<uint32_t> list = SplatsReaching(pv, dirty, state);
+    RasterDepth(pv, list.data(), list.size(), state.data(), zbuf.data());
+    // Where the nearest depth changed, the splats there see something new: test them again.
+    BlockSet changed(pv.blocks_x, pv.blocks_y);
+    bool any = false;
+    for (int by = 0; by < dirty.height(); ++by)
+      for (int bx = 0; bx < dirty.width(); ++bx) {
+        if (!dirty.At(bx, by)) continue;
+        bool diff = false;
+        for (uint32_t y = by * kBlock; y < std::min<uint32_t>(h, (by + 1) * kBlock) && !diff; ++y)
+          for (uint32_t x = bx * kBlock; x < std::min<uint32_t>(w, (bx + 1) * kBlock); ++x)
+            if (zbuf[y * S + x] != old[y * S + x]) diff = true;
+        if (diff) changed.Mark(bx, bx, by, by), any = true;
+      }
+    ++res.rounds;
+    removed.clear();
+    if (!any) break;
+    changed.Finish();
+    list = SplatsReaching(pv, changed, state);
+    TestSplats(pv, list.data(), list.size(), zbuf.data(), o, state.data(), &removed);
+    all_removed.insert(all_removed.end(), removed.begin(), removed.end());
+  }
+  for (size_t j = 0; j < n; ++j) {
+    res.tested += state[j] == kSeen || state[j] == kRemoved;
+    res.occluded += state[j] == kOccluded;
+  }
+  for (uint32_t j : all_removed) res.removed_points.push_back(pv.splats[j].point);
+  std::sort(res.removed_points.begin(), res.removed_points.end());
+  return res;
 }
 
 }  // namespace
@@ -251,19 +431,30 @@ std::vector<uint8_t> PhotoConsistencyMask(std::span<const Point> points,
     render::internal::LogWarning("photo-consistency: more than 2^32 - 1 points; nothing tested");
   }
   if (!too_many && !points.empty() && !views.empty()) {
-    // View v+1 is projected and sorted in the background while view v is tested; the prepare
-    // step does not read `keep`, so it never races with the test.
-    auto prepare = [&](size_t v) { return Prepare(points, views[v], v, options, threads); };
-    const auto policy = threads > 1 ? std::launch::async : std::launch::deferred;
-    std::future<PreparedView> next = std::async(policy, prepare, size_t{0});
+    // The views are independent: one per thread at a time (memory: one view's splats per
+    // thread); a view's projection gets the threads no view needs.
+    const unsigned outer = std::min<unsigned>(threads, static_cast<unsigned>(views.size()));
+    const unsigned inner = std::max(1u, threads / outer);
+    std::vector<std::pair<int, cv::Vec3d>> sources;
+    for (const ColourView& cv : views)
+      if (cv.camera != nullptr && cv.camera_id >= 0) sources.emplace_back(cv.camera_id, cv.camera->Centre());
+    std::vector<ViewResult> results(views.size());
+    ParallelFor(views.size(), outer, [&](size_t v) {
+      const PreparedView pv = Prepare(points, views[v], v, options, inner, sources);
+      if (pv.ok) results[v] = RunView(pv, options);
+    });
+    // A point is removed when any view rejects it; counted for the first view (in the order
+    // given) that does.
     for (size_t v = 0; v < views.size(); ++v) {
-      PreparedView cur = next.get();
-      if (v + 1 < views.size()) next = std::async(policy, prepare, v + 1);
-      if (!cur.ok) continue;
-      size_t removed = 0;
-      TestView(points, cur, options, &keep, &st.tested, &removed, &st.occluded_skips);
-      st.removed_per_view[v] = removed;
-      st.removed += removed;
+      for (uint32_t i : results[v].removed_points) {
+        if (!keep[i]) continue;
+        keep[i] = 0;
+        ++st.removed_per_view[v];
+        ++st.removed;
+      }
+      st.tested += results[v].tested;
+      st.occluded_skips += results[v].occluded;
+      st.rounds = std::max(st.rounds, results[v].rounds);
     }
   }
   st.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
