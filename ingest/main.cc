@@ -94,7 +94,7 @@ void RegisterRun(CLI::App& app, int* rc) {
     IngestOptions o;
     double y = 0.40, uv = 0.15;
     bool no_photo = false, quiet = false, no_geometric = false, no_photos = false;
-    std::string subpixel = "lm", filter = "none";
+    std::string subpixel = "auto", filter = "none";
     bool follow = false;
     FollowOptions f;
   };
@@ -126,8 +126,10 @@ void RegisterRun(CLI::App& app, int* rc) {
       ->check(CLI::Range(0, 8));
   CLI::Option* subpixel_opt = cmd->add_option("--subpixel", a->subpixel,
                   "stereo: none (integer disparities), parabola (through the costs around the "
-                  "winner) or lm (Levenberg-Marquardt on disparity and its gradients)")
-      ->capture_default_str()->check(CLI::IsMember({"none", "parabola", "lm"}));
+                  "winner), lm (Levenberg-Marquardt on disparity and its gradients) or auto: lm "
+                  "for a recording under structured light (its recording.yml's structured_light, "
+                  "1 by default), else parabola")
+      ->capture_default_str()->check(CLI::IsMember({"none", "parabola", "lm", "auto"}));
   cmd->add_option("--filter", a->filter,
                   "none, or billboard: each view's depth as a billboard in its colour camera "
                   "smoothed by the bilateral filter of thesis 6.2 over the frames around and the "
@@ -218,7 +220,11 @@ void RegisterRun(CLI::App& app, int* rc) {
       backend = std::move(b).value();
     }
     IngestOptions o = a->o;
-    ParseSubpixel(a->subpixel, &o.stereo.subpixel);  // checked by CLI11
+    if (a->subpixel == "auto") {
+      o.stereo.subpixel = rec->structured_light ? Subpixel::kLevenbergMarquardt : Subpixel::kParabola;
+    } else {
+      ParseSubpixel(a->subpixel, &o.stereo.subpixel);  // checked by CLI11
+    }
     if (a->filter == "billboard") {
       o.filter = IngestOptions::Filter::kBillboard;
       // The filter replaces the LM (thesis 6.5). Its input keeps the parabola's subpixel

@@ -69,6 +69,7 @@ struct PreparedView {
     int16_t bx0, bx1, by0, by1;  // blocks touched by them
   };
   std::vector<Run> runs;
+  size_t testable = 0;  // splats with on_image set
 };
 
 // The cross-section of the point's Gaussian through its centre along the ray from `source`
@@ -137,8 +138,10 @@ PreparedView Prepare(std::span<const Point> points, const ColourView& cv, size_t
         if (const cv::Vec3d* centre = source(p.camera)) SurfaceFootprint(&p, *centre);
       if (!render::internal::ProjectSplat(p, pv.view, {}, &s)) continue;
       // Only splats centred on the image are tested: one centred outside shows just its tail,
-      // whose colour says little about the point. Such splats still occlude.
-      const bool on = s.u >= -0.5f && s.u <= umax && s.v >= -0.5f && s.v <= vmax;
+      // whose colour says little about the point; nor a point in its own camera's view (see
+      // the header). Such splats still occlude.
+      const bool on = s.u >= -0.5f && s.u <= umax && s.v >= -0.5f && s.v <= vmax &&
+                      !(cv.camera_id >= 0 && p.camera == cv.camera_id);
       parts[c].push_back({s.u, s.v, s.ca, s.cb, s.cc, s.z, s.dzdx, s.dzdy, s.x0, s.x1, s.y0, s.y1,
                           static_cast<uint32_t>(i), p.r, p.g, p.b, on});
     }
@@ -150,6 +153,7 @@ PreparedView Prepare(std::span<const Point> points, const ColourView& cv, size_t
     if (part.empty()) continue;
     PreparedView::Run run{static_cast<uint32_t>(pv.splats.size()), 0, INT16_MAX, INT16_MIN, INT16_MAX, INT16_MIN};
     for (const TestSplat& s : part) {
+      pv.testable += s.on_image;
       run.bx0 = std::min<int16_t>(run.bx0, static_cast<int16_t>(s.x0 / kBlock));
       run.bx1 = std::max<int16_t>(run.bx1, static_cast<int16_t>(s.x1 / kBlock));
       run.by0 = std::min<int16_t>(run.by0, static_cast<int16_t>(s.y0 / kBlock));
@@ -357,6 +361,7 @@ ViewResult RunView(const PreparedView& pv, const PhotoConsistencyOptions& o) {
   ViewResult res;
   const size_t n = pv.splats.size();
   const uint32_t S = pv.stride, w = pv.view.width, h = pv.view.height;
+  if (pv.testable == 0) return res;  // nothing to test here (e.g. one camera's own points)
   std::vector<uint8_t> state(n, kUntested);
   std::vector<float> zbuf(size_t{S} * h, std::numeric_limits<float>::infinity());
   RasterDepth(pv, nullptr, n, state.data(), zbuf.data());
@@ -438,8 +443,24 @@ std::vector<uint8_t> PhotoConsistencyMask(std::span<const Point> points,
     std::vector<std::pair<int, cv::Vec3d>> sources;
     for (const ColourView& cv : views)
       if (cv.camera != nullptr && cv.camera_id >= 0) sources.emplace_back(cv.camera_id, cv.camera->Centre());
+    // A view in which every point is its own camera's has nothing to test: not even projected.
+    std::vector<std::pair<int, size_t>> made_by;  // Point::camera -> points
+    for (const Point& p : points) {
+      auto it = std::find_if(made_by.begin(), made_by.end(), [&](const auto& m) { return m.first == p.camera; });
+      if (it == made_by.end()) {
+        made_by.emplace_back(p.camera, 1);
+      } else {
+        ++it->second;
+      }
+    }
+    auto own = [&](const ColourView& cv) -> size_t {
+      for (const auto& [id, n] : made_by)
+        if (cv.camera_id >= 0 && id == cv.camera_id) return n;
+      return 0;
+    };
     std::vector<ViewResult> results(views.size());
     ParallelFor(views.size(), outer, [&](size_t v) {
+      if (own(views[v]) == points.size()) return;
       const PreparedView pv = Prepare(points, views[v], v, options, inner, sources);
       if (pv.ok) results[v] = RunView(pv, options);
     });

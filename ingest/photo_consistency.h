@@ -35,6 +35,11 @@
 //    a point is removed when any view rejects it: the result does not depend on the order of the
 //    views (fig. 5.4's sequential order does: a point removed by one view stopped hiding others
 //    in the next), and the views run in parallel.
+//  - A point is not tested in the view of the camera that made it (ColourView::camera_id =
+//    Point::camera): its colour is that image's pixel under its centre, so the test there can
+//    only reject it for the texture within its footprint (a colour edge), never for being
+//    misplaced, which is what the test is for. It still occludes there. With one camera (an
+//    RGB-D recording) nothing is left to test.
 //  - Points behind the camera (nearer than the renderer's near plane, 1 cm) or whose splat
 //    centre falls off the image are not tested in that view: a splat centred off the image
 //    shows only its tail, too little to judge the point by. Such a splat still occludes what

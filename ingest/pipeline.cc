@@ -697,32 +697,30 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
     }
   }
 
-  // Workers -> bounded queue of finished frames -> this thread commits.
+  // Each worker prepares a frame and commits it: each frame is one atomic bulk load, so frames
+  // go in in any order and a resumed run skips exactly those that are in. Loads into new frames
+  // build their trees on the committing thread (Database::BulkLoad), so commits of different
+  // frames overlap as their preparation does. A remote backend has one connection: its commits
+  // take turns (the server builds the trees). This thread reports.
   const FrameLoader load = [&](int w) -> Result<std::shared_ptr<const FrameInput>> {
     HVDB_ASSIGN_OR_RETURN(FrameInput f, LoadFrame(rec, w, opt.skip_invalid));
     return std::make_shared<const FrameInput>(std::move(f));
   };
-  std::mutex mu;
-  std::condition_variable cv_space, cv_ready;
-  std::deque<PreparedFrame> ready;
+  struct Done {
+    int index = 0;
+    Status prepared, committed;
+    uint64_t loaded = 0, bytes = 0;
+  };
+  std::mutex mu, remote_mu;
+  std::condition_variable cv_done;
+  std::deque<Done> done;
   std::atomic<size_t> next{0};
   std::atomic<bool> stop{false};
-  int in_flight = 0;  // claimed and not yet committed (bounds memory)
+  const bool one_connection = backend.remote();
   auto worker = [&] {
     while (!stop) {
-      {
-        std::unique_lock lk(mu);
-        cv_space.wait(lk, [&] { return stop || in_flight < opt.max_in_flight; });
-        if (stop) return;
-        ++in_flight;
-      }
       const size_t k = next++;
-      if (k >= pending.size()) {
-        std::lock_guard lk(mu);
-        --in_flight;
-        cv_ready.notify_all();
-        return;
-      }
+      if (k >= pending.size()) return;
       const int i = pending[k];
       FrameReport& fr = reports[static_cast<size_t>(i - opt.first)];
       // With the spacetime matcher or the billboard filter, the frames on either side too
@@ -730,9 +728,25 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
       const int st = proc.window_radius();
       PreparedFrame d = PrepareFrame(rec, proc, opt, i, std::max(0, i - st),
                                      std::min(rec.frames - 1, i + st), load, &fr);
+      Done r;
+      r.index = i;
+      r.prepared = d.status;
+      r.bytes = d.bytes;
+      if (d.status.ok() && !stop) {
+        std::unique_lock<std::mutex> turn(remote_mu, std::defer_lock);
+        if (one_connection) turn.lock();
+        auto loaded = CommitFrame(backend, opt, std::move(d), &fr);
+        if (loaded.ok()) {
+          r.loaded = *loaded;
+        } else {
+          r.committed = loaded.status();
+        }
+      } else if (d.status.ok()) {
+        continue;  // stopping: not committed, not reported
+      }
       std::lock_guard lk(mu);
-      ready.push_back(std::move(d));
-      cv_ready.notify_all();
+      done.push_back(std::move(r));
+      cv_done.notify_all();
     }
   };
   std::vector<std::thread> threads;
@@ -743,54 +757,39 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
   const int total = static_cast<int>(pending.size());
   if (opt.progress) Progress(0, total, 0, false);
   while (handled < pending.size()) {
-    PreparedFrame d;
+    Done r;
     {
       std::unique_lock lk(mu);
-      cv_ready.wait(lk, [&] { return !ready.empty(); });
-      d = std::move(ready.front());
-      ready.pop_front();
+      cv_done.wait(lk, [&] { return !done.empty(); });
+      r = std::move(done.front());
+      done.pop_front();
     }
-    FrameReport& fr = reports[static_cast<size_t>(d.index - opt.first)];
-    if (d.status.ok()) {
-      const int index = d.index;
-      const uint64_t bytes = d.bytes;
-      auto loaded = CommitFrame(backend, opt, std::move(d), &fr);
-      if (!loaded.ok()) {
-        failure = Status(loaded.status().code(), "frame " + std::to_string(index) + ": commit: " +
-                                                     loaded.status().message());
-      } else {
-        ++report.ingested;
-        report.points += *loaded;
-        report.skipped_invalid += fr.skipped_invalid;
-        report.bytes_read += bytes;
-      }
-    } else {
+    FrameReport& fr = reports[static_cast<size_t>(r.index - opt.first)];
+    if (!r.prepared.ok()) {
       fr.status = "skipped";
-      fr.error = d.status.ToString();
+      fr.error = r.prepared.ToString();
       if (!opt.skip_bad_frames) {
-        failure = Status(d.status.code(),
-                         "frame " + std::to_string(d.index) + ": " + d.status.message() +
+        failure = Status(r.prepared.code(),
+                         "frame " + std::to_string(r.index) + ": " + r.prepared.message() +
                              " (--skip-bad-frames goes on without it)");
       } else {
         ++report.skipped;
-        if (opt.progress) std::fprintf(stderr, "\nskipped frame %d: %s\n", d.index, fr.error.c_str());
+        if (opt.progress) std::fprintf(stderr, "\nskipped frame %d: %s\n", r.index, fr.error.c_str());
       }
-    }
-    {
-      std::lock_guard lk(mu);
-      --in_flight;
-      if (!failure.ok()) stop = true;
-      cv_space.notify_all();
+    } else if (!r.committed.ok()) {
+      failure = Status(r.committed.code(), "frame " + std::to_string(r.index) + ": commit: " +
+                                               r.committed.message());
+    } else {
+      ++report.ingested;
+      report.points += r.loaded;
+      report.skipped_invalid += fr.skipped_invalid;
+      report.bytes_read += r.bytes;
     }
     ++handled;
     if (opt.progress) Progress(static_cast<int>(handled), total, MsSince(t_start) / 1000, false);
     if (!failure.ok()) break;
   }
-  {
-    std::lock_guard lk(mu);
-    stop = true;
-    cv_space.notify_all();
-  }
+  stop = true;
   for (auto& t : threads) t.join();
   if (opt.progress) Progress(static_cast<int>(handled), total, MsSince(t_start) / 1000, true);
   if (!failure.ok()) return failure;

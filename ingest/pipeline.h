@@ -6,9 +6,9 @@
 //           (5.9-5.12); merge the bricks; photo-consistency cleaning in every colour camera (5.3)
 //   depth   per camera: undistort, probabilistic points; merge; photo-consistency cleaning
 //   ply     the file's points as they are
-// and one atomic bulk load per frame. Workers process frames in parallel; one committer writes
-// them as they complete, so the slowest stage never waits behind I/O, and at most
-// `max_in_flight` finished frames wait in memory.
+// and one atomic bulk load per frame. Workers process frames in parallel and each commits the
+// frame it made (the trees of new frames are built on the committing thread, so commits
+// overlap too); one frame per worker is in memory.
 //
 // Resumable: frames already present in the dataset are skipped, so an ingest killed at any
 // moment and started again continues with the frames not yet committed; a frame is never
@@ -40,7 +40,7 @@ struct IngestOptions {
   uint32_t frame_offset = 0;   // recording frame i goes to dataset frame frame_offset + i
   int first = 0, count = -1;   // recording frames [first, first + count); -1 = to the end
   int workers = 0;             // 0 = hardware threads
-  int max_in_flight = 0;       // finished frames waiting for the committer; 0 = workers + 1
+  int max_in_flight = 0;       // live ingest (follow.cc): finished frames waiting; 0 = workers + 1
   StereoParams stereo;         // threads = 0: hardware threads / workers
   // stereo: frames on either side matched together with each frame by the spacetime matcher
   // (thesis 3.4; for projector patterns that change over time); -1: the recording's

@@ -143,6 +143,13 @@ Result<Recording> OpenRecording(const std::string& dir) {
                                        std::to_string(r.spacetime));
       }
     }
+    if (r.kind == RecordingKind::kStereo && !f["structured_light"].empty()) {
+      int sl = 1;
+      f["structured_light"] >> sl;
+      if (sl != 0 && sl != 1)
+        return Status::InvalidArgument(yml + ": structured_light must be 0 or 1, got " + std::to_string(sl));
+      r.structured_light = sl == 1;
+    }
     if (r.kind == RecordingKind::kPly) {
       r.ply = ReadString(f["ply"]);
       if (r.ply.empty()) r.ply = "frames/{frame:06d}.ply";
@@ -239,6 +246,7 @@ Status SaveRecording(const Recording& r) {
     f << "format" << "hvdb-recording" << "version" << 1 << "kind" << KindName(r.kind) << "frames"
       << r.frames << "fps" << r.fps << "first_frame" << r.first_frame << "frame_step" << r.frame_step;
     if (r.kind == RecordingKind::kStereo && r.spacetime > 0) f << "spacetime" << r.spacetime;
+    if (r.kind == RecordingKind::kStereo && !r.structured_light) f << "structured_light" << 0;
     if (r.kind == RecordingKind::kPly) {
       if (!r.ply.empty()) f << "ply" << r.ply;
       f << "ply_scale" << r.ply_scale;

@@ -291,6 +291,7 @@ Result<DisparityMap> Match(const std::vector<cv::Mat>& lefts_in, const std::vect
     zr[f] = Prefilter(rights[f], params.window);
   }
 
+  const auto t_bands = Clock::now();
   const int H = lefts[0].rows, W = lefts[0].cols;
   const int D = params.num_disparities, dmin = params.min_disparity;
   const int dp = (D + kChunk - 1) / kChunk * kChunk;
@@ -448,13 +449,19 @@ Result<DisparityMap> Match(const std::vector<cv::Mat>& lefts_in, const std::vect
       lap(t, ns[4]);
     }
   });
-  auto per = [&](int i) { return ns[i].load() / 1e6 / nthreads; };
-  tm.cost_ms = per(0);
-  tm.aggregate_ms = per(1);
-  tm.min_filter_ms = per(2);
-  tm.wta_ms = per(3);
-  tm.cross_check_ms = per(4);
   auto t5 = Clock::now();
+  tm.prepare_ms = Ms(t_start, t_bands);
+  {
+    const double wall = Ms(t_bands, t5);
+    double sum = 0;
+    for (const auto& v : ns) sum += static_cast<double>(v.load());
+    auto share = [&](int i) { return sum > 0 ? wall * static_cast<double>(ns[i].load()) / sum : 0.0; };
+    tm.cost_ms = share(0);
+    tm.aggregate_ms = share(1);
+    tm.min_filter_ms = share(2);
+    tm.wta_ms = share(3);
+    tm.cross_check_ms = share(4);
+  }
 
   const float inf = std::numeric_limits<float>::infinity();
   out.d.create(H, W, CV_32F);

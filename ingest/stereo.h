@@ -45,10 +45,13 @@ struct StereoParams {
   Status Validate(const cv::Size& image_size) const;   // clear errors for out-of-range params
 };
 
-// Milliseconds per stage of one MatchStereo / MatchSpacetime call.
+// Wall-clock milliseconds per stage of one MatchStereo / MatchSpacetime call; the stages add
+// up to total_ms. prepare: grey conversion and the prefilter; S1-S4 and the cross-check run
+// interleaved on all threads (band by band), so their wall time is split among them in
+// proportion to the threads' time in each.
 struct StereoTiming {
-  double cost_ms = 0, aggregate_ms = 0, min_filter_ms = 0, wta_ms = 0, cross_check_ms = 0,
-         subpixel_ms = 0, total_ms = 0;
+  double prepare_ms = 0, cost_ms = 0, aggregate_ms = 0, min_filter_ms = 0, wta_ms = 0,
+         cross_check_ms = 0, subpixel_ms = 0, total_ms = 0;
 };
 
 struct DisparityMap {

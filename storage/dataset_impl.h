@@ -155,7 +155,10 @@ class DatasetImpl {
   Status MergeOnce(uint32_t frame);
   Status Install(const Merge& m);  // as leader
   void Retire(uint32_t frame, const std::shared_ptr<KdTree>& tree);  // as leader
-  Status BulkLocked(uint32_t frame, std::vector<Point>* points);      // as leader
+  // As leader. `prebuilt`: the points' tree built before (BulkLoad), for slot `slot` of an
+  // empty frame; used if the frame is still empty, else read back and built again.
+  Status BulkLocked(uint32_t frame, std::vector<Point>* points, std::shared_ptr<KdTree> prebuilt,
+                    size_t slot);
   Status PersistFrame(const FrameVersion& v);                          // as leader
   Status CheckpointLocked();                                           // as leader
   void WakeMerger();
@@ -220,6 +223,9 @@ struct DatasetImpl::WriteRequest {
   uint64_t revert_lsn = 0;
   uint32_t frame = 0;
   std::vector<Point>* points = nullptr;
+  uint64_t bulk_count = 0;               // kBulk: the points loaded
+  std::shared_ptr<KdTree> prebuilt;      // kBulk into an empty frame: its tree, built already
+  size_t prebuilt_slot = 0;
   const Merge* merge = nullptr;
   bool done = false;
   Status status;

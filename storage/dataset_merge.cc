@@ -213,7 +213,8 @@ void DatasetImpl::Retire(uint32_t frame, const std::shared_ptr<KdTree>& tree) {
   }
 }
 
-Status DatasetImpl::BulkLocked(uint32_t frame, std::vector<Point>* points) {
+Status DatasetImpl::BulkLocked(uint32_t frame, std::vector<Point>* points,
+                               std::shared_ptr<KdTree> prebuilt, size_t slot) {
   // Unsynced commits (Options::sync off) become durable first, so that a power loss keeps a
   // prefix of what was acknowledged.
   if (!opts_.sync) HVDB_RETURN_IF_ERROR(wal_->Sync());
@@ -221,12 +222,32 @@ Status DatasetImpl::BulkLocked(uint32_t frame, std::vector<Point>* points) {
   FrameVersion v;
   if (cur) v = *cur;
   v.frame = frame;
-  for (Point& p : *points) {
-    if (p.id == 0) p.id = next_id_++;
+  std::shared_ptr<KdTree> tree;
+  size_t i = 0;
+  uint64_t loaded = points->size();
+  if (prebuilt) {
+    // Built for the empty frame: still right if nothing came into the frame meanwhile.
+    const bool empty = v.t0.size() == 0 && std::none_of(v.slots.begin(), v.slots.end(),
+                                                        [](const TreeSlot& t) { return t.tree != nullptr; });
+    loaded = prebuilt->header().point_count;
+    if (empty) {
+      tree = std::move(prebuilt);
+      i = slot;
+    } else {
+      points->clear();
+      Status read = prebuilt->ReadAll(points);
+      prebuilt->MarkObsolete();
+      HVDB_RETURN_IF_ERROR(read);
+    }
   }
-  const uint64_t loaded = points->size();
-  const size_t i = TargetSlot(v, points->size());
-  HVDB_ASSIGN_OR_RETURN(auto tree, BuildMerged(v, i, std::move(*points), /*sync=*/true));
+  if (!tree) {
+    for (Point& p : *points) {
+      if (p.id == 0) p.id = next_id_++;
+    }
+    loaded = points->size();
+    i = TargetSlot(v, points->size());
+    HVDB_ASSIGN_OR_RETURN(tree, BuildMerged(v, i, std::move(*points), /*sync=*/true));
+  }
   FrameVersion nv = v;
   std::vector<std::shared_ptr<KdTree>> merged;
   for (size_t j = 0; j < i && j < nv.slots.size(); ++j) {

@@ -392,8 +392,31 @@ Result<uint64_t> DatasetImpl::BulkLoad(uint32_t frame, std::vector<Point> points
   w.kind = WriteRequest::Kind::kBulk;
   w.frame = frame;
   w.points = &points;
-  HVDB_ASSIGN_OR_RETURN(CommitInfo info, Submit(&w));
-  return info.inserted;
+  w.bulk_count = points.size();
+  // Into a frame that holds nothing yet (ingest fills new frames) the tree is built here,
+  // before the writer queue, so that loads of different frames build their trees at once on
+  // their callers' threads; the queue only installs it (BulkLocked). The ids go into the tree,
+  // so they are taken first.
+  auto cur = Snapshot(frame);
+  const bool empty = cur == nullptr || (cur->t0.size() == 0 &&
+                                        std::none_of(cur->slots.begin(), cur->slots.end(),
+                                                     [](const TreeSlot& t) { return t.tree != nullptr; }));
+  if (empty && !follower_.load() && !points.empty()) {
+    const uint64_t fresh = static_cast<uint64_t>(
+        std::count_if(points.begin(), points.end(), [](const Point& p) { return p.id == 0; }));
+    uint64_t id = next_id_.fetch_add(fresh);
+    for (Point& p : points)
+      if (p.id == 0) p.id = id++;
+    FrameVersion none;
+    none.frame = frame;
+    w.prebuilt_slot = TargetSlot(none, points.size());
+    HVDB_ASSIGN_OR_RETURN(w.prebuilt, BuildMerged(none, w.prebuilt_slot, std::move(points), /*sync=*/true));
+    points.clear();
+  }
+  auto submitted = Submit(&w);
+  if (!submitted.ok() && w.prebuilt) w.prebuilt->MarkObsolete();
+  HVDB_RETURN_IF_ERROR(submitted.status());
+  return submitted->inserted;
 }
 
 Status DatasetImpl::Checkpoint() {
@@ -667,8 +690,9 @@ void DatasetImpl::LeadGroup(std::vector<WriteRequest*>& group) {
     case Kind::kCheckpoint: first->status = CheckpointLocked(); return;
     case Kind::kInstall: first->status = Install(*first->merge); return;
     case Kind::kBulk:
-      first->info.inserted = first->points->size();
-      first->status = BulkLocked(first->frame, first->points);
+      first->info.inserted = first->bulk_count;
+      first->status = BulkLocked(first->frame, first->points, std::move(first->prebuilt),
+                                 first->prebuilt_slot);
       return;
     default: LeadCommits(group);
   }

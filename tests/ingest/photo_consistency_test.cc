@@ -428,8 +428,8 @@ std::vector<uint8_t> ReferenceMask(const std::vector<Point>& pts, const std::vec
         const auto& sp = splats[k];
         const bool on_image = sp.u >= -0.5f && sp.u <= view->width - 0.5f && sp.v >= -0.5f &&
                               sp.v <= view->height - 0.5f;
-        if (!alive[k] || !on_image) continue;
         const Point& p = pts[index[k]];
+        if (!alive[k] || !on_image || (cv.camera_id >= 0 && p.camera == cv.camera_id)) continue;
         const double py = 0.299 * p.r / 255 + 0.587 * p.g / 255 + 0.114 * p.b / 255;
         const double pu = (p.b / 255.0 - py) / 1.772, pv = (p.r / 255.0 - py) / 1.402;
         double sa = 0, dy = 0, du = 0, dv = 0;
