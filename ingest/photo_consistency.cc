@@ -1,6 +1,8 @@
 #include "ingest/photo_consistency.h"
 
 #include <algorithm>
+#include <array>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -74,25 +76,34 @@ struct PreparedView {
 
 // The cross-section of the point's Gaussian through its centre along the ray from `source`
 // (the camera that made it): its covariance conditioned on the position along the ray.
-void SurfaceFootprint(Point* p, const cv::Vec3d& source) {
-  const double d[3] = {p->x - source[0], p->y - source[1], p->z - source[2]};
-  const auto& c = p->cov;  // xx xy xz yy yz zz
+std::array<float, 6> SurfaceFootprint(const Point& p, const cv::Vec3d& source) {
+  const double d[3] = {p.x - source[0], p.y - source[1], p.z - source[2]};
+  const auto& c = p.cov;  // xx xy xz yy yz zz
   const double vd[3] = {c[0] * d[0] + c[1] * d[1] + c[2] * d[2], c[1] * d[0] + c[3] * d[1] + c[4] * d[2],
                         c[2] * d[0] + c[4] * d[1] + c[5] * d[2]};
   const double s = d[0] * vd[0] + d[1] * vd[1] + d[2] * vd[2];
-  if (!(s > 0)) return;
+  if (!(s > 0)) return c;
   const int ij[6][2] = {{0, 0}, {0, 1}, {0, 2}, {1, 1}, {1, 2}, {2, 2}};
-  for (int k = 0; k < 6; ++k) p->cov[static_cast<size_t>(k)] = static_cast<float>(c[static_cast<size_t>(k)] - vd[ij[k][0]] * vd[ij[k][1]] / s);
+  std::array<float, 6> out;
+  for (int k = 0; k < 6; ++k)
+    out[static_cast<size_t>(k)] = static_cast<float>(c[static_cast<size_t>(k)] - vd[ij[k][0]] * vd[ij[k][1]] / s);
+  return out;
 }
 
-PreparedView Prepare(std::span<const Point> points, const ColourView& cv, size_t v,
-                     const PhotoConsistencyOptions& o, unsigned threads,
-                     const std::vector<std::pair<int, cv::Vec3d>>& sources) {
-  PreparedView pv;
+// Prepares view v into *out, reusing its buffers (a thread tests view after view: fresh
+// buffers per view cost as much in page faults as the projection). `covs`: the covariance
+// each point is splatted with (its surface footprint), or empty for the points' own.
+void Prepare(std::span<const Point> points, std::span<const std::array<float, 6>> covs,
+             const ColourView& cv, size_t v, const PhotoConsistencyOptions& o, unsigned threads,
+             PreparedView* out) {
+  PreparedView& pv = *out;
+  pv.ok = false;
+  pv.runs.clear();
+  pv.testable = 0;
   const std::string where = "photo-consistency: view " + std::to_string(v);
   if (cv.camera == nullptr || cv.image.empty() || cv.image.type() != CV_8UC3) {
     render::internal::LogWarning(where + " skipped: it needs a camera and a CV_8UC3 image");
-    return pv;
+    return;
   }
   render::Camera cam = cv.camera->ToRenderCamera();
   render::RenderOptions ro;
@@ -110,7 +121,7 @@ PreparedView Prepare(std::span<const Point> points, const ColourView& cv, size_t
   if (!view.ok()) {
     render::internal::LogWarning(where + " (camera '" + cv.camera->name +
                                  "') skipped: " + view.status().ToString());
-    return pv;
+    return;
   }
   pv.view = view.value();
   const unsigned w = pv.view.width, h = pv.view.height;
@@ -118,51 +129,47 @@ PreparedView Prepare(std::span<const Point> points, const ColourView& cv, size_t
   pv.blocks_y = static_cast<int>((h + kBlock - 1) / kBlock);
   const float umax = static_cast<float>(w) - 0.5f, vmax = static_cast<float>(h) - 0.5f;
 
-  // Projection (the renderer's EWA set-up), chunked over threads, in the points' order.
+  // Projection (the renderer's EWA set-up), chunked over threads, in the points' order. Each
+  // chunk of points writes its splats from its own start on: the runs skip the gaps.
   const size_t chunk = 16384;
   const size_t chunks = (points.size() + chunk - 1) / chunk;
-  std::vector<std::vector<TestSplat>> parts(chunks);
+  if (pv.splats.size() < points.size()) pv.splats.resize(points.size());
+  std::vector<uint32_t> made(chunks, 0);
   ParallelFor(chunks, threads, [&](size_t c) {
     const size_t lo = c * chunk, hi = std::min(points.size(), lo + chunk);
     render::internal::Splat s;
-    // The centre of each point's source camera, by Point::camera (a short list: a rig's cameras).
-    auto source = [&](uint16_t id) -> const cv::Vec3d* {
-      for (const auto& [sid, centre] : sources)
-        if (sid == id) return &centre;
-      return nullptr;
-    };
-    parts[c].reserve(hi - lo);
+    TestSplat* at = pv.splats.data() + lo;
     for (size_t i = lo; i < hi; ++i) {
       Point p = points[i];
-      if (p.flags & kFlagHasCovariance)
-        if (const cv::Vec3d* centre = source(p.camera)) SurfaceFootprint(&p, *centre);
+      if (!covs.empty()) p.cov = covs[i];
       if (!render::internal::ProjectSplat(p, pv.view, {}, &s)) continue;
       // Only splats centred on the image are tested: one centred outside shows just its tail,
       // whose colour says little about the point; nor a point in its own camera's view (see
       // the header). Such splats still occlude.
       const bool on = s.u >= -0.5f && s.u <= umax && s.v >= -0.5f && s.v <= vmax &&
                       !(cv.camera_id >= 0 && p.camera == cv.camera_id);
-      parts[c].push_back({s.u, s.v, s.ca, s.cb, s.cc, s.z, s.dzdx, s.dzdy, s.x0, s.x1, s.y0, s.y1,
-                          static_cast<uint32_t>(i), p.r, p.g, p.b, on});
+      *at++ = {s.u, s.v, s.ca, s.cb, s.cc, s.z, s.dzdx, s.dzdy, s.x0, s.x1, s.y0, s.y1,
+               static_cast<uint32_t>(i), p.r, p.g, p.b, on};
     }
+    made[c] = static_cast<uint32_t>(at - (pv.splats.data() + lo));
   });
-  size_t total = 0;
-  for (const auto& part : parts) total += part.size();
-  pv.splats.reserve(total);
-  for (auto& part : parts) {
-    if (part.empty()) continue;
-    PreparedView::Run run{static_cast<uint32_t>(pv.splats.size()), 0, INT16_MAX, INT16_MIN, INT16_MAX, INT16_MIN};
-    for (const TestSplat& s : part) {
-      pv.testable += s.on_image;
-      run.bx0 = std::min<int16_t>(run.bx0, static_cast<int16_t>(s.x0 / kBlock));
-      run.bx1 = std::max<int16_t>(run.bx1, static_cast<int16_t>(s.x1 / kBlock));
-      run.by0 = std::min<int16_t>(run.by0, static_cast<int16_t>(s.y0 / kBlock));
-      run.by1 = std::max<int16_t>(run.by1, static_cast<int16_t>(s.y1 / kBlock));
+  // Runs of at most 256 splats: small enough that a later round passes over most of them
+  // by their box alone (SplatsReaching).
+  constexpr uint32_t kRun = 256;
+  for (size_t c = 0; c < chunks; ++c) {
+    const auto lo = static_cast<uint32_t>(c * chunk);
+    for (uint32_t b = lo; b < lo + made[c]; b += kRun) {
+      PreparedView::Run run{b, std::min(lo + made[c], b + kRun), INT16_MAX, INT16_MIN, INT16_MAX, INT16_MIN};
+      for (uint32_t j = run.begin; j < run.end; ++j) {
+        const TestSplat& s = pv.splats[j];
+        pv.testable += s.on_image;
+        run.bx0 = std::min<int16_t>(run.bx0, static_cast<int16_t>(s.x0 / kBlock));
+        run.bx1 = std::max<int16_t>(run.bx1, static_cast<int16_t>(s.x1 / kBlock));
+        run.by0 = std::min<int16_t>(run.by0, static_cast<int16_t>(s.y0 / kBlock));
+        run.by1 = std::max<int16_t>(run.by1, static_cast<int16_t>(s.y1 / kBlock));
+      }
+      pv.runs.push_back(run);
     }
-    pv.splats.insert(pv.splats.end(), part.begin(), part.end());
-    run.end = static_cast<uint32_t>(pv.splats.size());
-    pv.runs.push_back(run);
-    std::vector<TestSplat>().swap(part);
   }
 
   pv.stride = w + kLanes;
@@ -178,7 +185,6 @@ PreparedView Prepare(std::span<const Point> points, const ColourView& cv, size_t
     }
   });
   pv.ok = true;
-  return pv;
 }
 
 // The columns of row y (dy = y - v) that can be inside the splat's cutoff ellipse, widened by
@@ -199,11 +205,11 @@ HVDB_SIMD_INLINE bool RowSpan(const TestSplat& s, float dy, float cutoff2, int* 
   return true;
 }
 
-// The fuzzy z-buffer: the nearest fragment depth of the listed splats (all when `list` is
-// null) that are not removed, min-ed into zbuf. Order does not matter (a min).
+// The fuzzy z-buffer: the nearest fragment depth of the listed splats (splats [first,
+// first + n) when `list` is null) that are not removed, min-ed into zbuf. Order does not matter (a min).
 HVDB_RENDER_CLONES
-void RasterDepth(const PreparedView& pv, const uint32_t* list, size_t n, const uint8_t* state,
-                 float* zbuf) {
+void RasterDepth(const PreparedView& pv, const uint32_t* list, size_t n, uint32_t first,
+                 const uint8_t* state, float* zbuf) {
   using F = F8;
   using render::internal::Broadcast;
   const auto& view = pv.view;
@@ -211,7 +217,7 @@ void RasterDepth(const PreparedView& pv, const uint32_t* list, size_t n, const u
   const F iota = render::internal::VecTraits<F>::kIota;
   const F inf = Broadcast<F>(std::numeric_limits<float>::infinity());
   for (size_t k = 0; k < n; ++k) {
-    const uint32_t j = list ? list[k] : static_cast<uint32_t>(k);
+    const uint32_t j = list ? list[k] : first + static_cast<uint32_t>(k);
     if (state[j] == kRemoved) continue;
     const TestSplat& s = pv.splats[j];
     for (int y = s.y0; y <= s.y1; ++y) {
@@ -242,8 +248,9 @@ void RasterDepth(const PreparedView& pv, const uint32_t* list, size_t n, const u
 // picked at load time), the same operations per pixel as the scalar renderer's, e^x to within
 // a unit or two of the last place, the sums in float lanes.
 HVDB_RENDER_CLONES
-void TestSplats(const PreparedView& pv, const uint32_t* list, size_t n, const float* zbuf,
-                const PhotoConsistencyOptions& o, uint8_t* state, std::vector<uint32_t>* removed) {
+void TestSplats(const PreparedView& pv, const uint32_t* list, size_t n, uint32_t first,
+                const float* zbuf, const PhotoConsistencyOptions& o, uint8_t* state,
+                std::vector<uint32_t>* removed) {
   using F = F8;
   using render::internal::Broadcast;
   using render::internal::Load;
@@ -253,7 +260,7 @@ void TestSplats(const PreparedView& pv, const uint32_t* list, size_t n, const fl
   const float dz = view.depth_threshold;
   const F iota = render::internal::VecTraits<F>::kIota;
   for (size_t k = 0; k < n; ++k) {
-    const uint32_t j = list ? list[k] : static_cast<uint32_t>(k);
+    const uint32_t j = list ? list[k] : first + static_cast<uint32_t>(k);
     const TestSplat& s = pv.splats[j];
     if (!s.on_image || state[j] == kRemoved) continue;
     const Yuv c = ToYuv(s.r, s.g, s.b);
@@ -364,9 +371,10 @@ ViewResult RunView(const PreparedView& pv, const PhotoConsistencyOptions& o) {
   if (pv.testable == 0) return res;  // nothing to test here (e.g. one camera's own points)
   std::vector<uint8_t> state(n, kUntested);
   std::vector<float> zbuf(size_t{S} * h, std::numeric_limits<float>::infinity());
-  RasterDepth(pv, nullptr, n, state.data(), zbuf.data());
+  for (const PreparedView::Run& r : pv.runs) RasterDepth(pv, nullptr, r.end - r.begin, r.begin, state.data(), zbuf.data());
   std::vector<uint32_t> removed;
-  TestSplats(pv, nullptr, n, zbuf.data(), o, state.data(), &removed);
+  for (const PreparedView::Run& r : pv.runs)
+    TestSplats(pv, nullptr, r.end - r.begin, r.begin, zbuf.data(), o, state.data(), &removed);
   std::vector<uint32_t> all_removed = removed;
   res.rounds = 1;
   std::vector<float> old;
@@ -388,7 +396,7 @@ ViewResult RunView(const PreparedView& pv, const PhotoConsistencyOptions& o) {
       }
     // (A splat's depth written outside the dirty blocks is no news there: min is idempotent.)
     std::vector<uint32_t> list = SplatsReaching(pv, dirty, state);
-    RasterDepth(pv, list.data(), list.size(), state.data(), zbuf.data());
+    RasterDepth(pv, list.data(), list.size(), 0, state.data(), zbuf.data());
     // Where the nearest depth changed, the splats there see something new: test them again.
     BlockSet changed(pv.blocks_x, pv.blocks_y);
     bool any = false;
@@ -406,12 +414,14 @@ ViewResult RunView(const PreparedView& pv, const PhotoConsistencyOptions& o) {
     if (!any) break;
     changed.Finish();
     list = SplatsReaching(pv, changed, state);
-    TestSplats(pv, list.data(), list.size(), zbuf.data(), o, state.data(), &removed);
+    TestSplats(pv, list.data(), list.size(), 0, zbuf.data(), o, state.data(), &removed);
     all_removed.insert(all_removed.end(), removed.begin(), removed.end());
   }
-  for (size_t j = 0; j < n; ++j) {
-    res.tested += state[j] == kSeen || state[j] == kRemoved;
-    res.occluded += state[j] == kOccluded;
+  for (const PreparedView::Run& r : pv.runs) {
+    for (uint32_t j = r.begin; j < r.end; ++j) {
+      res.tested += state[j] == kSeen || state[j] == kRemoved;
+      res.occluded += state[j] == kOccluded;
+    }
   }
   for (uint32_t j : all_removed) res.removed_points.push_back(pv.splats[j].point);
   std::sort(res.removed_points.begin(), res.removed_points.end());
@@ -440,9 +450,24 @@ std::vector<uint8_t> PhotoConsistencyMask(std::span<const Point> points,
     // thread); a view's projection gets the threads no view needs.
     const unsigned outer = std::min<unsigned>(threads, static_cast<unsigned>(views.size()));
     const unsigned inner = std::max(1u, threads / outer);
+    // Each point's surface footprint (see the header), once for all views.
     std::vector<std::pair<int, cv::Vec3d>> sources;
     for (const ColourView& cv : views)
       if (cv.camera != nullptr && cv.camera_id >= 0) sources.emplace_back(cv.camera_id, cv.camera->Centre());
+    std::vector<std::array<float, 6>> covs;
+    if (!sources.empty()) {
+      covs.resize(points.size());
+      const size_t chunk = 65536;
+      ParallelFor((points.size() + chunk - 1) / chunk, threads, [&](size_t c) {
+        for (size_t i = c * chunk; i < std::min(points.size(), (c + 1) * chunk); ++i) {
+          const Point& p = points[i];
+          covs[i] = p.cov;
+          if (!(p.flags & kFlagHasCovariance)) continue;
+          for (const auto& [id, centre] : sources)
+            if (id == p.camera) covs[i] = SurfaceFootprint(p, centre);
+        }
+      });
+    }
     // A view in which every point is its own camera's has nothing to test: not even projected.
     std::vector<std::pair<int, size_t>> made_by;  // Point::camera -> points
     for (const Point& p : points) {
@@ -459,11 +484,19 @@ std::vector<uint8_t> PhotoConsistencyMask(std::span<const Point> points,
       return 0;
     };
     std::vector<ViewResult> results(views.size());
-    ParallelFor(views.size(), outer, [&](size_t v) {
-      if (own(views[v]) == points.size()) return;
-      const PreparedView pv = Prepare(points, views[v], v, options, inner, sources);
-      if (pv.ok) results[v] = RunView(pv, options);
-    });
+    std::atomic<size_t> next{0};
+    auto work = [&] {
+      PreparedView pv;  // this thread's buffers, view after view
+      for (size_t v = next++; v < views.size(); v = next++) {
+        if (own(views[v]) == points.size()) continue;
+        Prepare(points, covs, views[v], v, options, inner, &pv);
+        if (pv.ok) results[v] = RunView(pv, options);
+      }
+    };
+    std::vector<std::thread> pool;
+    for (unsigned t = 1; t < outer; ++t) pool.emplace_back(work);
+    work();
+    for (auto& t : pool) t.join();
     // A point is removed when any view rejects it; counted for the first view (in the order
     // given) that does.
     for (size_t v = 0; v < views.size(); ++v) {

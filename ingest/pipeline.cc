@@ -416,14 +416,46 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
       cv::Mat d = Undistort(v.model, v.depth, /*nearest=*/true);
       return opt_.edge_radius > 0 ? RemoveDepthEdges(d, opt_.edge_jump, opt_.edge_radius) : d;
     };
+    // Without the billboard filter the views are independent: their points are made on all
+    // cores at once, then merged in camera order (deterministic).
+    struct Made {
+      cv::Mat depth, colour;
+      std::vector<Point> pts;
+    };
+    std::vector<Made> made(in.depth.size());
+    if (!billboard) {
+      auto t0 = Clock::now();
+      std::atomic<size_t> next{0};
+      auto work = [&] {
+        for (size_t j = next++; j < in.depth.size(); j = next++) {
+          const DepthFrameView& v = in.depth[j];
+          const CameraModel pin = Pinhole(v.model);
+          DepthView dv;
+          dv.camera = &pin;
+          dv.depth = made[j].depth = depth_of(v);
+          dv.colour = made[j].colour = Undistort(v.model, v.colour);
+          dv.camera_id = static_cast<uint16_t>(v.camera);
+          made[j].pts = PointsFromDepth(dv, po);
+        }
+      };
+      std::vector<std::thread> pool;
+      const int n = std::min<int>(StageThreads(), static_cast<int>(in.depth.size()));
+      for (int t = 1; t < n; ++t) pool.emplace_back(work);
+      work();
+      for (auto& t : pool) t.join();
+      size_t total = points.size();
+      for (const Made& m : made) total += m.pts.size();
+      points.reserve(total);
+      rep->stage_ms["points"] += MsSince(t0);
+    }
     for (size_t j = 0; j < in.depth.size(); ++j) {
       const DepthFrameView& v = in.depth[j];
       auto t0 = Clock::now();
       const CameraModel pin = Pinhole(v.model);
       DepthView dv;
       dv.camera = &pin;
-      dv.depth = depth_of(v);
-      dv.colour = Undistort(v.model, v.colour);
+      dv.depth = billboard ? depth_of(v) : made[j].depth;
+      dv.colour = billboard ? Undistort(v.model, v.colour) : made[j].colour;
       dv.camera_id = static_cast<uint16_t>(v.camera);
       valid += ValidPct(dv.depth);
       ++views;
@@ -447,8 +479,8 @@ Result<std::vector<Point>> FrameProcessor::Process(const FrameInput& in, FrameRe
         rep->stage_ms["points"] += MsSince(t0);
         continue;
       }
-      std::vector<Point> pts = PointsFromDepth(dv, po);
-      points.insert(points.end(), pts.begin(), pts.end());
+      points.insert(points.end(), made[j].pts.begin(), made[j].pts.end());
+      std::vector<Point>().swap(made[j].pts);
       depth_models.push_back(pin);
       depth_maps.push_back(dv.depth);
       depth_ids.push_back(dv.camera_id);

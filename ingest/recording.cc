@@ -1,6 +1,9 @@
 #include "ingest/recording.h"
 
+#include <atomic>
 #include <cmath>
+#include <functional>
+#include <thread>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -322,6 +325,27 @@ Result<cv::Mat> LoadDepth(const Recording& r, const std::string& path, const cv:
 
 }  // namespace
 
+namespace {
+
+// fn(k) for the cameras k = 0..n-1 on all cores (decoding a camera's images is independent of
+// the others'); the first error in camera order.
+Status ForEachCamera(size_t n, const std::function<Status(size_t)>& fn) {
+  std::vector<Status> st(n);
+  std::atomic<size_t> next{0};
+  auto work = [&] {
+    for (size_t k = next++; k < n; k = next++) st[k] = fn(k);
+  };
+  const size_t threads = std::min<size_t>(n, std::max(1u, std::thread::hardware_concurrency()));
+  std::vector<std::thread> pool;
+  for (size_t t = 1; t < threads; ++t) pool.emplace_back(work);
+  work();
+  for (auto& t : pool) t.join();
+  for (const Status& s : st) HVDB_RETURN_IF_ERROR(s);
+  return Status::OK();
+}
+
+}  // namespace
+
 Result<FrameInput> LoadFrame(const Recording& r, int index, bool skip_invalid) {
   if (index < 0 || index >= r.frames)
     return Status::InvalidArgument("frame " + std::to_string(index) + " is outside the recording (0.." +
@@ -349,7 +373,9 @@ Result<FrameInput> LoadFrame(const Recording& r, int index, bool skip_invalid) {
     return in;
   }
   if (r.kind == RecordingKind::kStereo) {
-    for (size_t b = 0; b < cal.bricks.size(); ++b) {
+    std::vector<StereoView> views(cal.bricks.size());
+    std::vector<uint64_t> bytes(cal.bricks.size(), 0);
+    const Status loaded = ForEachCamera(cal.bricks.size(), [&](size_t b) -> Status {
       const Brick& brick = cal.bricks[b];
       const CameraFiles& cf = r.files[b];
       StereoView v;
@@ -363,12 +389,18 @@ Result<FrameInput> LoadFrame(const Recording& r, int index, bool skip_invalid) {
       HVDB_RETURN_IF_ERROR(CheckSize(v.left, cal.cameras[brick.left].size, lp, cal.cameras[brick.left].name));
       HVDB_RETURN_IF_ERROR(CheckSize(v.right, cal.cameras[brick.right].size, rp, cal.cameras[brick.right].name));
       HVDB_RETURN_IF_ERROR(CheckSize(v.colour, cal.cameras[brick.colour].size, cp, cal.cameras[brick.colour].name));
-      in.bytes_read += size_of(lp) + size_of(rp) + size_of(cp);
-      in.stereo.push_back(std::move(v));
-    }
+      bytes[b] = size_of(lp) + size_of(rp) + size_of(cp);
+      views[b] = std::move(v);
+      return Status::OK();
+    });
+    HVDB_RETURN_IF_ERROR(loaded);
+    for (size_t b = 0; b < views.size(); ++b) in.bytes_read += bytes[b], in.stereo.push_back(std::move(views[b]));
     return in;
   }
-  for (const auto& cf : r.files) {
+  std::vector<DepthFrameView> views(r.files.size());
+  std::vector<uint64_t> bytes(r.files.size(), 0);
+  const Status loaded = ForEachCamera(r.files.size(), [&](size_t k) -> Status {
+    const CameraFiles& cf = r.files[k];
     DepthFrameView v;
     v.camera = cal.Find(cf.camera);
     v.model = cal.cameras[static_cast<size_t>(v.camera)];
@@ -390,13 +422,16 @@ Result<FrameInput> LoadFrame(const Recording& r, int index, bool skip_invalid) {
       const cv::Vec3d centre(cw(0, 3) * r.world_scale, cw(1, 3) * r.world_scale, cw(2, 3) * r.world_scale);
       v.model.R = rcw.t();
       v.model.T = -(v.model.R * centre);
-      in.bytes_read += size_of(pp);
+      bytes[k] += size_of(pp);
     } else if (r.world_scale != 1.0) {
       v.model.T *= r.world_scale;
     }
-    in.bytes_read += size_of(cp) + size_of(dp);
-    in.depth.push_back(std::move(v));
-  }
+    bytes[k] += size_of(cp) + size_of(dp);
+    views[k] = std::move(v);
+    return Status::OK();
+  });
+  HVDB_RETURN_IF_ERROR(loaded);
+  for (size_t k = 0; k < views.size(); ++k) in.bytes_read += bytes[k], in.depth.push_back(std::move(views[k]));
   return in;
 }
 
