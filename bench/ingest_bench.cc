@@ -596,10 +596,19 @@ int main(int argc, char** argv) {
   app.add_option("--scratch", scratch, "scratch directory (default: $TMPDIR/ingest-bench-PID)");
   app.add_flag("--quick", quick, "small sizes for a CI smoke run");
   app.add_flag("--keep-scratch", keep, "leave the scratch directory");
+  std::string write_recordings;
+  app.add_option("--write-recordings", write_recordings,
+                 "only write the recording.yml/calibration.yml of the real sequences (rec-7scenes, "
+                 "rec-shelf, rec-sjtu, rec-panoptic) into this folder, for timing whole "
+                 "hvdb-ingest commands (bench/ingest_targets.py), and exit");
   std::vector<std::string> parts = {"generated", "billboard", "real"};
   app.add_option("--parts", parts, "which parts to run")
       ->capture_default_str()->check(CLI::IsMember({"generated", "billboard", "real"}));
   CLI11_PARSE(app, argc, argv);
+  if (!write_recordings.empty()) {
+    for (const RealSet& s : DescribeRealSets(write_recordings, quick)) std::printf("%s\n", s.dir.c_str());
+    return 0;
+  }
   if (scratch.empty()) {
     const char* t = std::getenv("TMPDIR");
     scratch = std::string(t && *t ? t : "/tmp") + "/ingest-bench-" + std::to_string(::getpid());

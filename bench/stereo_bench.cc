@@ -93,6 +93,7 @@ struct Pair {
   std::string set, name;
   cv::Mat left, right, gt, mask;
   int ndisp = 0;
+  std::string left_path, right_path;  // the image files (bench/ingest_targets.py runs the command on them)
 };
 
 // Middlebury 2014 (quarter size): im0/im1.png, disp0GT.pfm, mask0nocc.png, calib.txt's ndisp.
@@ -108,7 +109,8 @@ std::vector<Pair> Load2014(const std::string& data) {
     const std::string dir = data + "/" + scene + "/";
     Pair p{"2014", scene, cv::imread(dir + "im0.png", cv::IMREAD_COLOR),
            cv::imread(dir + "im1.png", cv::IMREAD_COLOR), {},
-           cv::imread(dir + "mask0nocc.png", cv::IMREAD_GRAYSCALE), ReadNdisp(dir + "calib.txt")};
+           cv::imread(dir + "mask0nocc.png", cv::IMREAD_GRAYSCALE), ReadNdisp(dir + "calib.txt"),
+           dir + "im0.png", dir + "im1.png"};
     auto gt = hvdb::formats::ReadPfm(dir + "disp0GT.pfm");
     if (p.left.empty() || p.right.empty() || p.mask.empty() || !gt.ok() || p.ndisp <= 0) {
       std::fprintf(stderr, "stereo-bench: cannot read scene %s (%s)\n", dir.c_str(),
@@ -152,8 +154,10 @@ std::vector<Pair> Load2001to2006(const std::string& data) {
     Pair p;
     p.set = "2001-2006";
     p.name = scene;
-    p.left = cv::imread(dir + lay->left, cv::IMREAD_COLOR);
-    p.right = cv::imread(dir + lay->right, cv::IMREAD_COLOR);
+    p.left_path = dir + lay->left;
+    p.right_path = dir + lay->right;
+    p.left = cv::imread(p.left_path, cv::IMREAD_COLOR);
+    p.right = cv::imread(p.right_path, cv::IMREAD_COLOR);
     cv::Mat gl = cv::imread(dir + lay->gt_left, cv::IMREAD_GRAYSCALE), gr;
     if (lay->gt_right) gr = cv::imread(dir + lay->gt_right, cv::IMREAD_GRAYSCALE);
     if (p.left.empty() || p.right.empty() || gl.empty() || (lay->gt_right && gr.empty())) {
@@ -337,7 +341,8 @@ int main(int argc, char** argv) {
                        {"repetitions", reps},
                        {"params", {{"numerator", pre + "hvdb.time"}, {"denominator", pre + "sgbm.time"},
                                    {"numerator_median", om}, {"denominator_median", sm}}}});
-    table.push_back({{"set", pair.set}, {"scene", scene}, {"width", l.cols}, {"height", l.rows}, {"ndisp", ndisp},
+    table.push_back({{"set", pair.set}, {"scene", scene}, {"left", pair.left_path}, {"right", pair.right_path},
+                     {"width", l.cols}, {"height", l.rows}, {"ndisp", ndisp},
                      {"hvdb", {{"bad1", so.bad1}, {"bad2", so.bad2}, {"density", so.density},
                                {"bad2_valid", so.bad2_valid}, {"ms", om},
                                {"stages_ms", {{"cost", Median(st_cost)}, {"aggregate", Median(st_agg)},

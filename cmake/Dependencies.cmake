@@ -12,6 +12,10 @@ if(HVDB_BUILD_INGEST)
 else()
   find_package(OpenCV REQUIRED COMPONENTS core imgproc imgcodecs calib3d)
 endif()
+# libpng and libjpeg for formats/image_decode.cc: `hvdb-ingest stereo` reads its pair without
+# OpenCV's imgcodecs and the ~120 shared libraries it loads (GDAL's formats).
+find_package(PNG REQUIRED)
+find_package(JPEG REQUIRED)
 find_package(draco REQUIRED)
 find_package(OpenEXR REQUIRED)
 find_package(glm REQUIRED)

@@ -448,26 +448,6 @@ std::vector<uint8_t> PhotoConsistencyMask(std::span<const Point> points,
   if (!too_many && !points.empty() && !views.empty()) {
     // The views are independent: one per thread at a time (memory: one view's splats per
     // thread); a view's projection gets the threads no view needs.
-    const unsigned outer = std::min<unsigned>(threads, static_cast<unsigned>(views.size()));
-    const unsigned inner = std::max(1u, threads / outer);
-    // Each point's surface footprint (see the header), once for all views.
-    std::vector<std::pair<int, cv::Vec3d>> sources;
-    for (const ColourView& cv : views)
-      if (cv.camera != nullptr && cv.camera_id >= 0) sources.emplace_back(cv.camera_id, cv.camera->Centre());
-    std::vector<std::array<float, 6>> covs;
-    if (!sources.empty()) {
-      covs.resize(points.size());
-      const size_t chunk = 65536;
-      ParallelFor((points.size() + chunk - 1) / chunk, threads, [&](size_t c) {
-        for (size_t i = c * chunk; i < std::min(points.size(), (c + 1) * chunk); ++i) {
-          const Point& p = points[i];
-          covs[i] = p.cov;
-          if (!(p.flags & kFlagHasCovariance)) continue;
-          for (const auto& [id, centre] : sources)
-            if (id == p.camera) covs[i] = SurfaceFootprint(p, centre);
-        }
-      });
-    }
     // A view in which every point is its own camera's has nothing to test: not even projected.
     std::vector<std::pair<int, size_t>> made_by;  // Point::camera -> points
     for (const Point& p : points) {
@@ -483,12 +463,35 @@ std::vector<uint8_t> PhotoConsistencyMask(std::span<const Point> points,
         if (cv.camera_id >= 0 && id == cv.camera_id) return n;
       return 0;
     };
+    std::vector<size_t> todo;
+    for (size_t v = 0; v < views.size(); ++v)
+      if (own(views[v]) < points.size()) todo.push_back(v);
+    const unsigned outer = std::max(1u, std::min<unsigned>(threads, static_cast<unsigned>(todo.size())));
+    const unsigned inner = std::max(1u, threads / outer);
+    // Each point's surface footprint (see the header), once for all views.
+    std::vector<std::pair<int, cv::Vec3d>> sources;
+    for (const ColourView& cv : views)
+      if (cv.camera != nullptr && cv.camera_id >= 0) sources.emplace_back(cv.camera_id, cv.camera->Centre());
+    std::vector<std::array<float, 6>> covs;
+    if (!sources.empty() && !todo.empty()) {
+      covs.resize(points.size());
+      const size_t chunk = 65536;
+      ParallelFor((points.size() + chunk - 1) / chunk, threads, [&](size_t c) {
+        for (size_t i = c * chunk; i < std::min(points.size(), (c + 1) * chunk); ++i) {
+          const Point& p = points[i];
+          covs[i] = p.cov;
+          if (!(p.flags & kFlagHasCovariance)) continue;
+          for (const auto& [id, centre] : sources)
+            if (id == p.camera) covs[i] = SurfaceFootprint(p, centre);
+        }
+      });
+    }
     std::vector<ViewResult> results(views.size());
     std::atomic<size_t> next{0};
     auto work = [&] {
       PreparedView pv;  // this thread's buffers, view after view
-      for (size_t v = next++; v < views.size(); v = next++) {
-        if (own(views[v]) == points.size()) continue;
+      for (size_t k = next++; k < todo.size(); k = next++) {
+        const size_t v = todo[k];
         Prepare(points, covs, views[v], v, options, inner, &pv);
         if (pv.ok) results[v] = RunView(pv, options);
       }

@@ -57,6 +57,27 @@ TEST(Recording, GeneratedStereoRecordingLoads) {
   ASSERT_FALSE(bad.ok());
   EXPECT_NE(bad.status().message().find("spacetime must be 0..8"), std::string::npos)
       << bad.status().ToString();
+  // Under structured light by default (the generator's stripes); natural texture survives a
+  // save, and anything but 0 or 1 is a clear error.
+  EXPECT_TRUE(rec->structured_light);
+  again->spacetime = 1;
+  again->structured_light = false;
+  ASSERT_TRUE(SaveRecording(*again).ok());
+  auto natural = OpenRecording(dir / "rec");
+  ASSERT_TRUE(natural.ok()) << natural.status().ToString();
+  EXPECT_FALSE(natural->structured_light);
+  {
+    std::ifstream in(dir / "rec/recording.yml");
+    std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    const auto at = text.find("structured_light: 0");
+    ASSERT_NE(at, std::string::npos) << text;
+    text.replace(at, 19, "structured_light: 2");
+    std::ofstream(dir / "rec/recording.yml") << text;
+  }
+  auto wrong = OpenRecording(dir / "rec");
+  ASSERT_FALSE(wrong.ok());
+  EXPECT_NE(wrong.status().message().find("structured_light must be 0 or 1"), std::string::npos)
+      << wrong.status().ToString();
 }
 
 // A PLY frame with NaN or infinite coordinates is a bad frame that names the file and

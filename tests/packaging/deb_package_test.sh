@@ -10,7 +10,7 @@ trap 'rm -rf "$out"' EXIT
 (cd "$build" && cpack -G DEB -B "$out" >/dev/null 2>&1)
 deb=$(ls "$out"/hvdb_*_amd64.deb)
 contents=$(dpkg-deb -c "$deb")
-for f in ./usr/bin/hvdb ./usr/bin/hvdb-server ./usr/bin/hvdb-ingest ./usr/bin/hvdb-codec \
+for f in ./usr/bin/hvdb ./usr/bin/hvdb-server ./usr/bin/hvdb-ingest ./usr/bin/hvdb-ingest-all ./usr/bin/hvdb-codec \
          ./usr/lib/python3/dist-packages/hvdb/__init__.py \
          ./usr/lib/python3/dist-packages/hvdb/__init__.pyi \
          ./usr/lib/systemd/system/hvdb-server.service ./etc/hvdb/hvdb-server.conf \
