@@ -13,6 +13,7 @@
 
 #include "formats/pfm.h"
 #include "ingest/stereo.h"
+#include "tests/run_command.h"
 
 namespace hvdb::ingest {
 namespace {
@@ -346,6 +347,46 @@ TEST(Stereo, MiddleburyTeddyBadPixelRate) {
   // regression that would put us behind SGBM here.
   EXPECT_LT(bad2, 0.12);
   EXPECT_GT(density, 0.93);
+}
+
+}  // namespace
+}  // namespace hvdb::ingest
+
+namespace hvdb::ingest {
+namespace {
+
+// `hvdb-ingest stereo` (the launcher, with its own PNG reader) writes exactly what the matcher
+// gives in process with the parabola (the default for a pair without --structured-light), and
+// runs LM with --structured-light; the other subcommands reach hvdb-ingest-all.
+TEST(StereoCommand, WritesTheMatchersDisparitiesAndHandsTheRestOn) {
+  const std::string dir = std::string(HVDB_SHARED_DATA) + "/middlebury-2014-quarter/trainingQ/Teddy/";
+  const std::string out = ::testing::TempDir() + "/hvdb-stereo-cmd.pfm";
+  auto run = testing::RunCommand(std::string(HVDB_INGEST_PATH) + " stereo " + dir + "im0.png " + dir +
+                                 "im1.png --out " + out + " --num-disparities 64");
+  ASSERT_EQ(run.code, 0) << run.out;
+  EXPECT_NE(run.out.find("subpixel: parabola (auto: natural texture)"), std::string::npos) << run.out;
+  auto got = formats::ReadPfm(out);
+  ASSERT_TRUE(got.ok()) << got.status().ToString();
+  StereoParams p;
+  p.num_disparities = 64;
+  p.subpixel = Subpixel::kParabola;
+  auto want = MatchStereo(cv::imread(dir + "im0.png"), cv::imread(dir + "im1.png"), p);
+  ASSERT_TRUE(want.ok());
+  ASSERT_EQ(got->size(), want->d.size());
+  cv::Mat diff = (*got != want->d) & (*got == *got);  // NaN-free maps: +inf equals +inf
+  EXPECT_EQ(cv::countNonZero(diff), 0);
+  auto lm = testing::RunCommand(std::string(HVDB_INGEST_PATH) + " stereo " + dir + "im0.png " + dir +
+                                "im1.png --out " + out + " --num-disparities 64 --structured-light");
+  EXPECT_EQ(lm.code, 0) << lm.out;
+  EXPECT_NE(lm.out.find("subpixel: lm (auto: structured light)"), std::string::npos) << lm.out;
+  auto bad = testing::RunCommand(std::string(HVDB_INGEST_PATH) + " stereo " + dir + "nothing.png " + dir +
+                                 "im1.png --out " + out);
+  EXPECT_EQ(bad.code, 1);
+  EXPECT_NE(bad.out.find("nothing.png: no such file"), std::string::npos) << bad.out;
+  auto help = testing::RunCommand(std::string(HVDB_INGEST_PATH) + " --help");
+  EXPECT_EQ(help.code, 0);
+  EXPECT_NE(help.out.find("run"), std::string::npos) << help.out;
+  EXPECT_NE(help.out.find("Usage: hvdb-ingest"), std::string::npos) << help.out;
 }
 
 }  // namespace
