@@ -179,16 +179,31 @@ void BoxRow(const uint16_t* in, int w, int dp, int r, uint16_t* out, std::vector
 }
 
 // S3, horizontal half: out[x] = min of in[x - r .. x + r] within the row (a window hanging
-// over the border holds the same values as the clamped one, so the range is just cut).
-void MinRow(const uint16_t* in, int w, int dp, int r, uint16_t* out) {
+// over the border holds the same values as the clamped one, so the range is just cut). By a
+// sparse table: level q holds the minimum of 2^q consecutive columns, so any window is the
+// minimum of two entries of one level: log2(2r + 1) passes over the row and one query each,
+// instead of 2r passes (9 x 9 windows: 4 instead of 8; exact either way).
+void MinRow(const uint16_t* in, int w, int dp, int r, uint16_t* out, std::vector<uint16_t>& table) {
+  const size_t n = static_cast<size_t>(w) * dp;
+  int levels = 0;
+  while ((2 << levels) <= 2 * r + 1) ++levels;  // 2^levels <= 2r + 1 < 2^(levels + 1)
+  table.resize(n * static_cast<size_t>(levels));
+  auto level = [&](int q) -> const uint16_t* { return q == 0 ? in : table.data() + n * static_cast<size_t>(q - 1); };
+  for (int q = 1; q <= levels; ++q) {
+    const uint16_t* prev = level(q - 1);
+    uint16_t* cur = table.data() + n * static_cast<size_t>(q - 1);
+    const size_t half = static_cast<size_t>(1) << (q - 1);
+    const size_t valid = static_cast<size_t>(w) >= 2 * half ? (static_cast<size_t>(w) - 2 * half + 1) * dp : 0;
+    for (size_t i = 0; i < valid; ++i) cur[i] = std::min(prev[i], prev[i + half * dp]);
+  }
   for (int x = 0; x < w; ++x) {
     const int a = std::max(x - r, 0), b = std::min(x + r, w - 1);
+    int q = 0;
+    while ((2 << q) <= b - a + 1) ++q;
+    const uint16_t* p0 = level(q) + static_cast<size_t>(a) * dp;
+    const uint16_t* p1 = level(q) + static_cast<size_t>(b + 1 - (1 << q)) * dp;
     uint16_t* o = out + static_cast<size_t>(x) * dp;
-    std::copy(in + static_cast<size_t>(a) * dp, in + static_cast<size_t>(a + 1) * dp, o);
-    for (int i = a + 1; i <= b; ++i) {
-      const uint16_t* p = in + static_cast<size_t>(i) * dp;
-      for (int k = 0; k < dp; ++k) o[k] = std::min(o[k], p[k]);
-    }
+    for (int k = 0; k < dp; ++k) o[k] = std::min(p0[k], p1[k]);
   }
 }
 
@@ -321,7 +336,7 @@ Result<DisparityMap> Match(const std::vector<cv::Mat>& lefts_in, const std::vect
   ParallelBands(nthreads, nthreads, [&](int, int) {
     CostRowWorkspace ws;
     Volume cost, agg;  // this thread's band volumes, reused
-    std::vector<uint16_t> acc16, tmp;
+    std::vector<uint16_t> acc16, tmp, min_table;
     std::vector<uint32_t> acc;
     std::vector<int> kr(W);
     const size_t n = static_cast<size_t>(W) * dp;
@@ -379,7 +394,7 @@ Result<DisparityMap> Match(const std::vector<cv::Mat>& lefts_in, const std::vect
       std::function<const uint16_t*(int)> fin = final_row;
       if (min_filter) {
         for (int y = a0; y < a1; ++y) {
-          MinRow(agg.Row(y - a0), W, dp, r, tmp.data());
+          MinRow(agg.Row(y - a0), W, dp, r, tmp.data(), min_table);
           std::copy(tmp.begin(), tmp.end(), agg.Row(y - a0));
         }
         for (int y = y0; y < y1; ++y) {
