@@ -337,9 +337,10 @@ class RemoteWatcher final : public Watcher {
 
 class RemoteBackend final : public Backend {
  public:
-  RemoteBackend(std::string address, client::Options opts)
-      : address_(std::move(address)), token_given_(!opts.token.empty()), opts_(opts),
-        client_(std::move(opts)) {}
+  RemoteBackend(std::string address, client::Options opts, bool follow_leader)
+      : address_(std::move(address)), token_given_(!opts.token.empty()),
+        follow_leader_(follow_leader), opts_(opts),
+        client_(std::make_unique<Client>(std::move(opts))) {}
 
   Result<std::unique_ptr<Watcher>> Watch(const std::string& name,
                                          std::optional<uint64_t> from_lsn) override {
@@ -351,7 +352,7 @@ class RemoteBackend final : public Backend {
   bool remote() const override { return true; }
   std::string where() const override { return address_; }
   std::string transport() const override {
-    auto* c = const_cast<Client&>(client_).connection();
+    auto* c = client_->connection();
     return c ? c->transport() : "not connected";
   }
 
@@ -604,8 +605,56 @@ class RemoteBackend final : public Backend {
   // are safe to repeat.
   template <typename T>
   Result<T> Run(bool idempotent, const std::function<Result<T>(Connection&)>& fn) {
+    for (int hop = 0;; ++hop) {
+      HVDB_RETURN_IF_ERROR(Connect());
+      if (follow_leader_ && !leader_checked_) {
+        // Reads go to the writer too: a reader that lags would show an ingest's last frames
+        // as missing, and it would load them twice.
+        leader_checked_ = true;
+        Result<wire::StatsReply> s =
+            client_->Run<wire::StatsReply>(true, [](Connection& c) { return c.Stats(""); });
+        if (s.ok() && s->role() == "reader" && !s->leader().empty() && s->leader() != address_) {
+          HVDB_RETURN_IF_ERROR(MoveTo(s->leader()));
+          continue;
+        }
+      }
+      Result<T> r = client_->Run<T>(idempotent, fn);
+      // A reader refused it before applying anything: it goes to the writer as it is. A few
+      // hops at most (a writer that was replaced while we moved).
+      if (r.ok() || r.status().code() != StatusCode::kNotLeader || !follow_leader_ || hop == 3)
+        return r;
+      Status moved = MoveToLeader();
+      if (!moved.ok())
+        return Status::NotLeader(r.status().message() + " (not followed: " + moved.message() + ")");
+    }
+  }
+
+  // follow_leader: asks the reader where the writer listens and connects there from now on.
+  Status MoveToLeader() {
+    Result<wire::StatsReply> s =
+        client_->Run<wire::StatsReply>(true, [](Connection& c) { return c.Stats(""); });
+    if (!s.ok()) return Status(s.status().code(), "asking " + address_ + " for the writer: " + s.status().message());
+    const std::string leader = s->leader();
+    if (leader.empty()) return Status::NotLeader(address_ + " does not know the writer's address yet");
+    if (leader == address_) return Status::NotLeader(address_ + " names itself as the writer");
+    return MoveTo(leader);
+  }
+
+  Status MoveTo(const std::string& leader) {
+    client::Options o = opts_;
+    HVDB_RETURN_IF_ERROR(ParseAddress(leader, &o));
+    // The old client stays: query streams opened on its connections may still be read.
+    retired_clients_.push_back(std::move(client_));
+    client_ = std::make_unique<Client>(o);
+    opts_ = std::move(o);
+    address_ = leader;
+    connected_ = false;
+    return Status::OK();
+  }
+
+  Status Connect() {
     if (!connected_) {
-      Status st = client_.EnsureConnected();
+      Status st = client_->EnsureConnected();
       if (st.code() == StatusCode::kPermissionDenied) {
         return Status(st.code(), st.message() + (token_given_
                                                      ? " (" + address_ + " refused the token)"
@@ -616,7 +665,7 @@ class RemoteBackend final : public Backend {
       HVDB_RETURN_IF_ERROR(st);
       connected_ = true;
     }
-    return client_.Run<T>(idempotent, fn);
+    return Status::OK();
   }
 
   // A NotFound about a dataset that does not exist, said the same way by every command (the
@@ -631,9 +680,12 @@ class RemoteBackend final : public Backend {
 
   std::string address_;
   bool token_given_;
+  bool follow_leader_;
   client::Options opts_;  // for connections of their own (watches)
-  Client client_;
+  std::unique_ptr<Client> client_;
+  std::vector<std::unique_ptr<Client>> retired_clients_;
   bool connected_ = false;
+  bool leader_checked_ = false;  // follow_leader: whether the first server was asked its role
 };
 
 }  // namespace
@@ -656,7 +708,8 @@ Result<std::unique_ptr<Backend>> MakeRemoteBackend(const RemoteOptions& options)
     return Status::InvalidArgument("wire encoding '" + options.wire +
                                    "': use records, columns, draco or hvdb7");
   }
-  return std::unique_ptr<Backend>(new RemoteBackend(options.address, std::move(opts)));
+  return std::unique_ptr<Backend>(
+      new RemoteBackend(options.address, std::move(opts), options.follow_leader));
 }
 
 }  // namespace hvdb::client

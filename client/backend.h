@@ -170,6 +170,12 @@ struct RemoteOptions {
   std::string token;    // "" for servers that need none
   // How query results travel: "records", "columns", "draco" or "hvdb7" (codec/).
   std::string wire = "records";
+  // A write refused with NOT_LEADER (the server is a reader that follows the writer) is sent
+  // again to the writer, whose address the reader publishes (its StatsReply.leader), and the
+  // backend stays on the writer from then on. Off by default: the `hvdb` CLI and the Python
+  // module report the refusal (they name the writer); hvdb-ingest turns it on, so ingest tasks
+  // given any server of a cluster commit to its writer.
+  bool follow_leader = false;
 };
 // Validates the address (InvalidArgument if it is neither HOST:PORT nor unix:PATH); connects on
 // first use.

@@ -9,6 +9,8 @@ namespace hvdb::ingest {
 void RegisterStereoCommand(CLI::App& app);     // stereo_command.cc: the matcher on one pair
 void RegisterGenerateCommand(CLI::App& app);   // generate_command.cc: synthetic recordings
 void RegisterReplayCommand(CLI::App& app);     // generate_command.cc: a recording at its rate
+// slurm_command.cc: submit (an sbatch array job of `run`) and status.
+void RegisterSlurmCommands(CLI::App& app, int* rc);
 
 }  // namespace hvdb::ingest
 

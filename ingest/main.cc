@@ -7,6 +7,8 @@
 //   hvdb-ingest calibrate --left IMG... [--right IMG...] --out calibration.yml
 //   hvdb-ingest stereo LEFT RIGHT ... --out DISP.pfm                      the matcher alone
 //   hvdb-ingest generate OUT ...                  a synthetic recording with ground truth
+//   hvdb-ingest submit REC --dataset NAME --server HOST:PORT   the same on a Slurm cluster
+//   hvdb-ingest status JOB                        progress of a submitted ingest
 #include <signal.h>
 #include <unistd.h>
 
@@ -102,8 +104,11 @@ void RegisterRun(CLI::App& app, int* rc) {
   cmd->add_option("recording", a->rec, "recording directory (with recording.yml)")->required();
   cmd->add_option("--dataset", a->o.dataset, "dataset to ingest into (created if missing)")->required();
   cmd->add_option("--data", a->data, "data directory: write it directly (no server)");
-  cmd->add_option("--server", a->server, "HOST:PORT of a running hvdb-server to stream into");
-  cmd->add_option("--token", a->token, "access token for the server (read-write role)");
+  cmd->add_option("--server", a->server,
+                  "HOST:PORT of a running hvdb-server to stream into (a reading server sends "
+                  "the ingest on to the writer)");
+  cmd->add_option("--token", a->token, "access token for the server (read-write role)")
+      ->envname("HVDB_TOKEN");
   cmd->add_option("--workers", a->o.workers, "frames processed in parallel (0: all cores; with --follow too, committed in order)")->capture_default_str();
   cmd->add_option("--first", a->o.first, "first recording frame")->capture_default_str();
   cmd->add_option("--count", a->o.count, "frames to ingest (-1: to the end)")->capture_default_str();
@@ -212,7 +217,11 @@ void RegisterRun(CLI::App& app, int* rc) {
     if (!a->data.empty()) {
       backend = client::MakeEmbeddedBackend(a->data, a->cache_mb << 20);
     } else {
-      auto b = client::MakeRemoteBackend({a->server, a->token});
+      client::RemoteOptions ro;
+      ro.address = a->server;
+      ro.token = a->token;
+      ro.follow_leader = true;  // commit to the writer whichever server of a cluster we were given
+      auto b = client::MakeRemoteBackend(ro);
       if (!b.ok()) {
         *rc = Fail(b.status());
         return;
@@ -244,6 +253,9 @@ void RegisterRun(CLI::App& app, int* rc) {
     }
     auto report = RunIngest(*rec, *backend, o);
     if (!report.ok()) {
+      // The report says why (hvdb-ingest status shows it for a Slurm task).
+      if (!a->report.empty())
+        std::ofstream(a->report) << nlohmann::json{{"error", report.status().ToString()}}.dump(2) << "\n";
       *rc = Fail(report.status());
       return;
     }
@@ -355,6 +367,7 @@ int main(int argc, char** argv) {
   hvdb::ingest::RegisterStereoCommand(app);
   hvdb::ingest::RegisterGenerateCommand(app);
   hvdb::ingest::RegisterReplayCommand(app);
+  hvdb::ingest::RegisterSlurmCommands(app, &rc);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

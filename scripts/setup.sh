@@ -31,7 +31,8 @@ PACKAGES=(
 )
 # The tests and benchmarks: ingest/ (Ceres), GoogleTest and Benchmark, the peers of the
 # benchmarks (PCL, libspatialindex, FLANN, Open3D), clang for the fuzzers and sanitizers, the
-# browser tests (Chromium), a real Ceph cluster for the RADOS tests.
+# browser tests (Chromium), a real Ceph cluster for the RADOS tests, a one-node Slurm for the
+# cluster ingest tests (scripts/slurm-dev.sh).
 TEST_PACKAGES=(
   git libceres-dev libboost-graph-dev libflann-dev
   libgtest-dev libgmock-dev libbenchmark-dev
@@ -40,6 +41,7 @@ TEST_PACKAGES=(
   python3-pytest python3-open3d
   chromium chromium-driver python3-selenium
   ceph-mon ceph-osd ceph-mgr ceph-common uuid-runtime
+  slurmctld slurmd slurm-client munge
 )
 if ((ALL)); then PACKAGES+=("${TEST_PACKAGES[@]}"); fi
 
