@@ -7,9 +7,14 @@ cluster SLURM_CONF names). Per run it records the wall time from submit to the j
 scheduling included), each task's frames/s from its report (`run --report`) and the per-stage
 median times (`hvdb-ingest status --json`).
 
-From these: the per-task rate (frames/s of one task with the machine to itself) and the server's
-commit rate (1 / the median time a frame's photos and points take to commit, as the tasks saw
-it: what one dataset's writer takes in if frames arrive back to back), and the scaling
+Then the server's commit rate, measured apart: the frames just ingested, exported as PLY files
+(`hvdb export --codec raw`) and made a PLY recording, are loaded into a fresh server by 1, 2
+and 4 concurrent `hvdb-ingest run --server` processes on disjoint ranges (no stereo: reading a
+PLY file and committing it), frames/s over all of them; the best is the commit rate (a lower
+bound: the clients share this machine's cores with the server). Also the commit stage as the
+stereo tasks saw it (1 / the median time of a frame's photos + points).
+
+From these: the per-task rate (frames/s of one task with the machine to itself) and the scaling
 statement: N nodes give min(N x per-task rate, commit rate) frames/s; it stops scaling at
 N = commit rate / per-task rate.
 
@@ -34,6 +39,8 @@ def run(cmd, **kw):
 
 def start_server(build, data, work):
     port_file = os.path.join(work, os.path.basename(data) + ".port")
+    if os.path.exists(port_file):
+        os.unlink(port_file)  # a previous server's
     p = subprocess.Popen([os.path.join(build, "server", "hvdb-server"), "--data", data, "--listen",
                           "127.0.0.1:0", "--port-file", port_file, "--log-level", "warn"],
                          stdout=subprocess.DEVNULL)
@@ -43,6 +50,39 @@ def start_server(build, data, work):
         time.sleep(0.05)
     p.kill()
     sys.exit("hvdb-server did not start")
+
+
+def commit_capacity(args, ingest, work, data):
+    """Frames/s a fresh server takes from 1, 2 and 4 concurrent PLY ingests of `data`'s frames."""
+    ply = os.path.join(work, "ply")
+    run([os.path.join(args.build, "client", "hvdb"), "--data", data, "export", "v", ply,
+         "--codec", "raw"])
+    with open(os.path.join(ply, "recording.yml"), "w") as f:
+        f.write("%%YAML:1.0\n---\nformat: hvdb-recording\nversion: 1\nkind: ply\nframes: %d\n"
+                "fps: 10\nply: \"v_{frame:06d}.ply\"\n" % args.frames)
+    out = []
+    for clients in (1, 2, 4):
+        for k in range(args.runs):
+            data2 = os.path.join(work, "commit-%d-%d" % (clients, k))
+            server, addr = start_server(args.build, data2, work)
+            try:
+                # The dataset first, so the clients do not race to create it.
+                run([ingest, "run", ply, "--server", addr, "--dataset", "v", "--count", "0", "--quiet"])
+                per = -(-args.frames // clients)
+                t0 = time.monotonic()
+                procs = [subprocess.Popen([ingest, "run", ply, "--server", addr, "--dataset", "v",
+                                           "--first", str(c * per), "--count", str(per), "--quiet",
+                                           "--workers", "1"], stdout=subprocess.DEVNULL)
+                         for c in range(clients) if c * per < args.frames]
+                if any(p.wait() != 0 for p in procs):
+                    sys.exit("a PLY ingest failed")
+                wall = time.monotonic() - t0
+                out.append({"clients": clients, "wall_s": wall, "frames_per_s": args.frames / wall})
+                print("commit: %d client(s): %.2f frames/s" % (clients, args.frames / wall), flush=True)
+            finally:
+                server.terminate()
+                server.wait()
+    return out
 
 
 def one_run(args, ingest, rec, work, tasks, k):
@@ -109,6 +149,7 @@ def main():
                     k, tasks, r["wall_s"], r["frames_per_s"],
                     ", ".join("%.2f" % f for f in r["task_frames_per_s"])), flush=True)
                 runs.append(r)
+        commits = commit_capacity(args, ingest, work, os.path.join(work, "data-1-0"))
     finally:
         if own_cluster:
             subprocess.run(["bash", os.path.join(SOURCE, "scripts", "slurm-dev.sh"), "stop", cluster],
@@ -123,7 +164,9 @@ def main():
                     r["stage_median_ms"].get("photos", 0))
     commit_ms_2 = med(2, lambda r: r["stage_median_ms"].get("commit", 0) +
                       r["stage_median_ms"].get("photos", 0))
-    commit_rate = 1000.0 / commit_ms
+    commit_by_clients = {c: statistics.median(r["frames_per_s"] for r in commits if r["clients"] == c)
+                         for c in sorted({r["clients"] for r in commits})}
+    commit_rate = max(commit_by_clients.values())
     n_max = commit_rate / per_task
     scaling = [{"nodes": n, "frames_per_s": min(n * per_task, commit_rate)}
                for n in (1, 2, 4, 8, 16, 32, 64, 128)]
@@ -142,7 +185,10 @@ def main():
             "commit_ms_per_frame": commit_ms,
             "commit_ms_per_frame_two_tasks": commit_ms_2,
         },
+        "commit_runs": commits,
+        "server_commit_frames_per_s_by_clients": commit_by_clients,
         "server_commit_frames_per_s": commit_rate,
+        "commit_stage_frames_per_s": 1000.0 / commit_ms,
         "scaling": scaling,
         "stops_scaling_at_nodes": n_max,
         "statement": ("N nodes (one task each, this machine's speed) give min(N x %.2f, %.1f) "

@@ -200,6 +200,42 @@ TEST(SlurmUnit, FramesSplitIntoTasksAndTheScriptRunsEachRange) {
   EXPECT_NE(s.find(" '--no-photos'"), std::string::npos) << s;
 }
 
+// RemoteOptions::follow_leader, which the ingest uses: a client given a reader moves to the
+// writer; without it the reader's NOT_LEADER (naming the writer) is what the caller gets.
+TEST(FollowLeader, AClientGivenAReaderWritesToTheWriterOnlyWhenAsked) {
+  TempDir d;
+  ServerChild a("a", {"--data", d / "data", "--follow"}, d.path());
+  ASSERT_EQ(a.Start(), "");
+  ServerChild b("b", {"--data", d / "data", "--follow"}, d.path());
+  ASSERT_EQ(b.Start(), "");
+  client::RemoteOptions ro;
+  ro.address = b.Address();
+  auto plain = client::MakeRemoteBackend(ro);
+  ASSERT_TRUE(plain.ok());
+  DatasetInfo info;
+  info.name = "v";
+  auto refused = (*plain)->CreateDataset(info);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_EQ(refused.status().code(), StatusCode::kNotLeader);
+  EXPECT_NE(refused.status().message().find(a.Address()), std::string::npos) << refused.status().ToString();
+  ro.follow_leader = true;
+  auto following = client::MakeRemoteBackend(ro);
+  ASSERT_TRUE(following.ok());
+  auto created = (*following)->CreateDataset(info);
+  ASSERT_TRUE(created.ok()) << created.status().ToString();
+  EXPECT_EQ((*following)->where(), a.Address());
+  std::vector<Point> pts(3);
+  for (size_t i = 0; i < pts.size(); ++i) pts[i].x = static_cast<float>(i);
+  auto loaded = (*following)->BulkLoad("v", 0, pts);
+  ASSERT_TRUE(loaded.ok()) << loaded.status().ToString();
+  EXPECT_EQ(*loaded, 3u);
+  // The reader has it too once it follows the commit; the plain client still only reads there.
+  EXPECT_TRUE(WaitUntil(milliseconds(10000), [&] {
+    auto p = FramePresent(**plain, "v", 0, info.fps);
+    return p.ok() && *p;
+  }));
+}
+
 TEST_F(SlurmIngest, BadOptionsAreRefusedBeforeAnythingIsWritten) {
   Generate(2, 64, 48);
   ServerChild a("a", {"--data", dir_ / "data"}, dir_.path());
