@@ -61,8 +61,9 @@ def commit_capacity(args, ingest, work, data):
         f.write("%%YAML:1.0\n---\nformat: hvdb-recording\nversion: 1\nkind: ply\nframes: %d\n"
                 "fps: 10\nply: \"v_{frame:06d}.ply\"\n" % args.frames)
     out = []
-    for clients in (1, 2, 4):
-        for k in range(args.runs):
+    # Interleaved, so that a burst of other load on the machine does not hit one count only.
+    for k in range(args.runs):
+        for clients in (1, 2, 4):
             data2 = os.path.join(work, "commit-%d-%d" % (clients, k))
             server, addr = start_server(args.build, data2, work)
             try:

@@ -105,8 +105,8 @@ void RegisterRun(CLI::App& app, int* rc) {
   cmd->add_option("--dataset", a->o.dataset, "dataset to ingest into (created if missing)")->required();
   cmd->add_option("--data", a->data, "data directory: write it directly (no server)");
   cmd->add_option("--server", a->server,
-                  "HOST:PORT of a running hvdb-server to stream into (a reading server sends "
-                  "the ingest on to the writer)");
+                  "HOST:PORT of a running hvdb-server to stream into (given a reading server, "
+                  "the ingest commits to the writer it names)");
   cmd->add_option("--token", a->token, "access token for the server (read-write role)")
       ->envname("HVDB_TOKEN");
   cmd->add_option("--workers", a->o.workers, "frames processed in parallel (0: all cores; with --follow too, committed in order)")->capture_default_str();

@@ -74,7 +74,7 @@ void RegisterSlurmCommands(CLI::App& app, int* rc) {
   sub->add_option("--dataset", o->dataset, "dataset to ingest into (created now if missing)")->required();
   sub->add_option("--server", o->server,
                   "HOST:PORT of the hvdb-server the tasks commit through (reachable from the "
-                  "nodes; a reading server sends them on to the writer)")->required();
+                  "nodes; given a reading server, they commit to the writer it names)")->required();
   sub->add_option("--token", o->token, "access token (read-write role); the tasks get it from the environment")
       ->envname("HVDB_TOKEN");
   sub->add_option("--partition", o->partition, "Slurm partition (default: the cluster's default)");
