@@ -70,6 +70,10 @@ start() {
     echo "slurm-dev.sh: the cluster in $dir is already running; clients: export SLURM_CONF=$conf"
     return 0
   fi
+  if [ -d "$dir" ] && [ -n "$(ls -A "$dir")" ] && ! [ -f "$conf" ]; then
+    echo "slurm-dev.sh: $dir holds other files; give an empty or new directory" >&2
+    exit 1
+  fi
   stop  # whatever is left of a start that failed half-way
   rm -rf "$dir"
   mkdir -p "$dir"/{run,log,state,spool,munge}
