@@ -242,6 +242,7 @@ Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> da
   } else if (r.has_mode() || r.has_texture() || r.has_billboards()) {
     job->colour_ = Colour::kPoints;
   }
+  job->sequence_ = r.path_size() > 0;
   // Views.
   if (r.path_size() > 0) {
     if (r.has_view()) return Invalid("render.view", "give a view or a path, not both");
@@ -472,7 +473,7 @@ Result<RenderJob::Colour> RenderJob::ResolveColour(size_t i) {
   // Auto: the best picture the frame has (bench/README.md, "Novel views": textured beats the
   // points by ~3 dB on the SJTU stage, billboards texturing by ~6 dB where stored), when the
   // image is a single view of one frame, as texture and billboards need.
-  if (views_.size() > 1) {
+  if (sequence_) {
     return use(Colour::kPoints, "auto: a sequence draws the points (texture and billboards "
                                 "draw a single view)");
   }

@@ -110,6 +110,7 @@ class RenderJob {
   RenderOptions options_;
   QueryOptions query_;
   Colour colour_ = Colour::kAuto;  // Render.mode / texture / billboards
+  bool sequence_ = false;          // Render.path given (even of one view)
   // What drew the last image ("visibility", "textured", ...) and why: RenderReply.mode_used,
   // mode_choice.
   std::string mode_used_, mode_choice_;
