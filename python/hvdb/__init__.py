@@ -567,16 +567,21 @@ class Database:
                           _vector("translate", translate, 4))
 
     # -- rendering --
-    def render(self, dataset, t, look_at, fov=50.0, size=(640, 480), mode="visibility",
+    def render(self, dataset, t, look_at, fov=50.0, size=(640, 480), mode="auto",
                level=0, renderer="auto", depth=False, up=(0.0, -1.0, 0.0),
-               view_dependent=False, texture=False, billboards=False, shadow=None):
+               view_dependent=False, texture=False, billboards=False, shadow=None, info=False):
         """Renders frame time t (seconds) from a look-at camera (EWA splatting, thesis 5.1.2):
         look_at = (ex, ey, ez, tx, ty, tz), eye and target in metres, up = (0, -1, 0) as in
         `hvdb render`. Returns an H x W x 3 uint8 sRGB image; with depth=True a pair
-        (image, depth) with depth H x W float32 metres (inf where empty). texture=True colours
-        the view from the frame's stored photos over the points' depth (thesis 6.3; NotFound
-        when the frame has none); billboards=True draws the frame's billboards instead of its
-        points (ingested with --filter billboard; NotFound when the frame has none).
+        (image, depth) with depth H x W float32 metres (inf where empty); with info=True one
+        more element, a dict of the reply's facts: "mode" (what drew: "visibility",
+        "probabilistic", "textured" or "billboards"), "mode_choice" (why), "renderer",
+        "points", "render_ms". mode="auto" draws the frame's best picture: its billboards where
+        stored, else its photos (textured), else the points (visibility); "visibility" or
+        "probabilistic" draw the points. texture=True (mode="textured") colours the view from
+        the frame's stored photos over the points' depth (thesis 6.3; NotFound when the frame
+        has none); billboards=True (mode="billboards") draws the frame's billboards instead of
+        its points (ingested with --filter billboard; NotFound when the frame has none).
         shadow = {"light": (x, y, z), "casters": BIT, "directional": False, "strength": 0.6}
         casts the shadows of the points carrying label BIT from a point light at (x, y, z), or
         with directional=True from a light infinitely far in direction (x, y, z), onto the rest
@@ -607,13 +612,16 @@ class Database:
                        _vector("up", up, 3), fov, w, h, str(mode), _level(level),
                        str(renderer), bool(depth), bool(view_dependent), bool(texture),
                        bool(billboards), light, directional, casters, strength)
+        facts = {k: r[k] for k in ("mode", "mode_choice", "renderer", "points", "render_ms")}
         if not depth:
             img = r["image"]
-            return img[:, :, :3] if img.shape[2] == 4 else img
+            img = img[:, :, :3] if img.shape[2] == 4 else img
+            return (img, facts) if info else img
         rgba = r["rgba"]
         alpha = rgba[:, :, 3:4]
         straight = np.where(alpha > 0, rgba[:, :, :3] / np.maximum(alpha, 1e-12), 0)
-        return _to_srgb8(straight), r["depth"]
+        out = (_to_srgb8(straight), r["depth"])
+        return out + (facts,) if info else out
 
 
 def _uint64(name, v):

@@ -1,4 +1,4 @@
-// `hvdb render --video` and `--shadow-*` end to end (the real binary on a data directory with two
+// `hvdb render --video`, `--shadow-*` and `--mode` end to end (the real binary on a data directory with two
 // Panoptic frames): the video decodes to one frame per path entry at the size asked; bad paths
 // and bad shadow options fail naming the culprit and write nothing.
 
@@ -113,6 +113,28 @@ TEST_F(RenderCliTest, ShadowOptionsReachTheRender) {
   r = Run(view + "--shadow-casters 3 --out bad.png");
   EXPECT_EQ(r.code, 2);  // casters need a light
   EXPECT_FALSE(fs::exists(dir_ + "/bad.png"));
+}
+
+// The default picks the best the frame has and the output says what drew: these frames have
+// no photos, so the points; an explicit mode is taken as asked.
+TEST_F(RenderCliTest, SaysWhichModeDrew) {
+  const std::string view =
+      "render walk --box -10 10 -10 10 -10 10 0 0 --look-at -0.4 -0.9 -3 -0.4 -0.9 0 --fov 40 "
+      "--up 0 -1 0 --size 160 120 --renderer cpu ";
+  RunResult r = Run(view + "--out a.png");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("; mode visibility (auto: no photos of frame 0)"), std::string::npos)
+      << r.out;
+  r = Run(view + "--mode probabilistic --json --out b.png");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("\"mode\":\"probabilistic\""), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("\"mode_choice\":\"asked for\""), std::string::npos) << r.out;
+  r = Run(view + "--mode textured --out c.png");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.err.find("render.texture: dataset 'walk' has no photos of frame 0"),
+            std::string::npos)
+      << r.err;
+  EXPECT_FALSE(fs::exists(dir_ + "/c.png"));
 }
 
 }  // namespace

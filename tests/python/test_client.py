@@ -232,6 +232,12 @@ def test_render_equals_the_cli_image(env, tmp_path):
             "--size", "160", "120", "--renderer", "cpu", "--out", out)
     cli = np.asarray(o3d.io.read_image(out))
     assert np.array_equal(cli[:, :, :3], img)
+    # The default draws the best the frame has, and says what: here the points, no photos.
+    same, facts = env.db.render(DATASET, 5 / FPS, look_at=look, fov=40, size=(160, 120),
+                                renderer="cpu", info=True)
+    assert np.array_equal(same, img)
+    assert facts["mode"] == "visibility", facts
+    assert facts["mode_choice"].startswith("auto: no photos of frame"), facts
     # This dataset holds points only (a PLY recording): a textured view is a clear NotFound.
     with pytest.raises(hvdb.NotFound, match="no photos"):
         env.db.render(DATASET, 5 / FPS, look_at=look, size=(160, 120), renderer="cpu",

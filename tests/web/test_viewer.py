@@ -114,7 +114,7 @@ def test_screenshot_matches_the_servers_cpu_render(browser, server, tmp_path, sp
     t = FRAME / FPS
     run_cli("render", DATASET, "--box", -1e9, 1e9, -1e9, 1e9, -1e9, 1e9, t, t,
             "--look-at", *EYE, *TARGET, "--fov", FOV, "--size", W, H, "--renderer", "cpu",
-            "--out", ref_file, server=server.address)
+            "--mode", "visibility", "--out", ref_file, server=server.address)
     ref = png_to_array(ref_file.read_bytes())
     assert ours.shape == ref.shape == (H, W, 3)
     covered = (ref.sum(axis=2) > 0) | (ours.sum(axis=2) > 0)

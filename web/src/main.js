@@ -462,8 +462,9 @@ class App {
     if (!png) throw new Error('render reply without a png section');
     const url = await blobToDataUrl(new Blob([png], { type: 'image/png' }));
     const r = reply.render;
-    this.ui.showRender(url, `${r.width}×${r.height}, ${r.renderer_used}, ${Number(r.render_ms).toFixed(0)} ms, ${r.points} points, lod ${r.lod}`);
-    this.setStatus('edit', `server render ${Number(r.render_ms).toFixed(0)} ms`);
+    // The server picks the frame's best picture (textured where it has photos) and says which.
+    this.ui.showRender(url, `${r.width}×${r.height}, ${r.mode_used} (${r.mode_choice}), ${r.renderer_used}, ${Number(r.render_ms).toFixed(0)} ms, ${r.points} points, lod ${r.lod}`);
+    this.setStatus('edit', `server render: ${r.mode_used}, ${Number(r.render_ms).toFixed(0)} ms`);
     return { png: url, reply };
   }
 
