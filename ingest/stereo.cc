@@ -339,7 +339,6 @@ Result<DisparityMap> Match(const std::vector<cv::Mat>& lefts_in, const std::vect
     std::vector<uint16_t> acc16, tmp, min_table;
     std::vector<uint32_t> acc;
     std::vector<int> kr(W);
-    std::vector<uint16_t> kr_cost(W);
     const size_t n = static_cast<size_t>(W) * dp;
     auto lap = [](Clock::time_point& t, std::atomic<int64_t>& into) {
       const auto now = Clock::now();
@@ -441,18 +440,16 @@ Result<DisparityMap> Match(const std::vector<cv::Mat>& lefts_in, const std::vect
         const int16_t* kly = kl.ptr<int16_t>(y);
         uint8_t* vo = valid.ptr<uint8_t>(y);
         if (params.cross_check) {
-          // Walked along the volume's row (left pixel x, then layer k) rather than down its
-          // diagonals: right pixel xr sees its layers in the same ascending order, so the same
-          // winner (the first of equal costs), and the reads stay sequential.
-          std::fill(kr.begin(), kr.end(), -1);
-          std::fill(kr_cost.begin(), kr_cost.end(), std::numeric_limits<uint16_t>::max());
-          for (int x = 0; x < W; ++x) {
-            const uint16_t* c = row + static_cast<size_t>(x) * dp;
-            const int kmin = std::max(0, x - dmin - (W - 1)), kmax = std::min(D - 1, x - dmin);
+          for (int xr = 0; xr < W; ++xr) {
+            int best = -1;
+            uint16_t bc = std::numeric_limits<uint16_t>::max();
+            const int kmin = std::max(0, -(xr + dmin));
+            const int kmax = std::min(D - 1, W - 1 - xr - dmin);
             for (int k = kmin; k <= kmax; ++k) {
-              const int xr = x - dmin - k;
-              if (c[k] < kr_cost[xr]) kr_cost[xr] = c[k], kr[xr] = k;
+              const uint16_t c = row[static_cast<size_t>(xr + dmin + k) * dp + k];
+              if (c < bc) bc = c, best = k;
             }
+            kr[xr] = best;
           }
         }
         for (int x = 0; x < W; ++x) {
