@@ -1,6 +1,7 @@
 // Differential tests of the engine against a brute-force model: random inserts, deletes,
 // label changes and transforms interleaved with window and slice queries at every level.
 #include <gtest/gtest.h>
+#include <atomic>
 
 #include <cmath>
 #include <filesystem>
@@ -219,6 +220,56 @@ TEST_F(DatasetTest, BulkLoadThenQueryEveryLevel) {
     double n = RunQuery(*ds_, FrameWindow(3), o).size();
     EXPECT_NEAR(n / 8000.0, 1.0 / (1 << lod), 0.15 / (1 << lod)) << lod;
   }
+}
+
+// Bulk loads into new frames build their trees on the callers' threads (before the writer's
+// queue): loads of different frames from several threads, while transactions fill some of
+// those frames first (so a tree built for an empty frame must be read back and rebuilt), leave
+// every point in exactly once, with unique ids, and survive a reopen.
+TEST_F(DatasetTest, ConcurrentBulkLoadsAndInsertsKeepEveryPointOnce) {
+  Open();
+  constexpr uint32_t kFrames = 12;
+  std::vector<std::vector<Point>> loads(kFrames);
+  std::mt19937_64 rng(11);
+  for (uint32_t f = 0; f < kFrames; ++f) loads[f] = RandomPoints(rng, 3000 + 100 * f, f);
+  std::vector<std::thread> threads;
+  std::atomic<int> failures{0};
+  for (int t = 0; t < 3; ++t) {
+    threads.emplace_back([&, t] {
+      for (uint32_t f = static_cast<uint32_t>(t); f < kFrames; f += 3)
+        if (!ds_->BulkLoad(f, loads[f]).ok()) ++failures;
+    });
+  }
+  // Transactions into every third frame at the same time.
+  std::vector<Point> extra;
+  threads.emplace_back([&] {
+    std::mt19937_64 r(12);
+    for (int i = 0; i < 20; ++i) {
+      std::vector<Point> pts;
+      for (int k = 0; k < 50; ++k) pts.push_back(testing::RandomPoint(r, static_cast<uint32_t>(3 * (k % 4))));
+      Transaction tx;
+      tx.Insert(pts);
+      if (!ds_->Commit(tx).ok()) ++failures;
+      extra.insert(extra.end(), pts.begin(), pts.end());
+    }
+  });
+  for (auto& t : threads) t.join();
+  ASSERT_EQ(failures.load(), 0);
+  auto check = [&] {
+    std::map<uint32_t, size_t> per_frame;
+    std::set<uint64_t> ids;
+    for (const Point& p : RunQuery(*ds_, Everything())) {
+      ++per_frame[p.frame];
+      EXPECT_TRUE(ids.insert(p.id).second) << "id " << p.id << " twice";
+    }
+    std::map<uint32_t, size_t> want;
+    for (uint32_t f = 0; f < kFrames; ++f) want[f] = loads[f].size();
+    for (const Point& p : extra) ++want[p.frame];
+    EXPECT_EQ(per_frame, want);
+  };
+  check();
+  Open();  // reopen: the same
+  check();
 }
 
 TEST_F(DatasetTest, RandomEditsAgainstBruteForce) {
