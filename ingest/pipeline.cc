@@ -23,8 +23,6 @@
 
 namespace hvdb::ingest {
 
-namespace {
-
 using Clock = std::chrono::steady_clock;
 
 double MsSince(Clock::time_point t0) {
@@ -32,6 +30,8 @@ double MsSince(Clock::time_point t0) {
 }
 
 int HardwareThreads() { return std::max(1, static_cast<int>(std::thread::hardware_concurrency())); }
+
+namespace {
 
 double ValidPct(const cv::Mat& depth) {
   if (depth.empty()) return 0;
@@ -122,17 +122,6 @@ Window FrameWindow(uint32_t f, double fps) {
   return w;
 }
 
-void Progress(int done, int total, double secs, bool final) {
-  const int width = 30;
-  const int fill = total ? done * width / total : width;
-  const double fps = secs > 0 ? done / secs : 0;
-  const double eta = fps > 0 ? (total - done) / fps : 0;
-  std::fprintf(stderr, "\r[%.*s%.*s] %d/%d frames  %.2f frames/s  ETA %.0f s   ", fill,
-               "==============================", width - fill, "                              ",
-               done, total, fps, eta);
-  if (final) std::fprintf(stderr, "\n");
-  std::fflush(stderr);
-}
 
 }  // namespace
 
@@ -690,145 +679,6 @@ Result<uint64_t> CommitFrame(client::Backend& backend, const IngestOptions& opt,
                   : Result<uint64_t>(uint64_t{0});
   fr->stage_ms["commit"] = MsSince(t0);
   return loaded;
-}
-
-Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
-                               const IngestOptions& options_in) {
-  IngestOptions opt = options_in;
-  if (opt.dataset.empty()) return Status::InvalidArgument("no dataset given");
-  if (opt.first < 0 || opt.first >= rec.frames)
-    return Status::InvalidArgument("--first " + std::to_string(opt.first) +
-                                   " is outside the recording's frames 0.." +
-                                   std::to_string(rec.frames - 1));
-  const int last = opt.count < 0 ? rec.frames : std::min(rec.frames, opt.first + opt.count);
-  // By default no more workers than frames: a single frame's stages (stereo, photo-consistency)
-  // then get the cores an idle worker would hold (the 8-camera SJTU frame: 2x on two cores).
-  if (opt.workers <= 0) opt.workers = std::clamp(last - opt.first, 1, HardwareThreads());
-  if (opt.max_in_flight <= 0) opt.max_in_flight = opt.workers + 1;
-  if (opt.stereo.threads <= 0) opt.stereo.threads = std::max(1, HardwareThreads() / opt.workers);
-  // Options are checked (and strokes read) before anything is created.
-  HVDB_ASSIGN_OR_RETURN(FrameProcessor proc, FrameProcessor::Make(rec, opt));
-  HVDB_RETURN_IF_ERROR(EnsureDataset(backend, rec, opt.dataset));
-
-  const auto t_start = Clock::now();
-  IngestReport report;
-  report.frames_total = last - opt.first;
-  std::vector<FrameReport> reports(static_cast<size_t>(report.frames_total));
-  // Resume: which frames are already in the dataset (each got there in one atomic bulk load).
-  std::vector<int> pending;
-  for (int i = opt.first; i < last; ++i) {
-    FrameReport& fr = reports[static_cast<size_t>(i - opt.first)];
-    fr.frame = i;
-    fr.dataset_frame = opt.frame_offset + static_cast<uint32_t>(i);
-    HVDB_ASSIGN_OR_RETURN(bool present, FramePresent(backend, opt.dataset, fr.dataset_frame, rec.fps));
-    if (present) {
-      fr.status = "present";
-      ++report.present;
-    } else {
-      pending.push_back(i);
-    }
-  }
-
-  // Each worker prepares a frame and commits it: each frame is one atomic bulk load, so frames
-  // go in in any order and a resumed run skips exactly those that are in. Loads into new frames
-  // build their trees on the committing thread (Database::BulkLoad), so commits of different
-  // frames overlap as their preparation does. A remote backend has one connection: its commits
-  // take turns (the server builds the trees). This thread reports.
-  const FrameLoader load = [&](int w) -> Result<std::shared_ptr<const FrameInput>> {
-    HVDB_ASSIGN_OR_RETURN(FrameInput f, LoadFrame(rec, w, opt.skip_invalid));
-    return std::make_shared<const FrameInput>(std::move(f));
-  };
-  struct Done {
-    int index = 0;
-    Status prepared, committed;
-    uint64_t loaded = 0, bytes = 0;
-  };
-  std::mutex mu, remote_mu;
-  std::condition_variable cv_done;
-  std::deque<Done> done;
-  std::atomic<size_t> next{0};
-  std::atomic<bool> stop{false};
-  const bool one_connection = backend.remote();
-  auto worker = [&] {
-    while (!stop) {
-      const size_t k = next++;
-      if (k >= pending.size()) return;
-      const int i = pending[k];
-      FrameReport& fr = reports[static_cast<size_t>(i - opt.first)];
-      // With the spacetime matcher or the billboard filter, the frames on either side too
-      // (within the recording).
-      const int st = proc.window_radius();
-      PreparedFrame d = PrepareFrame(rec, proc, opt, i, std::max(0, i - st),
-                                     std::min(rec.frames - 1, i + st), load, &fr);
-      Done r;
-      r.index = i;
-      r.prepared = d.status;
-      r.bytes = d.bytes;
-      if (d.status.ok() && !stop) {
-        std::unique_lock<std::mutex> turn(remote_mu, std::defer_lock);
-        if (one_connection) turn.lock();
-        auto loaded = CommitFrame(backend, opt, std::move(d), &fr);
-        if (loaded.ok()) {
-          r.loaded = *loaded;
-        } else {
-          r.committed = loaded.status();
-        }
-      } else if (d.status.ok()) {
-        continue;  // stopping: not committed, not reported
-      }
-      std::lock_guard lk(mu);
-      done.push_back(std::move(r));
-      cv_done.notify_all();
-    }
-  };
-  std::vector<std::thread> threads;
-  for (int w = 0; w < opt.workers; ++w) threads.emplace_back(worker);
-
-  Status failure;
-  size_t handled = 0;
-  const int total = static_cast<int>(pending.size());
-  if (opt.progress) Progress(0, total, 0, false);
-  while (handled < pending.size()) {
-    Done r;
-    {
-      std::unique_lock lk(mu);
-      cv_done.wait(lk, [&] { return !done.empty(); });
-      r = std::move(done.front());
-      done.pop_front();
-    }
-    FrameReport& fr = reports[static_cast<size_t>(r.index - opt.first)];
-    if (!r.prepared.ok()) {
-      fr.status = "skipped";
-      fr.error = r.prepared.ToString();
-      if (!opt.skip_bad_frames) {
-        failure = Status(r.prepared.code(),
-                         "frame " + std::to_string(r.index) + ": " + r.prepared.message() +
-                             " (--skip-bad-frames goes on without it)");
-      } else {
-        ++report.skipped;
-        if (opt.progress) std::fprintf(stderr, "\nskipped frame %d: %s\n", r.index, fr.error.c_str());
-      }
-    } else if (!r.committed.ok()) {
-      failure = Status(r.committed.code(), "frame " + std::to_string(r.index) + ": commit: " +
-                                               r.committed.message());
-    } else {
-      ++report.ingested;
-      report.points += r.loaded;
-      report.skipped_invalid += fr.skipped_invalid;
-      report.bytes_read += r.bytes;
-    }
-    ++handled;
-    if (opt.progress) Progress(static_cast<int>(handled), total, MsSince(t_start) / 1000, false);
-    if (!failure.ok()) break;
-  }
-  stop = true;
-  for (auto& t : threads) t.join();
-  if (opt.progress) Progress(static_cast<int>(handled), total, MsSince(t_start) / 1000, true);
-  if (!failure.ok()) return failure;
-  report.seconds = MsSince(t_start) / 1000;
-  report.peak_rss_mb = PeakRssMb();
-  report.frames = std::move(reports);
-  return report;
 }
 
 }  // namespace hvdb::ingest

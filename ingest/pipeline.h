@@ -17,6 +17,7 @@
 #define HVDB_INGEST_PIPELINE_H_
 
 #include <functional>
+#include <chrono>
 #include <map>
 #include <memory>
 #include <string>
@@ -186,6 +187,9 @@ Result<bool> FramePresent(client::Backend& backend, const std::string& dataset, 
 
 // The peak resident memory of this process in MiB.
 double PeakRssMb();
+// Milliseconds since t0 (the stage timings) and the machine's hardware threads (at least 1).
+double MsSince(std::chrono::steady_clock::time_point t0);
+int HardwareThreads();
 
 // Runs the whole ingest. Returns an error for the first bad frame unless skip_bad_frames; the
 // frames committed before it stay (run again to continue).
