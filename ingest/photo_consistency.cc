@@ -205,6 +205,26 @@ HVDB_SIMD_INLINE bool RowSpan(const TestSplat& s, float dy, float cutoff2, int* 
   return true;
 }
 
+// The fragments of splat s at columns x .. x + 7 of row y (dy = y - v; the row's span ends at
+// xb): q = ca dx^2 + 2 cb dx dy + cc dy^2, which lanes are inside the cutoff, and their depths
+// z + dzdx dx + dzdy dy clamped at the camera plane (the dy terms once per row, in `row`).
+struct FragmentRow {
+  float qb, qc, zr;
+  int xb;
+};
+HVDB_SIMD_INLINE FragmentRow RowTerms(const TestSplat& s, float dy, int xb) {
+  return {2.0f * s.cb * dy, s.cc * dy * dy, s.z + s.dzdy * dy, xb};
+}
+HVDB_SIMD_INLINE void Fragments(const TestSplat& s, const FragmentRow& row, int x, float cutoff2,
+                                F8* q, I8* inside, F8* z) {
+  using render::internal::Broadcast;
+  const F8 fx = Broadcast<F8>(static_cast<float>(x)) + render::internal::VecTraits<F8>::kIota;
+  const F8 dx = fx - s.u;
+  *q = dx * (s.ca * dx + row.qb) + row.qc;
+  *inside = (*q <= cutoff2) & (fx <= static_cast<float>(row.xb));
+  *z = render::internal::Max(row.zr + s.dzdx * dx, Broadcast<F8>(0.f));
+}
+
 // The fuzzy z-buffer: the nearest fragment depth of the listed splats (splats [first,
 // first + n) when `list` is null) that are not removed, min-ed into zbuf. Order does not matter (a min).
 HVDB_RENDER_CLONES
@@ -214,7 +234,6 @@ void RasterDepth(const PreparedView& pv, const uint32_t* list, size_t n, uint32_
   using render::internal::Broadcast;
   const auto& view = pv.view;
   const uint32_t S = pv.stride;
-  const F iota = render::internal::VecTraits<F>::kIota;
   const F inf = Broadcast<F>(std::numeric_limits<float>::infinity());
   for (size_t k = 0; k < n; ++k) {
     const uint32_t j = list ? list[k] : first + static_cast<uint32_t>(k);
@@ -224,16 +243,12 @@ void RasterDepth(const PreparedView& pv, const uint32_t* list, size_t n, uint32_
       const float dy = static_cast<float>(y) - s.v;
       int xa, xb;
       if (!RowSpan(s, dy, view.cutoff2, &xa, &xb)) continue;
-      // q = ca dx^2 + 2 cb dx dy + cc dy^2 and z = z + dzdx dx + dzdy dy, the dy terms once.
-      const float qb = 2.0f * s.cb * dy, qc = s.cc * dy * dy, zr = s.z + s.dzdy * dy;
+      const FragmentRow terms = RowTerms(s, dy, xb);
       float* row = zbuf + static_cast<size_t>(y) * S;
       for (int x = xa; x <= xb; x += static_cast<int>(kLanes)) {
-        const F fx = Broadcast<F>(static_cast<float>(x)) + iota;
-        const F dx = fx - s.u;
-        const F q = dx * (s.ca * dx + qb) + qc;
-        const I8 inside = (q <= view.cutoff2) & (fx <= static_cast<float>(xb));
-        F z = zr + s.dzdx * dx;
-        z = render::internal::Max(z, Broadcast<F>(0.f));
+        F q, z;
+        I8 inside;
+        Fragments(s, terms, x, view.cutoff2, &q, &inside, &z);
         const F old = render::internal::Load<F>(row + x);
         render::internal::Store(row + x, render::internal::Min(old, render::internal::Select(inside, z, inf)));
       }
@@ -258,7 +273,6 @@ void TestSplats(const PreparedView& pv, const uint32_t* list, size_t n, uint32_t
   const auto& view = pv.view;
   const uint32_t S = pv.stride;
   const float dz = view.depth_threshold;
-  const F iota = render::internal::VecTraits<F>::kIota;
   for (size_t k = 0; k < n; ++k) {
     const uint32_t j = list ? list[k] : first + static_cast<uint32_t>(k);
     const TestSplat& s = pv.splats[j];
@@ -274,14 +288,11 @@ void TestSplats(const PreparedView& pv, const uint32_t* list, size_t n, uint32_t
       int xa, xb;
       if (!RowSpan(s, dy, view.cutoff2, &xa, &xb)) continue;
       const size_t rowbase = static_cast<size_t>(y) * S;
-      const float qb = 2.0f * s.cb * dy, qc = s.cc * dy * dy, zr = s.z + s.dzdy * dy;
+      const FragmentRow terms = RowTerms(s, dy, xb);
       for (int x = xa; x <= xb; x += static_cast<int>(kLanes)) {
-        const F fx = Broadcast<F>(static_cast<float>(x)) + iota;
-        const F dx = fx - s.u;
-        const F q = dx * (s.ca * dx + qb) + qc;
-        const I8 inside = (q <= view.cutoff2) & (fx <= static_cast<float>(xb));
-        F z = zr + s.dzdx * dx;
-        z = render::internal::Max(z, Broadcast<F>(0.f));
+        F q, z;
+        I8 inside;
+        Fragments(s, terms, x, view.cutoff2, &q, &inside, &z);
         const size_t at = rowbase + static_cast<size_t>(x);
         const I8 seen = inside & ~(z > Load<F>(&zbuf[at]) + dz);  // not occluded (xi = 1)
         if (!render::internal::Any(seen)) continue;
@@ -463,17 +474,17 @@ std::vector<uint8_t> PhotoConsistencyMask(std::span<const Point> points,
         if (cv.camera_id >= 0 && id == cv.camera_id) return n;
       return 0;
     };
-    std::vector<size_t> todo;
+    std::vector<size_t> to_test;  // the views with points of other cameras
     for (size_t v = 0; v < views.size(); ++v)
-      if (own(views[v]) < points.size()) todo.push_back(v);
-    const unsigned outer = std::max(1u, std::min<unsigned>(threads, static_cast<unsigned>(todo.size())));
+      if (own(views[v]) < points.size()) to_test.push_back(v);
+    const unsigned outer = std::max(1u, std::min<unsigned>(threads, static_cast<unsigned>(to_test.size())));
     const unsigned inner = std::max(1u, threads / outer);
     // Each point's surface footprint (see the header), once for all views.
     std::vector<std::pair<int, cv::Vec3d>> sources;
     for (const ColourView& cv : views)
       if (cv.camera != nullptr && cv.camera_id >= 0) sources.emplace_back(cv.camera_id, cv.camera->Centre());
     std::vector<std::array<float, 6>> covs;
-    if (!sources.empty() && !todo.empty()) {
+    if (!sources.empty() && !to_test.empty()) {
       covs.resize(points.size());
       const size_t chunk = 65536;
       ParallelFor((points.size() + chunk - 1) / chunk, threads, [&](size_t c) {
@@ -490,8 +501,8 @@ std::vector<uint8_t> PhotoConsistencyMask(std::span<const Point> points,
     std::atomic<size_t> next{0};
     auto work = [&] {
       PreparedView pv;  // this thread's buffers, view after view
-      for (size_t k = next++; k < todo.size(); k = next++) {
-        const size_t v = todo[k];
+      for (size_t k = next++; k < to_test.size(); k = next++) {
+        const size_t v = to_test[k];
         Prepare(points, covs, views[v], v, options, inner, &pv);
         if (pv.ok) results[v] = RunView(pv, options);
       }

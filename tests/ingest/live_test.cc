@@ -28,11 +28,14 @@
 #include "formats/ply.h"
 #include "ingest/generator.h"
 #include "storage/database.h"
+#include "tests/ingest/frame_points.h"
 #include "tests/ingest/test_util.h"
 #include "tests/server/server_process.h"
 
 namespace hvdb::ingest {
 namespace {
+
+using testing::FramePoints;
 
 using testing::TempDir;
 namespace fs = std::filesystem;
@@ -54,31 +57,6 @@ IngestOptions Options(const std::string& dataset = "v") {
   o.dataset = dataset;  // not a literal here: GCC 12 warns falsely (-Wrestrict) on that
   o.stereo.num_disparities = 32;
   return o;
-}
-
-// Dataset frame f's points, ids cleared, in a canonical order: two ingests committed the same
-// points exactly when these are equal.
-std::vector<Point> FramePoints(client::Backend& b, const std::string& dataset, uint32_t f, double fps) {
-  Window w;
-  for (int a = 0; a < 3; ++a) {
-    w.lo[a] = -1e9;
-    w.hi[a] = 1e9;
-  }
-  w.lo[3] = w.hi[3] = f / fps;
-  std::vector<Point> out;
-  auto q = b.Query(dataset, w, QueryOptions{});
-  EXPECT_TRUE(q.ok()) << q.status().ToString();
-  if (!q.ok()) return out;
-  Batch batch;
-  while (true) {
-    auto more = (*q)->Next(&batch);
-    EXPECT_TRUE(more.ok());
-    if (!more.ok() || !*more) break;
-    out.insert(out.end(), batch.points.begin(), batch.points.end());
-  }
-  for (Point& p : out) p.id = 0;
-  std::sort(out.begin(), out.end(), [](const Point& a, const Point& c) { return std::memcmp(&a, &c, sizeof a) < 0; });
-  return out;
 }
 
 // The reference: the finished recording ingested by RunIngest.

@@ -23,6 +23,7 @@
 #include "ingest/generator.h"
 #include "ingest/pipeline.h"
 #include "storage/database.h"
+#include "tests/ingest/frame_points.h"
 #include "tests/ingest/test_util.h"
 #include "tests/server/server_child.h"
 
@@ -67,26 +68,7 @@ std::map<uint32_t, FrameSum> Sums(const std::string& data, int frames, double fp
   std::map<uint32_t, FrameSum> out;
   auto b = client::MakeEmbeddedBackend(data, 32 << 20);
   for (int f = 0; f < frames; ++f) {
-    Window w;
-    for (int a = 0; a < 3; ++a) {
-      w.lo[a] = -1e9;
-      w.hi[a] = 1e9;
-    }
-    w.lo[3] = w.hi[3] = f / fps;
-    std::vector<Point> pts;
-    auto q = b->Query("v", w, QueryOptions{});
-    EXPECT_TRUE(q.ok()) << q.status().ToString();
-    if (!q.ok()) return out;
-    Batch batch;
-    while (true) {
-      auto more = (*q)->Next(&batch);
-      EXPECT_TRUE(more.ok());
-      if (!more.ok() || !*more) break;
-      pts.insert(pts.end(), batch.points.begin(), batch.points.end());
-    }
-    for (Point& p : pts) p.id = 0;
-    std::sort(pts.begin(), pts.end(),
-              [](const Point& a, const Point& c) { return std::memcmp(&a, &c, sizeof a) < 0; });
+    const std::vector<Point> pts = testing::FramePoints(*b, "v", static_cast<uint32_t>(f), fps);
     uint64_t h = 1469598103934665603ull;  // FNV-1a
     const auto* bytes = reinterpret_cast<const unsigned char*>(pts.data());
     for (size_t i = 0; i < pts.size() * sizeof(Point); ++i) h = (h ^ bytes[i]) * 1099511628211ull;
