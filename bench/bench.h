@@ -67,6 +67,10 @@ struct Config {
   int e2e_queries = 1280;  // windows per client count and round, shared among the clients
   int e2e_rounds = 5;      // rounds of every client count on every path, interleaved
 
+  // 9. Small frames on disk.
+  uint32_t small_frames = 3000;
+  size_t small_points = 2000;
+
   static Config Quick();
   bool Runs(int experiment) const { return only.empty() || only.count(experiment) > 0; }
   Options DbOptions(bool sync = true) const;
@@ -84,6 +88,7 @@ void RunInserts(Ctx& ctx);    // 3
 void RunRTree(Ctx& ctx);      // 4 (and the bulk-load comparison)
 void RunSlices(Ctx& ctx);     // 7 (+6)
 void RunServer(Ctx& ctx);     // 8
+void RunSmallFrames(Ctx& ctx);  // 9
 
 }  // namespace hvdb::bench
 

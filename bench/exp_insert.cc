@@ -38,17 +38,20 @@ void RunInserts(Ctx& ctx) {
     Log("3 inserts (%s): %zu points in sets of %zu", tag.c_str(), total, c.ins_set);
     Db db = Db::Create(dir, "ins", c.DbOptions(durable != 0), c.fps);
     const std::vector<Point> pts = UniformPoints(total, c.seed + 300 + durable);
-    std::vector<double> ms, x, avg;
+    std::vector<double> ms, x, avg, faults;
     double sum = 0;
+    const ProcCounters run0 = ReadProcCounters();
     Timer run;
     for (size_t at = 0; at < total; at += c.ins_set) {
       const size_t n = std::min(c.ins_set, total - at);
       Transaction txn;
       txn.Insert(std::vector<Point>(pts.begin() + static_cast<std::ptrdiff_t>(at),
                                     pts.begin() + static_cast<std::ptrdiff_t>(at + n)));
+      const ProcCounters p0 = ReadProcCounters();
       Timer t;
       Check(db.ds->Commit(txn), "commit");
       const double m = t.Ms();
+      faults.push_back(static_cast<double>(ReadProcCounters().minor_faults - p0.minor_faults));
       ms.push_back(m);
       sum += m;
       x.push_back(static_cast<double>(at + n));
@@ -64,6 +67,7 @@ void RunInserts(Ctx& ctx) {
     Check(db.ds->WaitForMerges(), "wait for merges");
     const double drain_ms = drain.Ms();
     const double wall_ms = run.Ms();
+    const uint64_t run_faults = ReadProcCounters().minor_faults - run0.minor_faults;
     DatasetStats st = db.ds->Stats();
     nlohmann::json p = {{"set_points", c.ins_set},
                         {"merges", st.merges},
@@ -74,7 +78,11 @@ void RunInserts(Ctx& ctx) {
                         {"sync", durable != 0},
                         {"trees_at_end", st.trees},
                         {"buffered_points_at_end", st.buffered_points},
-                        {"wal_bytes_at_end", st.wal_bytes}};
+                        {"wal_bytes_at_end", st.wal_bytes},
+                        // Page faults (the process's, merger included): first touches of
+                        // fresh memory, each costly on a fresh VM (bench/README.md).
+                        {"page_faults", run_faults},
+                        {"page_faults_per_set_median", Median(faults)}};
     const std::string f = "ins." + tag;
     R.Add(f + ".set", kExp, "ms", ms, p, "time of one Commit of a " + std::to_string(c.ins_set) +
                                              "-point insert (one sample per set)");

@@ -130,15 +130,19 @@ void RunWindows(Ctx& ctx) {
     for (int lod : {0, L}) {
       QueryOptions qo;
       qo.lod = lod;
-      std::vector<double> ms, blocks;
+      std::vector<double> ms, blocks, faults, device_bytes;
       std::vector<uint64_t> counts;
       double resident = 0;
       for (int j = 0; j < c.win_cold && j < c.win_queries; ++j) {
         db.Reopen(true);
         resident = std::max(resident, db.last_resident);
         const uint64_t b0 = db.BlocksRead();
+        const ProcCounters p0 = ReadProcCounters();
         QueryRun q = RunQuery(*db.ds, ToWindow(boxes[static_cast<size_t>(j)], frame, c.fps), qo);
+        const ProcCounters p1 = ReadProcCounters();
         blocks.push_back(static_cast<double>(db.BlocksRead() - b0));
+        faults.push_back(static_cast<double>(p1.minor_faults - p0.minor_faults));
+        device_bytes.push_back(static_cast<double>(p1.read_bytes - p0.read_bytes));
         ms.push_back(q.ms);
         counts.push_back(q.points);
       }
@@ -150,6 +154,8 @@ void RunWindows(Ctx& ctx) {
       p["result_bytes"] = bytes;
       p["page_cache_resident_after_evict"] = resident;
       p["blocks_read_median"] = Median(blocks);
+      p["page_faults_median"] = Median(faults);
+      p["device_read_bytes_median"] = Median(device_bytes);
       p["block_bytes"] = c.block_kib * 1024;
       std::string name = N(n) + ".hvdb.l" + std::to_string(lod) + ".cold";
       R.Add(name, kExp, "ms", ms, p, "window query, cold (evicted files, new buffer pool)");

@@ -46,6 +46,7 @@ Config Config::Quick() {
   c.e2e_points = 100'000;
   c.e2e_queries = 64;
   c.e2e_rounds = 1;
+  c.small_frames = 200;
   return c;
 }
 
@@ -121,7 +122,9 @@ nlohmann::json ConfigJson(const Config& c) {
           {"e2e_points", c.e2e_points},
           {"e2e_clients", c.e2e_clients},
           {"e2e_queries", c.e2e_queries},
-          {"e2e_rounds", c.e2e_rounds}};
+          {"e2e_rounds", c.e2e_rounds},
+          {"small_frames", c.small_frames},
+          {"small_points", c.small_points}};
 }
 
 int Main(int argc, char** argv) {
@@ -138,7 +141,7 @@ int Main(int argc, char** argv) {
       "hvdb-bench: the storage benchmark suite. Runs the thesis's experiments (1 Table 8.2 "
       "level-of-detail loading, 2 Figure 8.13 window queries, 3 Figure 8.14 dynamic inserts, 4 "
       "Table 8.1 against the R*-tree, 5 peers on the same windows, 6 physical limits, 7 "
-      "hyperslices) with the thesis's sizes by default, and writes one JSON file (schema: "
+      "hyperslices, 9 small frames on disk) with the thesis's sizes by default, and writes one JSON file (schema: "
       "bench/README.md) and PNG plots."};
   app.add_flag("--quick", quick, "small sizes for a CI smoke run (under 2 minutes)");
   app.add_option("--out", out, "JSON file to write")->capture_default_str();
@@ -153,7 +156,7 @@ int Main(int argc, char** argv) {
                  "directory for the datasets (several GB at full size; removed at the end; "
                  "default: $TMPDIR/hvdb-bench-PID)");
   app.add_flag("--keep-scratch", keep_scratch, "leave the scratch directory in place");
-  app.add_option("--only", only, "experiments to run (1-8; 6 is part of every other one)")
+  app.add_option("--only", only, "experiments to run (1-9; 6 is part of every other one)")
       ->delimiter(',');
   app.add_option("--seed", c.seed, "random seed of the synthetic points")->capture_default_str();
   app.add_option("--cache-mib", c.cache_mib, "hvdb buffer pool (and R*-tree buffer) in MiB")
@@ -215,6 +218,9 @@ int Main(int argc, char** argv) {
       ->capture_default_str();
   g8->add_option("--e2e-rounds", c.e2e_rounds, "interleaved rounds of every client count")
       ->capture_default_str()->check(CLI::Range(1, 100));
+  auto* g9 = app.add_option_group("9 small frames on disk");
+  g9->add_option("--small-frames", c.small_frames, "frames bulk loaded")->capture_default_str();
+  g9->add_option("--small-points", c.small_points, "points per frame")->capture_default_str();
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -222,8 +228,8 @@ int Main(int argc, char** argv) {
   }
   c.only.insert(only.begin(), only.end());
   for (int e : c.only) {
-    if (e < 1 || e > 8) {
-      std::cerr << "hvdb-bench: --only takes experiments 1-8, got " << e << "\n";
+    if (e < 1 || e > 9) {
+      std::cerr << "hvdb-bench: --only takes experiments 1-9, got " << e << "\n";
       return 2;
     }
   }
@@ -232,7 +238,7 @@ int Main(int argc, char** argv) {
       c.win_cold < 1 || c.ins_total == 0 || c.ins_durable_total == 0 ||
       c.rt_small_frames == 0 || c.rt_small_points == 0 || c.rt_large_frames == 0 ||
       c.rt_large_points == 0 || c.slice_frames == 0 || c.slice_points == 0 ||
-      c.e2e_points == 0 || c.e2e_queries < 1 || c.e2e_clients.empty() ||
+      c.e2e_points == 0 || c.e2e_queries < 1 || c.small_frames == 0 || c.small_points == 0 || c.e2e_clients.empty() ||
       std::any_of(c.e2e_clients.begin(), c.e2e_clients.end(), [](int n) { return n < 1 || n > 256; }) ||
       c.bulk_reps < 1 || c.warm_reps < 1 || c.cold_reps < 1 || c.limit_reps < 1) {
     std::cerr << "hvdb-bench: sizes, steps and repetitions must be positive (and win-max >= "
@@ -301,6 +307,7 @@ int Main(int argc, char** argv) {
   step(4, "4-rtree", RunRTree);
   step(7, "7-slices", RunSlices);
   step(8, "8-server", RunServer);
+  step(9, "9-small-frames", RunSmallFrames);
   ctx.limits.reset();
 
   nlohmann::json j = ctx.report.ToJson();

@@ -1,6 +1,7 @@
 #include "bench/util.h"
 
 #include <fcntl.h>
+#include <sys/resource.h>
 #include <liburing.h>
 #include <sys/mman.h>
 #include <sys/stat.h>
@@ -112,6 +113,19 @@ void MakeDirs(const std::string& path) {
   std::error_code ec;
   fs::create_directories(path, ec);
   if (ec) Die("create " + path + ": " + ec.message());
+}
+
+ProcCounters ReadProcCounters() {
+  ProcCounters c;
+  rusage ru{};
+  if (::getrusage(RUSAGE_SELF, &ru) == 0) c.minor_faults = static_cast<uint64_t>(ru.ru_minflt);
+  std::ifstream io("/proc/self/io");
+  std::string key;
+  uint64_t v = 0;
+  while (io >> key >> v) {
+    if (key == "read_bytes:") c.read_bytes = v;
+  }
+  return c;
 }
 
 void Evict(const std::string& path) {

@@ -82,6 +82,13 @@ void SyncFiles(const std::string& path);
 // Fraction of the bytes under `path` resident in the page cache (mincore), to prove an eviction.
 double ResidentFraction(const std::string& path);
 
+// This process's minor page faults and bytes it caused to be read from the device (readahead
+// included: /proc/self/io read_bytes), to say where a cold query's time goes.
+struct ProcCounters {
+  uint64_t minor_faults = 0, read_bytes = 0;
+};
+ProcCounters ReadProcCounters();
+
 // --- physical limits (issue item 6) ----------------------------------------------------------
 // The time to move the same bytes without any index: cold, a sequential read of a file on the
 // same file system after eviction (both O_DIRECT in 4 MiB requests and buffered read() with

@@ -1,6 +1,11 @@
 #include "storage/buffer_pool.h"
 
+#include <sys/mman.h>
+#include <unistd.h>
+
+#include <algorithm>
 #include <cassert>
+#include <cstdint>
 
 namespace hvdb {
 
@@ -33,6 +38,31 @@ BufferPool::BufferPool(size_t capacity_bytes, uint32_t block_size)
   // Four loaders: batches in flight together keep the device's queue full (bench/README.md
   // has the figures). They spend their time waiting for the device, not on a core.
   for (int i = 0; i < 4; ++i) loaders_.emplace_back([this] { LoaderLoop(); });
+  std::lock_guard<std::mutex> l(mu_);
+  PopulateAheadLocked(0);
+}
+
+namespace {
+
+// Pool slots populated ahead of the first use of a slot: 16 MiB, a few cold windows' blocks.
+constexpr size_t kPopulateAheadBytes = 16u << 20;
+
+// Faults in the pages of [p, p + n) writable without touching their bytes (a slot there may be
+// loading concurrently). Kernels before 5.14 refuse the advice: the loads then fault as before.
+void Populate(uint8_t* p, size_t n) {
+  static const auto page = static_cast<uintptr_t>(::sysconf(_SC_PAGESIZE));
+  const uintptr_t lo = reinterpret_cast<uintptr_t>(p) / page * page;
+  const uintptr_t hi = (reinterpret_cast<uintptr_t>(p) + n + page - 1) / page * page;
+  (void)::madvise(reinterpret_cast<void*>(lo), hi - lo, MADV_POPULATE_WRITE);
+}
+
+}  // namespace
+
+void BufferPool::PopulateAheadLocked(uint32_t slot) {
+  const auto ahead = static_cast<uint32_t>(std::max<size_t>(1, kPopulateAheadBytes / block_size_));
+  if (slot + ahead / 2 < populate_want_ || populate_want_ >= nslots_) return;
+  populate_want_ = std::min<uint32_t>(nslots_, slot + ahead);
+  job_cv_.notify_one();
 }
 
 BufferPool::~BufferPool() {
@@ -47,7 +77,15 @@ BufferPool::~BufferPool() {
 void BufferPool::LoaderLoop() {
   std::unique_lock<std::mutex> l(mu_);
   for (;;) {
-    job_cv_.wait(l, [&] { return stop_ || !jobs_.empty(); });
+    job_cv_.wait(l, [&] { return stop_ || !jobs_.empty() || populated_ < populate_want_; });
+    if (jobs_.empty() && populated_ < populate_want_ && !stop_) {
+      const uint32_t from = populated_, to = populate_want_;
+      populated_ = to;
+      l.unlock();
+      Populate(memory_.get() + size_t{from} * block_size_, size_t{to - from} * block_size_);
+      l.lock();
+      continue;
+    }
     if (jobs_.empty()) return;  // stopping, nothing left
     Job job = std::move(jobs_.front());
     jobs_.pop_front();
@@ -116,7 +154,10 @@ int64_t BufferPool::FindVictimLocked() {
     uint32_t i = hand_;
     hand_ = (hand_ + 1) % nslots_;
     Slot& s = slots_[i];
-    if (s.state == SlotState::kFree) return i;
+    if (s.state == SlotState::kFree) {
+      PopulateAheadLocked(i);
+      return i;
+    }
     if (s.state != SlotState::kReady || s.pins > 0) continue;
     if (s.referenced) {
       s.referenced = false;

@@ -110,6 +110,9 @@ class BufferPool {
   };
   void Unpin(uint32_t slot);
   void LoaderLoop();
+  // REQUIRES: mu_ held. Slot `slot` is handed out for the first time: keep the pages of the
+  // next slots faulted in ahead of it (a loader does it).
+  void PopulateAheadLocked(uint32_t slot);
   // REQUIRES: mu_ held. Returns a free or evicted slot, or -1 when all are pinned.
   int64_t FindVictimLocked();
 
@@ -131,6 +134,11 @@ class BufferPool {
   };
   std::deque<Job> jobs_;
   std::condition_variable job_cv_;
+  // Slots [0, populated_) have their pages faulted in (or are being); populate_want_ is how far
+  // the loaders are asked to go. A fresh slot's first load would otherwise take a page fault per
+  // 4 KiB on the query's path (~1 000 for a cold window), which costs ~2 us each on a VM here
+  // and far more on a fresh one (bench/README.md, issue 35).
+  uint32_t populated_ = 0, populate_want_ = 0;
   bool stop_ = false;
   std::vector<std::thread> loaders_;
 };

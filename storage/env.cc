@@ -10,6 +10,7 @@
 #include <sys/uio.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstdio>
 #include <cstdlib>
@@ -308,33 +309,54 @@ class PosixEnv final : public Env {
   bool Exists(const std::string& path) override { return ::access(path.c_str(), F_OK) == 0; }
 
   Status WriteNewFile(const std::string& path, std::string_view data, bool sync) override {
-    const bool aligned = reinterpret_cast<uintptr_t>(data.data()) % 4096 == 0 &&
-                         data.size() % 4096 == 0;
-    if (!sync || !aligned) return Env::WriteNewFile(path, data, sync);
-    const std::string tmp = path + ".tmp";
-    int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC | O_DIRECT, 0644);
-    // File systems without direct I/O (tmpfs) refuse the flag: write through the cache there.
-    if (fd < 0 && errno == EINVAL) return Env::WriteNewFile(path, data, sync);
-    if (fd < 0) return Status::FromErrno("open " + tmp, errno);
-    Status st;
-    for (size_t done = 0; done < data.size() && st.ok();) {
-      const size_t n = std::min<size_t>(data.size() - done, 64u << 20);
-      ssize_t w = ::pwrite(fd, data.data() + done, n, static_cast<off_t>(done));
-      if (w < 0 && errno == EINTR) continue;
-      if (w <= 0) {
-        st = Status::FromErrno("write " + tmp, w < 0 ? errno : EIO);
-        break;
+    const FileExtent all{0, data.size()};
+    return WriteNewSparseFile(path, data, std::span<const FileExtent>(&all, 1), sync);
+  }
+
+  // Writes the extents with pwrite and sizes the file with ftruncate: the gaps stay holes
+  // (zeros that take no blocks). Durable: written as path.tmp, synced, renamed, the directory
+  // synced; its data bypasses the page cache (O_DIRECT) when all of it is 4 KiB-aligned, as
+  // the bytes must reach the device anyway.
+  Status WriteNewSparseFile(const std::string& path, std::string_view data,
+                            std::span<const FileExtent> extents, bool sync) override {
+    bool aligned = reinterpret_cast<uintptr_t>(data.data()) % 4096 == 0;
+    for (const FileExtent& e : extents) {
+      if (e.offset > data.size() || e.length > data.size() - e.offset) {
+        return Status::InvalidArgument("write " + path + ": extent past the end of the data");
       }
-      done += static_cast<size_t>(w);
+      aligned = aligned && e.offset % 4096 == 0 && e.length % 4096 == 0;
     }
-    if (st.ok() && ::fdatasync(fd) != 0) st = Status::FromErrno("fsync " + tmp, errno);
+    const std::string target = sync ? path + ".tmp" : path;
+    const int flags = O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC;
+    int fd = sync && aligned ? ::open(target.c_str(), flags | O_DIRECT, 0644) : -1;
+    // File systems without direct I/O (tmpfs) refuse the flag: write through the cache there.
+    if (fd < 0) fd = ::open(target.c_str(), flags, 0644);
+    if (fd < 0) return Status::FromErrno("open " + target, errno);
+    Status st;
+    for (const FileExtent& e : extents) {
+      for (uint64_t done = 0; done < e.length && st.ok();) {
+        const size_t n = static_cast<size_t>(std::min<uint64_t>(e.length - done, 64u << 20));
+        ssize_t w = ::pwrite(fd, data.data() + e.offset + done, n,
+                             static_cast<off_t>(e.offset + done));
+        if (w < 0 && errno == EINTR) continue;
+        if (w <= 0) {
+          st = Status::FromErrno("write " + target, w < 0 ? errno : EIO);
+          break;
+        }
+        done += static_cast<uint64_t>(w);
+      }
+    }
+    if (st.ok() && ::ftruncate(fd, static_cast<off_t>(data.size())) != 0) {
+      st = Status::FromErrno("truncate " + target, errno);
+    }
+    if (st.ok() && sync && ::fdatasync(fd) != 0) st = Status::FromErrno("fsync " + target, errno);
     ::close(fd);
-    if (st.ok()) st = Rename(tmp, path);
+    if (st.ok() && sync) st = Rename(target, path);
     if (!st.ok()) {
-      (void)Remove(tmp);
+      (void)Remove(target);
       return st;
     }
-    return SyncDir(ParentDir(path));
+    return sync ? SyncDir(ParentDir(path)) : Status::OK();
   }
 
   Result<std::unique_ptr<FileLock>> Lock(const std::string& path) override {

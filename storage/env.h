@@ -29,6 +29,11 @@ struct ReadRequest {
   Status status;  // set by ReadBatch
 };
 
+// A range of a file image that holds data (see Env::WriteNewSparseFile).
+struct FileExtent {
+  uint64_t offset = 0, length = 0;
+};
+
 // A read-only file; Read and ReadBatch are safe for concurrent callers.
 class RandomAccessFile {
  public:
@@ -98,6 +103,14 @@ class Env {
   // The default does it with the calls above; the POSIX Env bypasses the page cache (O_DIRECT)
   // for a durable file whose data is 4 KiB-aligned, as the bytes must reach the device anyway.
   virtual Status WriteNewFile(const std::string& path, std::string_view data, bool sync);
+  // As WriteNewFile, for an image that is zero outside `extents` (ascending, disjoint): a store
+  // may write only the extents and leave holes that read as zeros (the POSIX Env does: a small
+  // frame's mostly empty tree blocks then take no disk space). The default writes it all.
+  virtual Status WriteNewSparseFile(const std::string& path, std::string_view data,
+                                    std::span<const FileExtent> extents, bool sync) {
+    (void)extents;
+    return WriteNewFile(path, data, sync);
+  }
 };
 
 // Writes `data` to path via path.tmp + sync + rename + sync(dir): all or nothing.

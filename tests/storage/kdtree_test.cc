@@ -1,4 +1,5 @@
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 
 #include <algorithm>
 #include <cmath>
@@ -154,6 +155,38 @@ TEST(KdTreeTest, SingleBucketTreeAndTinyInputs) {
     ASSERT_TRUE(tree->ReadAll(&all).ok());
     EXPECT_EQ(all.size(), n);
     EXPECT_TRUE(tree->Verify().empty());
+  }
+}
+
+// A small frame's tree is mostly zero tails of 64 KiB blocks (a block per level segment, the
+// header, directory and checksums): the builder leaves them as holes, so the frame's disk cost
+// is its points plus at most 64 KiB (issue 35), durable (direct I/O) or not, and reads back.
+TEST(KdTreeTest, SmallFrameTreeFileIsSparse) {
+  TempDir dir;
+  BufferPool pool(8u << 20, 64u << 10);
+  std::mt19937_64 rng(7);
+  auto pts = RandomPoints(rng, 2000, 0);
+  for (size_t i = 0; i < pts.size(); ++i) pts[i].id = i + 1;
+  for (bool sync : {true, false}) {
+    const std::string path = dir.path() + (sync ? "/durable.kdt" : "/merged.kdt");
+    TreeBuildParams params;
+    params.block_size = 64u << 10;
+    params.lod_levels = 5;
+    std::vector<Point> copy = pts;
+    ASSERT_TRUE(BuildTreeFile(Env::Default(), path, copy, params, sync).ok());
+    struct stat st;
+    ASSERT_EQ(::stat(path.c_str(), &st), 0);
+    auto tree = KdTree::Open(Env::Default(), path, &pool);
+    ASSERT_TRUE(tree.ok()) << tree.status().ToString();
+    EXPECT_GE((*tree)->header().total_blocks, 8u);  // the dense file would be >= 512 KiB
+    EXPECT_EQ(static_cast<uint64_t>(st.st_size),
+              uint64_t{(*tree)->header().total_blocks} * params.block_size);
+    const uint64_t allocated = static_cast<uint64_t>(st.st_blocks) * 512;
+    EXPECT_LE(allocated, pts.size() * kPointRecordSize + (64u << 10)) << "sync " << sync;
+    EXPECT_TRUE((*tree)->Verify().empty());  // the holes read as zeros: checksums match
+    std::vector<Point> all;
+    ASSERT_TRUE((*tree)->ReadAll(&all).ok());
+    EXPECT_EQ(all.size(), pts.size());
   }
 }
 
