@@ -334,7 +334,7 @@ Status BuildTreeFile(Env* env, const std::string& path, std::vector<Point>& poin
   h.crc_table_crc = crc32c::Mask(crc32c::Value(crc_base, size_t{ncrc} * bs));
   EncodeTreeHeader(h, base);
   // Only the used bytes of each block reach the disk: a 2 000-point frame fills ~130 KiB of
-  // its ~10 blocks (one per level segment, plus header, directory and checksums).
+  // its 9 blocks (one per level segment, plus header, directory and checksums).
   UsedExtents used;
   used.Add(0, kTreeHeaderSize);
   for (int k = static_cast<int>(levels) - 1; k >= 0; --k) {
