@@ -7,9 +7,6 @@
 // T0. A built tree is not synced: its points are still in the log, and recovery deletes tree
 // files no frame state lists. Checkpoints (also run by the merger once the log is large) sync
 // the trees a frame lists, then write its state; trees the old state listed are deleted after.
-#include <pthread.h>
-#include <sched.h>
-
 #include <algorithm>
 #include <cstdio>
 
@@ -72,11 +69,6 @@ void DatasetImpl::WakeMerger() {
 }
 
 void DatasetImpl::MergerLoop() {
-  // Merges are background work: as a batch thread (and so the builder threads it starts) the
-  // merger yields a core at once to a commit waking from its fdatasync, which on two cores
-  // otherwise waits behind the builder's two threads (bench/README.md, issue 35).
-  sched_param sp{};
-  (void)pthread_setschedparam(pthread_self(), SCHED_BATCH, &sp);
   std::unique_lock<std::mutex> l(merge_mu_);
   for (;;) {
     if (opts_.retired_grace_ms > 0) {
