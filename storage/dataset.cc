@@ -478,6 +478,7 @@ DatasetStats DatasetImpl::Stats() const {
   for (const auto& [f, v] : frames_) {
     uint64_t n = v->PointCount();
     if (n > 0) ++s.frames_with_data;
+    if (n > 0 && IsCold(*v)) ++s.cold_frames;
     s.points += n;
     s.buffered_points += v->t0.size();
     for (const TreeSlot& slot : v->slots) {
@@ -485,6 +486,11 @@ DatasetStats DatasetImpl::Stats() const {
       const TreeHeader& h = slot.tree->header();
       ++s.trees;
       s.tree_bytes += slot.tree->file_bytes();
+      if (slot.tree->compressed()) {
+        ++s.cold_trees;
+        s.cold_tree_bytes += slot.tree->file_bytes();
+        s.cold_points += h.point_count;
+      }
       s.tombstones += slot.dead ? slot.dead->size() : 0;
       for (uint32_t k = 0; k < h.levels; ++k) leaf_blocks += (h.level_count[k] + b - 1) / b;
       leaf_points += h.point_count;
