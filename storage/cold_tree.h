@@ -29,8 +29,9 @@ enum class ColdCoding : uint8_t {
 };
 
 // Writes `image` (a raw tree file image) at `path` in the compressed format. sync: via path.tmp,
-// sync, rename, as BuildTreeFile.
-Status WriteCompressedTree(Env* env, const std::string& path, const TreeImage& image, bool sync);
+// sync, rename, as BuildTreeFile. Reorders the image's points within each bucket's range of a
+// level (the order there is free), to the order that codes smaller.
+Status WriteCompressedTree(Env* env, const std::string& path, TreeImage& image, bool sync);
 
 // The block table of a compressed file.
 struct ColdBlockTable {
