@@ -149,23 +149,12 @@ class BitWriter {
 class BitReader {
  public:
   BitReader(const uint8_t* p, const uint8_t* end) : p_(p), end_(end) {}
-  uint64_t Get(int bits) {  // bits <= 63
-    if (bits > 32) {
-      uint64_t lo = Get(32);
-      return lo | (Get(bits - 32) << 32);
-    }
-    if (fill_ < bits) {
-      while (fill_ <= 56 && p_ < end_) {
-        acc_ |= uint64_t{*p_++} << fill_;
-        fill_ += 8;
-      }
-      if (fill_ < bits) {  // past the end: damage, reported by ok(); zeros meanwhile
-        overrun_ = true;
-        fill_ = bits;
-      }
-    }
-    uint64_t v = acc_ & Mask(bits);
-    acc_ = bits == 64 ? 0 : acc_ >> bits;
+  // bits <= 63. Inlined into the decoding loops: it runs once per coded value.
+  __attribute__((always_inline)) uint64_t Get(int bits) {
+    if (bits > 56) return GetLong(bits);
+    if (fill_ < bits) Refill(bits);
+    const uint64_t v = acc_ & Mask(bits);
+    acc_ >>= bits;
     fill_ -= bits;
     return v;
   }
@@ -173,6 +162,31 @@ class BitReader {
   bool ok() const { return !overrun_ && p_ == end_ && fill_ < 8; }
 
  private:
+  uint64_t GetLong(int bits) {  // 57..63 bits: in two reads
+    const uint64_t lo = Get(32);
+    return lo | (Get(bits - 32) << 32);
+  }
+  void Refill(int bits) {
+    if (end_ - p_ >= 8) {  // a word at once: whole bytes up to 56+ bits buffered
+      uint64_t w;
+      std::memcpy(&w, p_, 8);
+      if constexpr (std::endian::native == std::endian::big) w = __builtin_bswap64(w);
+      acc_ |= w << fill_;
+      const int take = (63 - fill_) >> 3;
+      p_ += take;
+      fill_ += 8 * take;
+      return;
+    }
+    while (fill_ <= 56 && p_ < end_) {
+      acc_ |= uint64_t{*p_++} << fill_;
+      fill_ += 8;
+    }
+    if (fill_ < bits) {  // past the end: damage, reported by ok(); zeros meanwhile
+      overrun_ = true;
+      fill_ = bits;
+    }
+  }
+
   const uint8_t* p_;
   const uint8_t* end_;
   uint64_t acc_ = 0;
@@ -188,6 +202,96 @@ struct ColumnPlan {
 };
 
 inline int ClassOf(uint64_t z) { return 64 - std::countl_zero(z); }
+
+// The rANS decoder's state while the fields are decoded one after another.
+struct RansIn {
+  uint32_t x;
+  const uint8_t* p;
+  const uint8_t* end;
+  bool overrun;
+};
+
+// Decodes field f of records 1..m (record 0 is in place): one loop per coding mode, with the
+// field's width and prediction known at compile time, since a cold query decodes every block
+// it reads (this loop is where a cold frame's time goes).
+template <typename T, Kind K>
+void DecodeColumn(const ColumnPlan& pl, const Field& f, uint8_t* dst, uint32_t m, RansIn* in,
+                  BitReader* br) {
+  constexpr int kBits = 8 * sizeof(T);
+  auto load = [&](const uint8_t* rec) {
+    T v;
+    std::memcpy(&v, rec + f.offset, sizeof(T));
+    if constexpr (std::endian::native == std::endian::big) v = static_cast<T>(Load(reinterpret_cast<const uint8_t*>(&v), sizeof(T)));
+    return v;
+  };
+  auto store = [&](uint8_t* rec, T v) {
+    if constexpr (std::endian::native == std::endian::little) {
+      std::memcpy(rec + f.offset, &v, sizeof(T));
+    } else {
+      Store(rec + f.offset, sizeof(T), v);
+    }
+  };
+  auto forward = [&](uint8_t* rec, T v) -> T {  // predicted quantity -> stored value
+    if constexpr (K == Kind::kFloat) {
+      return (v & 0x80000000u) ? static_cast<T>(v & 0x7FFFFFFFu) : static_cast<T>(~v);
+    } else if constexpr (K == Kind::kColour) {
+      return static_cast<T>(v + rec[57]);
+    } else {
+      (void)rec;
+      return v;
+    }
+  };
+  T prev = static_cast<T>(Transform(dst, f));
+  uint8_t* rec = dst + kRecordSize;
+  auto emit = [&](uint64_t zz) {
+    const T d = static_cast<T>((zz >> 1) ^ (0 - (zz & 1)));
+    prev = static_cast<T>(prev + d);
+    store(rec, forward(rec, prev));
+    rec += kRecordSize;
+  };
+  (void)load;
+  if (pl.mode == kAllZero) {
+    const T v = load(dst);
+    for (uint32_t i = 0; i < m; ++i, rec += kRecordSize) {
+      if constexpr (K == Kind::kColour) {
+        store(rec, forward(rec, prev));
+      } else {
+        store(rec, v);
+      }
+    }
+    return;
+  }
+  if (pl.mode == kOneClass) {
+    const int s = pl.one_class;
+    for (uint32_t i = 0; i < m; ++i) {
+      emit(s == 1 ? 1 : (uint64_t{1} << (s - 1)) | br->Get(s - 1));
+    }
+    return;
+  }
+  // Each slot of the scale: its class, frequency and cumulative frequency in one word.
+  std::array<uint32_t, kProbScale> slots;
+  for (int s = 0; s <= kBits; ++s) {
+    const uint32_t e = static_cast<uint32_t>(s) | pl.freq[s] << 8 | pl.cum[s] << 20;
+    for (uint32_t k = 0; k < pl.freq[s]; ++k) slots[pl.cum[s] + k] = e;
+  }
+  uint32_t x = in->x;
+  for (uint32_t i = 0; i < m; ++i) {
+    const uint32_t slot = x & (kProbScale - 1);
+    const uint32_t e = slots[slot];
+    const int s = static_cast<int>(e & 0xFF);
+    x = ((e >> 8) & 0xFFF) * (x >> kProbBits) + slot - (e >> 20);
+    while (x < kRansL) {
+      if (in->p >= in->end) {
+        in->overrun = true;
+        x = kRansL;  // keep going; the block is refused after
+        break;
+      }
+      x = (x << 8) | *in->p++;
+    }
+    emit(s <= 1 ? static_cast<uint64_t>(s) : (uint64_t{1} << (s - 1)) | br->Get(s - 1));
+  }
+  in->x = x;
+}
 
 }  // namespace
 
@@ -373,55 +477,30 @@ bool DecodeRecordBlock(const uint8_t* src, size_t len, uint8_t* dst, uint32_t ca
     if (x < kRansL) return fail("bad rANS state");
   }
   BitReader br(p, end);
-  std::array<uint8_t, kProbScale> slot_class;
-  bool rans_overrun = false;
+  RansIn in{x, rans, rans_end, false};
   for (size_t c = 0; c < kFields.size(); ++c) {
     const Field& f = kFields[c];
-    const ColumnPlan& pl = plans[c];
-    const int bits = 8 * f.bytes;
-    const uint64_t mask = Mask(bits);
-    uint64_t prev = Transform(dst, f);
-    if (pl.mode == kTable) {
-      for (int s = 0; s < kMaxSymbols; ++s) {
-        if (pl.freq[s]) {
-          std::memset(slot_class.data() + pl.cum[s], s, pl.freq[s]);
+    switch (f.bytes) {
+      case 8: DecodeColumn<uint64_t, Kind::kInt>(plans[c], f, dst, m, &in, &br); break;
+      case 4:
+        if (f.kind == Kind::kFloat) {
+          DecodeColumn<uint32_t, Kind::kFloat>(plans[c], f, dst, m, &in, &br);
+        } else {
+          DecodeColumn<uint32_t, Kind::kInt>(plans[c], f, dst, m, &in, &br);
         }
-      }
-    }
-    uint8_t* rec = dst + kRecordSize;
-    for (uint32_t i = 0; i < m; ++i, rec += kRecordSize) {
-      int s;
-      if (pl.mode == kTable) {
-        const uint32_t slot = x & (kProbScale - 1);
-        s = slot_class[slot];
-        x = pl.freq[s] * (x >> kProbBits) + slot - pl.cum[s];
-        while (x < kRansL) {
-          if (rans >= rans_end) {
-            rans_overrun = true;
-            x = kRansL;  // keep going; the block is refused below
-            break;
-          }
-          x = (x << 8) | *rans++;
+        break;
+      case 2: DecodeColumn<uint16_t, Kind::kInt>(plans[c], f, dst, m, &in, &br); break;
+      default:
+        if (f.kind == Kind::kColour) {
+          DecodeColumn<uint8_t, Kind::kColour>(plans[c], f, dst, m, &in, &br);
+        } else {
+          DecodeColumn<uint8_t, Kind::kInt>(plans[c], f, dst, m, &in, &br);
         }
-      } else {
-        s = pl.mode == kOneClass ? pl.one_class : 0;
-      }
-      uint64_t zz = 0;
-      if (s == 1) {
-        zz = 1;
-      } else if (s >= 2) {
-        zz = (uint64_t{1} << (s - 1)) | br.Get(s - 1);
-      }
-      const uint64_t d = ((zz >> 1) ^ (0 - (zz & 1))) & mask;
-      const uint64_t t = (prev + d) & mask;
-      prev = t;
-      if (f.kind == Kind::kInt) {
-        Store(rec + f.offset, f.bytes, t);
-      } else {
-        Store(rec + f.offset, f.bytes, Untransform(t, rec, f));
-      }
     }
   }
+  x = in.x;
+  rans = in.p;
+  const bool rans_overrun = in.overrun;
   if (rans_overrun || (any_table && (rans != rans_end || x != kRansL))) {
     return fail("rANS stream damaged");
   }
