@@ -286,7 +286,8 @@ void DatasetImpl::TierPass() {
 Result<CompactInfo> DatasetImpl::Compact(uint32_t first, uint32_t last) {
   if (first > last) {
     return Status::InvalidArgument("compact: first frame " + std::to_string(first) +
-                                   " is after last frame " + std::to_string(last));
+                                   " is after last frame " + std::to_string(last) +
+                                   "; give first <= last");
   }
   if (follower_.load()) {
     return Status::NotLeader("dataset '" + info_.name + "' is only read here: compact it on "

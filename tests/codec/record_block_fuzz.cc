@@ -1,6 +1,7 @@
 // libFuzzer target for the record-block decoder (codec/record_block.h, the cold tier's block
 // coding): any bytes must decode or be refused, never crash, hang or read out of bounds.
-// scripts/test.sh runs it on tests/codec/record_block_fuzz_corpus.
+// scripts/test.sh runs it on tests/codec/record_block_fuzz_corpus (seeds written by
+// tests/codec/make_record_block_corpus.cc).
 #include <cstddef>
 #include <cstdint>
 #include <string>
