@@ -392,7 +392,8 @@ Status DatasetImpl::Load(bool writer, const FrameMap& reuse, Loaded* out) {
   }
   for (const TxnRecord& rec : wal.records) {
     last = std::max(last, rec.lsn);
-    if (rec.bulk) continue;  // its frame state is durable; the marker is for followers
+    // Its frame state is durable; the marker is for followers.
+    if (rec.bulk || rec.tier) continue;
     for (const FrameEffect& step : rec.frames) {
       auto pl = persisted_lsn.find(step.frame);
       if (pl != persisted_lsn.end() && rec.lsn <= pl->second) continue;

@@ -196,6 +196,24 @@ Status DatasetImpl::InstallTier(const Tiering& t) {
     for (const TreeSlot& s : cur->slots) {
       if (s.tree) Bury(s.tree);  // the durable state no longer lists them
     }
+    // For followers: re-read the frame's state (they would otherwise go on reading the old
+    // trees until their next full reload). The state is durable already: a failure here
+    // only delays them.
+    TxnRecord marker;
+    {
+      std::lock_guard<std::mutex> l(mu_);
+      marker.lsn = last_lsn_;
+    }
+    marker.tier = true;
+    marker.frames.emplace_back();
+    marker.frames[0].frame = t.frame;
+    Status logged = wal_->Append({marker});
+    if (logged.ok() && opts_.sync) logged = wal_->Sync();
+    wal_bytes_ = wal_->size();
+    if (!logged.ok()) {
+      LogWarning(info_.name + ": frame " + std::to_string(t.frame) +
+                 " compacted, but its log marker failed: " + logged.ToString());
+    }
     return Status::OK();
   }
   const std::shared_ptr<KdTree>& was = t.base->slots[t.slot].tree;

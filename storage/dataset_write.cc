@@ -675,7 +675,7 @@ Result<TxnRecord> DatasetImpl::FindRecord(uint64_t lsn) const {
   for (const std::string& n : logs) {
     HVDB_ASSIGN_OR_RETURN(WalContents c, ReadWal(env_, dir_ + "/" + n));
     for (TxnRecord& r : c.records) {
-      if (r.lsn == lsn && !r.bulk) return std::move(r);
+      if (r.lsn == lsn && !r.bulk && !r.tier) return std::move(r);
     }
   }
   return Status::NotFound("transaction " + std::to_string(lsn) +
