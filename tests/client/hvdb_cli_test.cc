@@ -238,6 +238,10 @@ TEST_F(HvdbCliTest, ImportQueryEditUndoCheck) {
   EXPECT_EQ(st["datasets"][0]["hot_tree_bytes"], 0);
   r = Run("stats walk");
   EXPECT_NE(r.out.find("cold tier: 3 frames"), std::string::npos) << r.out;
+  json d = RunJson("describe walk");
+  EXPECT_EQ(d["storage"]["cold"]["frames"], 3);
+  EXPECT_EQ(d["storage"]["hot"]["tree_bytes"], 0);
+  EXPECT_GT(d["storage"]["cold"]["tree_bytes"].get<double>(), 0);
   EXPECT_EQ(RunJson("window walk " + std::string(kEverything))["points"], before["points"]);
   EXPECT_EQ(RunJson("window walk --label-mask 4 " + std::string(kEverything))["points"], legs);
 
