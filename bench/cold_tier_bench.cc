@@ -82,15 +82,18 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
 
   // The 16 frames, as `hvdb import --units-scale 0.01` reads them.
-  std::vector<std::vector<Point>> frames;
+  std::vector<std::string> files;
   for (const std::string& f : FilesUnder(panoptic)) {
-    if (f.find("ptcloud_hd") == std::string::npos || !f.ends_with(".ply")) continue;
+    if (f.find("ptcloud_hd") != std::string::npos && f.ends_with(".ply")) files.push_back(f);
+  }
+  std::sort(files.begin(), files.end());  // frame order
+  std::vector<std::vector<Point>> frames;
+  for (const std::string& f : files) {
     formats::ReadOptions ro;
     ro.scale = 0.01;
     frames.push_back(Check(formats::ReadPly(f, ro), "read " + f));
   }
   if (frames.empty()) Die("no ptcloud_hd*.ply under " + panoptic);
-  std::sort(frames.begin(), frames.end(), [](const auto& a, const auto& b) { return a.size() < b.size(); });
   uint64_t points = 0;
   for (const auto& f : frames) points += f.size();
   Log("%zu frames, %llu points", frames.size(), static_cast<unsigned long long>(points));
