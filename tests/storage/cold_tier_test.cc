@@ -69,17 +69,32 @@ std::vector<Point> FramePoints(uint32_t f) {
 
 class ColdTierTest : public ::testing::Test {
  protected:
-  void SetUp() override {
+  void Close() {
+    cold_.reset();
+    raw_.reset();
+    db_.reset();
+  }
+  // cold_after_s 0: only Compact() compresses.
+  void Reopen(uint32_t cold_after_s = 0) {
+    Close();
     Options o;
     o.cache_bytes = 16u << 20;
     o.t0_points = 4096;
-    o.cold_after_s = 0;  // only Compact() compresses here
+    o.cold_after_s = cold_after_s;
 #ifdef HVDB_TEST_RADOS
     o.env = testing::RadosTestEnv();
 #endif
     auto db = Database::Open(dir_.path(), o);
     ASSERT_TRUE(db.ok()) << db.status().ToString();
     db_ = std::move(*db);
+    auto raw = db_->GetDataset("raw"), cold = db_->GetDataset("cold");
+    if (raw.ok()) raw_ = *raw;
+    if (cold.ok()) cold_ = *cold;
+  }
+
+  void SetUp() override {
+    Reopen();
+    if (HasFatalFailure()) return;
     for (const char* name : {"raw", "cold"}) {
       DatasetInfo info;
       info.name = name;
@@ -229,49 +244,26 @@ TEST_F(ColdTierTest, EditsOfACompressedFrameWorkAreUndoableAndThawIt) {
   EXPECT_EQ(Sorted(RunQuery(*cold_, testing::FrameWindow(1, kFps), {})), frame1);
   // And it survives a reopen with the frames in both tiers.
   ASSERT_TRUE(cold_->Compact(0, kFrames - 1).ok());
-  cold_.reset();
-  raw_.reset();
-  db_.reset();
-  Options o;
-  o.cold_after_s = 0;
-#ifdef HVDB_TEST_RADOS
-  o.env = testing::RadosTestEnv();
-#endif
-  auto db = Database::Open(dir_.path(), o);
-  ASSERT_TRUE(db.ok()) << db.status().ToString();
-  db_ = std::move(*db);
-  raw_ = *db_->GetDataset("raw");
-  cold_ = *db_->GetDataset("cold");
+  Reopen();
+  ASSERT_TRUE(raw_ && cold_);
   EXPECT_EQ(cold_->Stats().cold_frames, kFrames);
   same_full_resolution("after a reopen");
   EXPECT_TRUE(cold_->Check().empty());
 }
 
 TEST_F(ColdTierTest, IdleFramesGoColdInTheBackground) {
-  cold_.reset();
-  raw_.reset();
-  db_.reset();
-  Options o;
-  o.cold_after_s = 1;
-#ifdef HVDB_TEST_RADOS
-  o.env = testing::RadosTestEnv();
-#endif
-  auto db = Database::Open(dir_.path(), o);
-  ASSERT_TRUE(db.ok()) << db.status().ToString();
-  auto ds = (*db)->GetDataset("cold");
-  ASSERT_TRUE(ds.ok());
-  for (int i = 0; i < 300 && (*ds)->Stats().cold_frames < kFrames; ++i) {
+  Reopen(/*cold_after_s=*/1);
+  ASSERT_TRUE(cold_);
+  for (int i = 0; i < 300 && cold_->Stats().cold_frames < kFrames; ++i) {
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
-  EXPECT_EQ((*ds)->Stats().cold_frames, kFrames);
+  EXPECT_EQ(cold_->Stats().cold_frames, kFrames);
 }
 
 #ifndef HVDB_TEST_RADOS  // damages a file in place: a local directory
 TEST_F(ColdTierTest, ACorruptCompressedBlockIsDetectedAndNamed) {
   ASSERT_TRUE(cold_->Compact(4, 4).ok());
-  cold_.reset();
-  raw_.reset();
-  db_.reset();
+  Close();
   // Flip a byte in the middle of frame 4's compressed tree (inside a block's payload).
   std::string victim;
   for (const auto& e : std::filesystem::directory_iterator(dir_.path() + "/cold/trees")) {
@@ -288,20 +280,15 @@ TEST_F(ColdTierTest, ACorruptCompressedBlockIsDetectedAndNamed) {
     c = static_cast<char>(c ^ 0x10);
     f.write(&c, 1);
   }
-  Options o;
-  o.cold_after_s = 0;
-  o.cache_bytes = 8u << 20;
-  auto db = Database::Open(dir_.path(), o);
-  ASSERT_TRUE(db.ok()) << db.status().ToString();
-  auto ds = (*db)->GetDataset("cold");
-  ASSERT_TRUE(ds.ok());
-  auto problems = (*ds)->Check();
+  Reopen();
+  ASSERT_TRUE(cold_);
+  auto problems = cold_->Check();
   ASSERT_FALSE(problems.empty());
   EXPECT_NE(problems[0].find(victim.substr(victim.rfind('/') + 1)), std::string::npos)
       << problems[0];
   EXPECT_NE(problems[0].find("block"), std::string::npos) << problems[0];
   // A query over the damaged frame fails with that error; the other frames still answer.
-  auto c = (*ds)->Query(testing::FrameWindow(4, kFps), {});
+  auto c = cold_->Query(testing::FrameWindow(4, kFps), {});
   bool failed = !c.ok();
   if (c.ok()) {
     Batch b;
@@ -316,7 +303,7 @@ TEST_F(ColdTierTest, ACorruptCompressedBlockIsDetectedAndNamed) {
     }
   }
   EXPECT_TRUE(failed);
-  EXPECT_EQ(RunQuery(**ds, testing::FrameWindow(5, kFps), {}).size(), 30000u);
+  EXPECT_EQ(RunQuery(*cold_, testing::FrameWindow(5, kFps), {}).size(), 30000u);
 }
 #endif
 
