@@ -147,6 +147,10 @@ class EmbeddedBackend final : public Backend {
     return Do(name, [&](service::Service& x) { return x.Revert(name, lsn); });
   }
 
+  Result<CompactInfo> Compact(const std::string& name, uint32_t first, uint32_t last) override {
+    return Do(name, [&](service::Service& x) { return x.Compact(name, first, last); });
+  }
+
   Status PutPhoto(const std::string& name, uint32_t frame, const Photo& photo) override {
     HVDB_ASSIGN_OR_RETURN(service::Service * x, Service(/*create=*/false));
     return Explain(name, x->PutPhoto(name, frame, photo));
@@ -415,6 +419,14 @@ class RemoteBackend final : public Backend {
   Result<CommitInfo> Revert(const std::string& name, uint64_t lsn) override {
     Result<CommitInfo> r =
         Run<CommitInfo>(false, [&](Connection& c) { return c.Revert(name, lsn); });
+    if (!r.ok()) return Explain(name, r.status());
+    return r;
+  }
+
+  Result<CompactInfo> Compact(const std::string& name, uint32_t first, uint32_t last) override {
+    // Safe to repeat: frames compressed already are left as they are.
+    Result<CompactInfo> r =
+        Run<CompactInfo>(true, [&](Connection& c) { return c.Compact(name, first, last); });
     if (!r.ok()) return Explain(name, r.status());
     return r;
   }

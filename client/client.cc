@@ -633,6 +633,17 @@ Result<CommitInfo> Connection::Revert(const std::string& dataset, uint64_t lsn) 
   return wire::FromWire(r.commit());
 }
 
+Result<CompactInfo> Connection::Compact(const std::string& dataset, uint32_t first,
+                                        uint32_t last) {
+  wire::Request req;
+  auto* c = req.mutable_compact();
+  c->set_dataset(dataset);
+  c->set_first(first);
+  c->set_last(last);
+  HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
+  return wire::FromWire(r.compacted());
+}
+
 Status Connection::PutPhoto(const std::string& dataset, uint32_t frame, const Photo& photo) {
   wire::Request req;
   auto* p = req.mutable_put_photo();

@@ -304,6 +304,34 @@ void ToWire(const hvdb::DatasetStats& s, wire::DatasetStats* out) {
   out->set_leaf_utilisation(s.leaf_utilisation);
   out->set_merges(s.merges);
   out->set_checkpoints(s.checkpoints);
+  out->set_cold_frames(s.cold_frames);
+  out->set_cold_trees(s.cold_trees);
+  out->set_cold_tree_bytes(s.cold_tree_bytes);
+  out->set_cold_points(s.cold_points);
+}
+
+void ToWire(const hvdb::CompactInfo& c, wire::CompactReply* out) {
+  out->set_frames(c.frames);
+  out->set_already(c.already);
+  out->set_points(c.points);
+  out->set_bytes_before(c.bytes_before);
+  out->set_bytes_after(c.bytes_after);
+}
+
+hvdb::CompactInfo FromWire(const wire::CompactReply& c) {
+  hvdb::CompactInfo d;
+  d.frames = c.frames();
+  d.already = c.already();
+  d.points = c.points();
+  d.bytes_before = c.bytes_before();
+  d.bytes_after = c.bytes_after();
+  return d;
+}
+
+Result<std::pair<uint32_t, uint32_t>> FromWire(const wire::CompactRequest& c) {
+  // The range is judged by the engine (Dataset::Compact), as for an embedded caller.
+  if (c.all()) return std::pair<uint32_t, uint32_t>{0, UINT32_MAX};
+  return std::pair<uint32_t, uint32_t>{c.first(), c.last()};
 }
 
 hvdb::DatasetStats FromWire(const wire::DatasetStats& s) {
@@ -318,6 +346,10 @@ hvdb::DatasetStats FromWire(const wire::DatasetStats& s) {
   d.leaf_utilisation = s.leaf_utilisation();
   d.merges = s.merges();
   d.checkpoints = s.checkpoints();
+  d.cold_frames = s.cold_frames();
+  d.cold_trees = s.cold_trees();
+  d.cold_tree_bytes = s.cold_tree_bytes();
+  d.cold_points = s.cold_points();
   return d;
 }
 

@@ -410,7 +410,10 @@ class Database {
       datasets.append(py::dict("name"_a = e.name, "last_lsn"_a = e.last_lsn,
                                "frames_with_data"_a = s.frames_with_data, "points"_a = s.points,
                                "tombstones"_a = s.tombstones,
-                               "buffered_points"_a = s.buffered_points));
+                               "buffered_points"_a = s.buffered_points,
+                               "tree_bytes"_a = s.tree_bytes, "cold_frames"_a = s.cold_frames,
+                               "cold_tree_bytes"_a = s.cold_tree_bytes,
+                               "cold_points"_a = s.cold_points));
     }
     py::dict out("datasets"_a = datasets);
     if (r.cache) {
@@ -484,6 +487,13 @@ class Database {
     std::unique_ptr<client::Watcher> w =
         Take(Call([&](client::Backend& b) { return b.Watch(name, from_lsn); }));
     return Watch(s, std::move(w));
+  }
+
+  // The cold tier: frames [first, last] compressed now.
+  py::dict Compact(const std::string& name, uint32_t first, uint32_t last) {
+    CompactInfo c = Take(Call([&](client::Backend& b) { return b.Compact(name, first, last); }));
+    return py::dict("frames"_a = c.frames, "already"_a = c.already, "points"_a = c.points,
+                    "bytes_before"_a = c.bytes_before, "bytes_after"_a = c.bytes_after);
   }
 
   py::dict Revert(const std::string& name, uint64_t lsn) {
@@ -732,6 +742,7 @@ PYBIND11_MODULE(_hvdb, m) {
       .def("bulk_load", &Database::BulkLoad)
       .def("commit", &Database::Commit)
       .def("revert", &Database::Revert)
+      .def("compact", &Database::Compact, "name"_a, "first"_a = 0u, "last"_a = 0xFFFFFFFFu)
       .def("watch", &Database::StartWatch, "name"_a, "from_lsn"_a = py::none())
       .def("select", &Database::Select)
       .def("graphcut", &Database::GraphCut)

@@ -55,6 +55,10 @@ int main(int argc, char** argv) {
       ->capture_default_str()->check(CLI::Range(1u, 256u));
   app.add_option("--cache-mb", c.cache_mb, "block cache size in MiB (>= 8)")->capture_default_str()
       ->check(CLI::Range(size_t{8}, size_t{1} << 20));
+  app.add_option("--cold-after", c.cold_after_s,
+                 "seconds without writes after which a frame is compressed into the cold tier "
+                 "(lossless, ~1/5 of the bytes; 0: only `hvdb compact` does it)")
+      ->capture_default_str();
   app.add_option("--max-frame-bytes", c.max_frame_bytes, "largest request frame accepted")
       ->capture_default_str()->check(CLI::Range(1024u, 1u << 30));
   app.add_option("--max-connections", c.max_connections,

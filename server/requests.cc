@@ -31,6 +31,7 @@ const char* KindOf(const wire::Request& r) {
     case wire::Request::kImportMedia: return "import_media";
     case wire::Request::kRelease: return "release";
     case wire::Request::kWatch: return "watch";
+    case wire::Request::kCompact: return "compact";
     default: return "unknown";
   }
 }
@@ -48,7 +49,8 @@ bool Writes(const wire::Request& r) {
     case wire::Request::kCopy:
     case wire::Request::kPaste:
     case wire::Request::kComposite:
-    case wire::Request::kImportMedia: return true;
+    case wire::Request::kImportMedia:
+    case wire::Request::kCompact: return true;
     default: return false;
   }
 }
@@ -76,7 +78,8 @@ bool IsUnary(const wire::Request& r) {
     case wire::Request::kCopy:
     case wire::Request::kPaste:
     case wire::Request::kComposite:
-    case wire::Request::kImportMedia: return true;
+    case wire::Request::kImportMedia:
+    case wire::Request::kCompact: return true;
     default: return false;
   }
 }
@@ -168,6 +171,12 @@ wire::Response Execute(Server* s, uint64_t id, const wire::Request& req) {
                      return x.ImportMedia(req.import_media().dataset(), q);
                    },
                    EncodeCommit);
+    case wire::Request::kCompact:
+      return Serve(id, req.compact(), [](const auto& c) { return wire::FromWire(c); },
+                   [&](const std::pair<uint32_t, uint32_t>& range) {
+                     return x.Compact(req.compact().dataset(), range.first, range.second);
+                   },
+                   [](const CompactInfo& c, wire::Response* r) { wire::ToWire(c, r->mutable_compacted()); });
     default:
       return ErrorResponse(id, Status::InvalidArgument("request: not a unary request"), wire::MALFORMED);
   }

@@ -321,6 +321,7 @@ Result<std::unique_ptr<Server>> Server::Create(const Config& config) {
   // Trees a checkpoint replaces outlive it by this much, for the queries of reading servers
   // that still read the state before it.
   opts.retired_grace_ms = config.follow ? 30000 : 0;
+  opts.cold_after_s = config.cold_after_s;
   std::unique_ptr<Env> store_env;
   if (!config.store.empty()) {
     RadosSpec spec;

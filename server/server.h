@@ -60,6 +60,8 @@ struct Config {
   unsigned io_threads = std::max(1u, std::thread::hardware_concurrency());
   unsigned worker_threads = std::max(1u, std::thread::hardware_concurrency());
   size_t cache_mb = 256;
+  // Frames not written for this many seconds go to the cold tier (Options::cold_after_s).
+  uint32_t cold_after_s = 3600;
   uint32_t max_frame_bytes = 16u << 20;
   uint32_t max_connections = 256;
   // Connections that have not completed their Hello have a pool of their own: when it is full,

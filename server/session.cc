@@ -269,7 +269,8 @@ void Session::Dispatch(wire::Request req) {
           nlohmann::json j = {{"frames_with_data", v.frames_with_data}, {"points", v.points},
                               {"tombstones", v.tombstones}, {"buffered_points", v.buffered_points},
                               {"trees", v.trees}, {"tree_bytes", v.tree_bytes},
-                              {"wal_bytes", v.wal_bytes}, {"leaf_utilisation", v.leaf_utilisation}};
+                              {"wal_bytes", v.wal_bytes}, {"leaf_utilisation", v.leaf_utilisation},
+                              {"cold_frames", v.cold_frames}, {"cold_tree_bytes", v.cold_tree_bytes}};
           st->set_dataset_json(j.dump());
         }
         return r;

@@ -79,6 +79,11 @@ Result<CommitInfo> Service::Revert(const std::string& name, uint64_t lsn) {
   return ds->Revert(lsn);
 }
 
+Result<CompactInfo> Service::Compact(const std::string& name, uint32_t first, uint32_t last) {
+  HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
+  return ds->Compact(first, last);
+}
+
 Status Service::PutPhoto(const std::string& name, uint32_t frame, const Photo& photo) {
   HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
   HVDB_RETURN_IF_ERROR(render::CheckPhoto(photo));

@@ -317,6 +317,9 @@ Result<CommitInfo> Dataset::Revert(uint64_t lsn) { return impl_->Revert(lsn); }
 DatasetStats Dataset::Stats() const { return impl_->Stats(); }
 std::vector<std::string> Dataset::Check() const { return impl_->Check(); }
 Status Dataset::Checkpoint() { return impl_->Checkpoint(); }
+Result<CompactInfo> Dataset::Compact(uint32_t first, uint32_t last) {
+  return impl_->Compact(first, last);
+}
 Status Dataset::WaitForMerges() { return impl_->WaitForMerges(); }
 Result<std::unique_ptr<WatchHandle>> Dataset::Watch(std::optional<uint64_t> from_lsn, ChangeFn fn) {
   return impl_->Watch(from_lsn, std::move(fn));

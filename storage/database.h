@@ -51,6 +51,11 @@ struct Options {
   // Tree files a checkpoint or bulk load replaced stay this long before they are deleted, so
   // that followers' queries on the state they last read can finish (0: deleted at once).
   uint32_t retired_grace_ms = 0;
+  // The cold tier (docs/FORMAT.md "Compressed tree file"): a frame not written for this many
+  // seconds is rewritten by the merger into one compressed tree (lossless, ~1/5 of the bytes;
+  // queries decode the blocks they read). A write brings it back to raw trees. 0: never
+  // automatically (Dataset::Compact still does it).
+  uint32_t cold_after_s = 3600;
 };
 
 // One camera of the recording rig, for view-dependent rendering.
@@ -215,9 +220,21 @@ struct DatasetStats {
   uint32_t frames_with_data = 0;
   uint64_t points = 0, tombstones = 0, buffered_points = 0;
   uint64_t trees = 0, tree_bytes = 0, wal_bytes = 0;
+  // Of those, in the cold tier: compressed frames (all their points in one compressed tree),
+  // compressed trees, their file bytes and points.
+  uint32_t cold_frames = 0;
+  uint64_t cold_trees = 0, cold_tree_bytes = 0, cold_points = 0;
   uint64_t merges = 0;       // trees built by the merger since open
   uint64_t checkpoints = 0;  // log segments closed since open
   double leaf_utilisation = 0;  // points / (leaf blocks * b) over all trees
+};
+
+// What Dataset::Compact did.
+struct CompactInfo {
+  uint32_t frames = 0;             // frames rewritten into the cold tier
+  uint32_t already = 0;            // frames in the range that were compressed already
+  uint64_t points = 0;             // their points
+  uint64_t bytes_before = 0, bytes_after = 0;  // their tree files' bytes
 };
 
 struct CacheStats {
@@ -250,6 +267,10 @@ class Dataset {
   std::vector<std::string> Check() const;
   // Writes all buffered frame state and starts a new log segment.
   Status Checkpoint();
+  // Rewrites the frames in [first, last] that hold points into the cold tier now (one
+  // compressed tree each; Options::cold_after_s does it in the background), durably. Frames
+  // written meanwhile are retried, then left hot.
+  Result<CompactInfo> Compact(uint32_t first, uint32_t last);
   // Stores the photo of camera photo.camera.id for `frame` (replacing any), durably
   // (docs/FORMAT.md "Photos"). NotLeader on a follower.
   Status PutPhoto(uint32_t frame, const Photo& photo);

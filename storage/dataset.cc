@@ -392,7 +392,8 @@ Status DatasetImpl::Load(bool writer, const FrameMap& reuse, Loaded* out) {
   }
   for (const TxnRecord& rec : wal.records) {
     last = std::max(last, rec.lsn);
-    if (rec.bulk) continue;  // its frame state is durable; the marker is for followers
+    // Its frame state is durable; the marker is for followers.
+    if (rec.bulk || rec.tier) continue;
     for (const FrameEffect& step : rec.frames) {
       auto pl = persisted_lsn.find(step.frame);
       if (pl != persisted_lsn.end() && rec.lsn <= pl->second) continue;
@@ -478,6 +479,7 @@ DatasetStats DatasetImpl::Stats() const {
   for (const auto& [f, v] : frames_) {
     uint64_t n = v->PointCount();
     if (n > 0) ++s.frames_with_data;
+    if (n > 0 && IsCold(*v)) ++s.cold_frames;
     s.points += n;
     s.buffered_points += v->t0.size();
     for (const TreeSlot& slot : v->slots) {
@@ -485,6 +487,11 @@ DatasetStats DatasetImpl::Stats() const {
       const TreeHeader& h = slot.tree->header();
       ++s.trees;
       s.tree_bytes += slot.tree->file_bytes();
+      if (slot.tree->compressed()) {
+        ++s.cold_trees;
+        s.cold_tree_bytes += slot.tree->file_bytes();
+        s.cold_points += h.point_count;
+      }
       s.tombstones += slot.dead ? slot.dead->size() : 0;
       for (uint32_t k = 0; k < h.levels; ++k) leaf_blocks += (h.level_count[k] + b - 1) / b;
       leaf_points += h.point_count;

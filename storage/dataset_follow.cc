@@ -94,7 +94,17 @@ Result<bool> DatasetImpl::FollowLog() {
   for (const TxnRecord& rec : recs) {
     // A gap (or a marker of another time): read the files again. Bulk-load markers take the
     // next LSN; those of older logs repeat the last one.
-    if (rec.lsn != last + 1 && !(rec.bulk && rec.lsn == last)) return false;
+    if (rec.lsn != last + 1 && !((rec.bulk || rec.tier) && rec.lsn == last)) return false;
+    if (rec.tier) {
+      // The frame was rewritten into the other tier: the same points in other trees (the old
+      // ones are deleted after the writer's grace). Taken if nothing else changed it meanwhile.
+      const uint32_t f = rec.frames.at(0).frame;
+      HVDB_ASSIGN_OR_RETURN(auto v, LoadFrameState(dir_ + "/frames/" + FrameStateFileName(f), snap));
+      auto cur = current(f);
+      if (!cur || v->applied_lsn != cur->applied_lsn) return false;  // reload
+      changed[f] = std::move(v);
+      continue;  // no change to publish
+    }
     if (rec.bulk) {
       const uint32_t f = rec.frames.at(0).frame;
       HVDB_ASSIGN_OR_RETURN(auto v, LoadFrameState(dir_ + "/frames/" + FrameStateFileName(f), snap));

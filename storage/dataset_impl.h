@@ -19,6 +19,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <deque>
+#include <functional>
 #include <map>
 #include <mutex>
 #include <set>
@@ -80,6 +81,8 @@ class DatasetImpl {
   DatasetStats Stats() const;
   std::vector<std::string> Check() const;
   Status Checkpoint();
+  // storage/dataset_tier.cc: the cold tier.
+  Result<CompactInfo> Compact(uint32_t first, uint32_t last);
   // storage/photos.cc.
   Status PutPhoto(uint32_t frame, const Photo& photo);
   Result<std::vector<Photo>> Photos(uint32_t frame) const;
@@ -108,6 +111,7 @@ class DatasetImpl {
  private:
   struct WriteRequest;
   struct Merge;
+  struct Tiering;
   class Working;
 
   // What the files say: frame states with wal.log redone over them.
@@ -160,6 +164,25 @@ class DatasetImpl {
   Status BulkLocked(uint32_t frame, std::vector<Point>* points, std::shared_ptr<KdTree> prebuilt,
                     size_t slot);
   Status PersistFrame(const FrameVersion& v);                          // as leader
+
+  // dataset_tier.cc. A frame is cold when all its points are in one compressed tree.
+  static bool IsCold(const FrameVersion& v);
+  // Rewrites the frame into one compressed tree. *stale: it changed meanwhile (try again).
+  Status CompactFrame(uint32_t frame, CompactInfo* info, bool* stale);
+  // Replaces a compressed tree of the frame by a raw one of the same points (after a write).
+  Status ThawFrame(uint32_t frame);
+  // Writes the frame's compressed tree with `write` (n points, replacing `before` bytes of
+  // trees) and installs it if `v` is still the frame's version.
+  Status InstallCompacted(const std::shared_ptr<const FrameVersion>& v, uint64_t n,
+                          uint64_t before,
+                          const std::function<Status(const std::string& path, uint64_t seq)>& write,
+                          CompactInfo* info, bool* stale);
+  Status InstallTier(const Tiering& t);  // as leader
+  // After the leader published writes to these frames: remembers when, and has the merger
+  // thaw those with compressed trees.
+  void NoteWrites(const std::vector<uint32_t>& frames);
+  // Merger: thaws written frames, and compacts frames idle for Options::cold_after_s.
+  void TierPass();
   Status CheckpointLocked();                                           // as leader
   void WakeMerger();
   bool NeedsMerge(const FrameVersion& v) const { return v.t0.size() > t0_cap_; }
@@ -213,12 +236,19 @@ class DatasetImpl {
   bool merge_stop_ = false, merge_wake_ = false, checkpoint_wanted_ = false;
   Status merge_error_;  // the last failed merge (cleared by a successful one)
   uint64_t merge_rounds_ = 0;  // merger passes finished
+  // The cold tier (merge_mu_): when each frame was last written (frames not written since open:
+  // the open), frames written while they had a compressed tree, and when the merger last
+  // looked for idle frames.
+  std::map<uint32_t, std::chrono::steady_clock::time_point> last_write_;
+  std::set<uint32_t> thaw_;
+  std::chrono::steady_clock::time_point opened_ = std::chrono::steady_clock::now();
+  std::chrono::steady_clock::time_point last_tier_pass_{};
   std::thread merger_;
 };
 
 // One queued writer. Bulk loads, checkpoints and installs are led alone.
 struct DatasetImpl::WriteRequest {
-  enum class Kind { kTxn, kRevert, kBulk, kCheckpoint, kInstall } kind = Kind::kTxn;
+  enum class Kind { kTxn, kRevert, kBulk, kCheckpoint, kInstall, kTier } kind = Kind::kTxn;
   const Transaction* txn = nullptr;
   uint64_t revert_lsn = 0;
   uint32_t frame = 0;
@@ -227,6 +257,7 @@ struct DatasetImpl::WriteRequest {
   std::shared_ptr<KdTree> prebuilt;      // kBulk into an empty frame: its tree, built already
   size_t prebuilt_slot = 0;
   const Merge* merge = nullptr;
+  const Tiering* tiering = nullptr;
   bool done = false;
   Status status;
   CommitInfo info;
@@ -238,6 +269,19 @@ struct DatasetImpl::Merge {
   std::shared_ptr<const FrameVersion> base;
   size_t slot = 0;
   std::shared_ptr<KdTree> tree;
+};
+
+// A frame rewritten into the other tier, built from `base`. Compaction: `tree` holds every
+// live point of base and replaces all of base's trees and T0 (only if the frame is unchanged).
+// Thaw: `tree` holds the points of base's compressed tree in slot `slot` and replaces it
+// (only if that slot still holds it; its dead ids carry over).
+struct DatasetImpl::Tiering {
+  uint32_t frame = 0;
+  bool compact = true;
+  std::shared_ptr<const FrameVersion> base;
+  size_t slot = 0;
+  std::shared_ptr<KdTree> tree;
+  mutable bool stale = false;  // set by InstallTier: the frame changed, nothing was installed
 };
 
 }  // namespace hvdb

@@ -71,12 +71,14 @@ void DatasetImpl::WakeMerger() {
 void DatasetImpl::MergerLoop() {
   std::unique_lock<std::mutex> l(merge_mu_);
   for (;;) {
-    if (opts_.retired_grace_ms > 0) {
-      // Also wakes to delete replaced trees whose grace ran out.
+    if (opts_.retired_grace_ms > 0 || opts_.cold_after_s > 0) {
+      // Also wakes to delete replaced trees whose grace ran out, and to find idle frames.
       merge_cv_.wait_for(l, std::chrono::milliseconds(500),
                          [&] { return merge_stop_ || merge_wake_; });
+      if (merge_stop_) return;
       l.unlock();
       ReleaseBuried(/*all=*/false);
+      TierPass();
       l.lock();
       if (!merge_stop_ && !merge_wake_) continue;
     } else {
@@ -108,6 +110,7 @@ void DatasetImpl::MergerLoop() {
       err = MergeOnce(frame);
       if (!err.ok()) break;
     }
+    if (err.ok()) TierPass();  // thaws frames that were just written
     if (checkpoint && err.ok()) {
       WriteRequest w;
       w.kind = WriteRequest::Kind::kCheckpoint;
@@ -286,6 +289,7 @@ Status DatasetImpl::BulkLocked(uint32_t frame, std::vector<Point>* points,
     last_lsn_ = lsn;
   }
   for (auto& t : merged) Bury(t);  // the durable state no longer lists them
+  NoteWrites({frame});
   if (!logged.ok()) {
     // The load is durable: an error would invite a retry that loads the points twice.
     // Followers see it at their next full reload (a checkpoint, or a new writer); a watcher

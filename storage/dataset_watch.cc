@@ -84,7 +84,7 @@ Result<std::vector<ChangeEvent>> DatasetImpl::EventsBetween(uint64_t after, uint
         return c.status();
       }
       for (const TxnRecord& r : c->records) {
-        if (r.lsn > after && r.lsn <= upto) out.push_back(EventOfRecord(info_.name, r));
+        if (r.lsn > after && r.lsn <= upto && !r.tier) out.push_back(EventOfRecord(info_.name, r));
       }
     }
     // Markers of older logs repeat an LSN: keep the log's order, which is LSN order.

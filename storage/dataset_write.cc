@@ -675,7 +675,7 @@ Result<TxnRecord> DatasetImpl::FindRecord(uint64_t lsn) const {
   for (const std::string& n : logs) {
     HVDB_ASSIGN_OR_RETURN(WalContents c, ReadWal(env_, dir_ + "/" + n));
     for (TxnRecord& r : c.records) {
-      if (r.lsn == lsn && !r.bulk) return std::move(r);
+      if (r.lsn == lsn && !r.bulk && !r.tier) return std::move(r);
     }
   }
   return Status::NotFound("transaction " + std::to_string(lsn) +
@@ -689,6 +689,7 @@ void DatasetImpl::LeadGroup(std::vector<WriteRequest*>& group) {
   switch (first->kind) {
     case Kind::kCheckpoint: first->status = CheckpointLocked(); return;
     case Kind::kInstall: first->status = Install(*first->merge); return;
+    case Kind::kTier: first->status = InstallTier(*first->tiering); return;
     case Kind::kBulk:
       first->info.inserted = first->bulk_count;
       first->status = BulkLocked(first->frame, first->points, std::move(first->prebuilt),
@@ -799,6 +800,7 @@ void DatasetImpl::LeadCommits(std::vector<WriteRequest*>& group) {
   for (const TxnRecord& r : records) events.push_back(EventOfRecord(info_.name, r));
   Publish(events);
   for (uint32_t f : ws.changed()) dirty_.insert(f);
+  NoteWrites(std::vector<uint32_t>(ws.changed().begin(), ws.changed().end()));
   // Trees are the merger's work (logarithmic method), and so are checkpoints: a commit is
   // durable now, with its points in T0 and its record in the log.
   if (merge) {

@@ -9,6 +9,7 @@
 #include <thread>
 
 #include "storage/coding.h"
+#include "storage/cold_tree.h"
 #include "storage/crc32c.h"
 #include "storage/kdtree_format.h"
 #include "storage/lod.h"
@@ -207,8 +208,8 @@ class UsedExtents {
 
 }  // namespace
 
-Status BuildTreeFile(Env* env, const std::string& path, std::vector<Point>& points,
-                     const TreeBuildParams& params, bool sync) {
+Status BuildTreeImage(std::vector<Point>& points, const TreeBuildParams& params,
+                      TreeImage* out) {
   const uint32_t bs = params.block_size;
   const uint32_t b = bs / static_cast<uint32_t>(kPointRecordSize);
   const auto levels = static_cast<uint32_t>(params.lod_levels + 1);
@@ -286,11 +287,11 @@ Status BuildTreeFile(Env* env, const std::string& path, std::vector<Point>& poin
   // zeros for the tails of level segments and the other blocks).
   const size_t file_bytes = size_t{h.total_blocks} * bs;
   // 4 KiB-aligned, so that a durable write can go straight to the device (Env::WriteNewFile).
-  std::unique_ptr<uint8_t, decltype(&std::free)> image(
-      static_cast<uint8_t*>(std::aligned_alloc(4096, (file_bytes + 4095) / 4096 * 4096)),
-      &std::free);
-  if (!image) return Status::IOError("out of memory for a " + std::to_string(file_bytes) + "-byte tree");
-  uint8_t* base = image.get();
+  out->data.reset(
+      static_cast<uint8_t*>(std::aligned_alloc(4096, (file_bytes + 4095) / 4096 * 4096)));
+  if (!out->data) return Status::IOError("out of memory for a " + std::to_string(file_bytes) + "-byte tree");
+  out->bytes = file_bytes;
+  uint8_t* base = out->data.get();
   for (uint32_t k = 0; k < levels; ++k) {
     const size_t used = size_t{h.level_count[k]} * kPointRecordSize;
     const size_t seg = size_t{(h.level_count[k] + b - 1) / b} * bs;
@@ -333,8 +334,8 @@ Status BuildTreeFile(Env* env, const std::string& path, std::vector<Point>& poin
   });
   h.crc_table_crc = crc32c::Mask(crc32c::Value(crc_base, size_t{ncrc} * bs));
   EncodeTreeHeader(h, base);
-  // Only the used bytes of each block reach the disk: a 2 000-point frame fills ~130 KiB of
-  // its 9 blocks (one per level segment, plus header, directory and checksums).
+  // Only the used bytes of each block need to reach the disk: a 2 000-point frame fills
+  // ~130 KiB of its 9 blocks (one per level segment, plus header, directory and checksums).
   UsedExtents used;
   used.Add(0, kTreeHeaderSize);
   for (int k = static_cast<int>(levels) - 1; k >= 0; --k) {
@@ -349,9 +350,19 @@ Status BuildTreeFile(Env* env, const std::string& path, std::vector<Point>& poin
     used.Add(uint64_t{h.dir_block_start + d} * bs, entries * h.DirEntrySize());
   }
   used.Add(uint64_t{h.crc_block_start} * bs, uint64_t{h.total_blocks} * 4);
+  out->used = used.extents();
+  out->header = h;
+  return Status::OK();
+}
+
+Status BuildTreeFile(Env* env, const std::string& path, std::vector<Point>& points,
+                     const TreeBuildParams& params, bool sync) {
+  TreeImage image;
+  HVDB_RETURN_IF_ERROR(BuildTreeImage(points, params, &image));
+  if (params.compressed) return WriteCompressedTree(env, path, image, sync);
   return env->WriteNewSparseFile(
-      path, std::string_view(reinterpret_cast<const char*>(base), file_bytes), used.extents(),
-      sync);
+      path, std::string_view(reinterpret_cast<const char*>(image.data.get()), image.bytes),
+      image.used, sync);
 }
 
 }  // namespace hvdb

@@ -8,10 +8,13 @@
 #define HVDB_STORAGE_KDTREE_BUILDER_H_
 
 #include <cstdint>
+#include <cstdlib>
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "storage/env.h"
+#include "storage/kdtree_format.h"
 #include "storage/point.h"
 #include "storage/status.h"
 
@@ -22,6 +25,21 @@ struct TreeBuildParams {
   int lod_levels = 5;  // l
   uint32_t frame = 0;
   uint64_t tree_seq = 0;
+  // Write the compressed format of the cold tier (storage/cold_tree.h) instead of raw blocks.
+  bool compressed = false;
+};
+
+// A tree file's bytes in memory, as BuildTreeFile writes them in the raw format.
+struct TreeImage {
+  struct Free {
+    void operator()(uint8_t* p) const { std::free(p); }
+  };
+  TreeHeader header;
+  std::unique_ptr<uint8_t, Free> data;  // 4 KiB-aligned
+  size_t bytes = 0;
+  // The 4 KiB pages that can hold non-zero bytes (ascending): the rest of each block is zero,
+  // and the raw file is written sparse (Env::WriteNewSparseFile).
+  std::vector<FileExtent> used;
 };
 
 // Points in the left child of a node holding q points, with bucket capacity c.
@@ -31,6 +49,9 @@ uint64_t LeftChildSize(uint64_t q, uint64_t c);
 // it returns); else straight to `path`, unsynced (the caller syncs it before any frame state
 // lists it, and recovery deletes unlisted tree files). `points` is reordered.
 // REQUIRES: !points.empty().
+// The raw file image of the points' tree. `points` is reordered. REQUIRES: !points.empty().
+Status BuildTreeImage(std::vector<Point>& points, const TreeBuildParams& params,
+                      TreeImage* out);
 Status BuildTreeFile(Env* env, const std::string& path, std::vector<Point>& points,
                      const TreeBuildParams& params, bool sync);
 

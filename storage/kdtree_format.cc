@@ -11,7 +11,7 @@ namespace hvdb {
 void EncodeTreeHeader(const TreeHeader& h, uint8_t* d) {
   std::memset(d, 0, kTreeHeaderSize);
   std::memcpy(d, kTreeMagic, 8);
-  EncodeLE(d + 8, kTreeVersion);
+  EncodeLE(d + 8, h.version);
   EncodeLE(d + 12, h.block_size);
   EncodeLE(d + 16, h.point_count);
   EncodeLE(d + 24, h.bucket_count);
@@ -51,11 +51,13 @@ Result<TreeHeader> DecodeTreeHeader(const uint8_t* d, const std::string& what) {
     return corrupt("checksum mismatch");
   }
   uint32_t version = DecodeLE<uint32_t>(d + 8);
-  if (version != kTreeVersion) {
+  if (version != kTreeVersion && version != kTreeVersionCompressed) {
     return corrupt("unsupported version " + std::to_string(version) + " (this build reads " +
-                   std::to_string(kTreeVersion) + ")");
+                   std::to_string(kTreeVersion) + " and " +
+                   std::to_string(kTreeVersionCompressed) + ")");
   }
   TreeHeader h;
+  h.version = version;
   h.block_size = DecodeLE<uint32_t>(d + 12);
   h.point_count = DecodeLE<uint64_t>(d + 16);
   h.bucket_count = DecodeLE<uint32_t>(d + 24);

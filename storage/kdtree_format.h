@@ -14,6 +14,8 @@ namespace hvdb {
 
 inline constexpr char kTreeMagic[8] = {'H', 'V', 'D', 'B', 'K', 'D', 'T', '\0'};
 inline constexpr uint32_t kTreeVersion = 1;
+// The cold tier's compressed tree file (storage/cold_tree.h): the same tree, its blocks coded.
+inline constexpr uint32_t kTreeVersionCompressed = 2;
 inline constexpr int kMaxLevels = 9;  // l <= 8
 inline constexpr size_t kTreeHeaderSize = 256;
 inline constexpr size_t kNodeRecordSize = 16;
@@ -30,6 +32,7 @@ enum class Relation { kOutside, kInside, kCrosses };
 using BoxTest = std::function<Relation(const Box3&)>;
 
 struct TreeHeader {
+  uint32_t version = kTreeVersion;
   uint32_t block_size = 0;
   uint64_t point_count = 0;
   uint32_t bucket_count = 0;

@@ -1,6 +1,7 @@
 #include "storage/kdtree_reader.h"
 
 #include <algorithm>
+#include <cstdlib>
 #include <cstring>
 
 #include "storage/coding.h"
@@ -23,6 +24,15 @@ Result<std::shared_ptr<KdTree>> KdTree::Open(Env* env, const std::string& path,
                                    " differs from the database's " +
                                    std::to_string(pool->block_size()));
   }
+  if (h.version == kTreeVersionCompressed) {
+    std::vector<uint32_t> crcs;
+    HVDB_ASSIGN_OR_RETURN(ColdBlockTable cold, ReadColdBlockTable(file.get(), h, &crcs));
+    auto tree = std::shared_ptr<KdTree>(
+        new KdTree(env, std::move(file), pool, h, std::move(crcs),
+                   std::make_shared<const ColdBlockTable>(std::move(cold))));
+    tree->synced_ = synced;
+    return tree;
+  }
   if (file->size() != uint64_t{h.total_blocks} * h.block_size) {
     return Status::Corruption(path + ": truncated: " + std::to_string(file->size()) +
                               " bytes, header says " +
@@ -40,16 +50,17 @@ Result<std::shared_ptr<KdTree>> KdTree::Open(Env* env, const std::string& path,
   for (uint32_t i = 0; i < h.total_blocks; ++i) {
     crcs[i] = DecodeLE<uint32_t>(reinterpret_cast<const uint8_t*>(table.data()) + 4 * size_t{i});
   }
-  auto tree = std::shared_ptr<KdTree>(new KdTree(env, std::move(file), pool, h, std::move(crcs)));
+  auto tree = std::shared_ptr<KdTree>(
+      new KdTree(env, std::move(file), pool, h, std::move(crcs), nullptr));
   tree->synced_ = synced;
   return tree;
 }
 
 KdTree::KdTree(Env* env, std::shared_ptr<RandomAccessFile> file, BufferPool* pool, TreeHeader h,
-               std::vector<uint32_t> crcs)
+               std::vector<uint32_t> crcs, std::shared_ptr<const ColdBlockTable> cold)
     : env_(env), file_(std::move(file)), pool_(pool), h_(h),
       crcs_(std::make_shared<const std::vector<uint32_t>>(std::move(crcs))),
-      file_id_(pool->NewFileId()) {}
+      cold_(std::move(cold)), file_id_(pool->NewFileId()) {}
 
 KdTree::~KdTree() {
   pool_->Forget(file_id_);
@@ -68,6 +79,13 @@ Status KdTree::LoadBlock(uint32_t blk, uint8_t* dst) const {
   if (blk == 0 || blk >= h_.crc_block_start) {
     return Status::Corruption(path() + ": reference to block " + std::to_string(blk) +
                               " outside the data blocks");
+  }
+  if (cold_) {
+    const uint64_t at = cold_->Start(blk);
+    std::vector<uint8_t> payload(cold_->end[blk] - at);
+    HVDB_RETURN_IF_ERROR(file_->Read(at, payload.size(), payload.data()));
+    return DecodeColdBlock(h_, blk, payload.data(), payload.size(), cold_->payload_crc[blk],
+                           (*crcs_)[blk], dst, path());
   }
   HVDB_RETURN_IF_ERROR(file_->Read(uint64_t{blk} * h_.block_size, h_.block_size, dst));
   if (crc32c::Unmask((*crcs_)[blk]) != crc32c::Value(dst, h_.block_size)) {
@@ -97,6 +115,10 @@ void KdTree::PrefetchBlocks(const std::vector<uint32_t>& blocks) const {
   // bench/README.md).
   const size_t batch = std::max<size_t>(1, (512u << 10) / h_.block_size);
   const uint32_t bs = h_.block_size, data_end = h_.crc_block_start;
+  if (cold_) {
+    PrefetchColdBlocks(blocks, batch);
+    return;
+  }
   pool_->Prefetch(file_id_, blocks, batch,
                   [file = file_, crcs = crcs_, bs, data_end](std::span<BufferPool::BlockLoad> loads) {
     // Adjacent blocks become one request (up to 1 MiB), scattered into their pool slots;
@@ -121,6 +143,53 @@ void KdTree::PrefetchBlocks(const std::vector<uint32_t>& blocks) const {
         const uint32_t blk = loads[k].block;
         loads[k].ok = reqs[r].status.ok() && blk != 0 && blk < data_end &&
                       crc32c::Unmask((*crcs)[blk]) == crc32c::Value(loads[k].dst, bs);
+      }
+    }
+  });
+}
+
+void KdTree::PrefetchColdBlocks(const std::vector<uint32_t>& blocks, size_t batch) const {
+  pool_->Prefetch(file_id_, blocks, batch,
+                  [file = file_, crcs = crcs_, cold = cold_, h = h_](
+                      std::span<BufferPool::BlockLoad> loads) {
+    // Adjacent blocks' payloads are adjacent in the file: one request per run, then each
+    // payload decoded into its pool slot here, on the loader thread (the pool's loaders decode
+    // a frame's blocks in parallel while the query consumes earlier ones).
+    std::vector<std::string> bufs;
+    std::vector<ReadRequest> reqs;
+    std::vector<std::pair<size_t, size_t>> span_of;
+    for (size_t i = 0; i < loads.size();) {
+      size_t j = i + 1;
+      while (j < loads.size() && j - i < 64 && loads[j].block == loads[j - 1].block + 1) ++j;
+      span_of.push_back({i, j});
+      i = j;
+    }
+    bufs.resize(span_of.size());
+    for (size_t r = 0; r < span_of.size(); ++r) {
+      const uint32_t first = loads[span_of[r].first].block;
+      const uint32_t last = loads[span_of[r].second - 1].block;
+      bool in_range = first != 0 && last < h.crc_block_start;
+      uint64_t at = in_range ? cold->Start(first) : 0;
+      bufs[r].resize(in_range ? cold->end[last] - at : 0);
+      ReadRequest q;
+      q.offset = at;
+      q.buffers.push_back({reinterpret_cast<uint8_t*>(bufs[r].data()), bufs[r].size()});
+      if (!bufs[r].empty()) reqs.push_back(std::move(q));
+    }
+    file->ReadBatch(reqs);
+    for (size_t r = 0, q = 0; r < span_of.size(); ++r) {
+      if (bufs[r].empty()) continue;  // not ok: Fetch loads the blocks and reports the error
+      const ReadRequest& req = reqs[q++];
+      const uint64_t base = req.offset;
+      for (size_t k = span_of[r].first; k < span_of[r].second; ++k) {
+        const uint32_t blk = loads[k].block;
+        if (!req.status.ok()) continue;
+        const uint64_t at = cold->Start(blk) - base;
+        loads[k].ok =
+            DecodeColdBlock(h, blk, reinterpret_cast<const uint8_t*>(bufs[r].data()) + at,
+                            cold->end[blk] - cold->Start(blk), cold->payload_crc[blk],
+                            (*crcs)[blk], loads[k].dst, file->path())
+                .ok();
       }
     }
   });
@@ -246,6 +315,32 @@ Status KdTree::ReadAll(std::vector<Point>* out) const {
   return Status::OK();
 }
 
+Status KdTree::ReadImage(TreeImage* out) const {
+  const size_t bs = h_.block_size;
+  out->bytes = size_t{h_.total_blocks} * bs;
+  out->data.reset(static_cast<uint8_t*>(std::aligned_alloc(4096, (out->bytes + 4095) / 4096 * 4096)));
+  if (!out->data) return Status::IOError("out of memory for a " + std::to_string(out->bytes) + "-byte tree");
+  uint8_t* base = out->data.get();
+  if (!cold_) HVDB_RETURN_IF_ERROR(file_->Read(0, out->bytes, base));
+  std::memset(base, 0, bs);
+  for (uint32_t blk = 1; blk < h_.crc_block_start; ++blk) {
+    if (cold_) {
+      HVDB_RETURN_IF_ERROR(LoadBlock(blk, base + blk * bs));
+    } else if (crc32c::Unmask((*crcs_)[blk]) != crc32c::Value(base + blk * bs, bs)) {
+      return Status::Corruption(path() + ": block " + std::to_string(blk) + ": checksum mismatch");
+    }
+  }
+  // The raw format's checksum table and header.
+  uint8_t* table = base + size_t{h_.crc_block_start} * bs;
+  std::memset(table, 0, size_t{h_.crc_block_count} * bs);
+  for (uint32_t blk = 1; blk < h_.crc_block_start; ++blk) EncodeLE(table + 4 * blk, (*crcs_)[blk]);
+  out->header = h_;
+  out->header.version = kTreeVersion;
+  out->header.crc_table_crc = crc32c::Mask(crc32c::Value(table, size_t{h_.crc_block_count} * bs));
+  EncodeTreeHeader(out->header, base);
+  return Status::OK();
+}
+
 std::vector<std::string> KdTree::Verify() const {
   std::vector<std::string> problems;
   const uint32_t bs = h_.block_size;
@@ -263,7 +358,7 @@ std::vector<std::string> KdTree::Verify() const {
   auto read_entry = [&](uint32_t bucket) {
     uint32_t per = h_.DirEntriesPerBlock();
     std::vector<uint8_t> blk(bs);
-    (void)file_->Read(uint64_t{h_.dir_block_start + bucket / per} * bs, bs, blk.data());
+    (void)LoadBlock(h_.dir_block_start + bucket / per, blk.data());  // checked above
     return DecodeDirEntry(blk.data() + size_t{bucket % per} * h_.DirEntrySize(), h_.levels);
   };
   const uint64_t cap = 2ull * h_.points_per_block;

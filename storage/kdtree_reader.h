@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "storage/buffer_pool.h"
+#include "storage/cold_tree.h"
 #include "storage/env.h"
 #include "storage/kdtree_format.h"
 #include "storage/point.h"
@@ -31,6 +32,8 @@ class KdTree {
   const TreeHeader& header() const { return h_; }
   const std::string& path() const { return file_->path(); }
   uint64_t file_bytes() const { return file_->size(); }
+  // A compressed tree file of the cold tier (storage/cold_tree.h).
+  bool compressed() const { return cold_ != nullptr; }
   // The file is deleted when the last reference goes.
   void MarkObsolete() { obsolete_ = true; }
   // Makes the file durable (once); a frame state may list the tree only after this.
@@ -59,18 +62,21 @@ class KdTree {
                    const std::function<void(const uint8_t*, size_t)>& fn) const;
   // Every point of every level.
   Status ReadAll(std::vector<Point>* out) const;
+  // The raw file image (every block, checked; decoded if compressed), e.g. to transcode it.
+  Status ReadImage(TreeImage* out) const;
   // Integrity check from disk (bypassing the cache): checksums of every block, node split
   // invariants, bucket boxes, fullness. Returns one line per problem.
   std::vector<std::string> Verify() const;
 
  private:
   KdTree(Env* env, std::shared_ptr<RandomAccessFile> file, BufferPool* pool, TreeHeader h,
-         std::vector<uint32_t> crcs);
+         std::vector<uint32_t> crcs, std::shared_ptr<const ColdBlockTable> cold);
   Result<PageRef> Block(uint32_t blk) const;
   Status LoadBlock(uint32_t blk, uint8_t* dst) const;
   Result<DirEntry> Dir(uint32_t bucket) const;
   // Loads the blocks (ascending) into the pool in the background, in merged runs.
   void PrefetchBlocks(const std::vector<uint32_t>& blocks) const;
+  void PrefetchColdBlocks(const std::vector<uint32_t>& blocks, size_t batch) const;
 
   Env* const env_;
   std::shared_ptr<RandomAccessFile> file_;
@@ -78,6 +84,8 @@ class KdTree {
   const TreeHeader h_;
   // Masked CRC-32C of every block (0: not covered); shared with batch loads in flight.
   const std::shared_ptr<const std::vector<uint32_t>> crcs_;
+  // Compressed files: where each block's payload lies (null: raw blocks at blk * B).
+  const std::shared_ptr<const ColdBlockTable> cold_;
   const uint64_t file_id_;
   std::atomic<bool> obsolete_{false};
   std::atomic<bool> synced_{true}, durable_{false};

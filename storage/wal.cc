@@ -13,6 +13,7 @@ static constexpr uint8_t kTypeTxn = 1;
 static constexpr uint8_t kTypeBulk = 2;
 // A transaction whose frame effects each say their form: points (as kTypeTxn) or relabels.
 static constexpr uint8_t kTypeTxnForms = 3;
+static constexpr uint8_t kTypeTier = 4;
 static constexpr uint8_t kFormPoints = 0;
 static constexpr uint8_t kFormRelabels = 1;
 static constexpr uint32_t kMaxRecord = 1u << 30;
@@ -170,6 +171,17 @@ static Result<TxnRecord> DecodePayload(uint8_t type, const std::string& payload,
   if (type == kTypeTxn || type == kTypeTxnForms) {
     return DecodeTxnPayload(payload, lsn, type == kTypeTxnForms);
   }
+  if (type == kTypeTier) {  // u32 frame
+    if (payload.size() != 4) {
+      return Status::Corruption("log record " + std::to_string(lsn) + ": bad tier marker");
+    }
+    TxnRecord t;
+    t.lsn = lsn;
+    t.tier = true;
+    t.frames.emplace_back();
+    t.frames[0].frame = DecodeLE<uint32_t>(reinterpret_cast<const uint8_t*>(payload.data()));
+    return t;
+  }
   if (type != kTypeBulk) {
     return Status::Corruption("log record " + std::to_string(lsn) + ": unknown type " +
                               std::to_string(type));
@@ -268,11 +280,13 @@ Result<WalContents> ReadWal(Env* env, const std::string& path) {
       }
       return corrupt(pos, "checksum mismatch, with valid-looking data after it");
     }
-    if (type != kTypeTxn && type != kTypeBulk && type != kTypeTxnForms) {
+    if (type != kTypeTxn && type != kTypeBulk && type != kTypeTxnForms && type != kTypeTier) {
       return corrupt(pos, "unknown type " + std::to_string(type));
     }
-    // A record's LSN is above the one before; a bulk-load marker of an older log may repeat it.
-    if (type == kTypeBulk ? lsn < expect_lsn : lsn <= expect_lsn) {
+    // A record's LSN is above the one before; a marker (a bulk load's of an older log, a tier
+    // change's) may repeat it.
+    const bool marker = type == kTypeBulk || type == kTypeTier;
+    if (marker ? lsn < expect_lsn : lsn <= expect_lsn) {
       return corrupt(pos, "sequence number " + std::to_string(lsn) + " is not above " +
                               std::to_string(expect_lsn));
     }
@@ -314,7 +328,10 @@ Status WalWriter::Append(const std::vector<TxnRecord>& records) {
   for (const TxnRecord& t : records) {
     const size_t at = out.size();
     out.resize(at + kWalRecordHeaderSize);
-    if (t.bulk) {
+    if (t.tier) {
+      out.resize(out.size() + 4);
+      EncodeLE(reinterpret_cast<uint8_t*>(out.data() + out.size() - 4), t.frames.at(0).frame);
+    } else if (t.bulk) {
       out.resize(out.size() + 12);
       auto* m = reinterpret_cast<uint8_t*>(out.data() + out.size() - 12);
       EncodeLE(m, t.frames.at(0).frame);
@@ -330,7 +347,7 @@ Status WalWriter::Append(const std::vector<TxnRecord>& records) {
     auto* h = reinterpret_cast<uint8_t*>(out.data() + at);
     EncodeLE(h + 4, static_cast<uint32_t>(len));
     EncodeLE(h + 8, t.lsn);
-    h[16] = t.bulk ? kTypeBulk : HasRelabels(t) ? kTypeTxnForms : kTypeTxn;
+    h[16] = t.tier ? kTypeTier : t.bulk ? kTypeBulk : HasRelabels(t) ? kTypeTxnForms : kTypeTxn;
     EncodeLE(h + 17, crc32c::Mask(crc32c::Value(h + kWalRecordHeaderSize, len)));
     EncodeLE(h, crc32c::Mask(crc32c::Value(h + 4, 17)));
   }

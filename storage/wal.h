@@ -53,6 +53,10 @@ struct TxnRecord {
   // it; followers re-read that state; watchers see it as a "bulk" event.
   bool bulk = false;
   uint64_t bulk_points = 0;
+  // A tier marker (record type 4): frames[0].frame's state file was rewritten into the other
+  // tier (the cold tier's compaction: the same points, other trees). Its lsn repeats the last
+  // one. Recovery and watchers skip it; followers re-read that state.
+  bool tier = false;
 };
 
 // `forms`: record type 3's layout (a form byte per frame effect; docs/FORMAT.md).

@@ -1,4 +1,4 @@
-// The administrative commands of `hvdb`: stats, check, drop and ping.
+// The administrative commands of `hvdb`: stats, check, drop, compact and ping.
 #include <algorithm>
 #include <cstdint>
 #include <cstdio>
@@ -20,8 +20,15 @@ struct PingArgs {
 
 // What CLI11 fills in for these subcommands: static, so that registering them allocates
 // nothing but what CLI11 does (see Context in common.h).
+struct CompactArgs {
+  std::string name;
+  std::vector<uint32_t> frames;  // first, last (none: every frame)
+  bool json = false;
+};
+
 struct AdminArgs {
   NameArgs stats, check, drop;
+  CompactArgs compact;
   PingArgs ping;
 } admin_args;
 
@@ -41,6 +48,11 @@ int CmdStats(Context& ctx, const NameArgs& a) {
                       {"tree_bytes", s.tree_bytes},
                       {"wal_bytes", s.wal_bytes},
                       {"leaf_utilisation", s.leaf_utilisation},
+                      {"hot_tree_bytes", s.tree_bytes - s.cold_tree_bytes},
+                      {"cold_frames", s.cold_frames},
+                      {"cold_trees", s.cold_trees},
+                      {"cold_tree_bytes", s.cold_tree_bytes},
+                      {"cold_points", s.cold_points},
                       {"last_lsn", e.last_lsn}});
     } else {
       std::printf(
@@ -52,6 +64,15 @@ int CmdStats(Context& ctx, const NameArgs& a) {
           static_cast<double>(s.tree_bytes) / (1 << 20), 100 * s.leaf_utilisation,
           static_cast<double>(s.wal_bytes) / (1 << 20),
           static_cast<unsigned long long>(e.last_lsn));
+      std::printf("  hot tier: %llu points in %.1f MiB; cold tier: %u frames, %llu points in "
+                  "%.1f MiB (%.1f bytes/point)\n",
+                  static_cast<unsigned long long>(s.points - s.cold_points),
+                  static_cast<double>(s.tree_bytes - s.cold_tree_bytes) / (1 << 20),
+                  s.cold_frames, static_cast<unsigned long long>(s.cold_points),
+                  static_cast<double>(s.cold_tree_bytes) / (1 << 20),
+                  s.cold_points ? static_cast<double>(s.cold_tree_bytes) /
+                                      static_cast<double>(s.cold_points)
+                                : 0.0);
     }
   }
   json out = {{"datasets", list}};
@@ -163,6 +184,40 @@ int CmdDrop(Context& ctx, const NameArgs& a) {
   return kExitOk;
 }
 
+int CmdCompact(Context& ctx, const CompactArgs& a) {
+  uint32_t first = 0, last = UINT32_MAX;
+  if (!a.frames.empty()) {
+    first = a.frames[0];
+    last = a.frames[1];
+    if (first > last) {
+      return Usage("compact", "--frames A B needs A <= B (got " + std::to_string(first) + " " +
+                                  std::to_string(last) + ")");
+    }
+  }
+  Result<CompactInfo> r = ctx.db().Compact(a.name, first, last);
+  if (!r.ok()) return Fail(r.status());
+  const double ratio = r->bytes_before ? static_cast<double>(r->bytes_after) /
+                                             static_cast<double>(r->bytes_before)
+                                       : 0.0;
+  if (a.json) {
+    PrintJson({{"dataset", a.name},
+               {"frames", r->frames},
+               {"already", r->already},
+               {"points", r->points},
+               {"bytes_before", r->bytes_before},
+               {"bytes_after", r->bytes_after},
+               {"ratio", ratio}});
+  } else {
+    std::printf("compacted %u frames of '%s' (%llu points): %.1f MiB -> %.1f MiB (%.3f)%s\n",
+                r->frames, a.name.c_str(), static_cast<unsigned long long>(r->points),
+                static_cast<double>(r->bytes_before) / (1 << 20),
+                static_cast<double>(r->bytes_after) / (1 << 20), ratio,
+                r->already ? (", " + std::to_string(r->already) + " compressed already").c_str()
+                           : "");
+  }
+  return kExitOk;
+}
+
 int CmdPing(Context& ctx, const PingArgs& a) {
   if (!ctx.db().remote()) {
     return Usage("ping", "ping needs --server HOST:PORT (there is no server on a data directory)");
@@ -204,6 +259,17 @@ void AddAdminCommands(CLI::App& app, Context& ctx) {
   stats_cmd->add_option("name", stats.name, "Dataset (default: all)");
   stats_cmd->add_flag("--json", stats.json, "Print JSON");
   ctx.Add(stats_cmd, [](Context& c) { return CmdStats(c, admin_args.stats); });
+
+  CompactArgs& compact = admin_args.compact;
+  CLI::App* compact_cmd = app.add_subcommand(
+      "compact",
+      "Rewrite frames into the cold tier now: one compressed tree per frame, lossless, about a "
+      "fifth of the bytes (the server does it by itself to frames idle for --cold-after seconds)");
+  compact_cmd->add_option("name", compact.name, "Dataset")->required();
+  compact_cmd->add_option("--frames", compact.frames, "First and last frame (default: all)")
+      ->expected(2);
+  compact_cmd->add_flag("--json", compact.json, "Print JSON");
+  ctx.Add(compact_cmd, [](Context& c) { return CmdCompact(c, admin_args.compact); });
 
   NameArgs& check = admin_args.check;
   CLI::App* check_cmd =

@@ -128,6 +128,18 @@ int CmdDescribe(Context& ctx, const NameArgs& a) {
   if (!got.ok()) return Fail(got.status());
   const DatasetInfo& info = *got;
   double duration = info.fps > 0 ? info.frame_count / info.fps : 0;
+  // The bytes of each storage tier (docs/FORMAT.md, "Compressed tree file").
+  Result<client::StatsReport> report = ctx.db().Stats(a.name);
+  if (!report.ok()) return Fail(report.status());
+  DatasetStats st;
+  for (const auto& e : report->datasets) {
+    if (e.name == a.name) st = e.stats;
+  }
+  const json tiers = {
+      {"hot", {{"points", st.points - st.cold_points},
+               {"tree_bytes", st.tree_bytes - st.cold_tree_bytes}}},
+      {"cold", {{"frames", st.cold_frames}, {"points", st.cold_points},
+                {"tree_bytes", st.cold_tree_bytes}}}};
   if (a.json) {
     json cams = json::array();
     for (const CameraInfo& c : info.cameras) {
@@ -142,6 +154,7 @@ int CmdDescribe(Context& ctx, const NameArgs& a) {
                {"bounds_min", info.bounds_min},
                {"bounds_max", info.bounds_max},
                {"last_lsn", info.last_lsn},
+               {"storage", tiers},
                {"cameras", cams}});
     return kExitOk;
   }
@@ -155,6 +168,11 @@ int CmdDescribe(Context& ctx, const NameArgs& a) {
               info.bounds_max[2]);
   std::printf("cameras   %zu\n", info.cameras.size());
   std::printf("last lsn  %llu\n", static_cast<unsigned long long>(info.last_lsn));
+  std::printf("storage   hot %.1f MiB (%llu points), cold %.1f MiB (%u frames, %llu points)\n",
+              static_cast<double>(st.tree_bytes - st.cold_tree_bytes) / (1 << 20),
+              static_cast<unsigned long long>(st.points - st.cold_points),
+              static_cast<double>(st.cold_tree_bytes) / (1 << 20), st.cold_frames,
+              static_cast<unsigned long long>(st.cold_points));
   return kExitOk;
 }
 

@@ -227,6 +227,24 @@ TEST_F(HvdbCliTest, ImportQueryEditUndoCheck) {
   r = Run("--cache-mb 16 stats");
   EXPECT_EQ(r.code, 0) << r.err;
 
+  // The cold tier: every frame compressed, the same answers, the bytes shown per tier.
+  const json before = RunJson("window walk " + std::string(kEverything));
+  json c = RunJson("compact walk");
+  EXPECT_EQ(c["frames"], 3);  // 0, 1 and 4 hold points
+  EXPECT_LT(c["bytes_after"].get<double>(), 0.35 * c["bytes_before"].get<double>());
+  EXPECT_EQ(RunJson("compact walk --frames 0 4")["already"], 3);
+  st = RunJson("stats walk");
+  EXPECT_EQ(st["datasets"][0]["cold_frames"], 3);
+  EXPECT_EQ(st["datasets"][0]["hot_tree_bytes"], 0);
+  r = Run("stats walk");
+  EXPECT_NE(r.out.find("cold tier: 3 frames"), std::string::npos) << r.out;
+  json d = RunJson("describe walk");
+  EXPECT_EQ(d["storage"]["cold"]["frames"], 3);
+  EXPECT_EQ(d["storage"]["hot"]["tree_bytes"], 0);
+  EXPECT_GT(d["storage"]["cold"]["tree_bytes"].get<double>(), 0);
+  EXPECT_EQ(RunJson("window walk " + std::string(kEverything))["points"], before["points"]);
+  EXPECT_EQ(RunJson("window walk --label-mask 4 " + std::string(kEverything))["points"], legs);
+
   r = Run("check");
   EXPECT_EQ(r.code, 0) << r.out << r.err;
   EXPECT_EQ(r.out, "ok\n");
@@ -257,6 +275,8 @@ TEST_F(HvdbCliTest, BadArgumentsExitTwoWithAMessage) {
       {"--token secret datasets", "--token is for --server"},
       {"--server 127.0.0.1:7000 check", "cannot run through --server"},
       {"ping", "ping needs --server"},
+      {"compact walk --frames 3 1", "A <= B"},
+      {"compact walk --frames 3", "--frames"},
   };
   ASSERT_EQ(Run("create walk --fps 30").code, 0);
   for (const Case& c : cases) {

@@ -66,6 +66,19 @@ def test_datasets_and_info_match_the_cli(env):
     assert ("server" in stats) == (env.mode == "server")
 
 
+def test_compact_keeps_every_field_of_every_point(env):
+    before = env.db.frame(DATASET, frame=3)
+    done = env.db.compact(DATASET, frames=(3, 3))
+    assert done["frames"] + done["already"] == 1
+    after = env.db.frame(DATASET, frame=3)
+    order = np.argsort(before["id"])
+    assert (np.sort(after["id"]) == before["id"][order]).all()
+    assert (after[np.argsort(after["id"])] == before[order]).all()
+    assert env.db.stats(DATASET)["datasets"][0]["cold_frames"] >= 1
+    with pytest.raises(hvdb.InvalidArgument, match="first frame 5 is after last frame 2"):
+        env.db.compact(DATASET, frames=(5, 2))
+
+
 @pytest.mark.parametrize("frame,level", [(0, 0), (7, 0), (15, 2)])
 def test_frame_equals_the_cli_field_by_field(env, tmp_path, frame, level):
     pts = env.db.frame(DATASET, frame=frame, level=level)

@@ -203,6 +203,13 @@ std::vector<Case> Cases() {
         r->mutable_copy()->set_dataset("d");
         wire::ToWire(edit::CopyRequest{99, std::nullopt, "c", false}, r->mutable_copy());
       });
+  add("compact: first frame after the last", StatusCode::kInvalidArgument,
+      wire::INVALID_PARAMETER, [](Service& x) { return x.Compact("d", 5, 2); },
+      [](wire::Request* r) {
+        r->mutable_compact()->set_dataset("d");
+        r->mutable_compact()->set_first(5);
+        r->mutable_compact()->set_last(2);
+      });
   add("paste: a clipboard that does not exist", StatusCode::kNotFound, wire::NOT_FOUND,
       [](Service& x) { return x.Paste("d", {"nothing-here", {}}); },
       [](wire::Request* r) {
@@ -487,6 +494,15 @@ TEST_F(ServiceTest, AGoodRequestGetsTheSameValuesEverywhere) {
   EXPECT_EQ(t.selected, mine->selected);
   EXPECT_EQ(t.lsn, mine->lsn);
 
+  // Into the cold tier, both ways.
+  auto compacted = embedded.Compact("d", 0, 1);
+  ASSERT_TRUE(compacted.ok()) << compacted.status().ToString();
+  auto served = (*conn)->Compact("d", 0, 1);
+  ASSERT_TRUE(served.ok()) << served.status().ToString();
+  EXPECT_EQ(compacted->frames, 2u);
+  EXPECT_EQ(served->frames, compacted->frames);
+  EXPECT_EQ(served->points, compacted->points);
+
   auto st = (*conn)->Stats("d");
   ASSERT_TRUE(st.ok());
   auto report = embedded.Stats("d");
@@ -495,6 +511,9 @@ TEST_F(ServiceTest, AGoodRequestGetsTheSameValuesEverywhere) {
   EXPECT_EQ(a.points, b.points);
   EXPECT_EQ(a.frames_with_data, b.frames_with_data);
   EXPECT_EQ(a.tombstones, b.tombstones);
+  EXPECT_EQ(a.cold_frames, 2u);
+  EXPECT_EQ(a.cold_frames, b.cold_frames);
+  EXPECT_EQ(a.cold_points, b.cold_points);
   EXPECT_EQ(st->last_lsn(), report->last_lsn);
 }
 

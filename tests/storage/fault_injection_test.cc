@@ -31,7 +31,7 @@ using Key = std::pair<uint32_t, uint64_t>;
 using Model = std::map<Key, Point>;
 
 struct Op {
-  enum Kind { kInsert, kDelete, kLabel, kBulk, kCheckpoint } kind = kInsert;
+  enum Kind { kInsert, kDelete, kLabel, kBulk, kCheckpoint, kCompact } kind = kInsert;
   uint32_t frame = 0;
   std::vector<Point> points;  // insert / bulk: with ids; delete: the points to delete
   std::vector<uint64_t> ids;  // label
@@ -53,6 +53,8 @@ Op MakeOp(uint64_t seed, int i, const Model& m, uint64_t* next_id) {
   op.frame = static_cast<uint32_t>(rng() % 4);
   if (i % 12 == 11) {
     op.kind = Op::kCheckpoint;
+  } else if (i % 12 == 5) {
+    op.kind = Op::kCompact;  // into the cold tier (later writes to the frame thaw it)
   } else if (r < 55) {
     op.kind = Op::kInsert;
     const int n = 1 + static_cast<int>(rng() % 150);
@@ -100,7 +102,8 @@ void ApplyToModel(const Op& op, Model* m) {
     case Op::kLabel:
       for (uint64_t id : op.ids) (*m)[{op.frame, id}].label |= op.bits;
       break;
-    case Op::kCheckpoint: break;
+    case Op::kCheckpoint:
+    case Op::kCompact: break;
   }
 }
 
@@ -121,6 +124,7 @@ Status RunOp(Dataset& ds, const Op& op) {
     }
     case Op::kBulk: return ds.BulkLoad(op.frame, op.points).status();
     case Op::kCheckpoint: return ds.Checkpoint();
+    case Op::kCompact: return ds.Compact(op.frame, op.frame).status();
   }
   return ds.Commit(txn).status();
 }

@@ -110,7 +110,7 @@ TEST_F(FollowerTest, AnswersWhatTheWriterAnswersAfterEveryStep) {
   ExpectSame();
   std::vector<uint64_t> lsns;
   for (int step = 0; step < 40; ++step) {
-    const int kind = static_cast<int>(rng_() % 7);
+    const int kind = static_cast<int>(rng_() % 8);
     const uint32_t frame = static_cast<uint32_t>(rng_() % 4);
     if (kind <= 2) {  // inserts over two frames
       Transaction t;
@@ -142,6 +142,8 @@ TEST_F(FollowerTest, AnswersWhatTheWriterAnswersAfterEveryStep) {
       if (c.ok()) lsns.push_back(c->lsn);
     } else if (kind == 5) {
       ASSERT_TRUE(w_->BulkLoad(frame, RandomPoints(rng_, 500, frame)).ok());
+    } else if (kind == 7) {  // into the cold tier (a later write brings it back)
+      ASSERT_TRUE(w_->Compact(frame, frame).ok());
     } else {
       ASSERT_TRUE(w_->WaitForMerges().ok());
       ASSERT_TRUE(w_->Checkpoint().ok());
@@ -151,6 +153,18 @@ TEST_F(FollowerTest, AnswersWhatTheWriterAnswersAfterEveryStep) {
     if (HasFatalFailure()) return;
   }
   EXPECT_GT(w_->Stats().merges, 0u);
+}
+
+TEST_F(FollowerTest, FollowsACompactionWithoutAReload) {
+  ExpectSame();
+  auto c = w_->Compact(0, 0);
+  ASSERT_TRUE(c.ok()) << c.status().ToString();
+  ASSERT_EQ(c->frames, 1u);
+  ExpectSame();
+  // The tier marker moved it to the new tree: the writer's old files are gone, and the
+  // follower reads the compressed one.
+  EXPECT_EQ(f_->Stats().cold_frames, 1u);
+  EXPECT_EQ(f_->Stats().cold_tree_bytes, w_->Stats().cold_tree_bytes);
 }
 
 TEST_F(FollowerTest, RefusesWritesWithNotLeader) {

@@ -55,6 +55,33 @@ TEST_F(WalTest, RoundTrip) {
   }
 }
 
+TEST_F(WalTest, MarkersMayRepeatTheLastLsnTransactionsMayNot) {
+  std::string path = dir_.path() + "/wal.log";
+  auto w = WalWriter::Open(Env::Default(), path, 1, 0, false);
+  ASSERT_TRUE(w.ok());
+  std::mt19937_64 rng(1);
+  ASSERT_TRUE((*w)->Append({MakeRecord(1, rng)}).ok());
+  TxnRecord tier;
+  tier.lsn = 1;  // repeats: a compaction changes no point
+  tier.tier = true;
+  tier.frames.emplace_back();
+  tier.frames[0].frame = 7;
+  ASSERT_TRUE((*w)->Append({tier}).ok());
+  ASSERT_TRUE((*w)->Append({MakeRecord(2, rng)}).ok());
+  ASSERT_TRUE((*w)->Sync().ok());
+  auto c = ReadWal(Env::Default(), path);
+  ASSERT_TRUE(c.ok()) << c.status().ToString();
+  ASSERT_EQ(c->records.size(), 3u);
+  EXPECT_TRUE(c->records[1].tier);
+  EXPECT_FALSE(c->records[1].bulk);
+  EXPECT_EQ(c->records[1].lsn, 1u);
+  EXPECT_EQ(c->records[1].frames.at(0).frame, 7u);
+  EXPECT_FALSE(c->records[2].tier);
+  // A transaction repeating an LSN is corruption.
+  ASSERT_TRUE((*w)->Append({MakeRecord(2, rng)}).ok());
+  EXPECT_FALSE(ReadWal(Env::Default(), path).ok());
+}
+
 TEST_F(WalTest, RelabelsAreLoggedAsIdsAndFlippedBits) {
   // 10 000 relabelled points with ids 1..3 apart, next to a frame effect of whole points.
   std::mt19937_64 rng(3);
