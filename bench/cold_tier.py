@@ -59,6 +59,8 @@ def main():
             "bytes_per_point": med(["size", "bytes_per_point"]),
             "of_64_byte_records": med(["size", "of_64_byte_records"])},
         "compact_mpoints_per_s": {"median": med(["compact", "mpoints_per_s"])},
+        "decode_kernel_mpoints_per_s_one_thread": {
+            "median": med(["decode_kernel", "mpoints_per_s_one_thread"])},
         "stream_ms": {k: med(["stream", k, "median"]) for k in
                       ("raw_warm_ms", "raw_cold_ms", "compressed_cold_ms",
                        "compressed_page_cache_warm_ms", "compressed_warm_ms")},
