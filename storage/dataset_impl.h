@@ -29,6 +29,7 @@
 #include "storage/database.h"
 #include "storage/frame_state.h"
 #include "storage/hyperslice.h"
+#include "storage/kdtree_builder.h"
 #include "storage/wal.h"
 
 namespace hvdb {
@@ -153,6 +154,14 @@ class DatasetImpl {
   // Smallest slot that can take T0 plus slots 0..i-1 of `v` (plus `extra` points).
   size_t TargetSlot(const FrameVersion& v, uint64_t extra) const;
   // Builds the tree of slot i from v's T0, `extra` and slots 0..i-1 (no lock held).
+  // Appends T0 and the live points of slots [0, slots) of `v` to *pts.
+  Status LivePoints(const FrameVersion& v, size_t slots, std::vector<Point>* pts) const;
+  TreeBuildParams TreeParams(uint32_t frame, uint64_t seq) const;
+  // A new tree file of the frame: `write` makes it at the path of a fresh sequence number,
+  // then it is opened (synced: its contents are durable); on failure nothing is left behind.
+  Result<std::shared_ptr<KdTree>> NewTree(
+      uint32_t frame, bool sync,
+      const std::function<Status(const std::string& path, uint64_t seq)>& write);
   Result<std::shared_ptr<KdTree>> BuildMerged(const FrameVersion& v, size_t i,
                                               std::vector<Point> extra, bool sync);
   void MergerLoop();
@@ -177,10 +186,12 @@ class DatasetImpl {
                           uint64_t before,
                           const std::function<Status(const std::string& path, uint64_t seq)>& write,
                           CompactInfo* info, bool* stale);
+  // Installs t as a queued writer; a tree that was not installed (stale, or an error) goes.
+  Status SubmitTier(const Tiering& t);
   Status InstallTier(const Tiering& t);  // as leader
   // After the leader published writes to these frames: remembers when, and has the merger
   // thaw those with compressed trees.
-  void NoteWrites(const std::vector<uint32_t>& frames);
+  void NoteWrites(const std::vector<std::shared_ptr<const FrameVersion>>& written);
   // Merger: thaws written frames, and compacts frames idle for Options::cold_after_s.
   void TierPass();
   Status CheckpointLocked();                                           // as leader

@@ -27,32 +27,40 @@ size_t DatasetImpl::TargetSlot(const FrameVersion& v, uint64_t extra) const {
   return i;
 }
 
-Result<std::shared_ptr<KdTree>> DatasetImpl::BuildMerged(const FrameVersion& v, size_t i,
-                                                         std::vector<Point> extra, bool sync) {
-  std::vector<Point> pts = std::move(extra);
-  uint64_t want = pts.size() + v.t0.size();
-  for (size_t j = 0; j < i && j < v.slots.size(); ++j) want += v.slots[j].live();
-  pts.reserve(want);
-  v.t0.ForEach([&pts](const Point& p) { pts.push_back(p); });
-  for (size_t j = 0; j < i && j < v.slots.size(); ++j) {
+Status DatasetImpl::LivePoints(const FrameVersion& v, size_t slots, std::vector<Point>* pts) const {
+  uint64_t want = pts->size() + v.t0.size();
+  for (size_t j = 0; j < slots && j < v.slots.size(); ++j) want += v.slots[j].live();
+  pts->reserve(want);
+  v.t0.ForEach([pts](const Point& p) { pts->push_back(p); });
+  for (size_t j = 0; j < slots && j < v.slots.size(); ++j) {
     const TreeSlot& s = v.slots[j];
     if (!s.tree) continue;
-    size_t at = pts.size();
-    HVDB_RETURN_IF_ERROR(s.tree->ReadAll(&pts));
+    size_t at = pts->size();
+    HVDB_RETURN_IF_ERROR(s.tree->ReadAll(pts));
     if (s.dead) {
-      auto first = pts.begin() + static_cast<std::ptrdiff_t>(at);
-      pts.erase(std::remove_if(first, pts.end(), [&s](const Point& p) { return s.IsDead(p.id); }),
-                pts.end());
+      auto first = pts->begin() + static_cast<std::ptrdiff_t>(at);
+      pts->erase(std::remove_if(first, pts->end(), [&s](const Point& p) { return s.IsDead(p.id); }),
+                 pts->end());
     }
   }
-  if (pts.empty()) return std::shared_ptr<KdTree>();  // everything was deleted
+  return Status::OK();
+}
+
+TreeBuildParams DatasetImpl::TreeParams(uint32_t frame, uint64_t seq) const {
   TreeBuildParams params;
   params.block_size = opts_.block_size;
   params.lod_levels = opts_.lod_levels;
-  params.frame = v.frame;
-  params.tree_seq = next_seq_++;
-  std::string path = TreePath(v.frame, params.tree_seq);
-  Status st = BuildTreeFile(env_, path, pts, params, sync);
+  params.frame = frame;
+  params.tree_seq = seq;
+  return params;
+}
+
+Result<std::shared_ptr<KdTree>> DatasetImpl::NewTree(
+    uint32_t frame, bool sync,
+    const std::function<Status(const std::string& path, uint64_t seq)>& write) {
+  const uint64_t seq = next_seq_++;
+  const std::string path = TreePath(frame, seq);
+  Status st = write(path, seq);
   if (!st.ok()) {
     (void)env_->Remove(path);
     return st;
@@ -60,6 +68,16 @@ Result<std::shared_ptr<KdTree>> DatasetImpl::BuildMerged(const FrameVersion& v, 
   auto opened = KdTree::Open(env_, path, pool_, /*synced=*/sync);
   if (!opened.ok()) (void)env_->Remove(path);
   return opened;
+}
+
+Result<std::shared_ptr<KdTree>> DatasetImpl::BuildMerged(const FrameVersion& v, size_t i,
+                                                         std::vector<Point> extra, bool sync) {
+  std::vector<Point> pts = std::move(extra);
+  HVDB_RETURN_IF_ERROR(LivePoints(v, i, &pts));
+  if (pts.empty()) return std::shared_ptr<KdTree>();  // everything was deleted
+  return NewTree(v.frame, sync, [&](const std::string& path, uint64_t seq) {
+    return BuildTreeFile(env_, path, pts, TreeParams(v.frame, seq), sync);
+  });
 }
 
 void DatasetImpl::WakeMerger() {
@@ -283,13 +301,14 @@ Status DatasetImpl::BulkLocked(uint32_t frame, std::vector<Point>* points,
   Status logged = wal_->Append({marker});
   if (logged.ok() && opts_.sync) logged = wal_->Sync();
   wal_bytes_ = wal_->size();
+  std::shared_ptr<const FrameVersion> loaded_version;
   {
     std::lock_guard<std::mutex> l(mu_);
-    frames_[frame] = std::make_shared<const FrameVersion>(std::move(nv));
+    frames_[frame] = loaded_version = std::make_shared<const FrameVersion>(std::move(nv));
     last_lsn_ = lsn;
   }
   for (auto& t : merged) Bury(t);  // the durable state no longer lists them
-  NoteWrites({frame});
+  NoteWrites({loaded_version});
   if (!logged.ok()) {
     // The load is durable: an error would invite a retry that loads the points twice.
     // Followers see it at their next full reload (a checkpoint, or a new writer); a watcher

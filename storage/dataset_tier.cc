@@ -60,28 +60,13 @@ Status DatasetImpl::CompactFrame(uint32_t frame, CompactInfo* info, bool* stale)
                             info, stale);
   }
   std::vector<Point> pts;
-  pts.reserve(v->PointCount());
-  v->t0.ForEach([&pts](const Point& p) { pts.push_back(p); });
-  uint64_t before = 0;
-  for (const TreeSlot& s : v->slots) {
-    if (!s.tree) continue;
-    before += s.tree->file_bytes();
-    const size_t at = pts.size();
-    HVDB_RETURN_IF_ERROR(s.tree->ReadAll(&pts));
-    if (s.dead) {
-      pts.erase(std::remove_if(pts.begin() + static_cast<std::ptrdiff_t>(at), pts.end(),
-                               [&s](const Point& p) { return s.IsDead(p.id); }),
-                pts.end());
-    }
-  }
+  HVDB_RETURN_IF_ERROR(LivePoints(*v, v->slots.size(), &pts));
   if (pts.empty()) return Status::OK();
+  uint64_t before = 0;
+  for (const TreeSlot& s : v->slots) before += s.tree ? s.tree->file_bytes() : 0;
   return InstallCompacted(v, pts.size(), before,
                           [&](const std::string& path, uint64_t seq) {
-                            TreeBuildParams params;
-                            params.block_size = opts_.block_size;
-                            params.lod_levels = opts_.lod_levels;
-                            params.frame = frame;
-                            params.tree_seq = seq;
+                            TreeBuildParams params = TreeParams(frame, seq);
                             params.compressed = true;
                             return BuildTreeFile(env_, path, pts, params, /*sync=*/true);
                           },
@@ -92,34 +77,15 @@ Status DatasetImpl::InstallCompacted(
     const std::shared_ptr<const FrameVersion>& v, uint64_t n, uint64_t before,
     const std::function<Status(const std::string& path, uint64_t seq)>& write, CompactInfo* info,
     bool* stale) {
-  const uint32_t frame = v->frame;
-  const uint64_t seq = next_seq_++;
-  const std::string path = TreePath(frame, seq);
-  Status built = write(path, seq);
-  if (!built.ok()) {
-    (void)env_->Remove(path);
-    return built;
-  }
-  auto opened = KdTree::Open(env_, path, pool_, /*synced=*/true);
-  if (!opened.ok()) {
-    (void)env_->Remove(path);
-    return opened.status();
-  }
   Tiering t;
-  t.frame = frame;
+  t.frame = v->frame;
   t.compact = true;
   t.base = v;
   t.slot = TargetSlot(FrameVersion{}, n);
-  t.tree = *opened;
-  WriteRequest w;
-  w.kind = WriteRequest::Kind::kTier;
-  w.tiering = &t;
-  Status st = Submit(&w).status();
-  if (!st.ok() || t.stale) {
-    t.tree->MarkObsolete();
-    *stale = t.stale;
-    return st;
-  }
+  HVDB_ASSIGN_OR_RETURN(t.tree, NewTree(v->frame, /*sync=*/true, write));
+  HVDB_RETURN_IF_ERROR(SubmitTier(t));
+  *stale = t.stale;
+  if (t.stale) return Status::OK();
   ++info->frames;
   info->points += n;
   info->bytes_before += before;
@@ -142,38 +108,30 @@ Status DatasetImpl::ThawFrame(uint32_t frame) {
     // Every point of the tree, dead ones included: the slot's dead ids stay as they are.
     std::vector<Point> pts;
     HVDB_RETURN_IF_ERROR(v->slots[slot].tree->ReadAll(&pts));
-    TreeBuildParams params;
-    params.block_size = opts_.block_size;
-    params.lod_levels = opts_.lod_levels;
-    params.frame = frame;
-    params.tree_seq = next_seq_++;
-    const std::string path = TreePath(frame, params.tree_seq);
-    // Unsynced, as the merger's trees: the frame's state on disk lists the compressed tree
-    // until the next checkpoint, and recovery deletes this file if a crash comes first.
-    Status built = BuildTreeFile(env_, path, pts, params, /*sync=*/false);
-    if (!built.ok()) {
-      (void)env_->Remove(path);
-      return built;
-    }
-    auto opened = KdTree::Open(env_, path, pool_, /*synced=*/false);
-    if (!opened.ok()) {
-      (void)env_->Remove(path);
-      return opened.status();
-    }
     Tiering t;
     t.frame = frame;
     t.compact = false;
     t.base = v;
     t.slot = slot;
-    t.tree = *opened;
-    WriteRequest w;
-    w.kind = WriteRequest::Kind::kTier;
-    w.tiering = &t;
-    Status st = Submit(&w).status();
-    if (!st.ok() || t.stale) t.tree->MarkObsolete();
-    HVDB_RETURN_IF_ERROR(st);
+    // Unsynced, as the merger's trees: the frame's state on disk lists the compressed tree
+    // until the next checkpoint, and recovery deletes this file if a crash comes first.
+    HVDB_ASSIGN_OR_RETURN(t.tree, NewTree(frame, /*sync=*/false,
+                                          [&](const std::string& path, uint64_t seq) {
+                                            return BuildTreeFile(env_, path, pts,
+                                                                 TreeParams(frame, seq), false);
+                                          }));
+    HVDB_RETURN_IF_ERROR(SubmitTier(t));
     // Stale (a merge or bulk load moved the tree): look again.
   }
+}
+
+Status DatasetImpl::SubmitTier(const Tiering& t) {
+  WriteRequest w;
+  w.kind = WriteRequest::Kind::kTier;
+  w.tiering = &t;
+  Status st = Submit(&w).status();
+  if (!st.ok() || t.stale) t.tree->MarkObsolete();
+  return st;
 }
 
 Status DatasetImpl::InstallTier(const Tiering& t) {
@@ -232,21 +190,19 @@ Status DatasetImpl::InstallTier(const Tiering& t) {
   return Status::OK();
 }
 
-void DatasetImpl::NoteWrites(const std::vector<uint32_t>& frames) {
+void DatasetImpl::NoteWrites(const std::vector<std::shared_ptr<const FrameVersion>>& written) {
   const auto now = std::chrono::steady_clock::now();
   std::vector<uint32_t> thaw;
-  for (uint32_t f : frames) {
-    auto v = Snapshot(f);
-    if (!v) continue;
+  for (const auto& v : written) {
     for (const TreeSlot& s : v->slots) {
       if (s.tree && s.tree->compressed()) {
-        thaw.push_back(f);
+        thaw.push_back(v->frame);
         break;
       }
     }
   }
   std::lock_guard<std::mutex> l(merge_mu_);
-  for (uint32_t f : frames) last_write_[f] = now;
+  for (const auto& v : written) last_write_[v->frame] = now;
   if (!thaw.empty()) {
     thaw_.insert(thaw.begin(), thaw.end());
     merge_wake_ = true;

@@ -800,7 +800,11 @@ void DatasetImpl::LeadCommits(std::vector<WriteRequest*>& group) {
   for (const TxnRecord& r : records) events.push_back(EventOfRecord(info_.name, r));
   Publish(events);
   for (uint32_t f : ws.changed()) dirty_.insert(f);
-  NoteWrites(std::vector<uint32_t>(ws.changed().begin(), ws.changed().end()));
+  {
+    std::vector<std::shared_ptr<const FrameVersion>> written;
+    for (uint32_t f : ws.changed()) written.push_back(ws.Get(f));
+    NoteWrites(written);
+  }
   // Trees are the merger's work (logarithmic method), and so are checkpoints: a commit is
   // durable now, with its points in T0 and its record in the log.
   if (merge) {
