@@ -199,7 +199,7 @@ uint32_t ReferenceCrc(std::span<const Point> pts) {
 void WriteHeader(const Header& h, std::string* out) {
   Writer w;
   w.PutBytes(kMagic, 4);
-  w.Put<uint8_t>(kVersion);
+  w.Put<uint8_t>((h.flags & kOctree) ? kOctreeVersion : kVersion);
   w.Put<uint8_t>(h.flags);
   w.Put<uint16_t>(static_cast<uint16_t>(h.attributes));
   w.Put<uint64_t>(h.points);
@@ -233,11 +233,14 @@ Status ParseHeader(std::string_view s, const DecodeOptions* opts, Header* h, siz
   uint8_t version = 0, flags = 0, levels = 0, qp = 0, qc = 0, qn = 0, qcov = 0, res[3] = {};
   uint16_t attrs = 0;
   r.Get(&version);
-  if (version != kVersion) {
+  if (version != kVersion && version != kOctreeVersion) {
     return Status::Unsupported("hvdb7 stream version " + std::to_string(version) +
-                               " (this build reads version 1)");
+                               " (this build reads versions 1 and 2)");
   }
   r.Get(&flags);
+  if (((flags & kOctree) != 0) != (version == kOctreeVersion)) {
+    return Status::Corruption("hvdb7 header: the octree flag does not match the version");
+  }
   r.Get(&attrs);
   r.Get(&h->points);
   r.Get(&levels);
@@ -254,7 +257,8 @@ Status ParseHeader(std::string_view s, const DecodeOptions* opts, Header* h, siz
   if (s.size() < need) return Status::Corruption("hvdb7 stream truncated in its header");
   uint32_t crc = DecodeLE<uint32_t>(p + need - 4);
   if (crc != crc32c::Value(p, need - 4)) return Status::Corruption("hvdb7 header checksum mismatch");
-  if ((flags & ~(kProgressive | kTemporal)) != 0 || (attrs & ~kAllAttributes) != 0 ||
+  if ((flags & ~(kProgressive | kTemporal | kOctree)) != 0 ||
+      ((flags & kOctree) && (qp < 1 || qp > 21 || h->plane_mask != 0)) || (attrs & ~kAllAttributes) != 0 ||
       !(attrs & kPosition) || qp > 30 || qc < 1 || qc > 8 || qn < 1 || qn > 16 || qcov > 20 ||
       levels > 40 || h->chunk == 0 || !std::isfinite(h->q.step) || h->q.step <= 0) {
     return Status::Corruption("hvdb7 header holds out-of-range parameters");
@@ -284,7 +288,10 @@ Status ParseHeader(std::string_view s, const DecodeOptions* opts, Header* h, siz
     uint64_t below = LevelSize(h->points, k);
     uint64_t size = LevelSize(h->points, k + 1);
     bool odd = below % 2 == 1;
-    if (odd ? h->singleton[k] >= size : h->singleton[k] != kNoChild) {
+    // Octree streams pair consecutive points: the unpaired one is the last.
+    const bool octree = (flags & kOctree) != 0;
+    if (odd ? (octree ? h->singleton[k] != size - 1 : h->singleton[k] >= size)
+            : h->singleton[k] != kNoChild) {
       return Status::Corruption("hvdb7 header: bad unpaired-point index at level " +
                                 std::to_string(k + 1));
     }

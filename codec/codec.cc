@@ -9,6 +9,7 @@
 
 #include "codec/internal.h"
 #include "codec/level_coder.h"
+#include "codec/octree.h"
 #include "codec/temporal.h"
 #include "storage/coding.h"
 #include "storage/crc32c.h"
@@ -29,10 +30,18 @@ void NewEncoders(uint32_t attrs, EncIOs* ios) {
 
 // Segment: u32 payload length, u32 CRC32C of the payload, payload = per coded group (in
 // group order) u32 length + that group's range-coded bytes.
-void AppendSegment(uint32_t attrs, EncIOs* ios, std::string* out, StreamStats* stats) {
+// `geometry`, when given, is group 0's sub-stream (an octree stream's segment 0).
+void AppendSegment(uint32_t attrs, EncIOs* ios, std::string* out, StreamStats* stats,
+                   const std::string* geometry = nullptr) {
   Writer w;
   for (int g = 0; g < kGroups; ++g) {
     if (!Coded(attrs, g)) continue;
+    if (g == 0 && geometry) {
+      w.Put<uint32_t>(static_cast<uint32_t>(geometry->size()));
+      w.PutBytes(geometry->data(), geometry->size());
+      if (stats) stats->bytes_by_attribute[0] += geometry->size();
+      continue;
+    }
     EncIO& io = *(*ios)[g];
     io.rc.Finish();
     w.Put<uint32_t>(static_cast<uint32_t>(io.buf.size()));
@@ -51,8 +60,9 @@ void AppendSegment(uint32_t attrs, EncIOs* ios, std::string* out, StreamStats* s
 enum class SegmentRead { kOk, kIncomplete };
 
 // Reads the segment at *pos. kIncomplete when the data ends inside it.
+// `geometry`, when given, receives group 0's sub-stream instead of a decoder.
 Status ReadSegment(std::string_view s, size_t* pos, uint32_t attrs, DecIOs* ios,
-                   SegmentRead* result, StreamStats* stats) {
+                   SegmentRead* result, StreamStats* stats, std::string_view* geometry = nullptr) {
   const auto* p = reinterpret_cast<const uint8_t*>(s.data());
   if (*pos > s.size() || s.size() - *pos < 8) {
     *result = SegmentRead::kIncomplete;
@@ -78,7 +88,12 @@ Status ReadSegment(std::string_view s, size_t* pos, uint32_t attrs, DecIOs* ios,
     uint32_t sub = DecodeLE<uint32_t>(q + off);
     off += 4;
     if (len - off < sub) return Status::Corruption("hvdb7 segment: sub-stream overruns segment");
-    (*ios)[g] = std::make_unique<DecIO>(q + off, sub);
+    if (g == 0 && geometry) {
+      *geometry = std::string_view(reinterpret_cast<const char*>(q + off), sub);
+      (*ios)[g] = nullptr;
+    } else {
+      (*ios)[g] = std::make_unique<DecIO>(q + off, sub);
+    }
     if (stats) stats->bytes_by_attribute[g] += sub;
     off += sub;
   }
@@ -98,10 +113,12 @@ Status CheckOverrun(const DecIOs& ios) {
   return Status::OK();
 }
 
-// Positions then (on two threads) the other groups of parents [b, e).
+// Positions (pair geometry; octree streams carry them in segment 0) then, on two threads,
+// the other groups of parents [b, e).
 template <typename IO>
 void CodeChunk(std::array<std::unique_ptr<IO>, kGroups>& ios, Models& md, LevelState& L,
-               uint32_t attrs, const TemporalIndex* temporal, size_t b, size_t e) {
+               uint32_t attrs, const TemporalIndex* temporal, size_t b, size_t e,
+               bool positions, int max_threads) {
   std::vector<int> groups;
   for (int g = 1; g < kGroups; ++g) {
     if (Coded(attrs, g)) groups.push_back(g);
@@ -109,18 +126,18 @@ void CodeChunk(std::array<std::unique_ptr<IO>, kGroups>& ios, Models& md, LevelS
   auto run = [&](size_t first, size_t step) {
     for (size_t j = first; j < groups.size(); j += step) CodeGroup(*ios[groups[j]], md, groups[j], L, b, e);
   };
-  const bool threads = !groups.empty() && e - b >= 4096 && std::thread::hardware_concurrency() > 1;
+  const bool threads = !groups.empty() && e - b >= 4096 && ThreadCount(max_threads) > 1;
   // The encoder's groups need the orientation its position pass chooses, and temporal
   // groups the decoded positions; otherwise a decoder reads the groups while it reads the
   // positions (the positions are the longest pass).
-  if (threads && !IO::kEncode && !temporal) {
+  if (threads && !IO::kEncode && !temporal && positions) {
     std::thread t([&] { run(0, 2); });
     CodePositions(*ios[0], md, L, b, e);
     run(1, 2);
     t.join();
     return;
   }
-  CodePositions(*ios[0], md, L, b, e);
+  if (positions) CodePositions(*ios[0], md, L, b, e);
   if (temporal) temporal->Hints(L, b, e);
   if (threads && groups.size() >= 2) {
     std::thread t([&] { run(1, 2); });
@@ -164,7 +181,7 @@ size_t ChildBase(size_t i, uint32_t singleton) {
 // state they inherit.
 void Expand(const LevelState& L, uint32_t attrs, Columns* next,
             std::array<std::vector<uint8_t>, kGroups>* inherit,
-            std::array<std::vector<uint8_t>, kGroups>* mag) {
+            std::array<std::vector<uint8_t>, kGroups>* mag, int threads) {
   const size_t n = L.n;
   const size_t m = 2 * n - (L.singleton != kNoChild ? 1 : 0);
   next->Resize(m, attrs);
@@ -201,7 +218,7 @@ void Expand(const LevelState& L, uint32_t attrs, Columns* next,
         }
       }
     }
-  });
+  }, threads);
 }
 
 // Subtree-zero flags per group and level (encoder): the pair's detail and every detail below
@@ -243,6 +260,11 @@ Status CheckOptions(std::span<const Point> points, const EncodeOptions& o) {
   if (o.levels < 0 || o.levels > 40) return Status::InvalidArgument("levels must be 0 (auto) to 40");
   if (o.chunk < 64) return Status::InvalidArgument("chunk must be at least 64 parents");
   if (o.effort < 0 || o.effort > 1) return Status::InvalidArgument("effort must be 0 or 1");
+  if (o.threads < 0 || o.threads > 64) return Status::InvalidArgument("threads must be 0 (auto) to 64");
+  if (o.geometry == EncodeOptions::Geometry::kOctree && (o.qp < 1 || o.qp > kMaxOctreeDepth)) {
+    return Status::InvalidArgument("octree geometry codes grids of 1 to 21 bits (qp); use the pair "
+                                   "geometry for exact floats or finer grids");
+  }
   if ((o.attributes & ~kAllAttributes) != 0) return Status::InvalidArgument("unknown attribute bits");
   if (points.size() >= kNoChild) return Status::InvalidArgument("at most 2^32 - 2 points per stream");
   const bool log_cov = (o.attributes & kCovariance) && o.qcov > 0;
@@ -270,6 +292,109 @@ Status CheckPositions(const Columns& c, const Quantizer& q) {
   return Status::OK();
 }
 
+// Octree streams: sorts the points by the Morton code of their cell (ties keep input order)
+// and returns the codes.
+std::vector<uint64_t> MortonSort(Columns* base, uint32_t attrs) {
+  const size_t n = base->n;
+  std::vector<std::pair<uint64_t, uint32_t>> key(n);
+  for (size_t i = 0; i < n; ++i) {
+    key[i] = {MortonCode(static_cast<uint32_t>(base->ch[0][i]), static_cast<uint32_t>(base->ch[1][i]),
+                         static_cast<uint32_t>(base->ch[2][i])),
+              static_cast<uint32_t>(i)};
+  }
+  std::sort(key.begin(), key.end());
+  Columns sorted;
+  sorted.Resize(n, attrs);
+  for (int c = 0; c < kChannels; ++c) {
+    if (sorted.ch[c].empty()) continue;
+    for (size_t i = 0; i < n; ++i) sorted.ch[c][i] = base->ch[c][key[i].second];
+  }
+  *base = std::move(sorted);
+  std::vector<uint64_t> codes(n);
+  for (size_t i = 0; i < n; ++i) codes[i] = key[i].first;
+  return codes;
+}
+
+// Octree streams: the pair hierarchy of consecutive points. Level k's point i is the parent of
+// points 2i and 2i + 1 of level k - 1 (the last of an odd level is unpaired), so decoders know
+// it without being told, and in Morton order the pairs are neighbours.
+void ConsecutiveHierarchy(Columns base, int levels, uint32_t attrs, Hierarchy* h) {
+  h->level.clear();
+  h->pairs.assign(1, {});
+  h->level.push_back(std::move(base));
+  for (int k = 1; k <= levels; ++k) {
+    const Columns& below = h->level[k - 1];
+    const size_t m = below.n, n = (m + 1) / 2;
+    Columns up;
+    up.Resize(n, attrs);
+    std::vector<std::array<uint32_t, 2>> pairs(n);
+    for (size_t i = 0; i < n; ++i) {
+      const size_t a = 2 * i, b = 2 * i + 1;
+      pairs[i] = {static_cast<uint32_t>(a), b < m ? static_cast<uint32_t>(b) : kNoChild};
+      for (int c = 0; c < kChannels; ++c) {
+        if (up.ch[c].empty()) continue;
+        up.ch[c][i] = b < m ? LiftParent(below.ch[c][a], below.ch[c][b]) : below.ch[c][a];
+      }
+    }
+    h->pairs.push_back(std::move(pairs));
+    h->level.push_back(std::move(up));
+  }
+}
+
+// Decoder side of the same: positions of levels 0..levels from level 0's cells.
+std::vector<std::array<std::vector<int64_t>, 3>> PositionLevels(const std::vector<uint64_t>& codes,
+                                                               int levels) {
+  std::vector<std::array<std::vector<int64_t>, 3>> pos(levels + 1);
+  for (auto& v : pos[0]) v.resize(codes.size());
+  for (size_t i = 0; i < codes.size(); ++i) {
+    uint32_t x, y, z;
+    MortonDecode(codes[i], &x, &y, &z);
+    pos[0][0][i] = x, pos[0][1][i] = y, pos[0][2][i] = z;
+  }
+  for (int k = 1; k <= levels; ++k) {
+    for (int a = 0; a < 3; ++a) {
+      const auto& below = pos[k - 1][a];
+      const size_t m = below.size(), n = (m + 1) / 2;
+      auto& up = pos[k][a];
+      up.resize(n);
+      for (size_t i = 0; i < n; ++i) {
+        up[i] = 2 * i + 1 < m ? LiftParent(below[2 * i], below[2 * i + 1]) : below[2 * i];
+      }
+    }
+  }
+  return pos;
+}
+
+// The reference frame's distinct cells on this stream's grid (temporal octree streams).
+std::vector<uint64_t> ReferenceCells(std::span<const Point> ref, const Quantizer& q) {
+  std::vector<uint64_t> cells(ref.size());
+  ParallelRange(ref.size(), [&](size_t b, size_t e) {
+    int64_t c[kChannels];
+    for (size_t i = b; i < e; ++i) {
+      q.ToChannels(ref[i], c);
+      cells[i] = MortonCode(static_cast<uint32_t>(c[0]), static_cast<uint32_t>(c[1]),
+                            static_cast<uint32_t>(c[2]));
+    }
+  });
+  std::sort(cells.begin(), cells.end());
+  cells.erase(std::unique(cells.begin(), cells.end()), cells.end());
+  return cells;
+}
+
+// Whether every point lands inside the reference's grid (so the stream can share it).
+bool FitsGrid(std::span<const Point> pts, const Reference& r, int qp) {
+  if (!(r.step > 0) || !std::isfinite(r.step) || r.qp != qp) return false;
+  const double hi = static_cast<double>((uint64_t{1} << qp) - 1) + 0.5;
+  for (const Point& p : pts) {
+    const float xyz[3] = {p.x, p.y, p.z};
+    for (int a = 0; a < 3; ++a) {
+      const double v = (xyz[a] - r.origin[a]) / r.step;
+      if (!(v >= -0.5 && v < hi)) return false;
+    }
+  }
+  return true;
+}
+
 }  // namespace
 
 Status Encode(std::span<const Point> points, const EncodeOptions& options, std::string* out,
@@ -291,6 +416,20 @@ Status Encode(std::span<const Point> points, const EncodeOptions& options, std::
   hd.chunk = static_cast<uint32_t>(options.chunk);
   hd.flags = options.progressive ? kProgressive : 0;
   hd.q.Fit(points);
+  const bool octree = options.geometry == EncodeOptions::Geometry::kOctree ||
+                      (options.geometry == EncodeOptions::Geometry::kAuto && options.qp >= 1 &&
+                       options.qp <= kMaxOctreeDepth);
+  if (octree) {
+    hd.flags |= kOctree;
+    // Temporal: code on the reference's grid when the frame fits it, so what did not move
+    // lands in the same cells.
+    if (reference && FitsGrid(points, *reference, options.qp)) {
+      for (int a = 0; a < 3; ++a) hd.q.origin[a] = reference->origin[a];
+      hd.q.step = reference->step;
+    }
+  }
+  const uint32_t level_attrs = octree ? attrs & ~kPosition : attrs;
+  const int threads = ThreadCount(options.threads);
   const Quantizer& q = hd.q;
 
   Columns base;
@@ -306,28 +445,46 @@ Status Encode(std::span<const Point> points, const EncodeOptions& options, std::
   });
   int levels = options.levels > 0 ? options.levels : AutoLevels(points.size());
   Hierarchy h;
-  // Effort 1: k-d tree candidates at every level (the fewest bits); 0: none (twice as fast).
-  BuildHierarchy(std::move(base), levels, q.Has(2), options.effort >= 1 ? levels : 0, &h);
+  std::string geometry;
+  std::vector<uint64_t> ref_cells;
+  if (octree) {
+    // Positions go in segment 0; the other attributes ride a hierarchy of Morton neighbours
+    // (none when positions are all there is).
+    if (level_attrs == 0) levels = 0;
+    std::vector<uint64_t> codes = MortonSort(&base, attrs);
+    if (reference) ref_cells = ReferenceCells(reference->points, q);
+    EncodeOctree(codes, q.qp, reference ? &ref_cells : nullptr, threads, &geometry);
+    ConsecutiveHierarchy(std::move(base), levels, attrs, &h);
+  } else {
+    // Effort 1: k-d tree candidates at every level (the fewest bits); 0: none (twice as fast).
+    BuildHierarchy(std::move(base), levels, q.Has(2), options.effort >= 1 ? levels : 0, &h);
+  }
   levels = static_cast<int>(h.level.size()) - 1;
   hd.levels = levels;
   auto sz = SubtreeZero(h, attrs);
 
   std::unique_ptr<TemporalIndex> tindex;
-  if (reference && !(attrs & kColor)) {
-    return Status::InvalidArgument("temporal coding needs the colour attribute (it is what the "
-                                   "reference predicts)");
+  if (reference && !octree && !(attrs & kColor)) {
+    return Status::InvalidArgument("temporal coding of pair geometry needs the colour attribute "
+                                   "(it is what the reference predicts)");
   }
   if (reference) {
     hd.flags |= kTemporal;
     hd.reference_points = reference->points.size();
     hd.reference_crc = ReferenceCrc(reference->points);
-    tindex = std::make_unique<TemporalIndex>(reference->points, q);
+    if (attrs & kColor) tindex = std::make_unique<TemporalIndex>(reference->points, q);
   }
 
   auto md = std::make_unique<Models>();
   std::string body;
-  // Root layer in curve order.
-  std::vector<uint32_t> nodes = CurveOrder(h.level[levels]);
+  // Root layer in curve order (octree streams: already in Morton order).
+  std::vector<uint32_t> nodes;
+  if (octree) {
+    nodes.resize(h.level[levels].n);
+    for (size_t i = 0; i < nodes.size(); ++i) nodes[i] = static_cast<uint32_t>(i);
+  } else {
+    nodes = CurveOrder(h.level[levels]);
+  }
   Columns cur;
   cur.Resize(nodes.size(), attrs);
   for (int c = 0; c < kChannels; ++c) {
@@ -335,16 +492,16 @@ Status Encode(std::span<const Point> points, const EncodeOptions& options, std::
     for (size_t i = 0; i < nodes.size(); ++i) cur.ch[c][i] = h.level[levels].ch[c][nodes[i]];
   }
   EncIOs ios;
-  NewEncoders(attrs, &ios);
-  CodeRoot(ios, *md, cur, attrs);
-  AppendSegment(attrs, &ios, &body, &S);
+  NewEncoders(level_attrs, &ios);
+  CodeRoot(ios, *md, cur, level_attrs);
+  AppendSegment(attrs, &ios, &body, &S, octree ? &geometry : nullptr);
 
   std::array<std::vector<uint8_t>, kGroups> inherit, mag;
   for (int g = 0; g < kGroups; ++g) {
     if (Coded(attrs, g)) inherit[g].assign(cur.n, 0), mag[g].assign(cur.n, 0);
   }
   hd.singleton.assign(levels, kNoChild);
-  if (!options.progressive) NewEncoders(attrs, &ios);
+  if (!options.progressive) NewEncoders(level_attrs, &ios);
   for (int k = levels; k >= 1; --k) {
     LevelState L;
     L.k = k;
@@ -365,7 +522,7 @@ Status Encode(std::span<const Point> points, const EncodeOptions& options, std::
       }
     }
     hd.singleton[k - 1] = L.singleton;
-    L.plane = PlanePays(L);
+    L.plane = !octree && PlanePays(L);
     if (L.plane) hd.plane_mask |= uint64_t{1} << (k - 1);
     for (int g = 1; g < kGroups; ++g) {
       if (!Coded(attrs, g)) continue;
@@ -380,9 +537,10 @@ Status Encode(std::span<const Point> points, const EncodeOptions& options, std::
     }
     const size_t step = options.progressive ? options.chunk : std::max<size_t>(L.n, 1);
     for (size_t b = 0; b < L.n; b += step) {
-      if (options.progressive) NewEncoders(attrs, &ios);
-      CodeChunk(ios, *md, L, attrs, tindex.get(), b, std::min(L.n, b + step));
-      if (options.progressive) AppendSegment(attrs, &ios, &body, &S);
+      if (options.progressive) NewEncoders(level_attrs, &ios);
+      CodeChunk(ios, *md, L, level_attrs, tindex.get(), b, std::min(L.n, b + step), !octree,
+                threads);
+      if (options.progressive) AppendSegment(level_attrs, &ios, &body, &S);
     }
     // Children in stream order.
     std::vector<uint32_t> next_nodes(2 * L.n - (L.singleton != kNoChild ? 1 : 0));
@@ -397,11 +555,11 @@ Status Encode(std::span<const Point> points, const EncodeOptions& options, std::
       }
     }
     Columns next;
-    Expand(L, attrs, &next, &inherit, &mag);
+    Expand(L, attrs, &next, &inherit, &mag, threads);
     cur = std::move(next);
     nodes = std::move(next_nodes);
   }
-  if (!options.progressive && levels > 0) AppendSegment(attrs, &ios, &body, &S);
+  if (!options.progressive && levels > 0) AppendSegment(level_attrs, &ios, &body, &S);
 
   out->clear();
   WriteHeader(hd, out);
@@ -437,6 +595,7 @@ Status Decode(std::string_view stream, std::vector<Point>* out, const DecodeOpti
     }
     stream = stream.substr(0, options.max_bytes);
   }
+  const bool octree = (hd.flags & kOctree) != 0;
   std::unique_ptr<TemporalIndex> tindex;
   if (hd.flags & kTemporal) {
     if (!options.reference) {
@@ -448,23 +607,39 @@ Status Decode(std::string_view stream, std::vector<Point>* out, const DecodeOpti
       return Status::InvalidArgument("temporal hvdb7 stream: the reference given is not the frame "
                                      "it was coded against (point count or checksum differs)");
     }
-    tindex = std::make_unique<TemporalIndex>(options.reference->points, hd.q);
+    if (hd.attributes & kColor) tindex = std::make_unique<TemporalIndex>(options.reference->points, hd.q);
   }
   const uint32_t attrs = hd.attributes;
+  const uint32_t level_attrs = octree ? attrs & ~kPosition : attrs;
+  if (octree && level_attrs == 0 && hd.levels != 0) {
+    return Status::Corruption("hvdb7 octree stream of positions only has hierarchy levels");
+  }
   const Quantizer& q = hd.q;
   auto md = std::make_unique<Models>();
   Columns cur;
   cur.Resize(LevelSize(hd.points, hd.levels), attrs);
   DecIOs ios;
   SegmentRead sr;
-  st = ReadSegment(stream, &pos, attrs, &ios, &sr, &S);
+  std::string_view geometry;
+  st = ReadSegment(stream, &pos, attrs, &ios, &sr, &S, octree ? &geometry : nullptr);
   if (!st.ok()) return st;
   if (sr == SegmentRead::kIncomplete) {
     return prefix ? Status::InvalidArgument("a prefix of " + std::to_string(options.max_bytes) +
-                                            " bytes does not hold the stream's root layer")
+                                            " bytes does not hold the stream's " +
+                                            (octree ? "geometry" : "root layer"))
                   : Status::Corruption("hvdb7 stream truncated in its root layer");
   }
-  DecodeRoot(ios, *md, &cur, attrs);
+  std::vector<std::array<std::vector<int64_t>, 3>> octree_pos;
+  if (octree) {
+    std::vector<uint64_t> ref_cells, codes;
+    if (hd.flags & kTemporal) ref_cells = ReferenceCells(options.reference->points, q);
+    st = DecodeOctree(geometry, q.qp, hd.points, (hd.flags & kTemporal) ? &ref_cells : nullptr,
+                      ThreadCount(options.threads), &codes);
+    if (!st.ok()) return st;
+    octree_pos = PositionLevels(codes, hd.levels);
+    for (int a = 0; a < 3; ++a) cur.ch[a] = octree_pos[hd.levels][a];
+  }
+  DecodeRoot(ios, *md, &cur, level_attrs);
   st = CheckOverrun(ios);
   if (st.ok()) st = CheckPositions(cur, q);
   if (!st.ok()) return st;
@@ -475,7 +650,7 @@ Status Decode(std::string_view stream, std::vector<Point>* out, const DecodeOpti
     if (Coded(attrs, g)) inherit[g].assign(cur.n, 0), mag[g].assign(cur.n, 0);
   }
   if (!progressive && hd.levels > 0) {
-    st = ReadSegment(stream, &pos, attrs, &ios, &sr, &S);
+    st = ReadSegment(stream, &pos, level_attrs, &ios, &sr, &S);
     if (!st.ok()) return st;
     if (sr == SegmentRead::kIncomplete) return Status::Corruption("hvdb7 stream truncated");
   }
@@ -489,6 +664,14 @@ Status Decode(std::string_view stream, std::vector<Point>* out, const DecodeOpti
     L.singleton = hd.singleton[k - 1];
     L.plane = (hd.plane_mask >> (k - 1)) & 1;
     L.det.Resize(L.n, attrs);
+    if (octree) {
+      for (int a = 0; a < 3; ++a) {
+        const auto& below = octree_pos[k - 1][a];
+        for (size_t i = 0; i < L.n; ++i) {
+          if (i != L.singleton) L.det.ch[a][i] = Diff(below[2 * i], below[2 * i + 1]);
+        }
+      }
+    }
     L.inherit = std::move(inherit);
     L.mag = std::move(mag);
     if (tindex) {
@@ -499,7 +682,7 @@ Status Decode(std::string_view stream, std::vector<Point>* out, const DecodeOpti
     size_t done = 0;
     for (size_t b = 0; b < L.n; b += step) {
       if (progressive) {
-        st = ReadSegment(stream, &pos, attrs, &ios, &sr, &S);
+        st = ReadSegment(stream, &pos, level_attrs, &ios, &sr, &S);
         if (!st.ok()) return st;
         if (sr == SegmentRead::kIncomplete) {
           if (!prefix) return Status::Corruption("hvdb7 stream truncated at level " + std::to_string(k));
@@ -508,7 +691,7 @@ Status Decode(std::string_view stream, std::vector<Point>* out, const DecodeOpti
         }
       }
       size_t e = std::min(L.n, b + step);
-      CodeChunk(ios, *md, L, attrs, tindex.get(), b, e);
+      CodeChunk(ios, *md, L, level_attrs, tindex.get(), b, e, !octree, options.threads);
       st = CheckOverrun(ios);
       if (!st.ok()) return st;
       done = e;
@@ -535,7 +718,7 @@ Status Decode(std::string_view stream, std::vector<Point>* out, const DecodeOpti
       cur = std::move(next);
     } else {
       Columns next;
-      Expand(L, attrs, &next, &inherit, &mag);
+      Expand(L, attrs, &next, &inherit, &mag, options.threads);
       cur = std::move(next);
     }
     st = CheckPositions(cur, q);
@@ -554,7 +737,7 @@ Status Decode(std::string_view stream, std::vector<Point>* out, const DecodeOpti
       }
       q.ToPoint(c, &(*out)[i]);
     }
-  });
+  }, options.threads);
   S.points = cur.n;
   S.levels = hd.levels;
   S.total_bytes = pos;
@@ -569,7 +752,10 @@ Status ReadInfo(std::string_view stream, StreamInfo* info) {
   o.max_points = UINT64_MAX;
   Status st = ParseHeader(stream, &o, &hd, &used);
   if (!st.ok()) return st;
-  info->version = kVersion;
+  info->version = (hd.flags & kOctree) ? kOctreeVersion : kVersion;
+  info->octree = (hd.flags & kOctree) != 0;
+  for (int a = 0; a < 3; ++a) info->origin[a] = hd.q.origin[a];
+  info->step = hd.q.step;
   info->points = hd.points;
   info->attributes = hd.attributes;
   info->qp = hd.q.qp;

@@ -57,13 +57,25 @@ struct EncodeOptions {
   // Parents per progressive chunk.
   int chunk = 16384;
   // Pairing effort: 1 takes candidates from k-d tree neighbours (fewer bits), 0 from the
-  // space-filling curve alone (faster; servers coding on the fly use it).
+  // space-filling curve alone (faster; servers coding on the fly use it). Pair geometry only.
   int effort = 1;
+  // How positions are coded. kAuto: the octree (version 2 streams) when qp is 1..21, the pair
+  // hierarchy (version 1) for exact floats (qp 0) and finer grids. kOctree with another qp is
+  // refused; kPairs always gives version 1 streams.
+  enum class Geometry { kAuto, kOctree, kPairs };
+  Geometry geometry = Geometry::kAuto;
+  // Threads the encoder may use (0: as many as the machine has, at most 4).
+  int threads = 0;
 };
 
 // The decoded previous frame a temporal stream was coded against (see EncodeTemporal).
 struct Reference {
   std::vector<Point> points;  // as returned by Decode of the reference stream
+  // The reference stream's grid (ReadInfo gives it). When set and the frame fits in it, an
+  // octree stream codes on the same grid, so cells that did not move are predicted exactly.
+  double origin[3] = {0, 0, 0};
+  double step = 0;  // 0: unknown (the frame gets its own grid)
+  int qp = 0;
 };
 
 struct DecodeOptions {
@@ -72,6 +84,9 @@ struct DecodeOptions {
   // Streams that claim more points are refused before anything is allocated.
   uint64_t max_points = 1ull << 27;
   const Reference* reference = nullptr;  // required for temporal streams
+  // Threads the decoder may use (0: as many as the machine has, at most 4; 1: none spawned,
+  // as in a WebAssembly build without shared memory).
+  int threads = 0;
 };
 
 // What was spent where, for the benchmark and the CLI.
@@ -104,6 +119,9 @@ struct StreamInfo {
   int levels = 0;
   bool progressive = false;
   bool temporal = false;
+  bool octree = false;  // version 2: positions coded by the octree
+  double origin[3] = {0, 0, 0};
+  double step = 1;  // the position grid (set a Reference's grid from these)
 };
 Status ReadInfo(std::string_view stream, StreamInfo* info);
 

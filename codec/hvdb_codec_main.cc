@@ -2,7 +2,7 @@
 //
 //   hvdb-codec encode frame.ply frame.hv7 --qp 11 --qc 7 --qn 8 --progressive
 //   hvdb-codec decode frame.hv7 out.ply [--bytes 20000]
-//   hvdb-codec encode next.ply next.hv7 --reference frame.dec.ply    (temporal)
+//   hvdb-codec encode next.ply next.hv7 --reference frame.hv7    (temporal, on frame's grid)
 //   hvdb-codec info frame.hv7
 //   hvdb-codec compare original.ply decoded.ply
 //
@@ -57,8 +57,16 @@ Status LoadReference(const std::string& path, codec::Reference* ref) {
   Status st = ReadFile(path, &data);
   if (!st.ok()) return st;
   if (IsStream(data)) {
-    st = codec::Decode(data, &ref->points);
-    return st.ok() ? st : Status(st.code(), path + ": " + st.message());
+    // A stream also gives its grid: an octree stream coded against it shares the grid, so the
+    // cells that did not move are predicted exactly.
+    codec::StreamInfo si;
+    st = codec::ReadInfo(data, &si);
+    if (st.ok()) st = codec::Decode(data, &ref->points);
+    if (!st.ok()) return Status(st.code(), path + ": " + st.message());
+    for (int a = 0; a < 3; ++a) ref->origin[a] = si.origin[a];
+    ref->step = si.qp > 0 ? si.step : 0;
+    ref->qp = si.qp;
+    return Status::OK();
   }
   auto pts = formats::ReadPly(path);
   if (!pts.ok()) return pts.status();
@@ -143,6 +151,12 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0, 1))->capture_default_str();
   enc->add_option("--chunk", eo.chunk, "Pairs per progressive chunk")->check(CLI::Range(64, 1 << 24))
       ->capture_default_str();
+  std::string geometry = "auto";
+  enc->add_option("--geometry", geometry,
+                  "Position coding: octree (grids of 1-21 bits), pairs (the thesis's hierarchy, any "
+                  "qp), auto (octree where it can)")
+      ->check(CLI::IsMember({"auto", "octree", "pairs"}))
+      ->capture_default_str();
   enc->add_option("--reference", reference,
                   "Decoded previous frame (PLY from `decode`, or an intra stream): temporal coding")
       ->check(CLI::ExistingFile);
@@ -180,6 +194,9 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "hvdb-codec: %s\n", st.message().c_str());
       return 2;
     }
+    eo.geometry = geometry == "octree" ? codec::EncodeOptions::Geometry::kOctree
+                  : geometry == "pairs" ? codec::EncodeOptions::Geometry::kPairs
+                                        : codec::EncodeOptions::Geometry::kAuto;
     auto pts = ReadInput(in, skip_invalid);
     if (!pts.ok()) return Fail(pts.status());
     codec::Reference ref;
@@ -230,9 +247,9 @@ int main(int argc, char** argv) {
     codec::StreamInfo si;
     st = codec::ReadInfo(stream, &si);
     if (!st.ok()) return Fail(Status(st.code(), in + ": " + st.message()));
-    std::printf("hvdb7 version %d, %llu points, %d levels, %s%s\nattributes: %s\n"
+    std::printf("hvdb7 version %d (%s geometry), %llu points, %d levels, %s%s\nattributes: %s\n"
                 "qp %d  qc %d  qn %d  qcov %d\n%zu bytes: %.3f bits/point\n",
-                si.version, static_cast<unsigned long long>(si.points), si.levels,
+                si.version, si.octree ? "octree" : "pair", static_cast<unsigned long long>(si.points), si.levels,
                 si.progressive ? "progressive" : "fixed-rate", si.temporal ? ", temporal" : "",
                 codec::AttributeNames(si.attributes).c_str(), si.qp, si.qc, si.qn, si.qcov,
                 stream.size(), si.points ? 8.0 * stream.size() / si.points : 0.0);

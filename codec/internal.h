@@ -87,10 +87,16 @@ inline uint64_t LevelSize(uint64_t n, int k) {
   return n;
 }
 
-// Runs fn(begin, end) over [0, n) on up to two threads (the machines this runs on).
+// Threads to use for a requested count (0: the machine's, at most 4).
+inline int ThreadCount(int requested) {
+  if (requested > 0) return requested;
+  return static_cast<int>(std::min<unsigned>(std::max(1u, std::thread::hardware_concurrency()), 4));
+}
+
+// Runs fn(begin, end) over [0, n) on up to `max_threads` threads (0: the machine's).
 template <typename Fn>
-void ParallelRange(size_t n, const Fn& fn) {
-  size_t threads = std::min<size_t>(std::max(1u, std::thread::hardware_concurrency()), 4);
+void ParallelRange(size_t n, const Fn& fn, int max_threads = 0) {
+  size_t threads = static_cast<size_t>(ThreadCount(max_threads));
   if (threads == 1 || n < 8192) return fn(size_t{0}, n);
   std::vector<std::thread> pool;
   size_t chunk = (n + threads - 1) / threads;
@@ -104,8 +110,9 @@ void ParallelRange(size_t n, const Fn& fn) {
 
 // Stream header (docs/CODEC.md, "Header").
 inline constexpr char kMagic[4] = {'H', 'V', '7', 'C'};
-inline constexpr uint8_t kVersion = 1;
-enum HeaderFlags : uint8_t { kProgressive = 1, kTemporal = 2 };
+inline constexpr uint8_t kVersion = 1;        // pair hierarchy for positions
+inline constexpr uint8_t kOctreeVersion = 2;  // octree positions (codec/octree.h)
+enum HeaderFlags : uint8_t { kProgressive = 1, kTemporal = 2, kOctree = 4 };
 
 struct Header {
   uint8_t flags = 0;

@@ -155,46 +155,76 @@ TEST(CodecTest, EveryRateStaysWithinItsQuantisationBound) {
   }
 }
 
+// The shortest prefix that decodes (found by bisection): the root layer of a pair stream, the
+// geometry of an octree stream.
+size_t ShortestPrefix(const std::string& s) {
+  size_t lo = 1, hi = s.size();
+  while (lo < hi) {
+    const size_t mid = (lo + hi) / 2;
+    DecodeOptions d;
+    d.max_bytes = mid;
+    std::vector<Point> part;
+    if (Decode(s, &part, d).ok()) {
+      hi = mid;
+    } else {
+      lo = mid + 1;
+    }
+  }
+  return lo;
+}
+
 TEST(CodecTest, ProgressivePrefixesDecodeToCoarserCompleteSets) {
   const std::vector<Point> pts = Panoptic(381);
-  EncodeOptions o;
-  o.qp = 12;
-  o.qc = 6;
-  o.progressive = true;
-  o.chunk = 1024;
-  const std::string s = MustEncode(pts, o);
-  EncodeOptions fixed = o;
-  fixed.progressive = false;
-  // Same points from the fixed-rate stream, a few per cent fewer bytes.
-  const std::string f = MustEncode(pts, fixed);
-  EXPECT_EQ(MustDecode(s), MustDecode(f));
-  EXPECT_LT(f.size(), s.size());
-  EXPECT_LT(static_cast<double>(s.size()), 1.05 * static_cast<double>(f.size()));
-  size_t last_points = 0;
-  double last_psnr = 0;
-  for (double frac : {0.05, 0.1, 0.25, 0.5, 0.75, 0.99, 1.0}) {
-    DecodeOptions d;
-    d.max_bytes = static_cast<size_t>(frac * static_cast<double>(s.size()));
-    std::vector<Point> part;
-    Status st = Decode(s, &part, d);
-    ASSERT_TRUE(st.ok()) << frac << ": " << st.ToString();
-    EXPECT_GE(part.size(), last_points) << frac;
-    const double psnr = Compare(pts, part).position_psnr;
-    EXPECT_GE(psnr + 0.5, last_psnr) << frac;
-    last_points = part.size();
-    last_psnr = psnr;
+  for (auto geometry : {EncodeOptions::Geometry::kPairs, EncodeOptions::Geometry::kOctree}) {
+    SCOPED_TRACE(geometry == EncodeOptions::Geometry::kPairs ? "pairs" : "octree");
+    EncodeOptions o;
+    o.qp = 12;
+    o.qc = 6;
+    o.progressive = true;
+    o.chunk = 1024;
+    o.geometry = geometry;
+    const std::string s = MustEncode(pts, o);
+    EncodeOptions fixed = o;
+    fixed.progressive = false;
+    // Same points from the fixed-rate stream, a few per cent fewer bytes.
+    const std::string f = MustEncode(pts, fixed);
+    EXPECT_EQ(MustDecode(s), MustDecode(f));
+    EXPECT_LT(f.size(), s.size());
+    EXPECT_LT(static_cast<double>(s.size()), 1.05 * static_cast<double>(f.size()));
+    // Pair streams decode from their root layer on; octree streams from their geometry on
+    // (segment 0), the other attributes refining level by level after it.
+    const size_t first = ShortestPrefix(s);
+    if (geometry == EncodeOptions::Geometry::kPairs) {
+      EXPECT_LT(first, s.size() / 20);
+    } else {
+      EXPECT_LT(first, s.size() * 3 / 4);
+    }
+    size_t last_points = 0;
+    double last_psnr = 0;
+    for (double frac : {0.0, 0.05, 0.1, 0.25, 0.5, 0.75, 0.99, 1.0}) {
+      DecodeOptions d;
+      d.max_bytes = first + static_cast<size_t>(frac * static_cast<double>(s.size() - first));
+      std::vector<Point> part;
+      Status st = Decode(s, &part, d);
+      ASSERT_TRUE(st.ok()) << frac << ": " << st.ToString();
+      EXPECT_GE(part.size(), last_points) << frac;
+      const double psnr = Compare(pts, part).position_psnr;
+      EXPECT_GE(psnr + 0.5, last_psnr) << frac;
+      last_points = part.size();
+      last_psnr = psnr;
+    }
+    EXPECT_EQ(last_points, pts.size());
+    // A shorter prefix is refused, clearly.
+    DecodeOptions tiny;
+    tiny.max_bytes = first - 1;
+    std::vector<Point> none;
+    Status st = Decode(s, &none, tiny);
+    EXPECT_TRUE(st.IsInvalidArgument()) << st.ToString();
+    // Fixed-rate streams have no prefixes.
+    tiny.max_bytes = f.size() / 2;
+    st = Decode(f, &none, tiny);
+    EXPECT_TRUE(st.IsInvalidArgument()) << st.ToString();
   }
-  EXPECT_EQ(last_points, pts.size());
-  // A prefix shorter than the root layer is refused, clearly.
-  DecodeOptions tiny;
-  tiny.max_bytes = 150;
-  std::vector<Point> none;
-  Status st = Decode(s, &none, tiny);
-  EXPECT_TRUE(st.IsInvalidArgument()) << st.ToString();
-  // Fixed-rate streams have no prefixes.
-  tiny.max_bytes = f.size() / 2;
-  st = Decode(f, &none, tiny);
-  EXPECT_TRUE(st.IsInvalidArgument()) << st.ToString();
 }
 
 TEST(CodecTest, TemporalStreamsNeedTheirReference) {
@@ -297,9 +327,9 @@ TEST(CodecTest, CorruptTruncatedAndForeignStreamsAreRefused) {
     Status st = Decode(bad, &out);
     EXPECT_FALSE(st.ok()) << "flip at " << at;
   }
-  std::string v2 = good;
-  v2[4] = 2;
-  EXPECT_EQ(Decode(v2, &out).code(), StatusCode::kUnsupported);
+  std::string v3 = good;
+  v3[4] = 3;
+  EXPECT_EQ(Decode(v3, &out).code(), StatusCode::kUnsupported);
   DecodeOptions small;
   small.max_points = 100;
   EXPECT_EQ(Decode(good, &out, small).code(), StatusCode::kLimitExceeded);
