@@ -523,6 +523,7 @@ Status Encode(std::span<const Point> points, const EncodeOptions& options, std::
     }
     hd.singleton[k - 1] = L.singleton;
     L.plane = !octree && PlanePays(L);
+    L.octree = octree;
     if (L.plane) hd.plane_mask |= uint64_t{1} << (k - 1);
     for (int g = 1; g < kGroups; ++g) {
       if (!Coded(attrs, g)) continue;
@@ -663,6 +664,7 @@ Status Decode(std::string_view stream, std::vector<Point>* out, const DecodeOpti
     L.n = cur.n;
     L.singleton = hd.singleton[k - 1];
     L.plane = (hd.plane_mask >> (k - 1)) & 1;
+    L.octree = octree;
     L.det.Resize(L.n, attrs);
     if (octree) {
       for (int a = 0; a < 3; ++a) {

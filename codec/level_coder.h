@@ -36,6 +36,10 @@ struct Models {
   BitModel zerotree[kGroups][kLevelBuckets][2];
   IntModel val[kChannels][kLevelBuckets][kMagBuckets];
   IntModel tval[kChannels][kLevelBuckets][kMagBuckets];  // colour, by the reference's detail
+  // Octree streams: a pair whose two points sit in cells the reference occupies codes its
+  // colour detail as the residual from the reference's (what did not change costs a bit).
+  BitModel tsame[2];
+  IntModel tres[3];
 };
 
 struct EncIO {
@@ -65,6 +69,7 @@ struct DecIO {
 // surface, which holds when the surface is sampled differently from frame to frame).
 struct TemporalHint {
   uint32_t a = kNoChild, b = kNoChild;
+  bool exact = false;  // both children in cells the reference occupies (a and b are there)
   bool valid() const { return a != kNoChild; }
 };
 
@@ -76,6 +81,7 @@ struct LevelState {
   size_t n = 0;
   uint32_t singleton = kNoChild;  // the parent with one child, if any
   bool plane = true;              // w predicted from the plane (the encoder's choice per level)
+  bool octree = false;            // an octree stream (version 2): its temporal prediction
   Columns det;                    // details (encoder: filled raw as first - second child)
   std::vector<uint8_t> swap;      // encoder: 1 where the children were swapped
   // Per group, per parent: 1 if an ancestor coded "subtree zero"; the bucket of the parent's
@@ -257,6 +263,26 @@ void CodeGroup(IO& io, Models& md, int g, LevelState& L, size_t b, size_t e) {
       continue;
     }
     const bool temporal = g == 1 && L.reference && L.hints[i].valid();
+    if (temporal && L.octree && L.k == 1 && L.hints[i].exact) {
+      // Both points in cells the reference occupies: predict the detail as the reference's.
+      const auto& ref = L.reference->ch;
+      int64_t pred[3];
+      bool same = true;
+      for (int c = 0; c < 3; ++c) {
+        pred[c] = Diff(ref[c0 + c][L.hints[i].a], ref[c0 + c][L.hints[i].b]);
+        same = same && L.det.ch[c0 + c][i] == pred[c];
+      }
+      if (io.B(md.tsame[mag[i] == 0 ? 0 : 1], same)) {
+        for (int c = 0; c < 3; ++c) L.det.ch[c0 + c][i] = pred[c];
+        continue;
+      }
+      for (int c = 0; c < 3; ++c) {
+        int64_t r = Diff(L.det.ch[c0 + c][i], pred[c]);
+        io.S(md.tres[c], r);
+        L.det.ch[c0 + c][i] = static_cast<int64_t>(static_cast<uint64_t>(pred[c]) + static_cast<uint64_t>(r));
+      }
+      continue;
+    }
     for (int c = c0; c < c1; ++c) {
       int64_t& dv = L.det.ch[c][i];
       if (temporal) {

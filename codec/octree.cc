@@ -23,19 +23,17 @@ struct Ctx {
   uint8_t n = 0;
   uint32_t P0() const { return (uint32_t{a} + b) >> 1; }
   void Adapt(unsigned bit) {
-    const int slow = n < 2 ? 1 : n < 4 ? 2 : n < 8 ? 3 : n < 16 ? 4 : n < 32 ? 5 : n < 64 ? 6 : 7;
+    const int slow = std::clamp(static_cast<int>(std::bit_width(n)), 1, 7);  // 1 below 2 uses, 7 from 64
     const int fast = std::min(slow, 4);
-    if (n < 255) ++n;
-    if (bit) {
-      a = static_cast<uint16_t>(a - (a >> fast));
-      b = static_cast<uint16_t>(b - (b >> slow));
-    } else {
-      a = static_cast<uint16_t>(a + ((65535u - a) >> fast));
-      b = static_cast<uint16_t>(b + ((65535u - b) >> slow));
-    }
+    n = static_cast<uint8_t>(n + (n < 255));
     // Fast early rates could reach 0 or 1: keep both estimates inside [1/2048, 1 - 1/2048].
-    a = std::clamp<uint16_t>(a, 32, 65503);
-    b = std::clamp<uint16_t>(b, 32, 65503);
+    if (bit) {
+      a = static_cast<uint16_t>(std::max(32, a - (a >> fast)));
+      b = static_cast<uint16_t>(std::max(32, b - (b >> slow)));
+    } else {
+      a = static_cast<uint16_t>(std::min(65503, a + ((65535 - a) >> fast)));
+      b = static_cast<uint16_t>(std::min(65503, b + ((65535 - b) >> slow)));
+    }
   }
 };
 
@@ -414,13 +412,15 @@ bool CodeChunk(IO& io, uint64_t root, int top, int depth, const std::vector<Leve
       uint16_t n26[27];
       atlas.Neighbours26(cell, n26);
       const uint16_t nb[6] = {n26[4], n26[22], n26[10], n26[16], n26[12], n26[14]};
+      // Branch-free: an empty cell scatters nothing, and the node itself (13) has no bits yet.
       uint64_t mask = 0;
       unsigned pcount = 0;
+#pragma GCC unroll 27
       for (int o = 0; o < 27; ++o) {
-        if (o == 13 || !n26[o]) continue;
-        ++pcount;
+        pcount += n26[o] != 0;
         mask |= lt.scatter[o][n26[o] & 0xFF];
       }
+      pcount -= 1;
       unsigned ref_occ = 0;
       bool ref_has = false;
       if (rl) {

@@ -79,7 +79,7 @@ void TemporalIndex::Hints(LevelState& L, size_t b, size_t e) const {
           child[1][a] = static_cast<double>(cb);
         }
         uint32_t idx[2];
-        bool ok = true;
+        bool ok = true, exact = true;
         for (int j = 0; j < 2 && ok; ++j) {
           // The nearest reference point; among equally near ones the lowest index, so that
           // any decoder finds the same one (docs/CODEC.md).
@@ -90,10 +90,11 @@ void TemporalIndex::Hints(LevelState& L, size_t b, size_t e) const {
           tree_->index->findNeighbors(rs, child[j], nanoflann::SearchParams());
           ok = rs.size() >= 1 && dist[0] <= reach2;
           if (!ok) break;
+          exact = exact && dist[0] == 0;
           idx[j] = cand[0];
           for (size_t c = 1; c < rs.size() && dist[c] == dist[0]; ++c) idx[j] = std::min(idx[j], cand[c]);
         }
-        if (ok) h.a = idx[0], h.b = idx[1];
+        if (ok) h.a = idx[0], h.b = idx[1], h.exact = exact;
       }
       L.hints[i] = h;
     }
