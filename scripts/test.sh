@@ -23,15 +23,17 @@ ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
 
 # Fuzz the decoders with clang's libFuzzer, 20 seconds each: the frame and message decoder of
 # the socket protocol, the WebSocket messages and HTTP requests of the browser's, the hvdb7
-# point-stream decoder and the cold tier's record blocks (codec/), the photo files and the log
+# point-stream decoder, its octree geometry on its own, and the cold tier's record blocks (codec/), the photo files and the log
 # records of storage/, and the image decoder of formats/.
 CC=clang CXX=clang++ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DHVDB_FUZZ=ON -DHVDB_BUILD_BENCH=OFF >/dev/null
 cmake --build build-fuzz --target frame_decoder_fuzz ws_message_fuzz http_request_fuzz \
-  hvdb7_decoder_fuzz photo_decoder_fuzz wal_record_fuzz image_decode_fuzz record_block_fuzz
+  hvdb7_decoder_fuzz octree_fuzz photo_decoder_fuzz wal_record_fuzz image_decode_fuzz \
+  record_block_fuzz
 for target in frame_decoder_fuzz:server/fuzz_corpus ws_message_fuzz:server/ws_fuzz_corpus \
   http_request_fuzz:server/http_fuzz_corpus \
-  hvdb7_decoder_fuzz:codec/fuzz_corpus photo_decoder_fuzz:storage/photo_fuzz_corpus \
+  hvdb7_decoder_fuzz:codec/fuzz_corpus octree_fuzz:codec/octree_fuzz_corpus \
+  photo_decoder_fuzz:storage/photo_fuzz_corpus \
   wal_record_fuzz:storage/wal_fuzz_corpus image_decode_fuzz:formats/image_fuzz_corpus \
   record_block_fuzz:codec/record_block_fuzz_corpus; do
   corpus=$(mktemp -d)

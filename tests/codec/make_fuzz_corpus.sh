@@ -47,11 +47,17 @@ while read -r sel input args; do
   cat "$tmp/s.hv7" >>"$out/seed$i"
   i=$((i + 1))
 done <<'LIST'
-00 a --qp 8
+00 a --qp 8 --geometry pairs
 00 b --qp 0 --attributes all
+00 c --progressive --chunk 64 --geometry pairs
+00 c --qp 12 --qc 4 --qn 6 --attributes all --geometry pairs
+00 a --progressive --attributes position --geometry pairs
+00 c --levels 5 --attributes all --geometry pairs
+01 next --levels 3 --progressive --chunk 64 --reference TMPREF --geometry pairs
+00 a --qp 8
 00 c --progressive --chunk 64
 00 c --qp 12 --qc 4 --qn 6 --attributes all
-00 a --progressive --attributes position
-00 c --levels 5 --attributes all
-01 next --levels 3 --progressive --chunk 64 --reference TMPREF
+00 a --attributes position
+01 next --qp 6 --levels 3 --progressive --chunk 64 --reference TMPREF
+01 next --qp 6 --attributes position --reference TMPREF
 LIST
