@@ -172,15 +172,15 @@ uint32_t Compact(uint64_t x) {
 // occupied near face neighbours of the node (3 bits) x already coded neighbours of the child
 // on its low side (3 bits) x (far face neighbours 0..3, or the reference's bits) x siblings
 // coded occupied so far (0..3+).
-constexpr int kOccContexts = 3 * 8 * 8 * 4 * 4 * 4 * 4;
+constexpr int kOccContexts = 3 * 8 * 8 * 8 * 4 * 4 * 4;
 
 struct Models {
-  Ctx count1[3][3][3][4][4];  // a single child? [reference][level class][siblings][parents][children]
-  Ctx count2[3][3][3][4][4];  // two children (given more than one)?
-  Ctx axis[3][3][7][4][4];    // a single child's x, y, z bits
+  Ctx count1[3][3][3][4][4][4];  // a single child? [reference][level class][siblings][parents][children]
+  Ctx count2[3][3][3][4][4][4];  // two children (given more than one)?
+  Ctx axis[3][3][7][4][4][7];  // a single child's x, y, z bits
   Ctx occ[kOccContexts];
-  Ctx dup_zero[4];
-  Ctx dup_len[32];
+  Ctx dup_zero[3][3];  // [siblings][points of the leaf before: 1, 2, more]
+  Ctx dup_len[3][32];
 };
 
 // The decoder's view of one level of a chunk: the distinct cells, sorted.
@@ -258,6 +258,7 @@ inline unsigned Occ(uint16_t v) { return v != 0; }
 struct Local {
   uint64_t scatter[27][256];
   uint64_t face[8], other[8];  // the face and the edge/corner neighbours of child i
+  int low[8][3];                // bits of its -x, -y, -z face neighbours
   Local() {
     for (int o = 0; o < 27; ++o) {
       const int off[3] = {o / 9 - 1, (o / 3) % 3 - 1, o % 3 - 1};
@@ -280,6 +281,9 @@ struct Local {
     for (int c = 0; c < 8; ++c) {
       const int l[3] = {(c >> 2) + 1, ((c >> 1) & 1) + 1, (c & 1) + 1};
       face[c] = other[c] = 0;
+      low[c][0] = (l[0] - 1) * 16 + l[1] * 4 + l[2];
+      low[c][1] = l[0] * 16 + (l[1] - 1) * 4 + l[2];
+      low[c][2] = l[0] * 16 + l[1] * 4 + l[2] - 1;
       for (int dx = -1; dx <= 1; ++dx) {
         for (int dy = -1; dy <= 1; ++dy) {
           for (int dz = -1; dz <= 1; ++dz) {
@@ -326,9 +330,46 @@ const Layers& LayerTables() {
 // regions are mostly chains of single children), then a single child as three axis decisions
 // (each predicted by the side its neighbours lie on, as G-PCC's planar mode does), or several
 // as eight bits with neighbourhood contexts, skipping the bits the count already implies.
+// Where surfaces lie (G-PCC's planar buffer): per axis and per coordinate along it (hashed),
+// the last node of this level whose children all sat in one half along that axis, which half,
+// and where it was along the other two axes. A surface across the axis puts the nodes that
+// share its coordinate into the same half.
+class PlaneBuffer {
+ public:
+  static constexpr uint32_t kSlots = 4096;
+  PlaneBuffer() { Clear(); }
+  void Clear() {
+    for (auto& a : slot_) std::fill(std::begin(a), std::end(a), Entry{});
+  }
+  // 0: nothing; 1 + half: a planar node within 1 cell; 3 + half: within 4; 5 + half: further.
+  unsigned Class(int a, const uint32_t c[3]) const {
+    const Entry& e = slot_[a][c[a] % kSlots];
+    if (e.half < 0 || e.at != c[a]) return 0;
+    const uint32_t u = c[(a + 1) % 3], v = c[(a + 2) % 3];
+    const uint32_t d = (u > e.u ? u - e.u : e.u - u) + (v > e.v ? v - e.v : e.v - v);
+    return (d <= 1 ? 1u : d <= 4 ? 3u : 5u) + static_cast<unsigned>(e.half);
+  }
+  void Note(const uint32_t c[3], unsigned occ) {
+    static constexpr unsigned kLow[3] = {0x0F, 0x33, 0x55};  // children in the low half of x, y, z
+    for (int a = 0; a < 3; ++a) {
+      const int half = (occ & ~kLow[a]) == 0 ? 0 : (occ & kLow[a]) == 0 ? 1 : -1;
+      if (half < 0) continue;
+      slot_[a][c[a] % kSlots] = Entry{static_cast<int8_t>(half), c[a], c[(a + 1) % 3], c[(a + 2) % 3]};
+    }
+  }
+
+ private:
+  struct Entry {
+    int8_t half = -1;
+    uint32_t at = 0, u = 0, v = 0;
+  };
+  Entry slot_[3][kSlots];
+};
+
 template <typename IO>
 unsigned CodeNode(IO& io, Models& md, int lc, unsigned sib, const uint16_t nb[6], uint64_t mask,
-                  unsigned pcount, unsigned ref_occ, bool ref_has, unsigned want) {
+                  unsigned pcount, unsigned ref_occ, bool ref_has, unsigned want,
+                  const PlaneBuffer& planes, const uint32_t xyz[3]) {
   const Local& lt = LocalTables();
   const Layers& ly = LayerTables();
   const unsigned pb = pcount == 0 ? 0 : pcount <= 2 ? 1 : pcount <= 5 ? 2 : 3;
@@ -336,20 +377,24 @@ unsigned CodeNode(IO& io, Models& md, int lc, unsigned sib, const uint16_t nb[6]
   const unsigned mb = mc == 0 ? 0 : mc <= 2 ? 1 : mc <= 5 ? 2 : 3;
   const unsigned rc = ref_has ? 1 + (std::popcount(ref_occ) == 1 ? 0 : 1) : 0;
   const int wc = std::popcount(want);
-  const unsigned single = io.Bit(md.count1[rc][lc][sib][pb][mb], wc == 1);
+  const unsigned faces = Occ(nb[0]) + Occ(nb[1]) + Occ(nb[2]) + Occ(nb[3]) + Occ(nb[4]) + Occ(nb[5]);
+  const unsigned fb = faces == 0 ? 0 : faces <= 2 ? 1 : faces <= 4 ? 2 : 3;
+  const unsigned single = io.Bit(md.count1[rc][lc][sib][pb][mb][fb], wc == 1);
   if (single) {
     unsigned node = 0, child = 0;
     for (int a = 0; a < 3; ++a) {
       const unsigned side = (mask & ly.layer[a][0] ? 1u : 0u) | (mask & ly.layer[a][3] ? 2u : 0u);
       const unsigned face = Occ(nb[2 * a]) | Occ(nb[2 * a + 1]) << 1;
       const unsigned rbit = ref_has && std::popcount(ref_occ) == 1 ? 1 + ((std::countr_zero(ref_occ) >> (2 - a)) & 1) : 0;
-      const unsigned bit = io.Bit(md.axis[rbit][lc][node][side][face], (std::countr_zero(want | 256u) >> (2 - a)) & 1);
+      const unsigned plane = planes.Class(a, xyz);
+      const unsigned bit = io.Bit(md.axis[rbit][lc][node][side][face][plane],
+                                  (std::countr_zero(want | 256u) >> (2 - a)) & 1);
       child = child << 1 | bit;
       node = 2 * node + 1 + bit;
     }
     return 1u << child;
   }
-  const unsigned two = io.Bit(md.count2[rc][lc][sib][pb][mb], wc == 2);
+  const unsigned two = io.Bit(md.count2[rc][lc][sib][pb][mb][fb], wc == 2);
   const unsigned need = two ? 2 : 3;
   unsigned occ = 0;
   Ctx* base = md.occ + lc * (kOccContexts / 3);
@@ -364,12 +409,15 @@ unsigned CodeNode(IO& io, Models& md, int lc, unsigned sib, const uint16_t nb[6]
     const unsigned cx = i >> 2, cy = (i >> 1) & 1, cz = i & 1;
     const unsigned near = Occ(cx ? nb[1] : nb[0]) << 2 | Occ(cy ? nb[3] : nb[2]) << 1 |
                           Occ(cz ? nb[5] : nb[4]);
-    const unsigned fc = std::min(3, std::popcount(mask & lt.face[i]));
     const int oc = std::popcount(mask & lt.other[i]);
     const unsigned ob = oc == 0 ? 0 : oc == 1 ? 1 : oc <= 3 ? 2 : 3;
     const unsigned cnt = std::min(3u, found);
     const unsigned r = ref_has ? 1 + ((ref_occ >> i) & 1) : two;
-    Ctx& c = base[((((i * 8 + near) * 4 + fc) * 4 + ob) * 4 + std::min(r, 3u)) * 4 + cnt];
+    // The child's -x, -y, -z neighbours (coded before it: siblings or earlier nodes' children).
+    const unsigned lp = static_cast<unsigned>((mask >> lt.low[i][0]) & 1) |
+                        static_cast<unsigned>((mask >> lt.low[i][1]) & 1) << 1 |
+                        static_cast<unsigned>((mask >> lt.low[i][2]) & 1) << 2;
+    Ctx& c = base[((((i * 8 + near) * 8 + lp) * 4 + ob) * 4 + std::min(r, 3u)) * 4 + cnt];
     const unsigned bit = io.Bit(c, (want >> i) & 1);
     occ |= bit << i;
     if (bit) mask |= lt.scatter[13][1u << i];
@@ -387,6 +435,7 @@ bool CodeChunk(IO& io, uint64_t root, int top, int depth, const std::vector<Leve
   auto md = std::make_unique<Models>();
   const Local& lt = LocalTables();
   Atlas atlas;
+  auto planes = std::make_unique<PlaneBuffer>();
   std::vector<uint64_t> parents{root}, children;
   std::vector<uint8_t> sibs{3}, child_sibs;
   for (int d = top; d < depth; ++d) {
@@ -394,6 +443,7 @@ bool CodeChunk(IO& io, uint64_t root, int top, int depth, const std::vector<Leve
     const size_t n = parents.size();
     children.clear();
     child_sibs.clear();
+    planes->Clear();
     // The reference's cells at this depth, walked alongside (both sorted).
     const Level* rl = ref ? &(*ref)[d] : nullptr;
     size_t rpos = 0;
@@ -428,7 +478,10 @@ bool CodeChunk(IO& io, uint64_t root, int top, int depth, const std::vector<Leve
         if (rpos < rl->codes.size() && rl->codes[rpos] == code) ref_occ = rl->occ[rpos], ref_has = true;
       }
       const unsigned want = IO::kEncode ? (*enc)[d].occ[j] : 0;
-      const unsigned occ = CodeNode(io, *md, lc, sibs[j] - 1, nb, mask, pcount, ref_occ, ref_has, want);
+      const uint32_t xyz[3] = {x, y, z};
+      const unsigned occ = CodeNode(io, *md, lc, sibs[j] - 1, nb, mask, pcount, ref_occ, ref_has,
+                                    want, *planes, xyz);
+      planes->Note(xyz, occ);
       atlas.SetOcc(cell, static_cast<uint8_t>(occ));
       const uint8_t s = static_cast<uint8_t>(std::min(3, std::popcount(occ)));
       for (unsigned i = 0; i < 8; ++i) {
@@ -442,20 +495,24 @@ bool CodeChunk(IO& io, uint64_t root, int top, int depth, const std::vector<Leve
     parents.swap(children);
     sibs.swap(child_sibs);
   }
-  // Points per leaf: count - 1, mostly zero.
+  // Points per leaf: count - 1, mostly zero; where leaves crowd (siblings) and after a leaf
+  // with several points, more likely not.
   const std::vector<uint64_t>& lv = parents;
   if constexpr (!IO::kEncode) *leaves = parents;
   if constexpr (!IO::kEncode) counts->resize(lv.size());
   uint64_t total = 0;
+  unsigned prev = 0;
   for (size_t j = 0; j < lv.size(); ++j) {
     const uint32_t m = IO::kEncode ? (*counts)[j] - 1 : 0;
     uint32_t v = 0;
-    if (io.Bit(md->dup_zero[0], m != 0)) {
+    const unsigned s = sibs[j] - 1u;
+    if (io.Bit(md->dup_zero[s][prev], m != 0)) {
       const int k = IO::kEncode ? std::bit_width(m) - 1 : 0;
       int len = 0;
-      while (len < 31 && io.Bit(md->dup_len[len], len < k)) ++len;
+      while (len < 31 && io.Bit(md->dup_len[s][len], len < k)) ++len;
       v = (1u << len) | io.Raw(m & ((1u << len) - 1), len);
     }
+    prev = std::min(v, 2u);
     if constexpr (!IO::kEncode) (*counts)[j] = v + 1;
     total += v + 1;
     if (total > budget) return false;
