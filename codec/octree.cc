@@ -326,10 +326,6 @@ const Layers& LayerTables() {
   return t;
 }
 
-// Codes one node's child occupancy: first whether it has one, two or more children (sparse
-// regions are mostly chains of single children), then a single child as three axis decisions
-// (each predicted by the side its neighbours lie on, as G-PCC's planar mode does), or several
-// as eight bits with neighbourhood contexts, skipping the bits the count already implies.
 // Where surfaces lie (G-PCC's planar buffer): per axis and per coordinate along it (hashed),
 // the last node of this level whose children all sat in one half along that axis, which half,
 // and where it was along the other two axes. A surface across the axis puts the nodes that
@@ -366,6 +362,12 @@ class PlaneBuffer {
   Entry slot_[3][kSlots];
 };
 
+// Codes one node's child occupancy. In sparse regions (at most one face neighbour), first
+// whether it has one, two or more children (mostly chains of single children), then a single
+// child as three axis decisions (each predicted by the side its neighbours lie on and by the
+// planar buffer), or several as eight bits skipping those the count implies. Elsewhere the
+// eight bits directly. Every occupancy bit is modelled by the node's and the child's coded
+// neighbourhood.
 template <typename IO>
 unsigned CodeNode(IO& io, Models& md, int lc, unsigned sib, const uint16_t nb[6], uint64_t mask,
                   unsigned pcount, unsigned ref_occ, bool ref_has, unsigned want,
@@ -379,7 +381,10 @@ unsigned CodeNode(IO& io, Models& md, int lc, unsigned sib, const uint16_t nb[6]
   const int wc = std::popcount(want);
   const unsigned faces = Occ(nb[0]) + Occ(nb[1]) + Occ(nb[2]) + Occ(nb[3]) + Occ(nb[4]) + Occ(nb[5]);
   const unsigned fb = faces == 0 ? 0 : faces <= 2 ? 1 : faces <= 4 ? 2 : 3;
-  const unsigned single = io.Bit(md.count1[rc][lc][sib][pb][mb][fb], wc == 1);
+  // Where a face neighbour or more is occupied (surfaces), the eight bits code best directly;
+  // in sparse regions, first whether there are one, two or more children.
+  const bool flags = faces <= 1;
+  const unsigned single = flags ? io.Bit(md.count1[rc][lc][sib][pb][mb][fb], wc == 1) : 0;
   if (single) {
     unsigned node = 0, child = 0;
     for (int a = 0; a < 3; ++a) {
@@ -394,8 +399,8 @@ unsigned CodeNode(IO& io, Models& md, int lc, unsigned sib, const uint16_t nb[6]
     }
     return 1u << child;
   }
-  const unsigned two = io.Bit(md.count2[rc][lc][sib][pb][mb][fb], wc == 2);
-  const unsigned need = two ? 2 : 3;
+  const unsigned two = flags ? io.Bit(md.count2[rc][lc][sib][pb][mb][fb], wc == 2) : 0;
+  const unsigned need = flags ? (two ? 2 : 3) : 1;
   unsigned occ = 0;
   Ctx* base = md.occ + lc * (kOccContexts / 3);
   for (unsigned i = 0; i < 8; ++i) {
