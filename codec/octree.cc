@@ -39,6 +39,60 @@ struct Ctx {
 
 constexpr uint32_t kTop = 1u << 24;
 
+// Logistic mixing of two models' predictions (as in PAQ/lpaq): p = squash(w1 st(p1) + w2 st(p2))
+// with weights learnt online. Each model keeps a context set small enough to learn fast; the
+// mix gets what both know. All integer, so every platform decodes the same bits.
+class Logistic {
+ public:
+  static const Logistic& Get() {
+    static const Logistic t;
+    return t;
+  }
+  // x in stretch units (1/256 of a logit) to P(1) in 1/4096, 1..4095.
+  int Squash(int x) const {
+    if (x > 2047) return 4095;
+    if (x < -2047) return 1;
+    const int w = x & 127, i = (x >> 7) + 16;
+    return std::clamp((kT[i] * (128 - w) + kT[i + 1] * w + 64) >> 7, 1, 4095);
+  }
+  int Stretch(int p) const { return stretch_[p]; }  // inverse of Squash, p in 0..4095
+
+ private:
+  static constexpr int kT[33] = {1,    2,    3,    6,    10,   16,   27,   45,   73,   120,  194,
+                                 310,  488,  747,  1101, 1546, 2047, 2549, 2994, 3348, 3607, 3785,
+                                 3901, 3975, 4022, 4050, 4068, 4079, 4085, 4089, 4092, 4093, 4094};
+  Logistic() {
+    int pi = 0;
+    for (int x = -2047; x <= 2047; ++x) {
+      const int v = Squash(x);
+      for (int i = pi; i <= v; ++i) stretch_[i] = static_cast<int16_t>(x);
+      pi = v + 1;
+    }
+    for (int i = pi; i < 4096; ++i) stretch_[i] = 2047;
+  }
+  int16_t stretch_[4096];
+};
+
+struct Mixer {
+  int32_t w[2] = {1 << 15, 1 << 15};  // 16.16
+};
+
+// Codes `bit` with the mix of contexts a and b under mixer m, then trains all three.
+template <typename IO>
+unsigned MixBit(IO& io, Ctx& a, Ctx& b, Mixer& m, unsigned bit) {
+  const Logistic& L = Logistic::Get();
+  const int s1 = L.Stretch(static_cast<int>((65536 - a.P0()) >> 4));
+  const int s2 = L.Stretch(static_cast<int>((65536 - b.P0()) >> 4));
+  const int p1 = L.Squash(static_cast<int>((int64_t{m.w[0]} * s1 + int64_t{m.w[1]} * s2) >> 16));
+  const unsigned got = io.BitP(static_cast<uint32_t>(4096 - p1) << 4, bit);
+  const int err = (static_cast<int>(got) << 12) - p1;
+  m.w[0] += (s1 * err) >> 11;
+  m.w[1] += (s2 * err) >> 11;
+  a.Adapt(got);
+  b.Adapt(got);
+  return got;
+}
+
 // The carry-propagating range coder of range_coder.h with 16-bit probabilities (occupancy
 // bits are often far more skewed than 11 bits can say).
 class Encoder {
@@ -46,14 +100,19 @@ class Encoder {
   static constexpr bool kEncode = true;
   explicit Encoder(std::string* out) : out_(out) {}
   unsigned Bit(Ctx& c, unsigned bit) {
-    const uint32_t bound = (range_ >> 16) * c.P0();
+    BitP(c.P0(), bit);
+    c.Adapt(bit);
+    return bit;
+  }
+  // A bit with probability p0 of a 0 (1/65536 units, 1..65535), no model.
+  unsigned BitP(uint32_t p0, unsigned bit) {
+    const uint32_t bound = (range_ >> 16) * p0;
     if (bit == 0) {
       range_ = bound;
     } else {
       low_ += bound;
       range_ -= bound;
     }
-    c.Adapt(bit);
     while (range_ < kTop) {
       range_ <<= 8;
       ShiftLow();
@@ -102,8 +161,13 @@ class Decoder {
   Decoder(const uint8_t* p, size_t n) : p_(p), end_(p + n) {
     for (int i = 0; i < 5; ++i) code_ = (code_ << 8) | Next();
   }
-  unsigned Bit(Ctx& c, unsigned /*ignored*/) {
-    const uint32_t bound = (range_ >> 16) * c.P0();
+  unsigned Bit(Ctx& c, unsigned ignored) {
+    const unsigned bit = BitP(c.P0(), ignored);
+    c.Adapt(bit);
+    return bit;
+  }
+  unsigned BitP(uint32_t p0, unsigned /*ignored*/) {
+    const uint32_t bound = (range_ >> 16) * p0;
     unsigned bit;
     if (code_ < bound) {
       range_ = bound;
@@ -113,7 +177,6 @@ class Decoder {
       range_ -= bound;
       bit = 1;
     }
-    c.Adapt(bit);
     while (range_ < kTop) {
       range_ <<= 8;
       code_ = (code_ << 8) | Next();
@@ -179,6 +242,11 @@ struct Models {
   Ctx count2[3][3][3][4][4][4];  // two children (given more than one)?
   Ctx axis[3][3][7][4][4][7];  // a single child's x, y, z bits
   Ctx occ[kOccContexts];
+  Ctx occ2[3][8][64][8][4];    // occupancy bits: [level class][child][face pattern][low][found]
+  Ctx count1b[3][64][3][4];    // the count flags by the exact face pattern
+  Ctx count2b[3][64][3][4];
+  Ctx axis2[3][7][7][7][7];    // a single child's bits by all three axes' planes
+  Mixer mix_occ[3][8], mix_count1[3], mix_count2[3], mix_axis[3][7];
   Ctx dup_zero[3][3];  // [siblings][points of the leaf before: 1, 2, more]
   Ctx dup_len[3][32];
 };
@@ -384,7 +452,11 @@ unsigned CodeNode(IO& io, Models& md, int lc, unsigned sib, const uint16_t nb[6]
   // Where a face neighbour or more is occupied (surfaces), the eight bits code best directly;
   // in sparse regions, first whether there are one, two or more children.
   const bool flags = faces <= 1;
-  const unsigned single = flags ? io.Bit(md.count1[rc][lc][sib][pb][mb][fb], wc == 1) : 0;
+  const unsigned fp = Occ(nb[0]) | Occ(nb[1]) << 1 | Occ(nb[2]) << 2 | Occ(nb[3]) << 3 |
+                      Occ(nb[4]) << 4 | Occ(nb[5]) << 5;
+  const unsigned single = flags ? MixBit(io, md.count1[rc][lc][sib][pb][mb][fb], md.count1b[lc][fp][sib][mb],
+                                         md.mix_count1[lc], wc == 1)
+                                : 0;
   if (single) {
     unsigned node = 0, child = 0;
     for (int a = 0; a < 3; ++a) {
@@ -392,14 +464,17 @@ unsigned CodeNode(IO& io, Models& md, int lc, unsigned sib, const uint16_t nb[6]
       const unsigned face = Occ(nb[2 * a]) | Occ(nb[2 * a + 1]) << 1;
       const unsigned rbit = ref_has && std::popcount(ref_occ) == 1 ? 1 + ((std::countr_zero(ref_occ) >> (2 - a)) & 1) : 0;
       const unsigned plane = planes.Class(a, xyz);
-      const unsigned bit = io.Bit(md.axis[rbit][lc][node][side][face][plane],
-                                  (std::countr_zero(want | 256u) >> (2 - a)) & 1);
+      const unsigned bit = MixBit(io, md.axis[rbit][lc][node][side][face][plane],
+                                  md.axis2[lc][node][planes.Class(0, xyz)][planes.Class(1, xyz)][planes.Class(2, xyz)],
+                                  md.mix_axis[lc][node], (std::countr_zero(want | 256u) >> (2 - a)) & 1);
       child = child << 1 | bit;
       node = 2 * node + 1 + bit;
     }
     return 1u << child;
   }
-  const unsigned two = flags ? io.Bit(md.count2[rc][lc][sib][pb][mb][fb], wc == 2) : 0;
+  const unsigned two = flags ? MixBit(io, md.count2[rc][lc][sib][pb][mb][fb], md.count2b[lc][fp][sib][mb],
+                                      md.mix_count2[lc], wc == 2)
+                             : 0;
   const unsigned need = flags ? (two ? 2 : 3) : 1;
   unsigned occ = 0;
   Ctx* base = md.occ + lc * (kOccContexts / 3);
@@ -423,7 +498,7 @@ unsigned CodeNode(IO& io, Models& md, int lc, unsigned sib, const uint16_t nb[6]
                         static_cast<unsigned>((mask >> lt.low[i][1]) & 1) << 1 |
                         static_cast<unsigned>((mask >> lt.low[i][2]) & 1) << 2;
     Ctx& c = base[((((i * 8 + near) * 8 + lp) * 4 + ob) * 4 + std::min(r, 3u)) * 4 + cnt];
-    const unsigned bit = io.Bit(c, (want >> i) & 1);
+    const unsigned bit = MixBit(io, c, md.occ2[lc][i][fp][lp][cnt], md.mix_occ[lc][i], (want >> i) & 1);
     occ |= bit << i;
     if (bit) mask |= lt.scatter[13][1u << i];
   }
