@@ -19,6 +19,7 @@ import argparse
 import json
 import os
 import re
+import resource
 import shutil
 import statistics
 import subprocess
@@ -130,15 +131,33 @@ def decoded_rows(path, with_colour):
     return rows(q, rgb)
 
 
+def cpu_children():
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
 def timed(cmd, log):
-    t0 = time.monotonic()
+    """Runs cmd; (wall seconds, CPU seconds of all its threads, its output). The CPU time is
+    the steadier figure on a shared machine."""
+    t0, c0 = time.monotonic(), cpu_children()
     r = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    dt = time.monotonic() - t0
+    dt, dc = time.monotonic() - t0, cpu_children() - c0
     with open(log, "a") as f:
         f.write("$ " + " ".join(cmd) + "\n" + r.stdout + "\n")
     if r.returncode != 0:
         sys.exit(f"gpcc_compare: {cmd[0]} failed ({r.returncode}); see {log}:\n{r.stdout[-2000:]}")
-    return dt, r.stdout
+    return dt, dc, r.stdout
+
+
+def times(args, enc, dec, log):
+    """Medians over --repetitions of encode and decode, wall and CPU seconds; the encoder's
+    last output."""
+    runs = []
+    for _ in range(args.repetitions):
+        e, d = timed(enc, log), timed(dec, log)
+        runs.append((e[0], e[1], d[0], d[1], e[2]))
+    keys = ("encode_s", "encode_cpu_s", "decode_s", "decode_cpu_s")
+    return {k: statistics.median(r[i] for r in runs) for i, k in enumerate(keys)}, runs[-1][4]
 
 
 # The CTC lossless-geometry, lossless-attribute octree configuration (predicting transform),
@@ -166,16 +185,11 @@ def run_tmc3(args, ply, want, with_colour, planar, work, log):
             f"--reconstructedDataPath={dec}", "--outputBinaryPly=1"]
     if with_colour:
         dcmd += ["--convertPlyColourspace=1"]
-    te, td, out = [], [], ""
-    for _ in range(args.repetitions):
-        dt, out = timed(enc, log)
-        te.append(dt)
-        td.append(timed(dcmd, log)[0])
+    t, out = times(args, enc, dcmd, log)
     got = decoded_rows(dec, with_colour)
     lossless = got is not None and got.shape == want.shape and bool((got == want).all())
-    res = {"bytes": os.path.getsize(stream), "encode_s": statistics.median(te),
-           "decode_s": statistics.median(td), "decoded_points": int(len(read_ply(dec)["x"])),
-           "lossless": lossless}
+    res = {"bytes": os.path.getsize(stream), **t,
+           "decoded_points": int(len(read_ply(dec)["x"])), "lossless": lossless}
     m = re.search(r"positions bitstream size (\d+) B", out)
     if m:
         res["position_bytes_reported"] = int(m.group(1))
@@ -191,15 +205,11 @@ def run_hvdb(args, ply, want, with_colour, qp, work, log):
     enc = [args.hvdb_codec, "encode", ply, stream, "--qp", str(qp), "--qc", "8",
            "--attributes", attrs]
     dcmd = [args.hvdb_codec, "decode", stream, dec]
-    te, td = [], []
-    for _ in range(args.repetitions):
-        te.append(timed(enc, log)[0])
-        td.append(timed(dcmd, log)[0])
+    t, _ = times(args, enc, dcmd, log)
     got = decoded_rows(dec, with_colour)
     lossless = got is not None and got.shape == want.shape and bool((got == want).all())
-    return {"bytes": os.path.getsize(stream), "encode_s": statistics.median(te),
-            "decode_s": statistics.median(td), "decoded_points": int(len(read_ply(dec)["x"])),
-            "lossless": lossless}
+    return {"bytes": os.path.getsize(stream), **t,
+            "decoded_points": int(len(read_ply(dec)["x"])), "lossless": lossless}
 
 
 def data_sets(args):
@@ -217,10 +227,36 @@ def data_sets(args):
     return sets
 
 
+def table(report):
+    """The bench/README.md table: bits per input point, hvdb7 against tmc3's better planar
+    setting; colour = the growth over the same points' position-only stream, for both."""
+    out = ["| data | points | grid | duplicates | positions hvdb7 / tmc3 (ratio) | "
+           "+ colour hvdb7 / tmc3 (ratio) | colour alone hvdb7 / tmc3 |",
+           "|---|---:|---:|---:|---|---|---|"]
+    for name, S in report["sets"].items():
+        for qp, G in S["grids"].items():
+            p = G["position"]
+            row = (f"| {name} | {S['points']:,} | {qp} | {G['duplicate_fraction']:.1%} | "
+                   f"{p['hvdb7']['bpp']:.2f} / {p['tmc3_best_bpp']:.2f} "
+                   f"({p['ratio_hvdb7_to_tmc3']:.3f}) |")
+            if "position+colour" in G:
+                c = G["position+colour"]
+                row += (f" {c['hvdb7']['bpp']:.2f} / {c['tmc3_best_bpp']:.2f} "
+                        f"({c['ratio_hvdb7_to_tmc3']:.3f}) | "
+                        f"{c['hvdb7']['bpp'] - p['hvdb7']['bpp']:.2f} / "
+                        f"{c['tmc3_best_bpp'] - p['tmc3_best_bpp']:.2f} |")
+            else:
+                row += " — | — |"
+            out.append(row)
+    return "\n".join(out)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--tmc3", required=True, help="TMC13's tmc3 binary (built outside hvdb)")
-    ap.add_argument("--hvdb-codec", required=True, help="build/codec/hvdb-codec")
+    ap.add_argument("--table", metavar="JSON",
+                    help="only print the markdown table of an earlier run's JSON")
+    ap.add_argument("--tmc3", help="TMC13's tmc3 binary (built outside hvdb)")
+    ap.add_argument("--hvdb-codec", help="build/codec/hvdb-codec")
     ap.add_argument("--shared-data", default=os.path.join(os.path.dirname(__file__),
                                                           "../../shared/data"))
     ap.add_argument("--frames", type=int, default=4, help="Panoptic frames from --first-frame")
@@ -230,15 +266,20 @@ def main():
     ap.add_argument("--grids", default="10,11", help="qp values (grid bits), comma-separated")
     ap.add_argument("--repetitions", type=int, default=3, help="timing runs (median)")
     ap.add_argument("--out", default="bench/results/gpcc.json")
-    ap.add_argument("--log", default=None, help="coders' output (default: next to --out)")
+    ap.add_argument("--log", default=os.path.join(tempfile.gettempdir(), "gpcc_compare.log"),
+                    help="the coders' output")
     args = ap.parse_args()
+    if args.table:
+        with open(args.table) as f:
+            print(table(json.load(f)))
+        return
     for b in (args.tmc3, args.hvdb_codec):
-        if not (os.path.isfile(b) and os.access(b, os.X_OK)):
+        if not (b and os.path.isfile(b) and os.access(b, os.X_OK)):
             sys.exit(f"gpcc_compare: {b} is not an executable; pass --tmc3 / --hvdb-codec")
     grids = [int(g) for g in args.grids.split(",")]
     if any(g < 1 or g > 21 for g in grids) or args.repetitions < 1:
         sys.exit("gpcc_compare: --grids takes qp values 1..21, --repetitions at least 1")
-    log = args.log or os.path.splitext(args.out)[0] + ".log"
+    log = args.log
     open(log, "w").close()
     version = subprocess.run([args.tmc3, "--help"], stdout=subprocess.PIPE,
                              stderr=subprocess.STDOUT, text=True).stdout
@@ -285,6 +326,7 @@ def main():
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     with open(args.out, "w") as f:
         json.dump(report, f, indent=1)
+    print(table(report))
     bad = [(s, g, m) for s, S in report["sets"].items() for g, G in S["grids"].items()
            for m in ("position", "position+colour") if m in G and not G[m]["all_lossless"]]
     if bad:
