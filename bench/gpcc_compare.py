@@ -224,6 +224,9 @@ def data_sets(args):
             sys.exit("gpcc_compare: --ply takes NAME=PATH")
         name, path = e.split("=", 1)
         sets.append((name, path, 1.0))
+    for name, path, _ in sets:
+        if not os.path.isfile(path):
+            sys.exit(f"gpcc_compare: {name}: no file {path} (check --shared-data / --ply)")
     return sets
 
 
@@ -277,8 +280,9 @@ def main():
         if not (b and os.path.isfile(b) and os.access(b, os.X_OK)):
             sys.exit(f"gpcc_compare: {b} is not an executable; pass --tmc3 / --hvdb-codec")
     grids = [int(g) for g in args.grids.split(",")]
-    if any(g < 1 or g > 21 for g in grids) or args.repetitions < 1:
-        sys.exit("gpcc_compare: --grids takes qp values 1..21, --repetitions at least 1")
+    if any(g < 1 or g > 21 for g in grids) or args.repetitions < 1 or args.frames < 0:
+        sys.exit("gpcc_compare: --grids takes qp values 1..21, --repetitions at least 1, "
+                 "--frames 0 or more")
     log = args.log
     open(log, "w").close()
     version = subprocess.run([args.tmc3, "--help"], stdout=subprocess.PIPE,
