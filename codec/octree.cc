@@ -74,7 +74,7 @@ class Logistic {
 };
 
 struct Mixer {
-  int32_t w[2] = {1 << 15, 1 << 15};  // 16.16
+  int32_t w[3] = {1 << 15, 1 << 15, 1 << 15};  // 16.16
 };
 
 // Codes `bit` with the mix of contexts a and b under mixer m, then trains all three.
@@ -90,6 +90,25 @@ unsigned MixBit(IO& io, Ctx& a, Ctx& b, Mixer& m, unsigned bit) {
   m.w[1] += (s2 * err) >> 11;
   a.Adapt(got);
   b.Adapt(got);
+  return got;
+}
+
+template <typename IO>
+unsigned MixBit3(IO& io, Ctx& a, Ctx& b, Ctx& c, Mixer& m, unsigned bit) {
+  const Logistic& L = Logistic::Get();
+  const int s1 = L.Stretch(static_cast<int>((65536 - a.P0()) >> 4));
+  const int s2 = L.Stretch(static_cast<int>((65536 - b.P0()) >> 4));
+  const int s3 = L.Stretch(static_cast<int>((65536 - c.P0()) >> 4));
+  const int p1 = L.Squash(static_cast<int>(
+      (int64_t{m.w[0]} * s1 + int64_t{m.w[1]} * s2 + int64_t{m.w[2]} * s3) >> 16));
+  const unsigned got = io.BitP(static_cast<uint32_t>(4096 - p1) << 4, bit);
+  const int err = (static_cast<int>(got) << 12) - p1;
+  m.w[0] += (s1 * err) >> 11;
+  m.w[1] += (s2 * err) >> 11;
+  m.w[2] += (s3 * err) >> 11;
+  a.Adapt(got);
+  b.Adapt(got);
+  c.Adapt(got);
   return got;
 }
 
@@ -243,6 +262,7 @@ struct Models {
   Ctx axis[3][3][7][4][4][7];  // a single child's x, y, z bits
   Ctx occ[kOccContexts];
   Ctx occ2[3][8][64][8][4];    // occupancy bits: [level class][child][face pattern][low][found]
+  Ctx occ3[3][8][27][4][4];    // [level class][child][near planes' halves][parents][children]
   Ctx count1b[3][64][3][4];    // the count flags by the exact face pattern
   Ctx count2b[3][64][3][4];
   Ctx axis2[3][7][7][7][7];    // a single child's bits by all three axes' planes
@@ -498,7 +518,14 @@ unsigned CodeNode(IO& io, Models& md, int lc, unsigned sib, const uint16_t nb[6]
                         static_cast<unsigned>((mask >> lt.low[i][1]) & 1) << 1 |
                         static_cast<unsigned>((mask >> lt.low[i][2]) & 1) << 2;
     Ctx& c = base[((((i * 8 + near) * 8 + lp) * 4 + ob) * 4 + std::min(r, 3u)) * 4 + cnt];
-    const unsigned bit = MixBit(io, c, md.occ2[lc][i][fp][lp][cnt], md.mix_occ[lc][i], (want >> i) & 1);
+    unsigned agree = 0;
+    for (int a = 0; a < 3; ++a) {
+      const unsigned pc = planes.Class(a, xyz);
+      if (pc == 1 || pc == 2) agree = agree * 3 + (((i >> (2 - a)) & 1) == pc - 1 ? 1 : 2);
+      else agree = agree * 3;
+    }
+    const unsigned bit = MixBit3(io, c, md.occ2[lc][i][fp][lp][cnt], md.occ3[lc][i][agree][pb][mb],
+                                 md.mix_occ[lc][i], (want >> i) & 1);
     occ |= bit << i;
     if (bit) mask |= lt.scatter[13][1u << i];
   }
