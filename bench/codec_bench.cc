@@ -22,6 +22,7 @@
 #include <draco/point_cloud/point_cloud_builder.h>
 #include <nanoflann.hpp>
 
+#include "bench/codec_time.h"
 #include "codec/codec.h"
 #include "codec/metrics.h"
 #include "formats/ply.h"
@@ -269,7 +270,7 @@ double Median(std::vector<double> v) {
 
 int main(int argc, char** argv) {
   CLI::App app{"codec-bench: hvdb7 (thesis ch. 7) against Draco, rate-distortion and speed"};
-  std::string out = "codec.json", shared = HVDB_SHARED_DATA;
+  std::string out = "codec.json", shared = HVDB_SHARED_DATA, scratch = "/tmp";
   bool quick = false, plots = false;
   int frames = 16, reps = 3;
   std::vector<std::string> extra;
@@ -281,6 +282,7 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--shared-data", shared, "the shared data folder")->capture_default_str();
   app.add_option("--ply", extra, "more inputs, NAME=PATH (metres), e.g. ingested frames");
+  app.add_option("--scratch", scratch, "folder for the generated recording")->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   if (quick) frames = 2, reps = 1;
 
@@ -406,6 +408,32 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "  %s\n", S.dump().c_str());
   }
 
+  // Lossless on a grid (what MPEG's G-PCC is compared on, bench/gpcc_compare.py): positions,
+  // and positions + 8-bit colour, octree (version 2) against pair (version 1) geometry.
+  json grid = json::object();
+  for (const DataSet& ds : sets) {
+    for (int qp : {10, 11}) {
+      json G;
+      for (bool color : {false, true}) {
+        if (color && !ds.color) continue;
+        hvdb::codec::EncodeOptions o;
+        o.qp = qp;
+        o.qc = 8;
+        o.attributes = hvdb::codec::kPosition | (color ? hvdb::codec::kColor : 0u);
+        json row;
+        for (auto g : {hvdb::codec::EncodeOptions::Geometry::kOctree, hvdb::codec::EncodeOptions::Geometry::kPairs}) {
+          o.geometry = g;
+          row[g == hvdb::codec::EncodeOptions::Geometry::kOctree ? "octree_bpp" : "pairs_bpp"] =
+              Bpp(OursEncode(ds.points, o).size(), ds.points.size());
+        }
+        row["octree_over_pairs"] = row["octree_bpp"].get<double>() / row["pairs_bpp"].get<double>();
+        G[color ? "position_color" : "position"] = row;
+      }
+      grid[ds.name]["qp" + std::to_string(qp)] = G;
+    }
+  }
+  std::fprintf(stderr, "lossless grid: %s\n", grid.dump().c_str());
+
   // Progressive prefixes of a full-attribute stream of the first Panoptic frame.
   hvdb::codec::EncodeOptions full;
   full.qp = 11;
@@ -463,6 +491,10 @@ int main(int argc, char** argv) {
   }
   summary["temporal_saving_median"] = Median(gains);
   summary["temporal_color_saving_median"] = Median(gains_color);
+  const json static_background = hvdb::bench::RunStaticBackground(scratch, quick);
+  summary["static_background_position_saving_median"] = static_background["position_saving_median"];
+  summary["static_background_position_color_saving_median"] =
+      static_background["position_color_saving_median"];
 
   // Speed: all Panoptic frames as one point set.
   std::vector<Point> big;
@@ -497,15 +529,43 @@ int main(int argc, char** argv) {
       auto dback = DracoDecode(d);
       ddec.push_back(big.size() / Secs(t0) / 1e6);
     }
-    speed = {{"points", big.size()}, {"ours_encode_mpts_s", Median(enc)},
+    // Lossless on an 11-bit grid, positions + colour: the octree and the pair geometry.
+    std::vector<double> genc, gdec, penc, pdec;
+    hvdb::codec::EncodeOptions g;
+    g.qp = 11;
+    g.qc = 8;
+    g.attributes = hvdb::codec::kPosition | hvdb::codec::kColor;
+    std::string gs, ps;
+    for (int r = 0; r < reps; ++r) {
+      auto t0 = Clock::now();
+      gs = OursEncode(big, g);
+      genc.push_back(big.size() / Secs(t0) / 1e6);
+      t0 = Clock::now();
+      auto back = OursDecode(gs);
+      gdec.push_back(big.size() / Secs(t0) / 1e6);
+      hvdb::codec::EncodeOptions p = g;
+      p.geometry = hvdb::codec::EncodeOptions::Geometry::kPairs;
+      t0 = Clock::now();
+      ps = OursEncode(big, p);
+      penc.push_back(big.size() / Secs(t0) / 1e6);
+      t0 = Clock::now();
+      back = OursDecode(ps);
+      pdec.push_back(big.size() / Secs(t0) / 1e6);
+    }
+    speed["grid11_position_color"] = {
+        {"octree_encode_mpts_s", Median(genc)}, {"octree_decode_mpts_s", Median(gdec)},
+        {"octree_bpp", Bpp(gs.size(), big.size())}, {"pairs_encode_mpts_s", Median(penc)},
+        {"pairs_decode_mpts_s", Median(pdec)}, {"pairs_bpp", Bpp(ps.size(), big.size())}};
+    speed.update({{"points", big.size()}, {"ours_encode_mpts_s", Median(enc)},
              {"ours_effort0_encode_mpts_s", Median(enc0)}, {"ours_effort0_bpp", Bpp(s0.size(), big.size())},
              {"ours_decode_mpts_s", Median(dec)}, {"draco_cl7_encode_mpts_s", Median(denc)},
              {"draco_cl7_decode_mpts_s", Median(ddec)}, {"ours_bpp", Bpp(s.size(), big.size())},
              {"draco_cl7_bpp", Bpp(d.size(), big.size())},
-             {"threads", std::thread::hardware_concurrency()}};
+             {"threads", std::thread::hardware_concurrency()}});
   }
   json j = {{"benchmark", "codec"}, {"quick", quick}, {"summary", summary}, {"rd", rd},
-            {"progressive_prefixes", prefixes}, {"temporal", temporal}, {"speed", speed}};
+            {"lossless_grid", grid}, {"progressive_prefixes", prefixes}, {"temporal", temporal},
+            {"static_background", static_background}, {"speed", speed}};
   std::ofstream(out) << j.dump(2) << "\n";
   std::printf("%s\n", json({{"summary", summary}, {"speed", speed}}).dump(2).c_str());
   if (plots) {
