@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <limits>
 
 #include "client/backend.h"
@@ -57,6 +58,17 @@ Result<std::vector<std::string>> ExportFrames(Backend& db, const std::string& na
     if (o.temporal && o.codec == FileCodec::kHvdb7) {
       // The next frame is coded against this one as a decoder will see it.
       HVDB_ASSIGN_OR_RETURN(ref.points, formats::ReadHvdb7File(path, temporal ? &ref : nullptr));
+      // And on its grid, so that what did not move is coded as such (docs/CODEC.md).
+      std::ifstream in(path, std::ios::binary);
+      std::string head(4096, '\0');
+      in.read(head.data(), static_cast<std::streamsize>(head.size()));
+      head.resize(static_cast<size_t>(in.gcount()));
+      codec::StreamInfo si;
+      if (codec::ReadInfo(head, &si).ok() && si.qp > 0) {
+        for (int a = 0; a < 3; ++a) ref.origin[a] = si.origin[a];
+        ref.step = si.step;
+        ref.qp = si.qp;
+      }
       have_ref = true;
     }
     files.push_back(path);

@@ -316,9 +316,10 @@ std::vector<uint64_t> MortonSort(Columns* base, uint32_t attrs) {
 }
 
 // Octree streams: the order that makes consecutive points closer partners. Walking the Morton
-// order two at a time, point i + 2 takes the place of i + 1 when it is nearer to i (the curve
-// jumps between cells often enough for this to pay in the attributes' details). Applied to
-// `codes` and, when given, to `base`'s channels; decoders repeat it on the decoded codes.
+// order two at a time, the nearest of points i + 1 .. i + 6 to point i (the first on ties)
+// swaps places with point i + 1 (the curve jumps between cells often enough for this to pay in
+// the attributes' details). Applied to `codes` and, when given, to `base`'s channels; decoders
+// repeat it on the decoded codes.
 void PairOrder(std::vector<uint64_t>* codes, Columns* base) {
   auto dist2 = [](uint64_t a, uint64_t b) {
     uint32_t ax, ay, az, bx, by, bz;
@@ -327,13 +328,20 @@ void PairOrder(std::vector<uint64_t>* codes, Columns* base) {
     const int64_t dx = int64_t{ax} - bx, dy = int64_t{ay} - by, dz = int64_t{az} - bz;
     return dx * dx + dy * dy + dz * dz;
   };
+  constexpr size_t kWindow = 6;
   auto& v = *codes;
   for (size_t i = 0; i + 2 < v.size(); i += 2) {
-    if (dist2(v[i], v[i + 2]) < dist2(v[i], v[i + 1])) {
-      std::swap(v[i + 1], v[i + 2]);
+    size_t best = i + 1;
+    int64_t bd = dist2(v[i], v[i + 1]);
+    for (size_t j = i + 2; j < std::min(v.size(), i + 1 + kWindow); ++j) {
+      const int64_t dj = dist2(v[i], v[j]);
+      if (dj < bd) bd = dj, best = j;
+    }
+    if (best != i + 1) {
+      std::swap(v[i + 1], v[best]);
       if (base) {
         for (auto& ch : base->ch) {
-          if (!ch.empty()) std::swap(ch[i + 1], ch[i + 2]);
+          if (!ch.empty()) std::swap(ch[i + 1], ch[best]);
         }
       }
     }
