@@ -267,6 +267,7 @@ struct Models {
   Ctx count2b[3][64][3][4];
   Ctx axis2[3][7][7][7][7];    // a single child's bits by all three axes' planes
   Mixer mix_occ[3][8], mix_count1[3], mix_count2[3], mix_axis[3][7];
+  Ctx direct[3][4][3];  // [level class][levels left: 3, 4, 5-8, more][reference: none, one, more]
   Ctx dup_zero[3][3];  // [siblings][points of the leaf before: 1, 2, more]
   Ctx dup_len[3][32];
 };
@@ -275,20 +276,28 @@ struct Models {
 struct Level {
   std::vector<uint64_t> codes;
   std::vector<uint8_t> occ;  // child occupancy of each cell (coded by the level's pass)
+  std::vector<uint8_t> lone;  // encoder: 1 when exactly one leaf cell lies below
+  std::vector<uint64_t> leaf;  // encoder: the first leaf cell below
 };
 
 // Distinct cells per depth and their child occupancy, bottom up (encoder, and the reference).
 std::vector<Level> BuildLevels(std::span<const uint64_t> leaves, int top, int depth) {
   std::vector<Level> lv(depth + 1);
   lv[depth].codes.assign(leaves.begin(), leaves.end());
+  lv[depth].lone.assign(leaves.size(), 1);
+  lv[depth].leaf.assign(leaves.begin(), leaves.end());
   for (int d = depth - 1; d >= top; --d) {
-    const auto& below = lv[d + 1].codes;
+    const Level& B = lv[d + 1];
     Level& L = lv[d];
-    for (uint64_t c : below) {
-      const uint64_t p = c >> 3;
+    for (size_t k = 0; k < B.codes.size(); ++k) {
+      const uint64_t c = B.codes[k], p = c >> 3;
       if (L.codes.empty() || L.codes.back() != p) {
         L.codes.push_back(p);
         L.occ.push_back(0);
+        L.lone.push_back(B.lone[k]);
+        L.leaf.push_back(B.leaf[k]);
+      } else {
+        L.lone.back() = 0;
       }
       L.occ.back() = static_cast<uint8_t>(L.occ.back() | (1u << (c & 7)));
     }
@@ -545,6 +554,7 @@ bool CodeChunk(IO& io, uint64_t root, int top, int depth, const std::vector<Leve
   auto planes = std::make_unique<PlaneBuffer>();
   std::vector<uint64_t> parents{root}, children;
   std::vector<uint8_t> sibs{3}, child_sibs;
+  std::vector<uint64_t> direct;  // leaves coded directly (below isolated single children)
   for (int d = top; d < depth; ++d) {
     const int lc = d + 1 == depth ? 0 : d + 2 == depth ? 1 : 2;
     const size_t n = parents.size();
@@ -553,7 +563,7 @@ bool CodeChunk(IO& io, uint64_t root, int top, int depth, const std::vector<Leve
     planes->Clear();
     // The reference's cells at this depth, walked alongside (both sorted).
     const Level* rl = ref ? &(*ref)[d] : nullptr;
-    size_t rpos = 0;
+    size_t rpos = 0, epos = 0;
     size_t cube_end = 0;
     for (size_t j = 0; j < n; ++j) {
       const uint64_t code = parents[j];
@@ -584,7 +594,29 @@ bool CodeChunk(IO& io, uint64_t root, int top, int depth, const std::vector<Leve
         while (rpos < rl->codes.size() && rl->codes[rpos] < code) ++rpos;
         if (rpos < rl->codes.size() && rl->codes[rpos] == code) ref_occ = rl->occ[rpos], ref_has = true;
       }
-      const unsigned want = IO::kEncode ? (*enc)[d].occ[j] : 0;
+      if constexpr (IO::kEncode) {
+        while ((*enc)[d].codes[epos] != code) ++epos;  // nodes coded directly are skipped
+      }
+      // An isolated node whose parent had one child holds, most likely, one point: then its
+      // remaining bits go raw, once, instead of a chain of single children.
+      const int left = depth - d;
+      if (sibs[j] == 1 && pcount == 0 && left >= 3) {
+        const unsigned lb = left == 3 ? 0 : left == 4 ? 1 : left <= 8 ? 2 : 3;
+        const unsigned rb = !ref_has ? 0 : std::popcount(ref_occ) == 1 ? 1 : 2;
+        const unsigned lone = IO::kEncode ? (*enc)[d].lone[epos] : 0;
+        if (io.Bit(md->direct[lc][lb][rb], lone)) {
+          const uint64_t leaf = IO::kEncode ? (*enc)[d].leaf[epos] : 0;
+          uint64_t below = 0;
+          for (int r = left - 1; r >= 0; --r) {
+            below = below << 3 | io.Raw(static_cast<uint32_t>((leaf >> (3 * r)) & 7), 3);
+          }
+          direct.push_back(code << (3 * left) | below);
+          atlas.SetOcc(cell, 0);
+          if (children.size() + direct.size() > budget) return false;
+          continue;
+        }
+      }
+      const unsigned want = IO::kEncode ? (*enc)[d].occ[epos] : 0;
       const uint32_t xyz[3] = {x, y, z};
       const unsigned occ = CodeNode(io, *md, lc, sibs[j] - 1, nb, mask, pcount, ref_occ, ref_has,
                                     want, *planes, xyz);
@@ -597,10 +629,28 @@ bool CodeChunk(IO& io, uint64_t root, int top, int depth, const std::vector<Leve
           child_sibs.push_back(s);
         }
       }
-      if (children.size() > budget) return false;
+      if (children.size() + direct.size() > budget) return false;
     }
     parents.swap(children);
     sibs.swap(child_sibs);
+  }
+  // The leaves in order: the tree's and the directly coded ones (single children, sibs 1).
+  if (!direct.empty()) {
+    std::sort(direct.begin(), direct.end());
+    std::vector<uint64_t> all(parents.size() + direct.size());
+    std::vector<uint8_t> all_sibs(all.size());
+    size_t a = 0, b = 0;
+    for (size_t k = 0; k < all.size(); ++k) {
+      if (b == direct.size() || (a < parents.size() && parents[a] < direct[b])) {
+        all[k] = parents[a];
+        all_sibs[k] = sibs[a++];
+      } else {
+        all[k] = direct[b++];
+        all_sibs[k] = 1;
+      }
+    }
+    parents.swap(all);
+    sibs.swap(all_sibs);
   }
   // Points per leaf: count - 1, mostly zero; where leaves crowd (siblings) and after a leaf
   // with several points, more likely not.
