@@ -109,7 +109,8 @@ void CodeChunk(std::array<std::unique_ptr<IO>, kGroups>& ios, Models& md, LevelS
   auto run = [&](size_t first, size_t step) {
     for (size_t j = first; j < groups.size(); j += step) CodeGroup(*ios[groups[j]], md, groups[j], L, b, e);
   };
-  const bool threads = !groups.empty() && e - b >= 4096 && std::thread::hardware_concurrency() > 1;
+  const bool threads = !groups.empty() && e - b >= 4096 && L.threads != 1 &&
+                       std::thread::hardware_concurrency() > 1;
   // The encoder's groups need the orientation its position pass chooses, and temporal
   // groups the decoded positions; otherwise a decoder reads the groups while it reads the
   // positions (the positions are the longest pass).
@@ -201,7 +202,7 @@ void Expand(const LevelState& L, uint32_t attrs, Columns* next,
         }
       }
     }
-  });
+  }, L.threads);
 }
 
 // Subtree-zero flags per group and level (encoder): the pair's detail and every detail below
@@ -419,6 +420,10 @@ Status Decode(std::string_view stream, std::vector<Point>* out, const DecodeOpti
   StreamStats local;
   StreamStats& S = stats ? *stats : local;
   S = StreamStats{};
+  if (options.threads < 0) {
+    return Status::InvalidArgument("threads: " + std::to_string(options.threads) +
+                                   " is negative (0: as many as help, 1: the calling thread only)");
+  }
   Header hd;
   size_t pos = 0;
   Status st = ParseHeader(stream, &options, &hd, &pos);
@@ -491,6 +496,7 @@ Status Decode(std::string_view stream, std::vector<Point>* out, const DecodeOpti
     L.det.Resize(L.n, attrs);
     L.inherit = std::move(inherit);
     L.mag = std::move(mag);
+    L.threads = options.threads;
     if (tindex) {
       L.reference = &tindex->values();
       L.hints.resize(L.n);
@@ -554,7 +560,7 @@ Status Decode(std::string_view stream, std::vector<Point>* out, const DecodeOpti
       }
       q.ToPoint(c, &(*out)[i]);
     }
-  });
+  }, options.threads);
   S.points = cur.n;
   S.levels = hd.levels;
   S.total_bytes = pos;

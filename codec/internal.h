@@ -87,10 +87,12 @@ inline uint64_t LevelSize(uint64_t n, int k) {
   return n;
 }
 
-// Runs fn(begin, end) over [0, n) on up to two threads (the machines this runs on).
+// Runs fn(begin, end) over [0, n) on up to `max_threads` threads (0: the machine's cores, at
+// most 4); 1 spawns none (WebAssembly without SharedArrayBuffer has no threads).
 template <typename Fn>
-void ParallelRange(size_t n, const Fn& fn) {
+void ParallelRange(size_t n, const Fn& fn, int max_threads = 0) {
   size_t threads = std::min<size_t>(std::max(1u, std::thread::hardware_concurrency()), 4);
+  if (max_threads > 0) threads = std::min<size_t>(threads, static_cast<size_t>(max_threads));
   if (threads == 1 || n < 8192) return fn(size_t{0}, n);
   std::vector<std::thread> pool;
   size_t chunk = (n + threads - 1) / threads;
