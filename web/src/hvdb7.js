@@ -2,9 +2,10 @@
 // workers (hvdb7_worker.js) running the WebAssembly build of codec/. The page asks for the
 // attributes it draws at a quantisation whose picture equals the COLUMNS one (web/README.md).
 
-// What the page asks the server for (Query.codec): positions on a 2^20 grid over the batch's
-// box (under a micrometre for a person-sized batch, far below a pixel), exact colours, and
-// only what renderer.js draws.
+// What the page asks the server for (Query.codec): positions on a 2^30 grid over the batch's
+// box (nanometres: the decoded floats are the stored ones, so the picture is the COLUMNS one
+// pixel for pixel; 2^20 left 0.2 % of the pixels off by a little), exact colours, and only
+// what renderer.js draws.
 export const kHvdb7Codec = {
   position_bits: 30,
   color_bits: 8,

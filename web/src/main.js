@@ -39,9 +39,10 @@ function parseParams() {
     splats: ['sprites', 'quads'].includes(q.get('splats')) ? q.get('splats') : 'auto',
     bit: q.has('bit') ? Number(q.get('bit')) : 0,
     live: ['1', 'true', 'yes'].includes(q.get('live')),
-    // How query batches travel (web/README.md): hvdb7 (compressed, decoded in workers) or
-    // columns (packed columns as stored, what the page drew before hvdb7).
-    encoding: (q.get('encoding') || 'hvdb7').toLowerCase(),
+    // How query batches travel (web/README.md): columns (packed columns as stored) or hvdb7
+    // (a fifth of the bytes, decoded in workers). Columns by default: on loopback and two
+    // shared cores hvdb7's coding costs more time than its bytes save (bench/README.md).
+    encoding: (q.get('encoding') || 'columns').toLowerCase(),
   };
   if (!['hvdb7', 'columns'].includes(p.encoding)) throw new Error(`URL parameter encoding: hvdb7 or columns, got "${q.get('encoding')}"`);
   if (q.has('size')) {
