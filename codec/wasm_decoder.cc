@@ -21,6 +21,8 @@ std::vector<uint8_t> g_input;
 std::vector<uint32_t> g_result;  // u32 words: keeps the columns 4-byte aligned
 std::string g_error;
 
+constexpr uint64_t kMaxPoints = 1u << 22;
+
 uint32_t Words(uint64_t bytes) { return static_cast<uint32_t>((bytes + 3) / 4); }
 
 }  // namespace
@@ -43,6 +45,9 @@ const uint32_t* hvdb7_decode(const uint8_t* data, uint32_t len) {
   if (st.ok()) {
     codec::DecodeOptions o;
     o.threads = 1;  // no std::thread without SharedArrayBuffer
+    // A server batch holds at most 16 384 points; a header claiming far more is refused with a
+    // message rather than aborting on a 2 GiB memory.
+    o.max_points = kMaxPoints;
     st = codec::Decode(stream, &pts, o);
   }
   if (!st.ok()) {

@@ -111,3 +111,15 @@ def test_hvdb7_takes_a_quarter_of_the_bytes_timed_against_columns(browser, serve
     assert h["points_per_frame"] == c["points_per_frame"] > 50000
     assert h["bytes_per_frame"] <= c["bytes_per_frame"] / 4, RESULTS["median"]
     assert h["fps"] > 0 and h["first_picture_ms"] > 0, RESULTS["median"]
+
+
+def test_a_stream_that_does_not_decode_fails_with_the_decoders_reason(browser, server):
+    """The worker answers bad bytes with the C++ decoder's message (no silent empty batch)."""
+    open_page(browser, server, extra="&encoding=hvdb7")
+    got = call(browser, "import('/src/hvdb7.js').then((m) => new m.Hvdb7Decoder(1)"
+                        ".decode(new Uint8Array([72, 86, 55, 67, 9, 9, 9]))"
+                        ".then(() => 'decoded', (e) => String(e.message)))")
+    assert got.startswith("hvdb7: ") and ("InvalidArgument" in got or "Corruption" in got), got
+    assert "hvdb7" in got[len("hvdb7: "):], got  # the codec's own words about its stream
+    # The page's own frame (over hvdb7) is all there.
+    assert call(browser, "window.hvdbApp.pointsShown()") == len(frame_points(server, FRAME))
