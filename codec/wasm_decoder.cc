@@ -54,7 +54,7 @@ const uint32_t* hvdb7_decode(const uint8_t* data, uint32_t len) {
     g_error = st.ToString();
     return nullptr;
   }
-  const uint64_t n = pts.size();
+  const size_t n = pts.size();
   const uint32_t a = info.attributes;
   constexpr uint32_t kHeaderWords = 8;
   uint32_t at = kHeaderWords;
@@ -76,7 +76,7 @@ const uint32_t* hvdb7_decode(const uint8_t* data, uint32_t len) {
   w[1] = a;
   w[2] = pos, w[3] = color, w[4] = cov, w[5] = label, w[6] = flags;
   w[7] = at * 4;
-  for (uint64_t i = 0; i < n; ++i) {
+  for (size_t i = 0; i < n; ++i) {
     const Point& p = pts[i];
     const float xyz[3] = {p.x, p.y, p.z};
     std::memcpy(bytes + pos + 12 * i, xyz, 12);
