@@ -612,6 +612,10 @@ Status Decode(std::string_view stream, std::vector<Point>* out, const DecodeOpti
   StreamStats local;
   StreamStats& S = stats ? *stats : local;
   S = StreamStats{};
+  if (options.threads < 0) {
+    return Status::InvalidArgument("threads: " + std::to_string(options.threads) +
+                                   " is negative (0: as many as help, 1: the calling thread only)");
+  }
   Header hd;
   size_t pos = 0;
   Status st = ParseHeader(stream, &options, &hd, &pos);
@@ -711,6 +715,7 @@ Status Decode(std::string_view stream, std::vector<Point>* out, const DecodeOpti
     }
     L.inherit = std::move(inherit);
     L.mag = std::move(mag);
+    L.threads = options.threads;
     if (tindex) {
       L.reference = &tindex->values();
       L.hints.resize(L.n);

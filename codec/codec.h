@@ -84,8 +84,8 @@ struct DecodeOptions {
   // Streams that claim more points are refused before anything is allocated.
   uint64_t max_points = 1ull << 27;
   const Reference* reference = nullptr;  // required for temporal streams
-  // Threads the decoder may use (0: as many as the machine has, at most 4; 1: none spawned,
-  // as in a WebAssembly build without shared memory).
+  // Threads the decoder may use: 0 as many as help (up to the machine's cores); 1 decodes on
+  // the calling thread alone (WebAssembly without SharedArrayBuffer has no std::thread).
   int threads = 0;
 };
 

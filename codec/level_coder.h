@@ -92,6 +92,7 @@ struct LevelState {
   // Temporal streams: the reference's values (same quantisation) and a hint per parent.
   const Columns* reference = nullptr;
   std::vector<TemporalHint> hints;
+  int threads = 0;  // at most this many threads for the level (0: the machine's; 1: none spawned)
 };
 
 inline int LevelBucket(int k) { return std::min(k - 1, kLevelBuckets - 1); }

@@ -98,7 +98,7 @@ void TemporalIndex::Hints(LevelState& L, size_t b, size_t e) const {
       }
       L.hints[i] = h;
     }
-  });
+  }, L.threads);
 }
 
 }  // namespace hvdb::codec

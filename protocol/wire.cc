@@ -537,6 +537,14 @@ Status FromWire(const wire::Error& e) {
 namespace {
 
 Status Hvdb7Options(const CodecParams& params, codec::EncodeOptions* o) {
+  o->attributes = codec::kAllAttributes;
+  if (!params.attributes().empty()) {
+    Status st = codec::ParseAttributes(params.attributes(), &o->attributes);
+    if (!st.ok()) {
+      return Status::InvalidArgument("query.codec.attributes: " + st.message() +
+                                     "; list them comma-separated, or leave it empty for all");
+    }
+  }
   auto pick = [](uint32_t v, int dflt, uint32_t lo, uint32_t hi, const char* field,
                  int* dst) -> Status {
     if (v == 0) {
@@ -568,7 +576,6 @@ Status CheckHvdb7Params(const CodecParams& params) {
 Status EncodeHvdb7(std::span<const Point> pts, const CodecParams& params, std::string* out) {
   codec::EncodeOptions o;
   HVDB_RETURN_IF_ERROR(Hvdb7Options(params, &o));
-  o.attributes = codec::kAllAttributes;
   o.progressive = true;
   o.chunk = 4096;
   o.effort = 0;  // coded on the fly: the faster pairing

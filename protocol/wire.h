@@ -66,7 +66,8 @@ Status DecodeColumns(const PointColumns& in, std::vector<Point>* out);
 // Draco: positions quantised to `position_bits` and colours to 8 bits; ids and frames exact.
 Status EncodeDraco(std::span<const Point> pts, int position_bits, std::string* out);
 Status DecodeDraco(const std::string& data, std::vector<Point>* out);
-// HVDB7: one progressive hvdb7 stream (codec/) of every attribute; `params` as Query.codec
+// HVDB7: one progressive hvdb7 stream (codec/) of the attributes `params` names (every one when
+// it names none); `params` as Query.codec
 // (zeros take the defaults). Out-of-range parameters are InvalidArgument naming the field.
 Status EncodeHvdb7(std::span<const Point> pts, const CodecParams& params, std::string* out);
 Status CheckHvdb7Params(const CodecParams& params);

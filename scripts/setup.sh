@@ -19,7 +19,8 @@ case "${1:-}" in
 esac
 
 # Building and serving: the compiler, and the libraries hvdb-server, hvdb and the Python module
-# link (storage, protocol, render, edit, codec); ca-certificates for the web viewer's download.
+# link (storage, protocol, render, edit, codec); ca-certificates for the web viewer's download;
+# emscripten compiles codec/ to WebAssembly for the web page's hvdb7 decoder (codec/wasm.cmake).
 PACKAGES=(
   build-essential cmake ninja-build pkg-config ca-certificates
   libboost-dev libopencv-dev libdraco-dev libopenexr-dev libglm-dev libnanoflann-dev
@@ -28,6 +29,7 @@ PACKAGES=(
   libprotobuf-dev protobuf-compiler nlohmann-json3-dev libcli11-dev liburing-dev librados-dev
   libavformat-dev libavcodec-dev libswscale-dev libavutil-dev libassimp-dev
   python3 python3-dev python3-numpy pybind11-dev
+  emscripten
 )
 # The tests and benchmarks: ingest/ (Ceres), GoogleTest and Benchmark, the peers of the
 # benchmarks (PCL, libspatialindex, FLANN, Open3D), clang for the fuzzers and sanitizers, the

@@ -25,8 +25,11 @@ namespace {
 constexpr auto kHttpIdle = std::chrono::seconds(30);
 constexpr uint32_t kMaxHeaderBytes = 8 * 1024;
 // What the page may load and talk to: only this server (no CDN, no third-party script).
+// 'wasm-unsafe-eval' lets the page compile WebAssembly (its hvdb7 decoder, web/wasm/) and
+// nothing else: eval() and inline scripts stay refused.
 constexpr const char* kContentSecurityPolicy =
-    "default-src 'self'; connect-src 'self'; img-src 'self' data: blob:; style-src 'self'; "
+    "default-src 'self'; script-src 'self' 'wasm-unsafe-eval'; worker-src 'self'; "
+    "connect-src 'self'; img-src 'self' data: blob:; style-src 'self'; "
     "object-src 'none'; base-uri 'none'; frame-ancestors 'none'";
 
 }  // namespace

@@ -126,6 +126,7 @@ const char* ContentType(std::string_view path) {
   if (ext == "js" || ext == "mjs") return "text/javascript; charset=utf-8";
   if (ext == "css") return "text/css; charset=utf-8";
   if (ext == "json" || ext == "map") return "application/json";
+  if (ext == "wasm") return "application/wasm";  // the page's hvdb7 decoder (web/wasm/)
   if (ext == "png") return "image/png";
   if (ext == "svg") return "image/svg+xml";
   if (ext == "ico") return "image/x-icon";

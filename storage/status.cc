@@ -23,10 +23,16 @@ const char* StatusCodeName(StatusCode code) {
   return "Unknown";
 }
 
+// GNU strerror_r returns the message pointer (which may or may not be buf); the XSI one (musl,
+// as in the WebAssembly build of codec/) returns 0 and fills buf.
+[[maybe_unused]] static const char* StrerrorText(const char* text, const char*) { return text; }
+[[maybe_unused]] static const char* StrerrorText(int rc, const char* buf) {
+  return rc == 0 ? buf : "unknown error";
+}
+
 Status Status::FromErrno(const std::string& context, int err) {
   char buf[256];
-  // GNU strerror_r returns the message pointer (which may or may not be buf).
-  const char* text = strerror_r(err, buf, sizeof(buf));
+  const char* text = StrerrorText(strerror_r(err, buf, sizeof(buf)), buf);
   StatusCode code = err == ENOENT ? StatusCode::kNotFound : StatusCode::kIOError;
   std::string hint;
   if (err == ENOSPC) hint = " (the disk is full: free space and retry; nothing was committed)";

@@ -253,6 +253,36 @@ TEST(CodecTest, TemporalStreamsNeedTheirReference) {
   EXPECT_TRUE(st.IsInvalidArgument()) << st.ToString();
 }
 
+// threads = 1 (the browser's WebAssembly build, which has no std::thread: a spawn there
+// aborts, so web/ tests that none happens) decodes the same points as the threaded decoder,
+// for intra, progressive and temporal streams; a negative count is refused.
+TEST(CodecTest, OneThreadDecodesWhatTheThreadedDecoderDoes) {
+  EncodeOptions o;
+  o.qp = 16;
+  o.attributes = kAllAttributes;
+  const std::vector<Point> first = Panoptic(380);
+  DecodeOptions one;
+  one.threads = 1;
+  for (bool progressive : {false, true}) {
+    o.progressive = progressive;
+    const std::string s = MustEncode(first, o);
+    EXPECT_EQ(MustDecode(s, one), MustDecode(s));
+  }
+  Reference ref;
+  ref.points = MustDecode(MustEncode(first, o));
+  const std::string t = MustEncode(Panoptic(381), o, &ref);
+  DecodeOptions d;
+  d.reference = &ref;
+  one.reference = &ref;
+  EXPECT_EQ(MustDecode(t, one), MustDecode(t, d));
+  DecodeOptions bad;
+  bad.threads = -1;
+  std::vector<Point> out;
+  Status st = Decode(MustEncode(first, o), &out, bad);
+  EXPECT_TRUE(st.IsInvalidArgument()) << st.ToString();
+  EXPECT_NE(st.message().find("threads"), std::string::npos) << st.ToString();
+}
+
 TEST(CodecTest, SmallAndDegenerateSets) {
   for (size_t n : {0, 1, 2, 3, 5, 7, 64, 513, 1025}) {
     std::vector<Point> pts = Synthetic(n, 10 + n);

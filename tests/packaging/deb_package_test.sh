@@ -15,7 +15,9 @@ for f in ./usr/bin/hvdb ./usr/bin/hvdb-server ./usr/bin/hvdb-ingest ./usr/bin/hv
          ./usr/lib/python3/dist-packages/hvdb/__init__.pyi \
          ./usr/lib/systemd/system/hvdb-server.service ./etc/hvdb/hvdb-server.conf \
          ./usr/share/doc/hvdb/PROTOCOL.md ./usr/share/hvdb/web/index.html \
-         ./usr/share/hvdb/web/src/main.js ./usr/share/hvdb/web/node_modules/gl-matrix/esm/index.js; do
+         ./usr/share/hvdb/web/src/main.js ./usr/share/hvdb/web/node_modules/gl-matrix/esm/index.js \
+         ./usr/share/hvdb/web/src/hvdb7_worker.js ./usr/share/hvdb/web/wasm/hvdb7.js \
+         ./usr/share/hvdb/web/wasm/hvdb7.wasm; do
   grep -qF " $f" <<<"$contents" || { echo "missing from the package: $f" >&2; exit 1; }
 done
 grep -q "/usr/lib/python3/dist-packages/hvdb/_hvdb.cpython-" <<<"$contents" ||

@@ -164,6 +164,8 @@ class HttpServerTest : public ::testing::Test {
     std::filesystem::create_directories(root_ + "/node_modules/gl-matrix");
     std::ofstream(root_ + "/index.html") << "<!doctype html><title>hvdb</title>";
     std::ofstream(root_ + "/src/main.js") << "export const x = 1;";
+    std::filesystem::create_directories(root_ + "/wasm");
+    std::ofstream(root_ + "/wasm/hvdb7.wasm") << std::string("\0asm", 4);
     std::ofstream(root_ + "/.secret") << "no";
     std::ofstream(dir_.path() + "/outside.txt") << "no";
     std::filesystem::create_symlink(dir_.path() + "/outside.txt", root_ + "/link.txt");
@@ -226,6 +228,14 @@ TEST_F(HttpServerTest, ServesTheViewerFilesAndNothingElse) {
   EXPECT_EQ(r.result_int(), 200);
   EXPECT_EQ(r[http::field::content_type], "text/javascript; charset=utf-8");
   EXPECT_EQ(Get("/src/main.js", http::verb::head)[http::field::content_length], "19");
+  // The page's hvdb7 decoder: served as WebAssembly, and the policy lets the page compile it
+  // (and only that: no 'unsafe-eval').
+  r = Get("/wasm/hvdb7.wasm");
+  EXPECT_EQ(r.result_int(), 200);
+  EXPECT_EQ(r[http::field::content_type], "application/wasm");
+  const std::string csp(Get("/")["Content-Security-Policy"]);
+  EXPECT_NE(csp.find("script-src 'self' 'wasm-unsafe-eval'"), std::string::npos) << csp;
+  EXPECT_EQ(csp.find("'unsafe-eval'"), std::string::npos) << csp;
   EXPECT_EQ(Get("/missing.js").result_int(), 404);
   EXPECT_EQ(Get("/../outside.txt").result_int(), 400);
   EXPECT_EQ(Get("/%2e%2e/outside.txt").result_int(), 400);

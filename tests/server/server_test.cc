@@ -14,6 +14,8 @@
 #include <thread>
 
 #include "client/client.h"
+#include "codec/codec.h"
+#include "protocol/wire.h"
 #include "storage/coding.h"
 #include "tests/edit/scene.h"
 #include "tests/server/frames.h"
@@ -259,6 +261,39 @@ TEST_F(ServerTest, Hvdb7Batches) {
   ASSERT_TRUE(resp.ok());
   EXPECT_EQ(resp->error().code(), wire::INVALID_PARAMETER);
   EXPECT_NE(resp->error().message().find("position_bits"), std::string::npos);
+  // Only the attributes asked for (what the web page draws), and an unknown name is refused.
+  q->mutable_codec()->set_position_bits(0);
+  q->mutable_codec()->set_attributes("position,color,label");
+  id = c->Send(&r);
+  ASSERT_TRUE(id.ok());
+  size_t got = 0;
+  for (;;) {
+    auto part = c->Receive(*id);
+    ASSERT_TRUE(part.ok()) << part.status().ToString();
+    if (!part->has_batch()) {
+      ASSERT_TRUE(part->has_done()) << part->DebugString();
+      break;
+    }
+    codec::StreamInfo info;
+    ASSERT_TRUE(codec::ReadInfo(part->batch().hvdb7(), &info).ok());
+    EXPECT_EQ(info.attributes, codec::kPosition | codec::kColor | codec::kLabel);
+    std::vector<Point> decoded;
+    ASSERT_TRUE(wire::DecodeHvdb7(part->batch().hvdb7(), &decoded).ok());
+    for (const Point& p : decoded) {
+      EXPECT_EQ(p.id, 0u);  // not coded
+      ++got;
+    }
+  }
+  EXPECT_EQ(got, exact.size());
+  q->mutable_codec()->set_attributes("position,colr");
+  id = c->Send(&r);
+  ASSERT_TRUE(id.ok());
+  resp = c->Receive(*id);
+  ASSERT_TRUE(resp.ok());
+  EXPECT_EQ(resp->error().code(), wire::INVALID_PARAMETER);
+  EXPECT_NE(resp->error().message().find("query.codec.attributes"), std::string::npos)
+      << resp->error().message();
+  EXPECT_NE(resp->error().message().find("colr"), std::string::npos);
 }
 
 TEST_F(ServerTest, PipelinedRequestsAnswerById) {

@@ -62,9 +62,10 @@ function bodyKind(r) {
 
 export class Connection {
   // onState(state, detail): 'connecting' | 'open' | 'closed' | 'error'.
-  constructor(url, { token = '', clientName = 'hvdb-web', onState = () => {} } = {}) {
+  constructor(url, { token = '', clientName = 'hvdb-web', capabilities = [], onState = () => {} } = {}) {
     this.url = url;
     this.token = token;
+    this.capabilities = capabilities;  // the Hello's ("hvdb7" when the page asks for it)
     this.clientName = clientName;
     this.onState = onState;
     this.ws = null;
@@ -89,7 +90,7 @@ export class Connection {
       this.ws = ws;
       let greeted = false;
       ws.onopen = () => {
-        ws.send(JSON.stringify({ protocol_version: PROTOCOL_VERSION, client_name: this.clientName, token: this.token }));
+        ws.send(JSON.stringify({ protocol_version: PROTOCOL_VERSION, capabilities: this.capabilities, client_name: this.clientName, token: this.token }));
       };
       ws.onmessage = (ev) => {
         if (!greeted) {
@@ -138,7 +139,7 @@ export class Connection {
   // Sends {id, ...body}. Resolves with the final Response (JSON, with `sections`/`columns`
   // attached for binary replies); rejects with HvdbError on an error reply.
   // onPart(decoded) is called for every streamed part: each query batch ({response, columns,
-  // sections}), each render reply (the last one too) and each watch event (a watch resolves
+  // sections, bytes}: bytes is the message's size), each render reply (the last one too) and each watch event (a watch resolves
   // with its DROPPED or LAGGED event, and rejects with CANCELLED once cancelled).
   request(body, { onPart = null, onId = null } = {}) {
     if (!this.isOpen) return Promise.reject(new HvdbError('CLOSED', 'not connected to the server'));
@@ -194,6 +195,7 @@ export class Connection {
       } else {
         decoded = decodeBinary(data);
       }
+      decoded.bytes = typeof data === 'string' ? data.length : data.byteLength;  // on the wire
     } catch (e) {
       this.undecodable(data, e);
       return;

@@ -16,6 +16,7 @@ import { Gizmo } from './gizmo.js';
 import { editingHooks } from './transform.js';
 import { MediaImport } from './media_import.js';
 import { RenderExport } from './render_export.js';
+import { Hvdb7Decoder } from './hvdb7.js';
 
 const kMaxLod = 12;
 
@@ -38,7 +39,12 @@ function parseParams() {
     splats: ['sprites', 'quads'].includes(q.get('splats')) ? q.get('splats') : 'auto',
     bit: q.has('bit') ? Number(q.get('bit')) : 0,
     live: ['1', 'true', 'yes'].includes(q.get('live')),
+    // How query batches travel (web/README.md): columns (packed columns as stored) or hvdb7
+    // (a fifth of the bytes, decoded in workers). Columns by default: on loopback and two
+    // shared cores hvdb7's coding costs more time than its bytes save (bench/README.md).
+    encoding: (q.get('encoding') || 'columns').toLowerCase(),
   };
+  if (!['hvdb7', 'columns'].includes(p.encoding)) throw new Error(`URL parameter encoding: hvdb7 or columns, got "${q.get('encoding')}"`);
   if (q.has('size')) {
     const m = /^(\d+)x(\d+)$/.exec(q.get('size'));
     if (!m) throw new Error(`URL parameter size: expected WxH, got "${q.get('size')}"`);
@@ -91,8 +97,10 @@ class App {
     this.setupCanvas();
     this.renderer = new SplatRenderer(this.canvas, { mode: this.params.renderer, primitive: this.params.splats });
     const scheme = location.protocol === 'https:' ? 'wss' : 'ws';
+    const hvdb7 = this.params.encoding === 'hvdb7';
     this.conn = new Connection(`${scheme}://${location.host}/ws`, {
       token: this.params.token,
+      capabilities: hvdb7 ? ['hvdb7'] : [],
       onState: (state, detail) => this.onConnState(state, detail),
     });
     this.store = new FrameStore(this.conn, this.renderer, {
@@ -101,6 +109,8 @@ class App {
       onError: (err, d) => { if (err.code !== 'CANCELLED' && err.code !== 'CLOSED') this.showError(err, `query of ${d.key}`); },
       inUse: (d) => d === this.shown || d === this.target,
       onReplace: (old, fresh) => this.onReplace(old, fresh),
+      encoding: hvdb7 ? 'HVDB7' : 'COLUMNS',
+      decoder: hvdb7 ? new Hvdb7Decoder() : null,
     });
     this.watchContext();
     this.player = new Player(this);

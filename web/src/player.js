@@ -1,6 +1,7 @@
 // Frames on the GPU: progressive queries (coarsest level first, drawn as they arrive), an LRU
 // cache of loaded frames, prefetch ahead of the play head, and playback at the dataset's fps.
 import { frameWindow } from './connection.js';
+import { kHvdb7BatchPoints, kHvdb7Codec } from './hvdb7.js';
 
 // One loaded view of points: a frame's window (or a slice, or a box), at one level of detail.
 export class FrameData {
@@ -24,6 +25,7 @@ export class FrameData {
     this.firstBatchMs = null;
     this.loadMs = null;      // query sent -> done
     this.serverMs = null;
+    this.wireBytes = 0;      // the query's batch messages as received (encoding comparisons)
     this.lastUse = performance.now();
     this.promise = null;
     this.requestId = 0;
@@ -58,9 +60,14 @@ export class FrameStore {
   // onBatch(frameData) is called after each batch is on the GPU (the page redraws if shown).
   // inUse(frameData): whether the page shows it or is loading it for the screen (then it is
   // not disposed until replaced); onReplace(old, fresh): a reload replaced `old` in the cache.
-  constructor(conn, renderer, { capacity = 24, onBatch = () => {}, onError = () => {}, inUse = () => false, onReplace = () => {} } = {}) {
+  // encoding: how batches travel, 'COLUMNS' or 'HVDB7' (then `decoder`, an Hvdb7Decoder,
+  // decodes them in workers; batches are drawn in the order they came, once decoded).
+  constructor(conn, renderer, { capacity = 24, onBatch = () => {}, onError = () => {}, inUse = () => false, onReplace = () => {}, encoding = 'COLUMNS', decoder = null } = {}) {
+    if (encoding === 'HVDB7' && !decoder) throw new Error('FrameStore: HVDB7 batches need a decoder');
     this.conn = conn;
     this.renderer = renderer;
+    this.encoding = encoding;
+    this.decoder = decoder;
     this.capacity = capacity;
     this.onBatch = onBatch;
     this.onError = onError;
@@ -144,8 +151,33 @@ export class FrameStore {
   startQuery(d, dataset) {
     d.sentAt = performance.now();
     d.requestId = 0;
-    const query = { dataset, region: d.region, lod: d.lod, progressive: true, encoding: 'COLUMNS' };
-    d.promise = this.conn.request({ query }, { onPart: (part) => this.addBatch(d, part), onId: (id) => { d.requestId = id; } })
+    const hvdb7 = this.encoding === 'HVDB7';
+    const query = { dataset, region: d.region, lod: d.lod, progressive: true, encoding: this.encoding };
+    if (hvdb7) {
+      query.codec = kHvdb7Codec;
+      // Smaller batches than the default 16 384 points: the server codes them on the fly
+      // (the first two before it sends anything), so the first picture waits for less, and
+      // coding, transfer and decoding overlap.
+      query.batch_points = kHvdb7BatchPoints;
+    }
+    // HVDB7: each batch's decode starts as it arrives (in a worker); they are added in order.
+    let decoded = Promise.resolve();
+    const onPart = (part) => {
+      d.wireBytes += part.bytes || 0;
+      if (!hvdb7) return this.addBatch(d, part);
+      const columns = this.decoder.decode(part.sections.hvdb7 || new Uint8Array(0));
+      decoded = decoded.then(() => columns).then((c) => this.addBatch(d, { response: part.response, columns: c.columns }))
+        .catch((err) => {
+          if (!d.decodeError) {
+            d.decodeError = err;
+            this.cancelQuery(d);  // nothing more of it can be shown
+          }
+          throw err;
+        });
+      decoded.catch(() => {});  // reported through d.promise
+    };
+    d.promise = this.conn.request({ query }, { onPart, onId: (id) => { d.requestId = id; } })
+      .then((reply) => decoded.then(() => reply))
       .then((reply) => {
         d.done = true;
         d.loadMs = performance.now() - d.sentAt;
@@ -155,6 +187,7 @@ export class FrameStore {
         if (d.levelsDone.length) d.scale = Math.pow(2, d.lod / 2);
         return d;
       }, (err) => {
+        if (d.decodeError) err = d.decodeError;  // not the CANCELLED its cancel caused
         d.error = err;
         if (!d.disposed) this.onError(err, d);  // a dropped entry's CANCELLED is no news
         throw err;
