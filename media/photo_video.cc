@@ -7,6 +7,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <list>
+#include <memory>
 #include <mutex>
 
 extern "C" {
@@ -88,98 +89,156 @@ double LumaPsnr(const cv::Mat& a, const cv::Mat& b) {
 
 int Padded(int side) { return std::max(kMinSide, (side + 1) & ~1); }
 
-// Decodes every picture of an IVF file in order, as BGR at the coded size, cropped to w x h;
-// `on_picture` returns false to stop.
-template <typename Fn>
-Status DecodeAll(std::string_view video, int w, int h, const std::string& what, Fn on_picture) {
-  auto bad = [&](const std::string& why) { return Status::Corruption(what + ": " + why); };
-  MemoryFile file;
-  file.read = reinterpret_cast<const uint8_t*>(video.data());
-  file.size = int64_t(video.size());
-  constexpr int kBuffer = 1 << 16;
-  auto* buffer = static_cast<uint8_t*>(av_malloc(kBuffer));
-  AVIOContext* io = avio_alloc_context(buffer, kBuffer, 0, &file, &MemoryFile::Read, nullptr,
-                                       &MemoryFile::Seek);
-  AVFormatContext* fmt = avformat_alloc_context();
-  AVCodecContext* codec = nullptr;
-  AVPacket* packet = av_packet_alloc();
-  AVFrame* frame = av_frame_alloc();
-  SwsContext* sws = nullptr;
-  struct Free {
-    AVIOContext*& io; AVFormatContext*& fmt; AVCodecContext*& codec; AVPacket*& packet;
-    AVFrame*& frame; SwsContext*& sws;
-    ~Free() {
-      sws_freeContext(sws);
-      av_frame_free(&frame);
-      av_packet_free(&packet);
-      avcodec_free_context(&codec);
-      avformat_close_input(&fmt);
-      if (io != nullptr) av_freep(&io->buffer);
-      avio_context_free(&io);
+// An IVF file's pictures in order, as BGR cropped to w x h, one at a time: a reader of picture
+// i + 1 after picture i (a render walking the frames) goes on where it stopped.
+class IvfDecoder {
+ public:
+  ~IvfDecoder() {
+    sws_freeContext(sws_);
+    av_frame_free(&frame_);
+    av_packet_free(&packet_);
+    avcodec_free_context(&codec_);
+    avformat_close_input(&fmt_);
+    if (io_ != nullptr) av_freep(&io_->buffer);
+    avio_context_free(&io_);
+  }
+
+  Status Open(std::string video, int w, int h, const std::string& what) {
+    video_ = std::move(video);
+    w_ = w, h_ = h;
+    what_ = what;
+    file_.read = reinterpret_cast<const uint8_t*>(video_.data());
+    file_.size = int64_t(video_.size());
+    constexpr int kBuffer = 1 << 16;
+    auto* buffer = static_cast<uint8_t*>(av_malloc(kBuffer));
+    if (buffer == nullptr) return Status::Internal(what + ": out of memory");
+    io_ = avio_alloc_context(buffer, kBuffer, 0, &file_, &MemoryFile::Read, nullptr, &MemoryFile::Seek);
+    if (io_ == nullptr) {
+      av_free(buffer);
+      return Status::Internal(what + ": out of memory");
     }
-  } free_all{io, fmt, codec, packet, frame, sws};
-  if (io == nullptr || fmt == nullptr || packet == nullptr || frame == nullptr) {
-    return Status::Internal(what + ": out of memory");
-  }
-  fmt->pb = io;
-  fmt->flags |= AVFMT_FLAG_CUSTOM_IO;
-  int err = avformat_open_input(&fmt, nullptr, av_find_input_format("ivf"), nullptr);
-  if (err < 0) {
-    fmt = nullptr;
-    return bad("not an IVF video (" + AvError(err) + ")");
-  }
-  if (fmt->nb_streams != 1 || fmt->streams[0]->codecpar->codec_id != AV_CODEC_ID_AV1) {
-    return bad("not one AV1 stream");
-  }
-  const AVCodec* dec = avcodec_find_decoder_by_name("libdav1d");
-  if (dec == nullptr) dec = avcodec_find_decoder(AV_CODEC_ID_AV1);
-  if (dec == nullptr) return Status::Unsupported(what + ": this libavcodec decodes no AV1");
-  codec = avcodec_alloc_context3(dec);
-  avcodec_parameters_to_context(codec, fmt->streams[0]->codecpar);
-  codec->thread_count = 0;
-  if ((err = avcodec_open2(codec, dec, nullptr)) < 0) {
-    return Status::Internal(what + ": cannot open " + dec->name + ": " + AvError(err));
-  }
-  cv::Mat bgr;
-  bool more = true;
-  auto drain = [&]() -> Status {
-    while (more) {
-      const int r = avcodec_receive_frame(codec, frame);
-      if (r == AVERROR(EAGAIN) || r == AVERROR_EOF) return Status::OK();
-      if (r < 0) return bad("a picture does not decode (" + AvError(r) + ")");
-      if (frame->width < w || frame->height < h) return bad("a picture smaller than its index says");
-      sws = sws_getCachedContext(sws, frame->width, frame->height, AVPixelFormat(frame->format),
-                                 frame->width, frame->height, AV_PIX_FMT_BGR24,
-                                 SWS_BILINEAR | SWS_ACCURATE_RND | SWS_FULL_CHR_H_INT, nullptr,
-                                 nullptr, nullptr);
-      if (sws == nullptr) return Status::Internal(what + ": no conversion to BGR");
-      bgr.create(frame->height, frame->width, CV_8UC3);
-      uint8_t* dst[4] = {bgr.data, nullptr, nullptr, nullptr};
-      int stride[4] = {int(bgr.step), 0, 0, 0};
-      sws_scale(sws, frame->data, frame->linesize, 0, frame->height, dst, stride);
-      av_frame_unref(frame);
-      more = on_picture(bgr(cv::Rect(0, 0, w, h)));
+    fmt_ = avformat_alloc_context();
+    packet_ = av_packet_alloc();
+    frame_ = av_frame_alloc();
+    if (fmt_ == nullptr || packet_ == nullptr || frame_ == nullptr) {
+      return Status::Internal(what + ": out of memory");
+    }
+    fmt_->pb = io_;
+    fmt_->flags |= AVFMT_FLAG_CUSTOM_IO;
+    int err = avformat_open_input(&fmt_, nullptr, av_find_input_format("ivf"), nullptr);
+    if (err < 0) {
+      fmt_ = nullptr;  // freed by avformat_open_input (not our IO)
+      return Bad("not an IVF video (" + AvError(err) + ")");
+    }
+    if (fmt_->nb_streams != 1 || fmt_->streams[0]->codecpar->codec_id != AV_CODEC_ID_AV1) {
+      return Bad("not one AV1 stream");
+    }
+    const AVCodec* dec = avcodec_find_decoder_by_name("libdav1d");
+    if (dec == nullptr) dec = avcodec_find_decoder(AV_CODEC_ID_AV1);
+    if (dec == nullptr) return Status::Unsupported(what + ": this libavcodec decodes no AV1");
+    codec_ = avcodec_alloc_context3(dec);
+    if (codec_ == nullptr) return Status::Internal(what + ": out of memory");
+    avcodec_parameters_to_context(codec_, fmt_->streams[0]->codecpar);
+    codec_->thread_count = 0;
+    if ((err = avcodec_open2(codec_, dec, nullptr)) < 0) {
+      return Status::Internal(what + ": cannot open " + dec->name + ": " + AvError(err));
     }
     return Status::OK();
-  };
-  while (more) {
-    err = av_read_frame(fmt, packet);
-    if (err < 0) {
-      avcodec_send_packet(codec, nullptr);
-      HVDB_RETURN_IF_ERROR(drain());
-      break;
-    }
-    int r = avcodec_send_packet(codec, packet);
-    if (r == AVERROR(EAGAIN)) {
-      HVDB_RETURN_IF_ERROR(drain());
-      r = avcodec_send_packet(codec, packet);
-    }
-    av_packet_unref(packet);
-    if (r < 0 && r != AVERROR(EAGAIN)) return bad("a packet does not decode (" + AvError(r) + ")");
-    HVDB_RETURN_IF_ERROR(drain());
   }
-  return Status::OK();
-}
+
+  // The next picture (false: the video has no more). Valid until the next call.
+  Result<bool> Next(cv::Mat* out) {
+    for (;;) {
+      const int r = avcodec_receive_frame(codec_, frame_);
+      if (r == 0) break;
+      if (r == AVERROR_EOF || (r == AVERROR(EAGAIN) && eof_)) return false;
+      if (r != AVERROR(EAGAIN)) return Bad("a picture does not decode (" + AvError(r) + ")");
+      const int e = av_read_frame(fmt_, packet_);
+      if (e < 0) {
+        eof_ = true;
+        avcodec_send_packet(codec_, nullptr);
+        continue;
+      }
+      const int s = avcodec_send_packet(codec_, packet_);
+      av_packet_unref(packet_);
+      if (s < 0) return Bad("a packet does not decode (" + AvError(s) + ")");
+    }
+    if (frame_->width < w_ || frame_->height < h_) {
+      av_frame_unref(frame_);
+      return Bad("a picture smaller than its index says");
+    }
+    sws_ = sws_getCachedContext(sws_, frame_->width, frame_->height, AVPixelFormat(frame_->format),
+                                frame_->width, frame_->height, AV_PIX_FMT_BGR24,
+                                SWS_BILINEAR | SWS_ACCURATE_RND | SWS_FULL_CHR_H_INT, nullptr,
+                                nullptr, nullptr);
+    if (sws_ == nullptr) return Status::Internal(what_ + ": no conversion to BGR");
+    bgr_.create(frame_->height, frame_->width, CV_8UC3);
+    uint8_t* dst[4] = {bgr_.data, nullptr, nullptr, nullptr};
+    int stride[4] = {int(bgr_.step), 0, 0, 0};
+    sws_scale(sws_, frame_->data, frame_->linesize, 0, frame_->height, dst, stride);
+    av_frame_unref(frame_);
+    *out = bgr_(cv::Rect(0, 0, w_, h_));
+    ++next_;
+    return true;
+  }
+
+  const std::string& video() const { return video_; }
+  uint32_t next() const { return next_; }  // the number of the picture Next() returns
+
+ private:
+  Status Bad(const std::string& why) const { return Status::Corruption(what_ + ": " + why); }
+
+  std::string video_;
+  int w_ = 0, h_ = 0;
+  std::string what_;
+  MemoryFile file_;
+  AVIOContext* io_ = nullptr;
+  AVFormatContext* fmt_ = nullptr;
+  AVCodecContext* codec_ = nullptr;
+  AVPacket* packet_ = nullptr;
+  AVFrame* frame_ = nullptr;
+  SwsContext* sws_ = nullptr;
+  cv::Mat bgr_;
+  bool eof_ = false;
+  uint32_t next_ = 0;
+};
+
+// Decoders stopped part-way, for the next picture of the same video (LRU; each one holds the
+// video and the AV1 decoder's reference pictures, a few tens of MB at 1080p).
+class DecoderCache {
+ public:
+  // A decoder of `video` (w x h) positioned at or before picture `index`: from the cache, or new.
+  Result<std::unique_ptr<IvfDecoder>> Take(std::string_view video, uint32_t index, int w, int h,
+                                           const std::string& what) {
+    {
+      std::lock_guard<std::mutex> l(mu_);
+      for (auto it = idle_.begin(); it != idle_.end(); ++it) {
+        if (it->w == w && it->h == h && it->d->next() <= index && it->d->video() == video) {
+          std::unique_ptr<IvfDecoder> d = std::move(it->d);
+          idle_.erase(it);
+          return d;
+        }
+      }
+    }
+    auto d = std::make_unique<IvfDecoder>();
+    HVDB_RETURN_IF_ERROR(d->Open(std::string(video), w, h, what));
+    return d;
+  }
+  void Give(std::unique_ptr<IvfDecoder> d, int w, int h) {
+    std::lock_guard<std::mutex> l(mu_);
+    idle_.push_front(Idle{std::move(d), w, h});
+    if (idle_.size() > kMax) idle_.pop_back();
+  }
+
+ private:
+  struct Idle {
+    std::unique_ptr<IvfDecoder> d;
+    int w, h;
+  };
+  static constexpr size_t kMax = 12;  // a rig's cameras, walked frame by frame
+  std::mutex mu_;
+  std::list<Idle> idle_;
+};
 
 // The pictures (BGR, padded to the coded size) as an IVF file at `crf`.
 Result<std::string> EncodeAt(const std::vector<cv::Mat>& pictures, int crf, std::string* name) {
@@ -319,14 +378,14 @@ class AvPhotoVideoCodec : public PhotoVideoCodec {
       out.width = uint32_t(w);
       out.height = uint32_t(h);
       HVDB_ASSIGN_OR_RETURN(out.video, EncodeAt(padded, crf, &out.codec));
-      size_t i = 0;
-      HVDB_RETURN_IF_ERROR(DecodeAll(out.video, w, h, "photo video (just coded)",
-                                     [&](const cv::Mat& pic) {
-                                       if (i < originals.size()) {
-                                         out.psnr.push_back(LumaPsnr(originals[i], pic));
-                                       }
-                                       return ++i < originals.size();
-                                     }));
+      IvfDecoder check;
+      HVDB_RETURN_IF_ERROR(check.Open(out.video, w, h, "photo video (just coded)"));
+      cv::Mat pic;
+      for (size_t i = 0; i < originals.size(); ++i) {
+        HVDB_ASSIGN_OR_RETURN(bool more, check.Next(&pic));
+        if (!more) break;
+        out.psnr.push_back(LumaPsnr(originals[i], pic));
+      }
       if (out.psnr.size() != originals.size()) {
         return Status::Internal("photo video: " + std::to_string(out.psnr.size()) + " of " +
                                 std::to_string(originals.size()) + " pictures came back");
@@ -343,24 +402,24 @@ class AvPhotoVideoCodec : public PhotoVideoCodec {
   Result<std::string> Decode(std::string_view video, uint32_t index, uint32_t width,
                              uint32_t height, const std::string& what) const override {
     Quiet();
-    std::string png;
-    Status encode = Status::OK();
-    uint32_t n = 0;
-    HVDB_RETURN_IF_ERROR(DecodeAll(video, int(width), int(height), what, [&](const cv::Mat& pic) {
-      if (n++ != index) return true;
-      std::vector<uint8_t> buf;
-      // Fast zlib: the caller decodes it at once.
-      if (!cv::imencode(".png", pic, buf, {cv::IMWRITE_PNG_COMPRESSION, 1})) {
-        encode = Status::Internal(what + ": cannot write picture " + std::to_string(index) + " as PNG");
+    if (width == 0 || height == 0) return Status::Corruption(what + ": a picture of no pixels");
+    const int w = int(width), h = int(height);
+    HVDB_ASSIGN_OR_RETURN(std::unique_ptr<IvfDecoder> d, cache_.Take(video, index, w, h, what));
+    cv::Mat pic;
+    while (d->next() <= index) {
+      HVDB_ASSIGN_OR_RETURN(bool more, d->Next(&pic));
+      if (!more) {
+        return Status::Corruption(what + ": picture " + std::to_string(index) + " is missing (" +
+                                  std::to_string(d->next()) + " pictures)");
       }
-      png.assign(buf.begin(), buf.end());
-      return false;
-    }));
-    HVDB_RETURN_IF_ERROR(encode);
-    if (png.empty()) {
-      return Status::Corruption(what + ": picture " + std::to_string(index) + " is missing (" +
-                                std::to_string(n) + " pictures)");
     }
+    std::vector<uint8_t> buf;
+    // Fast zlib: the caller decodes it at once.
+    if (!cv::imencode(".png", pic, buf, {cv::IMWRITE_PNG_COMPRESSION, 1})) {
+      return Status::Internal(what + ": cannot write picture " + std::to_string(index) + " as PNG");
+    }
+    std::string png(buf.begin(), buf.end());
+    cache_.Give(std::move(d), w, h);
     return png;
   }
 
@@ -373,6 +432,7 @@ class AvPhotoVideoCodec : public PhotoVideoCodec {
       av_log_set_level(AV_LOG_ERROR);
     });
   }
+  mutable DecoderCache cache_;
 };
 
 }  // namespace
