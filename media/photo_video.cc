@@ -235,7 +235,7 @@ class DecoderCache {
     std::unique_ptr<IvfDecoder> d;
     int w, h;
   };
-  static constexpr size_t kMax = 12;  // a rig's cameras, walked frame by frame
+  static constexpr size_t kMax = 10;  // a rig's cameras, walked frame by frame
   std::mutex mu_;
   std::list<Idle> idle_;
 };

@@ -216,6 +216,8 @@ class DatasetImpl {
   std::mutex photo_mu_, photo_compact_mu_;
   Result<std::optional<Photo>> PhotoFromRun(const std::string& name, uint32_t frame,
                                             bool* gone) const;
+  Status WriteRuns(uint16_t camera, const std::map<uint32_t, Photo>& photos,
+                   std::set<std::string>* written, CompactInfo* info);
   mutable std::mutex mu_;  // guards frames_, last_lsn_
   std::map<uint32_t, std::shared_ptr<const FrameVersion>> frames_;
   uint64_t last_lsn_ = 0;

@@ -309,6 +309,70 @@ Result<std::vector<Photo>> DatasetImpl::Photos(uint32_t frame) const {
   return out;
 }
 
+// Codes `photos` (camera's, by frame) as runs, one per stretch of frames at one picture size,
+// each written video first, then index; adds their index names to *written.
+Status DatasetImpl::WriteRuns(uint16_t camera, const std::map<uint32_t, Photo>& photos,
+                              std::set<std::string>* written, CompactInfo* info) {
+  const PhotoVideoCodec* codec = GetPhotoVideoCodec();
+  const std::string dir = PhotoDir(dir_);
+  // One run per stretch of frames at one picture size.
+  for (auto begin = photos.begin(); begin != photos.end();) {
+    auto end = begin;
+    std::vector<std::string_view> images;
+    while (end != photos.end() && end->second.camera.width == begin->second.camera.width &&
+           end->second.camera.height == begin->second.camera.height) {
+      images.push_back(end->second.image);
+      ++end;
+    }
+    const uint32_t run_first = begin->first, run_last = std::prev(end)->first;
+    const std::string what = "compact --photos: camera " + std::to_string(camera) +
+                             ", frames " + std::to_string(run_first) + "-" +
+                             std::to_string(run_last);
+    auto coded = codec->Encode(images, kPhotoVideoMinPsnr);
+    if (!coded.ok()) return Status(coded.status().code(), what + ": " + coded.status().message());
+    if (coded->psnr.size() != images.size() || coded->video.empty()) {
+      return Status::Internal(what + ": the codec returned " + std::to_string(coded->psnr.size()) +
+                              " pictures for " + std::to_string(images.size()));
+    }
+    PhotoVideoIndex index;
+    index.camera = camera;
+    index.first = run_first;
+    index.last = run_last;
+    index.video_bytes = coded->video.size();
+    index.video_crc = crc32c::Value(coded->video.data(), coded->video.size());
+    index.min_psnr = kPhotoVideoMinPsnr;
+    index.codec = coded->codec;
+    index.width = coded->width;
+    index.height = coded->height;
+    size_t i = 0;
+    for (auto it = begin; it != end; ++it, ++i) {
+      if (!(coded->psnr[i] >= kPhotoVideoMinPsnr)) {
+        return Status::Internal(what + ": frame " + std::to_string(it->first) + " came out at " +
+                                std::to_string(coded->psnr[i]) + " dB, under the bound");
+      }
+      PhotoVideoEntry e;
+      e.frame = it->first;
+      e.psnr = coded->psnr[i];
+      e.meta = it->second;
+      e.meta.image.clear();
+      index.entries.push_back(std::move(e));
+      info->photo_min_psnr = info->photo_min_psnr == 0 ? coded->psnr[i]
+                                                     : std::min(info->photo_min_psnr, coded->psnr[i]);
+    }
+    HVDB_RETURN_IF_ERROR(WriteFileAtomic(
+        env_, dir + "/" + PhotoVideoName(run_first, run_last, camera, "ivf"), coded->video));
+    const std::string index_name = PhotoVideoName(run_first, run_last, camera, "pvx");
+    HVDB_RETURN_IF_ERROR(WriteFileAtomic(env_, dir + "/" + index_name,
+                                         EncodePhotoVideoIndex(index)));
+    written->insert(index_name);
+    info->photo_runs += 1;
+    info->photo_pictures += static_cast<uint32_t>(index.entries.size());
+    info->photo_bytes_after += coded->video.size();
+    begin = end;
+  }
+  return Status::OK();
+}
+
 Result<CompactInfo> DatasetImpl::CompactPhotos(uint32_t first, uint32_t last) {
   if (first > last) {
     return Status::InvalidArgument("compact: first frame " + std::to_string(first) +
@@ -333,106 +397,75 @@ Result<CompactInfo> DatasetImpl::CompactPhotos(uint32_t first, uint32_t last) {
   for (const auto& [key, name] : l.singles) cameras.insert(key.first);
   for (const RunName& r : l.runs) cameras.insert(r.camera);
   for (uint16_t camera : cameras) {
-    // Runs never overlap after a compaction: widen the range over the runs it touches.
+    // The per-frame files in the range, and the runs holding one of them (an edit after a
+    // compaction): those runs are coded again with their edits, widening the range over them.
+    // Other runs stay as they are (coding decoded pictures again would lose more).
     uint32_t lo = first, hi = last;
+    std::map<uint32_t, std::string> singles;  // frame -> name
+    std::vector<const RunName*> touched, kept;
     for (bool grew = true; grew;) {
       grew = false;
+      singles.clear();
+      for (auto it = l.singles.lower_bound({camera, lo});
+           it != l.singles.end() && it->first.first == camera && it->first.second <= hi; ++it) {
+        singles[it->first.second] = it->second;
+      }
+      touched.clear();
+      kept.clear();
       for (const RunName& r : l.runs) {
-        if (r.camera == camera && r.first <= hi && r.last >= lo && (r.first < lo || r.last > hi)) {
+        if (r.camera != camera || r.first > hi || r.last < lo) continue;
+        auto s = singles.lower_bound(r.first);
+        const bool edited = s != singles.end() && s->first <= r.last;
+        (edited ? touched : kept).push_back(&r);
+        if (edited && (r.first < lo || r.last > hi)) {
           lo = std::min(lo, r.first), hi = std::max(hi, r.last), grew = true;
         }
       }
     }
-    std::vector<const RunName*> runs;
-    for (const RunName& r : l.runs) {
-      if (r.camera == camera && r.first <= hi && r.last >= lo) runs.push_back(&r);
-    }
-    std::map<uint32_t, std::string> singles;  // frame -> name
-    for (auto it = l.singles.lower_bound({camera, lo});
-         it != l.singles.end() && it->first.first == camera && it->first.second <= hi; ++it) {
-      singles[it->first.second] = it->second;
-    }
-    if (singles.empty() && runs.size() <= 1) {
-      info.photo_already += runs.empty() ? 0 : 1;
+    if (singles.empty()) {
+      info.photo_already += kept.empty() ? 0 : 1;
       continue;
     }
-    // The pictures, by frame: a per-frame file wins over a run.
-    std::map<uint32_t, Photo> photos;
-    std::map<uint32_t, uint32_t> single_crc;  // of the per-frame files read
-    for (const RunName* r : runs) {
+    // Where each frame's picture is: a per-frame file wins over a run ("": the file).
+    std::map<uint32_t, std::string> source;
+    for (const RunName* r : touched) {
       HVDB_ASSIGN_OR_RETURN(std::string data, ReadWholeFile(env_, dir + "/" + r->name));
       HVDB_ASSIGN_OR_RETURN(PhotoVideoIndex index, DecodePhotoVideoIndex(data, dir + "/" + r->name));
       info.photo_bytes_before += index.video_bytes;
-      for (const PhotoVideoEntry& e : index.entries) {
-        if (singles.count(e.frame) != 0 || photos.count(e.frame) != 0) continue;
-        bool gone = false;
-        HVDB_ASSIGN_OR_RETURN(auto photo, PhotoFromRun(r->name, e.frame, &gone));
-        if (photo) photos[e.frame] = std::move(*photo);
-      }
+      for (const PhotoVideoEntry& e : index.entries) source.emplace(e.frame, r->name);
     }
-    for (const auto& [frame, name] : singles) {
-      const std::string path = dir + "/" + name;
-      HVDB_ASSIGN_OR_RETURN(std::string data, ReadWholeFile(env_, path));
-      HVDB_ASSIGN_OR_RETURN(Photo photo, DecodePhoto(data, path));
-      single_crc[frame] = crc32c::Value(data.data(), data.size());
-      info.photo_bytes_before += photo.image.size();
-      photos[frame] = std::move(photo);
-    }
-    // One run per stretch of frames at one picture size.
+    for (const auto& [frame, name] : singles) source[frame] = "";
+    // A new run must not reach over a run kept between its frames.
+    auto kept_between = [&](uint32_t a, uint32_t b) {
+      return std::any_of(kept.begin(), kept.end(),
+                         [&](const RunName* r) { return r->first > a && r->first < b; });
+    };
+    std::map<uint32_t, uint32_t> single_crc;  // of the per-frame files read
     std::set<std::string> written;
-    for (auto begin = photos.begin(); begin != photos.end();) {
-      auto end = begin;
-      std::vector<std::string_view> images;
-      while (end != photos.end() && end->second.camera.width == begin->second.camera.width &&
-             end->second.camera.height == begin->second.camera.height) {
-        images.push_back(end->second.image);
-        ++end;
-      }
-      const uint32_t run_first = begin->first, run_last = std::prev(end)->first;
-      const std::string what = "compact --photos: camera " + std::to_string(camera) +
-                               ", frames " + std::to_string(run_first) + "-" +
-                               std::to_string(run_last);
-      auto coded = codec->Encode(images, kPhotoVideoMinPsnr);
-      if (!coded.ok()) return Status(coded.status().code(), what + ": " + coded.status().message());
-      if (coded->psnr.size() != images.size() || coded->video.empty()) {
-        return Status::Internal(what + ": the codec returned " + std::to_string(coded->psnr.size()) +
-                                " pictures for " + std::to_string(images.size()));
-      }
-      PhotoVideoIndex index;
-      index.camera = camera;
-      index.first = run_first;
-      index.last = run_last;
-      index.video_bytes = coded->video.size();
-      index.video_crc = crc32c::Value(coded->video.data(), coded->video.size());
-      index.min_psnr = kPhotoVideoMinPsnr;
-      index.codec = coded->codec;
-      index.width = coded->width;
-      index.height = coded->height;
-      size_t i = 0;
-      for (auto it = begin; it != end; ++it, ++i) {
-        if (!(coded->psnr[i] >= kPhotoVideoMinPsnr)) {
-          return Status::Internal(what + ": frame " + std::to_string(it->first) + " came out at " +
-                                  std::to_string(coded->psnr[i]) + " dB, under the bound");
+    // At most kPhotoVideoMaxPictures photos in memory at once: a run's.
+    for (auto chunk = source.begin(); chunk != source.end();) {
+      std::map<uint32_t, Photo> photos;
+      for (size_t n = 0; chunk != source.end() && n < kPhotoVideoMaxPictures; ++chunk, ++n) {
+        const uint32_t frame = chunk->first;
+        if (!photos.empty() && kept_between(photos.rbegin()->first, frame)) break;
+        if (chunk->second.empty()) {
+          const std::string path = dir + "/" + singles[frame];
+          HVDB_ASSIGN_OR_RETURN(std::string data, ReadWholeFile(env_, path));
+          HVDB_ASSIGN_OR_RETURN(Photo photo, DecodePhoto(data, path));
+          single_crc[frame] = crc32c::Value(data.data(), data.size());
+          info.photo_bytes_before += photo.image.size();
+          photos[frame] = std::move(photo);
+        } else {
+          bool gone = false;
+          HVDB_ASSIGN_OR_RETURN(auto photo, PhotoFromRun(chunk->second, frame, &gone));
+          if (!photo) {
+            return Status::Corruption(dir + "/" + chunk->second + ": frame " +
+                                      std::to_string(frame) + " went missing during compaction");
+          }
+          photos[frame] = std::move(*photo);
         }
-        PhotoVideoEntry e;
-        e.frame = it->first;
-        e.psnr = coded->psnr[i];
-        e.meta = it->second;
-        e.meta.image.clear();
-        index.entries.push_back(std::move(e));
-        info.photo_min_psnr = info.photo_min_psnr == 0 ? coded->psnr[i]
-                                                       : std::min(info.photo_min_psnr, coded->psnr[i]);
       }
-      HVDB_RETURN_IF_ERROR(WriteFileAtomic(
-          env_, dir + "/" + PhotoVideoName(run_first, run_last, camera, "ivf"), coded->video));
-      const std::string index_name = PhotoVideoName(run_first, run_last, camera, "pvx");
-      HVDB_RETURN_IF_ERROR(WriteFileAtomic(env_, dir + "/" + index_name,
-                                           EncodePhotoVideoIndex(index)));
-      written.insert(index_name);
-      info.photo_runs += 1;
-      info.photo_pictures += static_cast<uint32_t>(index.entries.size());
-      info.photo_bytes_after += coded->video.size();
-      begin = end;
+      HVDB_RETURN_IF_ERROR(WriteRuns(camera, photos, &written, &info));
     }
     // Retire the sources now in the new runs; a per-frame file replaced meanwhile stays (it
     // wins over the run).
@@ -444,7 +477,7 @@ Result<CompactInfo> DatasetImpl::CompactPhotos(uint32_t first, uint32_t last) {
         HVDB_RETURN_IF_ERROR(env_->Remove(dir + "/" + name));
       }
     }
-    for (const RunName* r : runs) {
+    for (const RunName* r : touched) {
       if (written.count(r->name) != 0) continue;
       HVDB_RETURN_IF_ERROR(env_->Remove(dir + "/" + r->name));
       HVDB_RETURN_IF_ERROR(env_->Remove(dir + "/" + VideoOf(r->name)));

@@ -17,6 +17,9 @@ namespace hvdb {
 
 // The Y-PSNR (BT.601 luma of the RGB pictures) every coded picture keeps against its photo.
 inline constexpr double kPhotoVideoMinPsnr = 40.0;
+// Pictures in one run at most: what a compaction holds in memory (decoded, ~6 MB each at
+// 1080p) and how far a reader decodes from the run's one key picture.
+inline constexpr size_t kPhotoVideoMaxPictures = 32;
 
 struct EncodedPhotoVideo {
   std::string video;          // the container's bytes (IVF, AV1)

@@ -338,6 +338,60 @@ TEST_F(PhotoVideoTest, BadRequestsWriteNothing) {
   EXPECT_GE(LumaPsnr(Synthetic(33, 21, 1, 0), (*p)[0].image), kPhotoVideoMinPsnr);
 }
 
+// Long stretches are cut into runs of kPhotoVideoMaxPictures; an edit codes again only the run
+// it falls in, and a run never reaches over one left as it is.
+TEST_F(PhotoVideoTest, RunsAreBoundedAndOnlyEditedRunsAreCodedAgain) {
+  Open();
+  constexpr uint32_t kFrames = kPhotoVideoMaxPictures + 8;
+  for (uint32_t f = 0; f < kFrames; ++f) {
+    ASSERT_TRUE(ds_->PutPhoto(f, MakePhoto(0, f, Synthetic(64, 64, f % 9, 0), 64, 64)).ok());
+  }
+  auto info = ds_->CompactPhotos(0, kFrames - 1);
+  ASSERT_TRUE(info.ok()) << info.status().ToString();
+  EXPECT_EQ(info->photo_runs, 2u);
+  const std::string first_run = PhotoDir() + "/" + PhotoVideoName(0, kPhotoVideoMaxPictures - 1, 0, "ivf");
+  const std::string first_bytes = ReadFile(first_run);
+  ASSERT_FALSE(first_bytes.empty());
+  // An edit in the second run, and a new frame past both.
+  ASSERT_TRUE(ds_->PutPhoto(kFrames - 3, MakePhoto(0, kFrames - 3, Synthetic(64, 64, 5, 1), 64, 64)).ok());
+  ASSERT_TRUE(ds_->PutPhoto(kFrames + 4, MakePhoto(0, kFrames + 4, Synthetic(64, 64, 2, 0), 64, 64)).ok());
+  info = ds_->CompactPhotos(0, kFrames + 10);
+  ASSERT_TRUE(info.ok()) << info.status().ToString();
+  EXPECT_EQ(info->photo_runs, 1u);  // the second run with its edit and the new frame
+  EXPECT_EQ(info->photo_pictures, 9u);
+  EXPECT_EQ(ReadFile(first_run), first_bytes);  // left as it was
+  EXPECT_EQ(Files(PhotoDir(), ".ivf").size(), 2u);
+  for (uint32_t f = 0; f < kFrames + 5; ++f) {
+    auto p = ds_->Photos(f);
+    ASSERT_TRUE(p.ok()) << p.status().ToString();
+    if (f >= kFrames && f != kFrames + 4) {
+      EXPECT_TRUE(p->empty()) << f;
+      continue;
+    }
+    ASSERT_EQ(p->size(), 1u) << f;
+    const std::string want = f == kFrames - 3   ? Synthetic(64, 64, 5, 1)
+                             : f == kFrames + 4 ? Synthetic(64, 64, 2, 0)
+                                                : Synthetic(64, 64, f % 9, 0);
+    EXPECT_GE(LumaPsnr(want, (*p)[0].image), kPhotoVideoMinPsnr - 0.5) << f;
+  }
+  // Camera 1: a run over frames 10-13, then photos of frames 5 and 20 on either side of it make
+  // two runs, not one reaching over it.
+  for (uint32_t f = 10; f < 14; ++f) {
+    ASSERT_TRUE(ds_->PutPhoto(f, MakePhoto(1, f, Synthetic(64, 64, f % 9, 1), 64, 64)).ok());
+  }
+  ASSERT_TRUE(ds_->CompactPhotos(0, 100).ok());
+  for (uint32_t f : {5u, 20u}) {
+    ASSERT_TRUE(ds_->PutPhoto(f, MakePhoto(1, f, Synthetic(64, 64, f % 9, 1), 64, 64)).ok());
+  }
+  info = ds_->CompactPhotos(0, 100);
+  ASSERT_TRUE(info.ok()) << info.status().ToString();
+  EXPECT_EQ(info->photo_runs, 2u);
+  EXPECT_EQ(info->photo_already, 1u);  // camera 0
+  EXPECT_TRUE(std::filesystem::exists(PhotoDir() + "/" + PhotoVideoName(5, 5, 1, "pvx")));
+  EXPECT_TRUE(std::filesystem::exists(PhotoDir() + "/" + PhotoVideoName(10, 13, 1, "pvx")));
+  EXPECT_TRUE(std::filesystem::exists(PhotoDir() + "/" + PhotoVideoName(20, 20, 1, "pvx")));
+}
+
 TEST_F(PhotoVideoTest, CrashAtAnyPointOfACompactionLosesNoPhoto) {
   constexpr int kW = 96, kH = 64;
   int crashes = 0;
