@@ -256,9 +256,18 @@ Result<std::optional<Photo>> DatasetImpl::PhotoFromRun(const std::string& name, 
                                "this program has none (link hvdb_media and call "
                                "media::InstallPhotoVideoCodec)");
   }
-  HVDB_ASSIGN_OR_RETURN(std::string video, ReadRunVideo(env_, video_path, index));
+  auto video = ReadRunVideo(env_, video_path, index);
+  if (!video.ok()) {
+    // A compaction removed or replaced the run after we read its index: read again.
+    auto again = ReadWholeFile(env_, dir + "/" + name);
+    if (!again.ok() || *again != *data) {
+      *gone = true;
+      return std::optional<Photo>();
+    }
+    return video.status();
+  }
   Photo photo = std::move(it->meta);
-  HVDB_ASSIGN_OR_RETURN(photo.image, codec->Decode(video, static_cast<uint32_t>(
+  HVDB_ASSIGN_OR_RETURN(photo.image, codec->Decode(*video, static_cast<uint32_t>(
                                                               it - index.entries.begin()),
                                                    index.width, index.height, video_path));
   return std::optional<Photo>(std::move(photo));
