@@ -1,6 +1,6 @@
 // The video tier's codec (storage/photo_video.h) with Debian's libavcodec: AV1 through
-// SVT-AV1 (libsvtav1, preset 8), else libaom; decoded with libdav1d (else libavcodec's own
-// AV1 decoder), in an IVF container. SVT-AV1 because on 2 cores it codes 16 Panoptic 1080p
+// SVT-AV1 (libsvtav1, preset 8, 4:2:0), else libaom (and libaom 4:4:4 for colour 4:2:0 cannot
+// keep); decoded with libdav1d (else libavcodec's own AV1 decoder), in an IVF container. SVT-AV1 because on 2 cores it codes 16 Panoptic 1080p
 // pictures in ~3.5 s where libaom (cpu-used 8) takes ~24 s for the same bytes and PSNR.
 #include <algorithm>
 #include <cmath>
@@ -71,20 +71,32 @@ struct MemoryFile {
   }
 };
 
-// BT.601 luma of 8-bit BGR pixels; the PSNR of b against a over the w x h top-left pixels.
-double LumaPsnr(const cv::Mat& a, const cv::Mat& b) {
-  double sse = 0;
+// The PSNR of b against a (8-bit BGR) in each of BT.601's Y, Cb and Cr (full range, from the
+// RGB values): the luma is the stated bound; the chroma too, so that colour 4:2:0 blurs (sharp
+// saturated edges, e.g. rendered pictures) is caught.
+struct Psnr3 {
+  double y, cb, cr;
+  double min() const { return std::min({y, cb, cr}); }
+};
+Psnr3 ChannelPsnr(const cv::Mat& a, const cv::Mat& b) {
+  double sse[3] = {0, 0, 0};
   for (int y = 0; y < a.rows; ++y) {
     const uint8_t* p = a.ptr<uint8_t>(y);
     const uint8_t* q = b.ptr<uint8_t>(y);
     for (int x = 0; x < a.cols; ++x, p += 3, q += 3) {
-      const double ya = 0.114 * p[0] + 0.587 * p[1] + 0.299 * p[2];
-      const double yb = 0.114 * q[0] + 0.587 * q[1] + 0.299 * q[2];
-      sse += (ya - yb) * (ya - yb);
+      const double db = double(p[0]) - q[0], dg = double(p[1]) - q[1], dr = double(p[2]) - q[2];
+      const double dy = 0.299 * dr + 0.587 * dg + 0.114 * db;
+      const double dcb = -0.168736 * dr - 0.331264 * dg + 0.5 * db;
+      const double dcr = 0.5 * dr - 0.418688 * dg - 0.081312 * db;
+      sse[0] += dy * dy, sse[1] += dcb * dcb, sse[2] += dcr * dcr;
     }
   }
-  const double mse = sse / (double(a.rows) * a.cols);
-  return mse <= 1e-10 ? 100.0 : 10 * std::log10(255.0 * 255.0 / mse);
+  double out[3];
+  for (int c = 0; c < 3; ++c) {
+    const double mse = sse[c] / (double(a.rows) * a.cols);
+    out[c] = mse <= 1e-10 ? 100.0 : 10 * std::log10(255.0 * 255.0 / mse);
+  }
+  return {out[0], out[1], out[2]};
 }
 
 int Padded(int side) { return std::max(kMinSide, (side + 1) & ~1); }
@@ -240,14 +252,18 @@ class DecoderCache {
   std::list<Idle> idle_;
 };
 
-// The pictures (BGR, padded to the coded size) as an IVF file at `crf`.
-Result<std::string> EncodeAt(const std::vector<cv::Mat>& pictures, int crf, std::string* name) {
-  const AVCodec* enc = avcodec_find_encoder_by_name("libsvtav1");
+// The pictures (BGR, padded to the coded size) as an IVF file at `crf`: 4:2:0 by SVT-AV1 (else
+// libaom), or, `full_chroma`, 4:4:4 by libaom (AV1's high profile; SVT-AV1 1.4 codes 4:2:0 only).
+Result<std::string> EncodeAt(const std::vector<cv::Mat>& pictures, int crf, bool full_chroma,
+                             std::string* name) {
+  const AVCodec* enc = full_chroma ? nullptr : avcodec_find_encoder_by_name("libsvtav1");
   if (enc == nullptr) enc = avcodec_find_encoder_by_name("libaom-av1");
   if (enc == nullptr) {
-    return Status::Unsupported("photo video: this libavcodec has no AV1 encoder (libsvtav1 or "
-                               "libaom-av1)");
+    return Status::Unsupported(std::string("photo video: this libavcodec has no AV1 encoder (") +
+                               (full_chroma ? "libaom-av1 for 4:4:4" : "libsvtav1 or libaom-av1") +
+                               ")");
   }
+  const AVPixelFormat pix = full_chroma ? AV_PIX_FMT_YUV444P : AV_PIX_FMT_YUV420P;
   const int w = pictures[0].cols, h = pictures[0].rows;
   AVFormatContext* fmt = nullptr;
   AVCodecContext* codec = avcodec_alloc_context3(enc);
@@ -277,7 +293,7 @@ Result<std::string> EncodeAt(const std::vector<cv::Mat>& pictures, int crf, std:
   }
   codec->width = w;
   codec->height = h;
-  codec->pix_fmt = AV_PIX_FMT_YUV420P;
+  codec->pix_fmt = pix;
   codec->time_base = AVRational{1, 30};
   codec->framerate = AVRational{30, 1};
   // One key picture per run: the run is decoded from its start anyway.
@@ -292,7 +308,7 @@ Result<std::string> EncodeAt(const std::vector<cv::Mat>& pictures, int crf, std:
     av_dict_set(&opts, "cpu-used", "6", 0);
     av_dict_set(&opts, "row-mt", "1", 0);
     codec->bit_rate = 0;
-    *name = "libaom-av1 cpu-used 6 crf " + std::to_string(crf);
+    *name = "libaom-av1 cpu-used 6 crf " + std::to_string(crf) + (full_chroma ? " yuv444p" : "");
   }
   int err = avcodec_open2(codec, enc, &opts);
   av_dict_free(&opts);
@@ -312,7 +328,7 @@ Result<std::string> EncodeAt(const std::vector<cv::Mat>& pictures, int crf, std:
   frame->width = w;
   frame->height = h;
   if (av_frame_get_buffer(frame, 0) < 0) return Status::Internal("photo video: no frame buffer");
-  sws = sws_getContext(w, h, AV_PIX_FMT_BGR24, w, h, AV_PIX_FMT_YUV420P,
+  sws = sws_getContext(w, h, AV_PIX_FMT_BGR24, w, h, pix,
                        SWS_BILINEAR | SWS_ACCURATE_RND, nullptr, nullptr, nullptr);
   if (sws == nullptr) return Status::Internal("photo video: no BGR to YUV conversion");
   auto send = [&](AVFrame* f) -> Status {
@@ -371,32 +387,44 @@ class AvPhotoVideoCodec : public PhotoVideoCodec {
     }
     const int w = originals[0].cols, h = originals[0].rows;
     // The highest CRF (fewest bytes) whose every picture meets the bound: from kStartCrf,
-    // down in steps sized by the shortfall (~0.25 dB per CRF step here).
+    // down in steps sized by the shortfall (~0.25 dB per CRF step here). Colour that 4:2:0
+    // cannot keep (the chroma misses while the luma holds, or still misses at a low CRF) is
+    // coded 4:4:4 instead, from kStartCrf again.
     int crf = kStartCrf;
-    for (int attempt = 0; attempt < 12; ++attempt) {
+    bool full_chroma = false;
+    for (int attempt = 0; attempt < 16; ++attempt) {
       EncodedPhotoVideo out;
       out.width = uint32_t(w);
       out.height = uint32_t(h);
-      HVDB_ASSIGN_OR_RETURN(out.video, EncodeAt(padded, crf, &out.codec));
+      HVDB_ASSIGN_OR_RETURN(out.video, EncodeAt(padded, crf, full_chroma, &out.codec));
       IvfDecoder check;
       HVDB_RETURN_IF_ERROR(check.Open(out.video, w, h, "photo video (just coded)"));
       cv::Mat pic;
+      double worst_y = 100, worst_chroma = 100;
       for (size_t i = 0; i < originals.size(); ++i) {
         HVDB_ASSIGN_OR_RETURN(bool more, check.Next(&pic));
         if (!more) break;
-        out.psnr.push_back(LumaPsnr(originals[i], pic));
+        const Psnr3 p = ChannelPsnr(originals[i], pic);
+        out.psnr.push_back(p.min());
+        worst_y = std::min(worst_y, p.y);
+        worst_chroma = std::min({worst_chroma, p.cb, p.cr});
       }
       if (out.psnr.size() != originals.size()) {
         return Status::Internal("photo video: " + std::to_string(out.psnr.size()) + " of " +
                                 std::to_string(originals.size()) + " pictures came back");
       }
-      const double worst = *std::min_element(out.psnr.begin(), out.psnr.end());
+      const double worst = std::min(worst_y, worst_chroma);
       if (worst >= min_psnr_db) return out;
+      if (!full_chroma && worst_chroma < min_psnr_db && (worst_y >= min_psnr_db || crf <= 20)) {
+        full_chroma = true;
+        crf = kStartCrf;
+        continue;
+      }
       if (crf == 0) break;
       crf = std::max(0, crf - std::clamp(int(std::ceil((min_psnr_db - worst) * 4)) + 2, 3, 20));
     }
     return Status::Internal("photo video: the pictures do not reach " +
-                            std::to_string(min_psnr_db) + " dB Y-PSNR even at CRF 0");
+                            std::to_string(min_psnr_db) + " dB PSNR in Y, Cb and Cr even at CRF 0");
   }
 
   Result<std::string> Decode(std::string_view video, uint32_t index, uint32_t width,

@@ -238,7 +238,7 @@ struct CompactInfo {
   // The video tier of photos (Dataset::CompactPhotos): runs written (one video per camera and
   // stretch of frames), their pictures, cameras whose photos in the range were one run
   // already, the image bytes before (per-frame images and replaced videos) and after (the
-  // videos), and the lowest Y-PSNR of a picture written (dB).
+  // videos), and the lowest PSNR of a picture written in Y, Cb or Cr (dB).
   uint32_t photo_runs = 0, photo_pictures = 0, photo_already = 0;
   uint64_t photo_bytes_before = 0, photo_bytes_after = 0;
   double photo_min_psnr = 0;

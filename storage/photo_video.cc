@@ -2,10 +2,11 @@
 // Dataset::CompactPhotos, which codes each camera's photos over a run of frames as one video.
 //
 // Crash safety: a run is written video first, then its index (each .tmp, synced, renamed, the
-// folder synced); the index is the run's commit point (a video without one is ignored and
-// removed by the next compaction). Only then are the sources removed (per-frame files that
-// nobody replaced meanwhile, superseded runs: index first). At every point each photo is in a
-// per-frame file or a committed run, so a crash loses none. A per-frame file wins over a run
+// folder synced); the index is the run's commit point. A video's name carries its CRC, so a run
+// coded again under the same index name never overwrites the video the old index names (a video
+// no index names is ignored and removed by the next compaction). Only then are the sources
+// removed (per-frame files that nobody replaced meanwhile; superseded runs, index first). At
+// every point each photo is in a per-frame file or a committed run, so a crash loses none. A per-frame file wins over a run
 // (PutPhoto after compaction replaces that frame's picture).
 #include "storage/photo_video.h"
 
@@ -105,8 +106,12 @@ Result<Listing> ListPhotos(Env* env, const std::string& dir) {
   return out;
 }
 
-std::string VideoOf(const std::string& index_name) {
-  return index_name.substr(0, index_name.size() - 4) + ".ivf";
+// The video an index names: its own name with the video's CRC, so that a run coded again
+// under the same index name writes a new video file and the index stays the commit point.
+std::string VideoOf(const std::string& index_name, uint32_t video_crc) {
+  char tail[16];
+  std::snprintf(tail, sizeof tail, "-%08x.ivf", video_crc);
+  return index_name.substr(0, index_name.size() - 4) + tail;
 }
 
 // The run's video file, checked against its index. Corruption names the file.
@@ -130,11 +135,14 @@ Result<std::string> ReadRunVideo(Env* env, const std::string& path, const PhotoV
 void SetPhotoVideoCodec(const PhotoVideoCodec* codec) { g_codec.store(codec); }
 const PhotoVideoCodec* GetPhotoVideoCodec() { return g_codec.load(); }
 
-std::string PhotoVideoName(uint32_t first, uint32_t last, uint16_t camera, const char* ext) {
+std::string PhotoVideoIndexName(uint32_t first, uint32_t last, uint16_t camera) {
   char name[48];
-  std::snprintf(name, sizeof name, "%08u-%08u-%05u.%s", first, last,
-                static_cast<unsigned>(camera), ext);
+  std::snprintf(name, sizeof name, "%08u-%08u-%05u.pvx", first, last, static_cast<unsigned>(camera));
   return name;
+}
+
+std::string PhotoVideoFileName(uint32_t first, uint32_t last, uint16_t camera, uint32_t video_crc) {
+  return VideoOf(PhotoVideoIndexName(first, last, camera), video_crc);
 }
 
 bool ParsePhotoVideoName(const std::string& name, uint32_t* first, uint32_t* last,
@@ -249,7 +257,7 @@ Result<std::optional<Photo>> DatasetImpl::PhotoFromRun(const std::string& name, 
   auto it = std::find_if(index.entries.begin(), index.entries.end(),
                          [&](const PhotoVideoEntry& e) { return e.frame == frame; });
   if (it == index.entries.end()) return std::optional<Photo>();
-  const std::string video_path = dir + "/" + VideoOf(name);
+  const std::string video_path = dir + "/" + VideoOf(name, index.video_crc);
   const PhotoVideoCodec* codec = GetPhotoVideoCodec();
   if (codec == nullptr) {
     return Status::Unsupported(video_path + ": photos coded as video need a video codec, and "
@@ -319,7 +327,7 @@ Result<std::vector<Photo>> DatasetImpl::Photos(uint32_t frame) const {
 }
 
 // Codes `photos` (camera's, by frame) as runs, one per stretch of frames at one picture size,
-// each written video first, then index; adds their index names to *written.
+// each written video first, then index; adds both file names to *written.
 Status DatasetImpl::WriteRuns(uint16_t camera, const std::map<uint32_t, Photo>& photos,
                               std::set<std::string>* written, CompactInfo* info) {
   const PhotoVideoCodec* codec = GetPhotoVideoCodec();
@@ -368,9 +376,11 @@ Status DatasetImpl::WriteRuns(uint16_t camera, const std::map<uint32_t, Photo>& 
       info->photo_min_psnr = info->photo_min_psnr == 0 ? coded->psnr[i]
                                                      : std::min(info->photo_min_psnr, coded->psnr[i]);
     }
-    HVDB_RETURN_IF_ERROR(WriteFileAtomic(
-        env_, dir + "/" + PhotoVideoName(run_first, run_last, camera, "ivf"), coded->video));
-    const std::string index_name = PhotoVideoName(run_first, run_last, camera, "pvx");
+    const std::string video_name =
+        PhotoVideoFileName(run_first, run_last, camera, index.video_crc);
+    HVDB_RETURN_IF_ERROR(WriteFileAtomic(env_, dir + "/" + video_name, coded->video));
+    written->insert(video_name);
+    const std::string index_name = PhotoVideoIndexName(run_first, run_last, camera);
     HVDB_RETURN_IF_ERROR(WriteFileAtomic(env_, dir + "/" + index_name,
                                          EncodePhotoVideoIndex(index)));
     written->insert(index_name);
@@ -437,10 +447,12 @@ Result<CompactInfo> DatasetImpl::CompactPhotos(uint32_t first, uint32_t last) {
     }
     // Where each frame's picture is: a per-frame file wins over a run ("": the file).
     std::map<uint32_t, std::string> source;
+    std::vector<std::string> old_videos;
     for (const RunName* r : touched) {
       HVDB_ASSIGN_OR_RETURN(std::string data, ReadWholeFile(env_, dir + "/" + r->name));
       HVDB_ASSIGN_OR_RETURN(PhotoVideoIndex index, DecodePhotoVideoIndex(data, dir + "/" + r->name));
       info.photo_bytes_before += index.video_bytes;
+      old_videos.push_back(VideoOf(r->name, index.video_crc));
       for (const PhotoVideoEntry& e : index.entries) source.emplace(e.frame, r->name);
     }
     for (const auto& [frame, name] : singles) source[frame] = "";
@@ -450,7 +462,7 @@ Result<CompactInfo> DatasetImpl::CompactPhotos(uint32_t first, uint32_t last) {
                          [&](const RunName* r) { return r->first > a && r->first < b; });
     };
     std::map<uint32_t, uint32_t> single_crc;  // of the per-frame files read
-    std::set<std::string> written;
+    std::set<std::string> written;  // file names of the new runs (indexes and videos)
     // At most kPhotoVideoMaxPictures photos in memory at once: a run's.
     for (auto chunk = source.begin(); chunk != source.end();) {
       std::map<uint32_t, Photo> photos;
@@ -486,19 +498,27 @@ Result<CompactInfo> DatasetImpl::CompactPhotos(uint32_t first, uint32_t last) {
         HVDB_RETURN_IF_ERROR(env_->Remove(dir + "/" + name));
       }
     }
+    // Indexes first: a run's video goes only once no index names it.
     for (const RunName* r : touched) {
-      if (written.count(r->name) != 0) continue;
-      HVDB_RETURN_IF_ERROR(env_->Remove(dir + "/" + r->name));
-      HVDB_RETURN_IF_ERROR(env_->Remove(dir + "/" + VideoOf(r->name)));
+      if (written.count(r->name) == 0) HVDB_RETURN_IF_ERROR(env_->Remove(dir + "/" + r->name));
+    }
+    for (const std::string& v : old_videos) {
+      if (written.count(v) == 0) HVDB_RETURN_IF_ERROR(env_->Remove(dir + "/" + v));
     }
     HVDB_RETURN_IF_ERROR(env_->SyncDir(dir));
   }
-  // Videos whose index never made it (a crash between the two) and left-over .tmp files.
+  // Videos no index names (a crash before their index, or before their removal) and left-over
+  // .tmp files.
   HVDB_ASSIGN_OR_RETURN(Listing now, ListPhotos(env_, dir));
+  std::set<std::string> named;
+  for (const RunName& r : now.runs) {
+    HVDB_ASSIGN_OR_RETURN(std::string data, ReadWholeFile(env_, dir + "/" + r.name));
+    HVDB_ASSIGN_OR_RETURN(PhotoVideoIndex index, DecodePhotoVideoIndex(data, dir + "/" + r.name));
+    named.insert(VideoOf(r.name, index.video_crc));
+  }
   bool removed = false;
   for (const std::string& n : now.names) {
-    const bool orphan = EndsWith(n, ".ivf") && n.size() == 27 &&
-                        now.names.count(n.substr(0, 23) + ".pvx") == 0;
+    const bool orphan = EndsWith(n, ".ivf") && named.count(n) == 0;
     if (orphan || (EndsWith(n, ".ivf.tmp") || EndsWith(n, ".pvx.tmp"))) {
       HVDB_RETURN_IF_ERROR(env_->Remove(dir + "/" + n));
       removed = true;

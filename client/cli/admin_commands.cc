@@ -200,7 +200,7 @@ int PrintPhotoCompact(const CompactArgs& a, const CompactInfo& r) {
                {"ratio", ratio}});
   } else {
     std::printf("coded %u photos of '%s' as %u videos: %.2f MiB -> %.2f MiB (%.3f), lowest "
-                "Y-PSNR %.1f dB%s\n",
+                "PSNR (Y, Cb, Cr) %.1f dB%s\n",
                 r.photo_pictures, a.name.c_str(), r.photo_runs,
                 static_cast<double>(r.photo_bytes_before) / (1 << 20),
                 static_cast<double>(r.photo_bytes_after) / (1 << 20), ratio, r.photo_min_psnr,
@@ -298,7 +298,7 @@ void AddAdminCommands(CLI::App& app, Context& ctx) {
       ->expected(2);
   compact_cmd->add_flag("--photos", compact.photos,
                         "Instead, code each camera's photos of those frames as one AV1 video "
-                        "per camera (lossy: every picture >= 40 dB Y-PSNR; docs/FORMAT.md)");
+                        "per camera (lossy: every picture >= 40 dB PSNR in Y, Cb and Cr)");
   compact_cmd->add_flag("--json", compact.json, "Print JSON");
   ctx.Add(compact_cmd, [](Context& c) { return CmdCompact(c, admin_args.compact); });
 
