@@ -147,8 +147,9 @@ class EmbeddedBackend final : public Backend {
     return Do(name, [&](service::Service& x) { return x.Revert(name, lsn); });
   }
 
-  Result<CompactInfo> Compact(const std::string& name, uint32_t first, uint32_t last) override {
-    return Do(name, [&](service::Service& x) { return x.Compact(name, first, last); });
+  Result<CompactInfo> Compact(const std::string& name, uint32_t first, uint32_t last,
+                              bool photos) override {
+    return Do(name, [&](service::Service& x) { return x.Compact(name, first, last, photos); });
   }
 
   Status PutPhoto(const std::string& name, uint32_t frame, const Photo& photo) override {
@@ -423,10 +424,11 @@ class RemoteBackend final : public Backend {
     return r;
   }
 
-  Result<CompactInfo> Compact(const std::string& name, uint32_t first, uint32_t last) override {
-    // Safe to repeat: frames compressed already are left as they are.
-    Result<CompactInfo> r =
-        Run<CompactInfo>(true, [&](Connection& c) { return c.Compact(name, first, last); });
+  Result<CompactInfo> Compact(const std::string& name, uint32_t first, uint32_t last,
+                              bool photos) override {
+    // Safe to repeat: frames compressed (or photos coded) already are left as they are.
+    Result<CompactInfo> r = Run<CompactInfo>(
+        true, [&](Connection& c) { return c.Compact(name, first, last, photos); });
     if (!r.ok()) return Explain(name, r.status());
     return r;
   }

@@ -110,7 +110,9 @@ class Backend {
   virtual Result<CommitInfo> Commit(const std::string& name, const Transaction& txn) = 0;
   virtual Result<CommitInfo> Revert(const std::string& name, uint64_t lsn) = 0;
   // The cold tier: frames [first, last] compressed now.
-  virtual Result<CompactInfo> Compact(const std::string& name, uint32_t first, uint32_t last) = 0;
+  // photos: the video tier of photos instead of the points' cold tier (Service::Compact).
+  virtual Result<CompactInfo> Compact(const std::string& name, uint32_t first, uint32_t last,
+                                      bool photos = false) = 0;
   // Stores a camera's photo of a frame (Dataset::PutPhoto), for textured renders.
   virtual Status PutPhoto(const std::string& name, uint32_t frame, const Photo& photo) = 0;
   // Storage statistics of one dataset, or of all ("" ), plus the cache or server counters.

@@ -634,12 +634,13 @@ Result<CommitInfo> Connection::Revert(const std::string& dataset, uint64_t lsn) 
 }
 
 Result<CompactInfo> Connection::Compact(const std::string& dataset, uint32_t first,
-                                        uint32_t last) {
+                                        uint32_t last, bool photos) {
   wire::Request req;
   auto* c = req.mutable_compact();
   c->set_dataset(dataset);
   c->set_first(first);
   c->set_last(last);
+  c->set_photos(photos);
   HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
   return wire::FromWire(r.compacted());
 }

@@ -136,7 +136,8 @@ class Connection {
   Result<CommitInfo> Commit(const std::string& dataset, const Transaction& txn);
   Result<CommitInfo> Revert(const std::string& dataset, uint64_t lsn);
   // Frames [first, last] into the cold tier now.
-  Result<CompactInfo> Compact(const std::string& dataset, uint32_t first, uint32_t last);
+  Result<CompactInfo> Compact(const std::string& dataset, uint32_t first, uint32_t last,
+                              bool photos = false);
   Status PutPhoto(const std::string& dataset, uint32_t frame, const Photo& photo);
   // Bulk-loads the points into `frame`, sent in chunks of at most 1 MiB.
   Result<uint64_t> Ingest(const std::string& dataset, uint32_t frame, std::span<const Point> pts);

@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "storage/database.h"
+#include "storage/photo_video.h"
 
 namespace hvdb::media {
 
@@ -104,6 +105,12 @@ double MeshSpacing(double area);
 // media.cc: checks `req` (InvalidArgument naming the field), decodes the medium and inserts it
 // into its frames of `ds` in one transaction. Nothing is written on any error.
 Result<CommitInfo> Import(Dataset& ds, const ImportRequest& req);
+
+// photo_video.cc: the video tier's codec (storage/photo_video.h: AV1 in IVF through
+// libavcodec), and its installation as the process's (SetPhotoVideoCodec), which every program
+// that reads or compacts photos calls once at start-up (service::Service does).
+const PhotoVideoCodec& PhotoVideo();
+void InstallPhotoVideoCodec();
 
 // 3x3 rotation (row-major) of Placement::rotate_deg.
 std::array<double, 9> RotationMatrix(const std::array<double, 3>& rotate_deg);

@@ -316,6 +316,12 @@ void ToWire(const hvdb::CompactInfo& c, wire::CompactReply* out) {
   out->set_points(c.points);
   out->set_bytes_before(c.bytes_before);
   out->set_bytes_after(c.bytes_after);
+  out->set_photo_runs(c.photo_runs);
+  out->set_photo_pictures(c.photo_pictures);
+  out->set_photo_already(c.photo_already);
+  out->set_photo_bytes_before(c.photo_bytes_before);
+  out->set_photo_bytes_after(c.photo_bytes_after);
+  out->set_photo_min_psnr(c.photo_min_psnr);
 }
 
 hvdb::CompactInfo FromWire(const wire::CompactReply& c) {
@@ -325,13 +331,19 @@ hvdb::CompactInfo FromWire(const wire::CompactReply& c) {
   d.points = c.points();
   d.bytes_before = c.bytes_before();
   d.bytes_after = c.bytes_after();
+  d.photo_runs = c.photo_runs();
+  d.photo_pictures = c.photo_pictures();
+  d.photo_already = c.photo_already();
+  d.photo_bytes_before = c.photo_bytes_before();
+  d.photo_bytes_after = c.photo_bytes_after();
+  d.photo_min_psnr = c.photo_min_psnr();
   return d;
 }
 
-Result<std::pair<uint32_t, uint32_t>> FromWire(const wire::CompactRequest& c) {
+Result<CompactArgs> FromWire(const wire::CompactRequest& c) {
   // The range is judged by the engine (Dataset::Compact), as for an embedded caller.
-  if (c.all()) return std::pair<uint32_t, uint32_t>{0, UINT32_MAX};
-  return std::pair<uint32_t, uint32_t>{c.first(), c.last()};
+  if (c.all()) return CompactArgs{0, UINT32_MAX, c.photos()};
+  return CompactArgs{c.first(), c.last(), c.photos()};
 }
 
 hvdb::DatasetStats FromWire(const wire::DatasetStats& s) {

@@ -49,8 +49,13 @@ void ToWire(const hvdb::DatasetStats& s, wire::DatasetStats* out);
 hvdb::DatasetStats FromWire(const wire::DatasetStats& s);
 void ToWire(const hvdb::CompactInfo& c, wire::CompactReply* out);
 hvdb::CompactInfo FromWire(const wire::CompactReply& c);
-// The frame range [first, last] of a compaction ([0, 2^32 - 1] for `all`).
-Result<std::pair<uint32_t, uint32_t>> FromWire(const wire::CompactRequest& c);
+// What a compaction asks for: the frame range [first, last] ([0, 2^32 - 1] for `all`), and
+// whether it codes the photos as video instead of compressing the points.
+struct CompactArgs {
+  uint32_t first = 0, last = 0;
+  bool photos = false;
+};
+Result<CompactArgs> FromWire(const wire::CompactRequest& c);
 
 // The dataset a CreateDataset request asks for (space_time_scale 0 on the wire: 1 m/s).
 void ToWire(const hvdb::DatasetInfo& info, wire::CreateDataset* out);

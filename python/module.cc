@@ -490,8 +490,17 @@ class Database {
   }
 
   // The cold tier: frames [first, last] compressed now.
-  py::dict Compact(const std::string& name, uint32_t first, uint32_t last) {
-    CompactInfo c = Take(Call([&](client::Backend& b) { return b.Compact(name, first, last); }));
+  // photos: their photos coded as video per camera instead.
+  py::dict Compact(const std::string& name, uint32_t first, uint32_t last, bool photos) {
+    CompactInfo c =
+        Take(Call([&](client::Backend& b) { return b.Compact(name, first, last, photos); }));
+    if (photos) {
+      return py::dict("photo_runs"_a = c.photo_runs, "photo_pictures"_a = c.photo_pictures,
+                      "photo_already"_a = c.photo_already,
+                      "photo_bytes_before"_a = c.photo_bytes_before,
+                      "photo_bytes_after"_a = c.photo_bytes_after,
+                      "photo_min_psnr"_a = c.photo_min_psnr);
+    }
     return py::dict("frames"_a = c.frames, "already"_a = c.already, "points"_a = c.points,
                     "bytes_before"_a = c.bytes_before, "bytes_after"_a = c.bytes_after);
   }
@@ -742,7 +751,8 @@ PYBIND11_MODULE(_hvdb, m) {
       .def("bulk_load", &Database::BulkLoad)
       .def("commit", &Database::Commit)
       .def("revert", &Database::Revert)
-      .def("compact", &Database::Compact, "name"_a, "first"_a = 0u, "last"_a = 0xFFFFFFFFu)
+      .def("compact", &Database::Compact, "name"_a, "first"_a = 0u, "last"_a = 0xFFFFFFFFu,
+           "photos"_a = false)
       .def("watch", &Database::StartWatch, "name"_a, "from_lsn"_a = py::none())
       .def("select", &Database::Select)
       .def("graphcut", &Database::GraphCut)

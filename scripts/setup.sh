@@ -31,12 +31,13 @@ PACKAGES=(
   python3 python3-dev python3-numpy pybind11-dev
   emscripten
 )
-# The tests and benchmarks: ingest/ (Ceres), GoogleTest and Benchmark, the peers of the
+# The tests and benchmarks: ingest/ (Ceres), ffmpeg/ffprobe (the photo videos must decode with
+# them), GoogleTest and Benchmark, the peers of the
 # benchmarks (PCL, libspatialindex, FLANN, Open3D), clang for the fuzzers and sanitizers, the
 # browser tests (Chromium), a real Ceph cluster for the RADOS tests, a one-node Slurm for the
 # cluster ingest tests (scripts/slurm-dev.sh).
 TEST_PACKAGES=(
-  git libceres-dev libboost-graph-dev libflann-dev
+  git libceres-dev libboost-graph-dev libflann-dev ffmpeg
   libgtest-dev libgmock-dev libbenchmark-dev
   libspatialindex-dev libpcl-dev python3-matplotlib
   clang libclang-rt-14-dev

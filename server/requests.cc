@@ -173,8 +173,8 @@ wire::Response Execute(Server* s, uint64_t id, const wire::Request& req) {
                    EncodeCommit);
     case wire::Request::kCompact:
       return Serve(id, req.compact(), [](const auto& c) { return wire::FromWire(c); },
-                   [&](const std::pair<uint32_t, uint32_t>& range) {
-                     return x.Compact(req.compact().dataset(), range.first, range.second);
+                   [&](const wire::CompactArgs& a) {
+                     return x.Compact(req.compact().dataset(), a.first, a.last, a.photos);
                    },
                    [](const CompactInfo& c, wire::Response* r) { wire::ToWire(c, r->mutable_compacted()); });
     default:

@@ -20,7 +20,11 @@ bool IsUnknownDataset(const Status& s) {
 }
 
 Service::Service(Database* db, std::string data_dir, Env* env, edit::GraphCutCache* graph_cuts)
-    : db_(db), data_dir_(std::move(data_dir)), env_(env), graph_cuts_(graph_cuts) {}
+    : db_(db), data_dir_(std::move(data_dir)), env_(env), graph_cuts_(graph_cuts) {
+  // Every transport and the embedded mode read photos through here: those coded as video
+  // (storage/photo_video.h) need the codec, which storage/ cannot link.
+  media::InstallPhotoVideoCodec();
+}
 
 std::vector<std::string> Service::ListDatasets() {
   std::vector<std::string> names = db_->ListDatasets();
@@ -79,9 +83,10 @@ Result<CommitInfo> Service::Revert(const std::string& name, uint64_t lsn) {
   return ds->Revert(lsn);
 }
 
-Result<CompactInfo> Service::Compact(const std::string& name, uint32_t first, uint32_t last) {
+Result<CompactInfo> Service::Compact(const std::string& name, uint32_t first, uint32_t last,
+                                     bool photos) {
   HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
-  return ds->Compact(first, last);
+  return photos ? ds->CompactPhotos(first, last) : ds->Compact(first, last);
 }
 
 Status Service::PutPhoto(const std::string& name, uint32_t frame, const Photo& photo) {

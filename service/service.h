@@ -68,8 +68,10 @@ class Service {
   Result<uint64_t> BulkLoad(const std::string& name, uint32_t frame, std::vector<Point> points);
   Result<CommitInfo> Commit(const std::string& name, const Transaction& txn);
   Result<CommitInfo> Revert(const std::string& name, uint64_t lsn);
-  // The cold tier: frames [first, last] compressed now (Dataset::Compact).
-  Result<CompactInfo> Compact(const std::string& name, uint32_t first, uint32_t last);
+  // The cold tier: frames [first, last] compressed now (Dataset::Compact); with `photos`,
+  // instead their photos coded as video per camera (Dataset::CompactPhotos).
+  Result<CompactInfo> Compact(const std::string& name, uint32_t first, uint32_t last,
+                              bool photos = false);
   // The photo (and its billboard) is checked before it is stored: a bad one is refused here, not
   // left to fail renders.
   Status PutPhoto(const std::string& name, uint32_t frame, const Photo& photo);

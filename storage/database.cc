@@ -320,6 +320,9 @@ Status Dataset::Checkpoint() { return impl_->Checkpoint(); }
 Result<CompactInfo> Dataset::Compact(uint32_t first, uint32_t last) {
   return impl_->Compact(first, last);
 }
+Result<CompactInfo> Dataset::CompactPhotos(uint32_t first, uint32_t last) {
+  return impl_->CompactPhotos(first, last);
+}
 Status Dataset::WaitForMerges() { return impl_->WaitForMerges(); }
 Result<std::unique_ptr<WatchHandle>> Dataset::Watch(std::optional<uint64_t> from_lsn, ChangeFn fn) {
   return impl_->Watch(from_lsn, std::move(fn));

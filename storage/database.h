@@ -235,6 +235,13 @@ struct CompactInfo {
   uint32_t already = 0;            // frames in the range that were compressed already
   uint64_t points = 0;             // their points
   uint64_t bytes_before = 0, bytes_after = 0;  // their tree files' bytes
+  // The video tier of photos (Dataset::CompactPhotos): runs written (one video per camera and
+  // stretch of frames), their pictures, cameras whose photos in the range were one run
+  // already, the image bytes before (per-frame images and replaced videos) and after (the
+  // videos), and the lowest PSNR of a picture written in Y, Cb or Cr (dB).
+  uint32_t photo_runs = 0, photo_pictures = 0, photo_already = 0;
+  uint64_t photo_bytes_before = 0, photo_bytes_after = 0;
+  double photo_min_psnr = 0;
 };
 
 struct CacheStats {
@@ -271,6 +278,12 @@ class Dataset {
   // compressed tree each; Options::cold_after_s does it in the background), durably. Frames
   // written meanwhile are retried, then left hot.
   Result<CompactInfo> Compact(uint32_t first, uint32_t last);
+  // The video tier of photos (docs/FORMAT.md "Photo video run"): codes each camera's photos of
+  // the frames in [first, last] (widened to the runs it touches) as one video per camera and
+  // run, every picture within kPhotoVideoMinPsnr (storage/photo_video.h) of its photo, then
+  // removes the per-frame images. Photos() reads them back decoded (as PNG). Needs the process's
+  // PhotoVideoCodec (media::InstallPhotoVideoCodec), else Unsupported. Lossy; crash-safe.
+  Result<CompactInfo> CompactPhotos(uint32_t first, uint32_t last);
   // Stores the photo of camera photo.camera.id for `frame` (replacing any), durably
   // (docs/FORMAT.md "Photos"). NotLeader on a follower.
   Status PutPhoto(uint32_t frame, const Photo& photo);

@@ -87,6 +87,10 @@ class DatasetImpl {
   // storage/photos.cc.
   Status PutPhoto(uint32_t frame, const Photo& photo);
   Result<std::vector<Photo>> Photos(uint32_t frame) const;
+  // storage/photo_video.cc: the video tier of photos. One camera's photo of a frame (nullopt:
+  // none), from its per-frame file or its run.
+  Result<std::optional<Photo>> PhotoOf(uint32_t frame, uint16_t camera) const;
+  Result<CompactInfo> CompactPhotos(uint32_t first, uint32_t last);
   // Blocks until no frame's T0 is over its capacity (tests and benchmarks); after a failed
   // merge, until a retry fails too.
   Status WaitForMerges();
@@ -207,6 +211,13 @@ class DatasetImpl {
   const uint64_t t0_cap_;  // p: T0's capacity, and slot 0's
   DatasetInfo info_;       // static part: name, fps, scale, cameras, declared frame count
 
+  // PutPhoto against CompactPhotos' removal of per-frame files; compactions of photos, one at
+  // a time.
+  std::mutex photo_mu_, photo_compact_mu_;
+  Result<std::optional<Photo>> PhotoFromRun(const std::string& name, uint32_t frame,
+                                            bool* gone) const;
+  Status WriteRuns(uint16_t camera, const std::map<uint32_t, Photo>& photos,
+                   std::set<std::string>* written, CompactInfo* info);
   mutable std::mutex mu_;  // guards frames_, last_lsn_
   std::map<uint32_t, std::shared_ptr<const FrameVersion>> frames_;
   uint64_t last_lsn_ = 0;

@@ -159,28 +159,11 @@ Status DatasetImpl::PutPhoto(uint32_t frame, const Photo& photo) {
   HVDB_RETURN_IF_ERROR(ValidatePhoto(photo));
   const CameraInfo& c = photo.camera;
   HVDB_RETURN_IF_ERROR(env_->CreateDirs(PhotoDir(dir_)));
+  // CompactPhotos removes a per-frame file only if nobody replaced it meanwhile.
+  std::lock_guard<std::mutex> l(photo_mu_);
   return WriteFileAtomic(env_, PhotoDir(dir_) + "/" + PhotoFileName(frame, c.id), EncodePhoto(photo));
 }
 
-Result<std::vector<Photo>> DatasetImpl::Photos(uint32_t frame) const {
-  std::vector<Photo> out;
-  if (!env_->Exists(PhotoDir(dir_))) return out;
-  HVDB_ASSIGN_OR_RETURN(auto names, env_->ListDir(PhotoDir(dir_)));
-  char prefix[16];
-  std::snprintf(prefix, sizeof prefix, "%08u-", frame);
-  std::sort(names.begin(), names.end());
-  for (const std::string& n : names) {
-    if (n.rfind(prefix, 0) != 0 || n.size() < 6 || n.substr(n.size() - 6) != ".photo") continue;
-    const std::string path = PhotoDir(dir_) + "/" + n;
-    auto data = ReadWholeFile(env_, path);
-    if (!data.ok()) {
-      if (data.status().IsNotFound()) continue;  // replaced while listing
-      return data.status();
-    }
-    HVDB_ASSIGN_OR_RETURN(Photo photo, DecodePhoto(*data, path));
-    out.push_back(std::move(photo));
-  }
-  return out;
-}
+// Photos(frame): storage/photo_video.cc (per-frame files and video runs).
 
 }  // namespace hvdb

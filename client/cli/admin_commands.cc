@@ -23,6 +23,7 @@ struct PingArgs {
 struct CompactArgs {
   std::string name;
   std::vector<uint32_t> frames;  // first, last (none: every frame)
+  bool photos = false;
   bool json = false;
 };
 
@@ -184,6 +185,32 @@ int CmdDrop(Context& ctx, const NameArgs& a) {
   return kExitOk;
 }
 
+int PrintPhotoCompact(const CompactArgs& a, const CompactInfo& r) {
+  const double ratio = r.photo_bytes_before ? static_cast<double>(r.photo_bytes_after) /
+                                                  static_cast<double>(r.photo_bytes_before)
+                                            : 0.0;
+  if (a.json) {
+    PrintJson({{"dataset", a.name},
+               {"photo_runs", r.photo_runs},
+               {"photo_pictures", r.photo_pictures},
+               {"photo_already", r.photo_already},
+               {"photo_bytes_before", r.photo_bytes_before},
+               {"photo_bytes_after", r.photo_bytes_after},
+               {"photo_min_psnr", r.photo_min_psnr},
+               {"ratio", ratio}});
+  } else {
+    std::printf("coded %u photos of '%s' as %u videos: %.2f MiB -> %.2f MiB (%.3f), lowest "
+                "PSNR (Y, Cb, Cr) %.1f dB%s\n",
+                r.photo_pictures, a.name.c_str(), r.photo_runs,
+                static_cast<double>(r.photo_bytes_before) / (1 << 20),
+                static_cast<double>(r.photo_bytes_after) / (1 << 20), ratio, r.photo_min_psnr,
+                r.photo_already ? (", " + std::to_string(r.photo_already) +
+                                   " cameras one video already").c_str()
+                                : "");
+  }
+  return kExitOk;
+}
+
 int CmdCompact(Context& ctx, const CompactArgs& a) {
   uint32_t first = 0, last = UINT32_MAX;
   if (!a.frames.empty()) {
@@ -194,8 +221,9 @@ int CmdCompact(Context& ctx, const CompactArgs& a) {
                                   std::to_string(last) + ")");
     }
   }
-  Result<CompactInfo> r = ctx.db().Compact(a.name, first, last);
+  Result<CompactInfo> r = ctx.db().Compact(a.name, first, last, a.photos);
   if (!r.ok()) return Fail(r.status());
+  if (a.photos) return PrintPhotoCompact(a, *r);
   const double ratio = r->bytes_before ? static_cast<double>(r->bytes_after) /
                                              static_cast<double>(r->bytes_before)
                                        : 0.0;
@@ -268,6 +296,9 @@ void AddAdminCommands(CLI::App& app, Context& ctx) {
   compact_cmd->add_option("name", compact.name, "Dataset")->required();
   compact_cmd->add_option("--frames", compact.frames, "First and last frame (default: all)")
       ->expected(2);
+  compact_cmd->add_flag("--photos", compact.photos,
+                        "Instead, code each camera's photos of those frames as one AV1 video "
+                        "per camera (lossy: every picture >= 40 dB PSNR in Y, Cb and Cr)");
   compact_cmd->add_flag("--json", compact.json, "Print JSON");
   ctx.Add(compact_cmd, [](Context& c) { return CmdCompact(c, admin_args.compact); });
 

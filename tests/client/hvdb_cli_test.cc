@@ -233,6 +233,10 @@ TEST_F(HvdbCliTest, ImportQueryEditUndoCheck) {
   EXPECT_EQ(c["frames"], 3);  // 0, 1 and 4 hold points
   EXPECT_LT(c["bytes_after"].get<double>(), 0.35 * c["bytes_before"].get<double>());
   EXPECT_EQ(RunJson("compact walk --frames 0 4")["already"], 3);
+  // --photos codes photos as video instead (tests/storage/photo_video_test.cc): walk has none.
+  json pv = RunJson("compact walk --photos");
+  EXPECT_EQ(pv["photo_runs"], 0);
+  EXPECT_EQ(pv["photo_pictures"], 0);
   st = RunJson("stats walk");
   EXPECT_EQ(st["datasets"][0]["cold_frames"], 3);
   EXPECT_EQ(st["datasets"][0]["hot_tree_bytes"], 0);
@@ -277,6 +281,7 @@ TEST_F(HvdbCliTest, BadArgumentsExitTwoWithAMessage) {
       {"ping", "ping needs --server"},
       {"compact walk --frames 3 1", "A <= B"},
       {"compact walk --frames 3", "--frames"},
+      {"compact walk --photos --frames 3 1", "A <= B"},
   };
   ASSERT_EQ(Run("create walk --fps 30").code, 0);
   for (const Case& c : cases) {

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include "formats/image_io.h"
+#include "media/media.h"
 #include "render/job.h"
 #include "render/metrics.h"
 #include "tests/render/job_helpers.h"
@@ -107,6 +108,24 @@ TEST_F(RenderColourTest, ADefaultRenderOfAFrameWithPhotosIsTheTexturedPicture) {
   wire::Render prob = Request(0);
   prob.set_mode(wire::RENDER_PROBABILISTIC);
   EXPECT_EQ(Draw(prob).second.mode_used(), "probabilistic");
+}
+
+// Photos coded as video (Dataset::CompactPhotos, storage/photo_video.h) texture the same
+// picture: the render reads them through Dataset::Photos as before, decoded.
+TEST_F(RenderColourTest, PhotosCodedAsVideoTextureTheSamePicture) {
+  media::InstallPhotoVideoCodec();
+  wire::Render req = Request(0);
+  req.set_texture(true);
+  auto [before, before_reply] = Draw(req);
+  auto info = ds_->CompactPhotos(0, 1);
+  ASSERT_TRUE(info.ok()) << info.status().ToString();
+  EXPECT_EQ(info->photo_runs, 4u);  // one per camera
+  EXPECT_GE(info->photo_min_psnr, kPhotoVideoMinPsnr);
+  auto [after, after_reply] = Draw(Request(0));
+  EXPECT_EQ(after_reply.mode_used(), "textured");
+  EXPECT_EQ(after_reply.mode_choice(), "auto: 4 photos of frame 0");
+  ASSERT_EQ(after.data.size(), before.data.size());
+  EXPECT_GE(render::Psnr(after, before), 38) << "the textured picture moved";
 }
 
 TEST_F(RenderColourTest, AutoDrawsThePointsWhereTextureCannotHelp) {

@@ -21,6 +21,7 @@
 #include <boost/beast/websocket.hpp>
 
 #include "client/client.h"
+#include "formats/image_io.h"
 #include "protocol/convert.h"
 #include "protocol/ws_codec.h"
 #include "tests/server/server_process.h"
@@ -209,6 +210,14 @@ std::vector<Case> Cases() {
         r->mutable_compact()->set_dataset("d");
         r->mutable_compact()->set_first(5);
         r->mutable_compact()->set_last(2);
+      });
+  add("compact --photos: first frame after the last", StatusCode::kInvalidArgument,
+      wire::INVALID_PARAMETER, [](Service& x) { return x.Compact("d", 9, 3, true); },
+      [](wire::Request* r) {
+        r->mutable_compact()->set_dataset("d");
+        r->mutable_compact()->set_first(9);
+        r->mutable_compact()->set_last(3);
+        r->mutable_compact()->set_photos(true);
       });
   add("paste: a clipboard that does not exist", StatusCode::kNotFound, wire::NOT_FOUND,
       [](Service& x) { return x.Paste("d", {"nothing-here", {}}); },
@@ -502,6 +511,33 @@ TEST_F(ServiceTest, AGoodRequestGetsTheSameValuesEverywhere) {
   EXPECT_EQ(compacted->frames, 2u);
   EXPECT_EQ(served->frames, compacted->frames);
   EXPECT_EQ(served->points, compacted->points);
+  // Photos into the video tier, both ways: two frames of one camera become one video, and the
+  // points are left alone.
+  formats::Image gradient;
+  gradient.width = 64;
+  gradient.height = 48;
+  gradient.rgba.resize(gradient.pixels() * 4, 1.f);
+  for (size_t i = 0; i < gradient.pixels(); ++i) {
+    gradient.rgba[4 * i] = float(i % 64) / 63.f;
+    gradient.rgba[4 * i + 1] = float(i / 64) / 47.f;
+  }
+  auto png = formats::EncodePng(gradient);
+  ASSERT_TRUE(png.ok());
+  for (uint32_t f : {0u, 1u}) {
+    ASSERT_TRUE(embedded.PutPhoto("d", f, Photo{Cam(), *png, {}}).ok());
+    ASSERT_TRUE((*conn)->PutPhoto("d", f, Photo{Cam(), *png, {}}).ok());
+  }
+  auto photos_mine = embedded.Compact("d", 0, 1, true);
+  ASSERT_TRUE(photos_mine.ok()) << photos_mine.status().ToString();
+  auto photos_served = (*conn)->Compact("d", 0, 1, true);
+  ASSERT_TRUE(photos_served.ok()) << photos_served.status().ToString();
+  EXPECT_EQ(photos_mine->photo_runs, 1u);
+  EXPECT_EQ(photos_mine->photo_pictures, 2u);
+  EXPECT_EQ(photos_served->photo_runs, photos_mine->photo_runs);
+  EXPECT_EQ(photos_served->photo_pictures, photos_mine->photo_pictures);
+  EXPECT_EQ(photos_served->photo_bytes_before, photos_mine->photo_bytes_before);
+  EXPECT_GE(photos_served->photo_min_psnr, 40.0);
+  EXPECT_EQ(photos_served->frames, 0u);
 
   auto st = (*conn)->Stats("d");
   ASSERT_TRUE(st.ok());
