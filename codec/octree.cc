@@ -9,6 +9,7 @@
 #include <memory>
 #include <thread>
 
+#include "codec/range_coder.h"
 #include "storage/coding.h"
 
 namespace hvdb::codec {
@@ -36,8 +37,6 @@ struct Ctx {
     }
   }
 };
-
-constexpr uint32_t kTop = 1u << 24;
 
 // Logistic mixing of two models' predictions (as in PAQ/lpaq): p = squash(w1 st(p1) + w2 st(p2))
 // with weights learnt online. Each model keeps a context set small enough to learn fast; the
@@ -112,123 +111,47 @@ unsigned MixBit3(IO& io, Ctx& a, Ctx& b, Ctx& c, Mixer& m, unsigned bit) {
   return got;
 }
 
-// The carry-propagating range coder of range_coder.h with 16-bit probabilities (occupancy
-// bits are often far more skewed than 11 bits can say).
+// range_coder.h's coder with 16-bit probabilities (occupancy bits are often far more skewed
+// than its 11-bit models can say), behind the interface CodeNode/CodeChunk code against.
 class Encoder {
  public:
   static constexpr bool kEncode = true;
-  explicit Encoder(std::string* out) : out_(out) {}
+  explicit Encoder(std::string* out) : rc_(out) {}
   unsigned Bit(Ctx& c, unsigned bit) {
-    BitP(c.P0(), bit);
+    rc_.BitP(c.P0(), 16, bit);
     c.Adapt(bit);
     return bit;
   }
   // A bit with probability p0 of a 0 (1/65536 units, 1..65535), no model.
   unsigned BitP(uint32_t p0, unsigned bit) {
-    const uint32_t bound = (range_ >> 16) * p0;
-    if (bit == 0) {
-      range_ = bound;
-    } else {
-      low_ += bound;
-      range_ -= bound;
-    }
-    while (range_ < kTop) {
-      range_ <<= 8;
-      ShiftLow();
-    }
+    rc_.BitP(p0, 16, bit);
     return bit;
   }
   uint32_t Raw(uint32_t v, int count) {
-    for (int i = count - 1; i >= 0; --i) {
-      range_ >>= 1;
-      if ((v >> i) & 1) low_ += range_;
-      while (range_ < kTop) {
-        range_ <<= 8;
-        ShiftLow();
-      }
-    }
+    rc_.Direct(v, count);
     return v;
   }
-  void Finish() {
-    for (int i = 0; i < 5; ++i) ShiftLow();
-  }
+  void Finish() { rc_.Finish(); }
 
  private:
-  void ShiftLow() {
-    if (static_cast<uint32_t>(low_) < 0xFF000000u || (low_ >> 32) != 0) {
-      const uint8_t carry = static_cast<uint8_t>(low_ >> 32);
-      uint8_t temp = cache_;
-      do {
-        out_->push_back(static_cast<char>(static_cast<uint8_t>(temp + carry)));
-        temp = 0xFF;
-      } while (--cache_size_ != 0);
-      cache_ = static_cast<uint8_t>(low_ >> 24);
-    }
-    ++cache_size_;
-    low_ = (low_ & 0x00FFFFFFu) << 8;
-  }
-  std::string* out_;
-  uint64_t low_ = 0;
-  uint32_t range_ = 0xFFFFFFFFu;
-  uint8_t cache_ = 0;
-  uint64_t cache_size_ = 1;
+  RangeEncoder rc_;
 };
 
 class Decoder {
  public:
   static constexpr bool kEncode = false;
-  Decoder(const uint8_t* p, size_t n) : p_(p), end_(p + n) {
-    for (int i = 0; i < 5; ++i) code_ = (code_ << 8) | Next();
-  }
-  unsigned Bit(Ctx& c, unsigned ignored) {
-    const unsigned bit = BitP(c.P0(), ignored);
+  Decoder(const uint8_t* p, size_t n) : rc_(p, n) {}
+  unsigned Bit(Ctx& c, unsigned /*ignored*/) {
+    const unsigned bit = rc_.BitP(c.P0(), 16);
     c.Adapt(bit);
     return bit;
   }
-  unsigned BitP(uint32_t p0, unsigned /*ignored*/) {
-    const uint32_t bound = (range_ >> 16) * p0;
-    unsigned bit;
-    if (code_ < bound) {
-      range_ = bound;
-      bit = 0;
-    } else {
-      code_ -= bound;
-      range_ -= bound;
-      bit = 1;
-    }
-    while (range_ < kTop) {
-      range_ <<= 8;
-      code_ = (code_ << 8) | Next();
-    }
-    return bit;
-  }
-  uint32_t Raw(uint32_t /*ignored*/, int count) {
-    uint32_t v = 0;
-    for (int i = 0; i < count; ++i) {
-      range_ >>= 1;
-      const unsigned bit = code_ >= range_ ? 1 : 0;
-      if (bit) code_ -= range_;
-      v = (v << 1) | bit;
-      while (range_ < kTop) {
-        range_ <<= 8;
-        code_ = (code_ << 8) | Next();
-      }
-    }
-    return v;
-  }
-  size_t overrun() const { return overrun_; }
+  unsigned BitP(uint32_t p0, unsigned /*ignored*/) { return rc_.BitP(p0, 16); }
+  uint32_t Raw(uint32_t /*ignored*/, int count) { return static_cast<uint32_t>(rc_.Direct(count)); }
+  size_t overrun() const { return rc_.overrun(); }
 
  private:
-  uint32_t Next() {
-    if (p_ < end_) return *p_++;
-    ++overrun_;
-    return 0;
-  }
-  const uint8_t* p_;
-  const uint8_t* end_;
-  uint32_t code_ = 0;
-  uint32_t range_ = 0xFFFFFFFFu;
-  size_t overrun_ = 0;
+  RangeDecoder rc_;
 };
 
 uint64_t Spread(uint32_t v) {

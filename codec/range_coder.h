@@ -36,14 +36,22 @@ class RangeEncoder {
   explicit RangeEncoder(std::string* out) : out_(out) {}
 
   void Bit(BitModel& m, unsigned bit) {
-    uint32_t bound = (range_ >> kProbBits) * m.p;
+    BitP(m.p, kProbBits, bit);
+    if (bit == 0) {
+      m.p = static_cast<uint16_t>(m.p + (((1u << kProbBits) - m.p) >> kMoveBits));
+    } else {
+      m.p = static_cast<uint16_t>(m.p - (m.p >> kMoveBits));
+    }
+  }
+  // A bit whose probability of being 0 is p / 2^bits (0 < p < 2^bits, bits <= 16), no model:
+  // the octree's contexts keep their own (codec/octree.cc).
+  void BitP(uint32_t p, int bits, unsigned bit) {
+    const uint32_t bound = (range_ >> bits) * p;
     if (bit == 0) {
       range_ = bound;
-      m.p = static_cast<uint16_t>(m.p + (((1u << kProbBits) - m.p) >> kMoveBits));
     } else {
       low_ += bound;
       range_ -= bound;
-      m.p = static_cast<uint16_t>(m.p - (m.p >> kMoveBits));
     }
     while (range_ < kTop) {
       range_ <<= 8;
@@ -97,16 +105,23 @@ class RangeDecoder {
   }
 
   unsigned Bit(BitModel& m) {
-    uint32_t bound = (range_ >> kProbBits) * m.p;
+    const unsigned bit = BitP(m.p, kProbBits);
+    if (bit == 0) {
+      m.p = static_cast<uint16_t>(m.p + (((1u << kProbBits) - m.p) >> kMoveBits));
+    } else {
+      m.p = static_cast<uint16_t>(m.p - (m.p >> kMoveBits));
+    }
+    return bit;
+  }
+  unsigned BitP(uint32_t p, int bits) {
+    const uint32_t bound = (range_ >> bits) * p;
     unsigned bit;
     if (code_ < bound) {
       range_ = bound;
-      m.p = static_cast<uint16_t>(m.p + (((1u << kProbBits) - m.p) >> kMoveBits));
       bit = 0;
     } else {
       code_ -= bound;
       range_ -= bound;
-      m.p = static_cast<uint16_t>(m.p - (m.p >> kMoveBits));
       bit = 1;
     }
     while (range_ < kTop) {

@@ -13,9 +13,12 @@
 #include "codec/codec.h"
 #include "codec/octree.h"
 #include "formats/ply.h"
+#include "tests/codec/codec_test_util.h"
 
 namespace hvdb::codec {
 namespace {
+
+using namespace testing_util;
 
 uint64_t SlowMorton(uint32_t x, uint32_t y, uint32_t z) {
   uint64_t m = 0;
@@ -112,48 +115,12 @@ TEST(OctreeTest, CorruptPayloadsAreRefusedWithoutCrashing) {
   }
 }
 
-std::vector<Point> Panoptic(int frame) {
-  formats::ReadOptions ro;
-  ro.scale = 0.01;
-  char path[512];
-  std::snprintf(path, sizeof path,
-                HVDB_SHARED_DATA "/cmu-panoptic-kinoptic-171026-pose3/kinoptic_ptclouds/"
-                                 "ptcloud_hd%08d.ply",
-                frame);
-  auto r = formats::ReadPly(path, ro);
-  EXPECT_TRUE(r.ok()) << r.status().ToString();
-  std::vector<Point> pts = r.ok() ? std::move(r).value() : std::vector<Point>{};
-  for (size_t i = 0; i < pts.size(); ++i) pts[i].id = 5000000 + i;
-  return pts;
-}
-
 std::vector<Point> Bunny() {
   auto r = formats::ReadPly(HVDB_SHARED_DATA "/stanford-bunny/reconstruction/bun_zipper.ply");
   EXPECT_TRUE(r.ok()) << r.status().ToString();
   std::vector<Point> pts = r.ok() ? std::move(r).value() : std::vector<Point>{};
   for (size_t i = 0; i < pts.size(); ++i) pts[i].id = i;
   return pts;
-}
-
-std::map<uint64_t, Point> ById(const std::vector<Point>& pts) {
-  std::map<uint64_t, Point> m;
-  for (const Point& p : pts) m[p.id] = p;
-  return m;
-}
-
-std::string MustEncode(const std::vector<Point>& pts, const EncodeOptions& o,
-                       const Reference* ref = nullptr) {
-  std::string s;
-  Status st = Encode(pts, o, &s, nullptr, ref);
-  EXPECT_TRUE(st.ok()) << st.ToString();
-  return s;
-}
-
-std::vector<Point> MustDecode(const std::string& s, const DecodeOptions& o = {}) {
-  std::vector<Point> out;
-  Status st = Decode(s, &out, o);
-  EXPECT_TRUE(st.ok()) << st.ToString();
-  return out;
 }
 
 // Lossless on the grid: the octree stream decodes to exactly what the pair stream decodes to
