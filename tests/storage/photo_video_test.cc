@@ -182,7 +182,7 @@ TEST_F(PhotoVideoTest, PanopticViewsReadBackWithinTheBoundAndDecodeWithFfmpeg) {
   std::map<std::pair<uint16_t, uint32_t>, Photo> put;
   uint64_t jpeg_bytes = 0;
   for (uint16_t c = 0; c < 10; ++c) {
-    char cam[8];
+    char cam[16];
     std::snprintf(cam, sizeof cam, "50_%02u", unsigned(c + 1));
     for (uint32_t f = 0; f < 16; ++f) {
       char name[64];
