@@ -76,38 +76,26 @@ struct Mixer {
   int32_t w[3] = {1 << 15, 1 << 15, 1 << 15};  // 16.16
 };
 
-// Codes `bit` with the mix of contexts a and b under mixer m, then trains all three.
-template <typename IO>
-unsigned MixBit(IO& io, Ctx& a, Ctx& b, Mixer& m, unsigned bit) {
+// Codes `bit` with the mix of the contexts' predictions under mixer m (one weight per
+// context, at most three), then trains the mixer and every context.
+template <typename IO, typename... C>
+unsigned MixBit(IO& io, Mixer& m, unsigned bit, C&... contexts) {
+  static_assert(sizeof...(C) >= 2 && sizeof...(C) <= 3, "a mixer has three weights");
   const Logistic& L = Logistic::Get();
-  const int s1 = L.Stretch(static_cast<int>((65536 - a.P0()) >> 4));
-  const int s2 = L.Stretch(static_cast<int>((65536 - b.P0()) >> 4));
-  const int p1 = L.Squash(static_cast<int>((int64_t{m.w[0]} * s1 + int64_t{m.w[1]} * s2) >> 16));
+  Ctx* ctx[] = {&contexts...};
+  int st[sizeof...(C)];
+  int64_t dot = 0;
+  for (size_t k = 0; k < sizeof...(C); ++k) {
+    st[k] = L.Stretch(static_cast<int>((65536 - ctx[k]->P0()) >> 4));
+    dot += int64_t{m.w[k]} * st[k];
+  }
+  const int p1 = L.Squash(static_cast<int>(dot >> 16));
   const unsigned got = io.BitP(static_cast<uint32_t>(4096 - p1) << 4, bit);
   const int err = (static_cast<int>(got) << 12) - p1;
-  m.w[0] += (s1 * err) >> 11;
-  m.w[1] += (s2 * err) >> 11;
-  a.Adapt(got);
-  b.Adapt(got);
-  return got;
-}
-
-template <typename IO>
-unsigned MixBit3(IO& io, Ctx& a, Ctx& b, Ctx& c, Mixer& m, unsigned bit) {
-  const Logistic& L = Logistic::Get();
-  const int s1 = L.Stretch(static_cast<int>((65536 - a.P0()) >> 4));
-  const int s2 = L.Stretch(static_cast<int>((65536 - b.P0()) >> 4));
-  const int s3 = L.Stretch(static_cast<int>((65536 - c.P0()) >> 4));
-  const int p1 = L.Squash(static_cast<int>(
-      (int64_t{m.w[0]} * s1 + int64_t{m.w[1]} * s2 + int64_t{m.w[2]} * s3) >> 16));
-  const unsigned got = io.BitP(static_cast<uint32_t>(4096 - p1) << 4, bit);
-  const int err = (static_cast<int>(got) << 12) - p1;
-  m.w[0] += (s1 * err) >> 11;
-  m.w[1] += (s2 * err) >> 11;
-  m.w[2] += (s3 * err) >> 11;
-  a.Adapt(got);
-  b.Adapt(got);
-  c.Adapt(got);
+  for (size_t k = 0; k < sizeof...(C); ++k) {
+    m.w[k] += (st[k] * err) >> 11;
+    ctx[k]->Adapt(got);
+  }
   return got;
 }
 
@@ -154,15 +142,7 @@ class Decoder {
   RangeDecoder rc_;
 };
 
-uint64_t Spread(uint32_t v) {
-  uint64_t x = v & 0x1FFFFFu;
-  x = (x | x << 32) & 0x1F00000000FFFFull;
-  x = (x | x << 16) & 0x1F0000FF0000FFull;
-  x = (x | x << 8) & 0x100F00F00F00F00Full;
-  x = (x | x << 4) & 0x10C30C30C30C30C3ull;
-  x = (x | x << 2) & 0x1249249249249249ull;
-  return x;
-}
+// The inverse of MortonCode's interleaving for one axis (every third bit, 21 bits).
 uint32_t Compact(uint64_t x) {
   x &= 0x1249249249249249ull;
   x = (x | x >> 2) & 0x10C30C30C30C30C3ull;
@@ -406,8 +386,8 @@ unsigned CodeNode(IO& io, Models& md, int lc, unsigned sib, const uint16_t nb[6]
   const bool flags = faces <= 1;
   const unsigned fp = Occ(nb[0]) | Occ(nb[1]) << 1 | Occ(nb[2]) << 2 | Occ(nb[3]) << 3 |
                       Occ(nb[4]) << 4 | Occ(nb[5]) << 5;
-  const unsigned single = flags ? MixBit(io, md.count1[rc][lc][sib][pb][mb][fb], md.count1b[lc][fp][sib][mb],
-                                         md.mix_count1[lc], wc == 1)
+  const unsigned single = flags ? MixBit(io, md.mix_count1[lc], wc == 1, md.count1[rc][lc][sib][pb][mb][fb],
+                                         md.count1b[lc][fp][sib][mb])
                                 : 0;
   if (single) {
     unsigned node = 0, child = 0;
@@ -416,16 +396,16 @@ unsigned CodeNode(IO& io, Models& md, int lc, unsigned sib, const uint16_t nb[6]
       const unsigned face = Occ(nb[2 * a]) | Occ(nb[2 * a + 1]) << 1;
       const unsigned rbit = ref_has && std::popcount(ref_occ) == 1 ? 1 + ((std::countr_zero(ref_occ) >> (2 - a)) & 1) : 0;
       const unsigned plane = planes.Class(a, xyz);
-      const unsigned bit = MixBit(io, md.axis[rbit][lc][node][side][face][plane],
-                                  md.axis2[lc][node][planes.Class(0, xyz)][planes.Class(1, xyz)][planes.Class(2, xyz)],
-                                  md.mix_axis[lc][node], (std::countr_zero(want | 256u) >> (2 - a)) & 1);
+      const unsigned bit = MixBit(io, md.mix_axis[lc][node], (std::countr_zero(want | 256u) >> (2 - a)) & 1,
+                                  md.axis[rbit][lc][node][side][face][plane],
+                                  md.axis2[lc][node][planes.Class(0, xyz)][planes.Class(1, xyz)][planes.Class(2, xyz)]);
       child = child << 1 | bit;
       node = 2 * node + 1 + bit;
     }
     return 1u << child;
   }
-  const unsigned two = flags ? MixBit(io, md.count2[rc][lc][sib][pb][mb][fb], md.count2b[lc][fp][sib][mb],
-                                      md.mix_count2[lc], wc == 2)
+  const unsigned two = flags ? MixBit(io, md.mix_count2[lc], wc == 2, md.count2[rc][lc][sib][pb][mb][fb],
+                                      md.count2b[lc][fp][sib][mb])
                              : 0;
   const unsigned need = flags ? (two ? 2 : 3) : 1;
   unsigned occ = 0;
@@ -456,8 +436,8 @@ unsigned CodeNode(IO& io, Models& md, int lc, unsigned sib, const uint16_t nb[6]
       if (pc == 1 || pc == 2) agree = agree * 3 + (((i >> (2 - a)) & 1) == pc - 1 ? 1 : 2);
       else agree = agree * 3;
     }
-    const unsigned bit = MixBit3(io, c, md.occ2[lc][i][fp][lp][cnt], md.occ3[lc][i][agree][pb][mb],
-                                 md.mix_occ[lc][i], (want >> i) & 1);
+    const unsigned bit = MixBit(io, md.mix_occ[lc][i], (want >> i) & 1, c, md.occ2[lc][i][fp][lp][cnt],
+                                md.occ3[lc][i][agree][pb][mb]);
     occ |= bit << i;
     if (bit) mask |= lt.scatter[13][1u << i];
   }
@@ -603,7 +583,7 @@ bool CodeChunk(IO& io, uint64_t root, int top, int depth, const std::vector<Leve
 }  // namespace
 
 uint64_t MortonCode(uint32_t x, uint32_t y, uint32_t z) {
-  return Spread(x) << 2 | Spread(y) << 1 | Spread(z);
+  return Morton3(z, y, x);  // storage/coding.h interleaves its first argument lowest
 }
 
 void MortonDecode(uint64_t code, uint32_t* x, uint32_t* y, uint32_t* z) {

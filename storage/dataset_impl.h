@@ -91,6 +91,8 @@ class DatasetImpl {
   // none), from its per-frame file or its run.
   Result<std::optional<Photo>> PhotoOf(uint32_t frame, uint16_t camera) const;
   Result<CompactInfo> CompactPhotos(uint32_t first, uint32_t last);
+  // The checks both compactions make: first <= last, and this process writes the dataset.
+  Status CheckCompact(uint32_t first, uint32_t last) const;
   // Blocks until no frame's T0 is over its capacity (tests and benchmarks); after a failed
   // merge, until a retry fails too.
   Status WaitForMerges();

@@ -257,7 +257,7 @@ void DatasetImpl::TierPass() {
   }
 }
 
-Result<CompactInfo> DatasetImpl::Compact(uint32_t first, uint32_t last) {
+Status DatasetImpl::CheckCompact(uint32_t first, uint32_t last) const {
   if (first > last) {
     return Status::InvalidArgument("compact: first frame " + std::to_string(first) +
                                    " is after last frame " + std::to_string(last) +
@@ -267,6 +267,11 @@ Result<CompactInfo> DatasetImpl::Compact(uint32_t first, uint32_t last) {
     return Status::NotLeader("dataset '" + info_.name + "' is only read here: compact it on "
                              "the process that writes it");
   }
+  return Status::OK();
+}
+
+Result<CompactInfo> DatasetImpl::Compact(uint32_t first, uint32_t last) {
+  HVDB_RETURN_IF_ERROR(CheckCompact(first, last));
   std::vector<uint32_t> frames;
   {
     std::lock_guard<std::mutex> l(mu_);

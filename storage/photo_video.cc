@@ -27,6 +27,11 @@ namespace hvdb {
 
 namespace {
 
+using photo_io::GetF64;
+using photo_io::PhotoDir;
+using photo_io::Put;
+using photo_io::PutF64;
+
 std::atomic<const PhotoVideoCodec*> g_codec{nullptr};
 
 constexpr char kMagic[8] = {'H', 'V', 'D', 'B', 'P', 'V', 'X', '\0'};
@@ -38,25 +43,7 @@ constexpr uint32_t kMaxPictures = 1u << 20;
 constexpr size_t kFixed = 8 + 4 + 2 + 2 + 4 + 4 + 4 + 8 + 4 + 4 + 4 + 8;
 constexpr uint32_t kMaxSide = 1u << 16;
 
-template <typename T>
-void Put(std::string* out, T v) {
-  uint8_t b[sizeof(T)];
-  EncodeLE<T>(b, v);
-  out->append(reinterpret_cast<const char*>(b), sizeof(T));
-}
-void PutF64(std::string* out, double v) {
-  uint64_t bits;
-  std::memcpy(&bits, &v, 8);
-  Put<uint64_t>(out, bits);
-}
-double GetF64(const uint8_t* p) {
-  const uint64_t bits = DecodeLE<uint64_t>(p);
-  double v;
-  std::memcpy(&v, &bits, 8);
-  return v;
-}
 
-std::string PhotoDir(const std::string& dataset_dir) { return dataset_dir + "/photos"; }
 
 bool EndsWith(const std::string& s, const char* suffix) {
   const size_t n = std::strlen(suffix);
@@ -393,15 +380,7 @@ Status DatasetImpl::WriteRuns(uint16_t camera, const std::map<uint32_t, Photo>& 
 }
 
 Result<CompactInfo> DatasetImpl::CompactPhotos(uint32_t first, uint32_t last) {
-  if (first > last) {
-    return Status::InvalidArgument("compact: first frame " + std::to_string(first) +
-                                   " is after last frame " + std::to_string(last) +
-                                   "; give first <= last");
-  }
-  if (follower_.load()) {
-    return Status::NotLeader("dataset '" + info_.name + "' is only read here: compact it on "
-                             "the process that writes it");
-  }
+  HVDB_RETURN_IF_ERROR(CheckCompact(first, last));
   const PhotoVideoCodec* codec = GetPhotoVideoCodec();
   if (codec == nullptr) {
     return Status::Unsupported("compact --photos: this program has no video codec (link "

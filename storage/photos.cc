@@ -14,6 +14,11 @@ namespace hvdb {
 
 namespace {
 
+using photo_io::GetF64;
+using photo_io::PhotoDir;
+using photo_io::Put;
+using photo_io::PutF64;
+
 constexpr char kMagic[8] = {'H', 'V', 'D', 'B', 'P', 'H', 'O', '\0'};
 constexpr uint32_t kVersion = 1;           // a photo
 constexpr uint32_t kVersionBillboard = 2;  // a photo with its billboard
@@ -25,27 +30,7 @@ constexpr uint64_t kMaxImage = uint64_t{1} << 30;
 // Version 2 only, after the image length: scale, 3 plane coefficients, the two maps' lengths.
 constexpr size_t kBillboardFixed = 8 * 4 + 8 + 8;
 
-void PutF64(std::string* out, double v) {
-  uint64_t bits;
-  std::memcpy(&bits, &v, 8);
-  uint8_t b[8];
-  EncodeLE<uint64_t>(b, bits);
-  out->append(reinterpret_cast<const char*>(b), 8);
-}
-template <typename T>
-void Put(std::string* out, T v) {
-  uint8_t b[sizeof(T)];
-  EncodeLE<T>(b, v);
-  out->append(reinterpret_cast<const char*>(b), sizeof(T));
-}
-double GetF64(const uint8_t* p) {
-  const uint64_t bits = DecodeLE<uint64_t>(p);
-  double v;
-  std::memcpy(&v, &bits, 8);
-  return v;
-}
 
-std::string PhotoDir(const std::string& dataset_dir) { return dataset_dir + "/photos"; }
 
 }  // namespace
 
