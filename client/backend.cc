@@ -582,13 +582,20 @@ class RemoteBackend final : public Backend {
       // The file travels in one request, which the server bounds (--max-frame-bytes): it says
       // so, or closes the connection while the request is still being sent.
       if (bytes >= wire::kDefaultMaxFrame - 4096 ||
-          s.message().find("exceeds the limit") != std::string::npos ||
-          (s.code() == StatusCode::kIOError && bytes > (64u << 10))) {
+          s.message().find("exceeds the limit") != std::string::npos) {
         s = Status(s.code(), s.message() + " (the file makes one request of " +
                                  std::to_string(bytes) + " bytes; a server refuses one over " +
                                  "its --max-frame-bytes, " +
                                  std::to_string(wire::kDefaultMaxFrame) + " by default; import " +
                                  "it with --data on the server's machine, or make it smaller)");
+      } else if (s.code() == StatusCode::kIOError && bytes > (64u << 10)) {
+        // A lost connection is either: the size is not known to be the cause.
+        s = Status(s.code(), s.message() + " (the connection closed during the import: a " +
+                                 "server closes it for a request over its --max-frame-bytes, " +
+                                 "which this one of " + std::to_string(bytes) + " bytes passes " +
+                                 "only where that is set below the default of " +
+                                 std::to_string(wire::kDefaultMaxFrame) + ", or it stopped; " +
+                                 "its log says which)");
       }
       return s;
     }

@@ -69,7 +69,9 @@ Status TooManyPoints(uint64_t per_frame, uint64_t frames, Kind kind) {
       (kind == Kind::kMesh ? " or a larger spacing" : " or fewer texels"));
 }
 
-Result<CommitInfo> Import(Dataset& ds, const ImportRequest& req) {
+Result<CommitInfo> Import(Dataset& ds, const ImportRequest& req, const JobLimits& limits) {
+  JobLease lease = limits.Lease();
+  const Budget budget{&limits, &lease};
   // The request's shape first: nothing is decoded for a request that cannot be served.
   if (req.data.empty()) {
     return Status::InvalidArgument("import_media.data: the file is empty (send its bytes)");
@@ -121,23 +123,38 @@ Result<CommitInfo> Import(Dataset& ds, const ImportRequest& req) {
   switch (kind) {
     case Kind::kImage: {
       HVDB_ASSIGN_OR_RETURN(
-          Picture pic, DecodeImage(req.data, fmt, req.texels ? req.texels : kDefaultImageTexels));
+          Picture pic,
+          DecodeImage(req.data, fmt, req.texels ? req.texels : kDefaultImageTexels, budget));
       object = PlaneSurfels(pic, pl, 0, label);
       break;
     }
     case Kind::kMesh: {
-      HVDB_ASSIGN_OR_RETURN(object, SampleMesh(req.data, fmt, pl, req.spacing, label));
+      HVDB_ASSIGN_OR_RETURN(object, SampleMesh(req.data, fmt, pl, req.spacing, label, budget));
       break;
     }
     case Kind::kVideo: {
       // Video frame k goes to dataset frame first + k; a shorter video holds its last frame.
       const uint32_t side = req.texels ? req.texels : kDefaultVideoTexels;
-      HVDB_ASSIGN_OR_RETURN(std::vector<Picture> pics,
-                            DecodeVideo(req.data, fmt, static_cast<uint32_t>(frames), side));
-      const uint64_t per = static_cast<uint64_t>(pics[0].width) * pics[0].height;
-      std::vector<Point> pts;
-      pts.reserve(per * frames);
+      HVDB_ASSIGN_OR_RETURN(
+          std::vector<Picture> pics,
+          DecodeVideo(req.data, fmt, static_cast<uint32_t>(frames), side, kMaxImportPoints, budget));
+      // Every frame's texels, the last one's repeated to the end of the range.
+      uint64_t total = 0;
       for (uint64_t k = 0; k < frames; ++k) {
+        const Picture& pic = pics[std::min<size_t>(k, pics.size() - 1)];
+        total += static_cast<uint64_t>(pic.width) * pic.height;
+      }
+      if (total > kMaxImportPoints) {
+        const Picture& end = pics.back();
+        return TooManyPoints(static_cast<uint64_t>(end.width) * end.height, frames, kind);
+      }
+      // The points, and the transaction's copy of them in the log record.
+      HVDB_RETURN_IF_ERROR(budget.Reserve(total * sizeof(Point) * 2, "import_media: " +
+                                          std::to_string(total) + " points"));
+      std::vector<Point> pts;
+      pts.reserve(total);
+      for (uint64_t k = 0; k < frames; ++k) {
+        if (k % 16 == 0) HVDB_RETURN_IF_ERROR(limits.CheckTime("import_media"));
         const Picture& pic = pics[std::min<size_t>(k, pics.size() - 1)];
         std::vector<Point> plane = PlaneSurfels(pic, pl, static_cast<uint32_t>(first + k), label);
         pts.insert(pts.end(), plane.begin(), plane.end());
@@ -158,6 +175,11 @@ Result<CommitInfo> Import(Dataset& ds, const ImportRequest& req) {
   if (object.size() * frames > kMaxImportPoints) {
     return TooManyPoints(object.size(), frames, kind);
   }
+  // The frames' copies in the transaction, and the log record that holds them.
+  HVDB_RETURN_IF_ERROR(budget.Reserve(object.size() * frames * sizeof(Point) * 2,
+                                      "import_media: " + std::to_string(object.size() * frames) +
+                                          " points"));
+  HVDB_RETURN_IF_ERROR(limits.CheckTime("import_media"));
   // A still medium is the same object in every frame: hvdb composite's insertion.
   return edit::Composite(ds, object, first, static_cast<uint32_t>(frames));
 }

@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "storage/database.h"
+#include "storage/job_limits.h"
 #include "storage/photo_video.h"
 
 namespace hvdb::media {
@@ -55,9 +56,34 @@ struct ImportRequest {
 inline constexpr uint32_t kDefaultImageTexels = 512;
 inline constexpr uint32_t kDefaultVideoTexels = 256;
 inline constexpr uint32_t kMaxTexels = 4096;
-// One import inserts at most this many points (all frames together): 20M points are 1.3 GB
-// of records in one transaction.
-inline constexpr uint64_t kMaxImportPoints = 20'000'000;
+// One import inserts at most this many points (all frames together): what one commit can hold.
+// An import is one transaction, logged as one record of at most 1 GiB (storage/wal.cc), and a
+// point is a 64-byte record: 16 M points are 1.02 GB.
+inline constexpr uint64_t kMaxImportPoints = 16'000'000;
+// The largest picture a header may declare (an image, a video frame, a mesh's texture), checked
+// before anything is allocated: 32768 a side and 2^28 pixels (16384 x 16384).
+inline constexpr uint32_t kMaxPictureSide = 32768;
+inline constexpr uint64_t kMaxPicturePixels = uint64_t{1} << 28;
+// Nesting a glTF may have, checked before assimp's recursive parsers see it: JSON arrays and
+// objects inside each other, and nodes below nodes.
+inline constexpr int kMaxJsonDepth = 64;
+inline constexpr int kMaxNodeDepth = 128;
+
+// The bounds one import decodes under: its job's (memory reserved before each large buffer is
+// made, a deadline checked between frames and batches). Default: none (tools and tests).
+struct Budget {
+  const JobLimits* limits = nullptr;
+  JobLease* lease = nullptr;
+  Status Reserve(uint64_t bytes, const std::string& what) const {
+    return lease == nullptr ? Status::OK() : lease->Reserve(bytes, what);
+  }
+  void Release(uint64_t bytes) const {
+    if (lease != nullptr) lease->Release(bytes);
+  }
+  Status CheckTime(const std::string& what) const {
+    return limits == nullptr ? Status::OK() : limits->CheckTime(what);
+  }
+};
 
 // The kind a request means: an explicit one, else the file's signature (PNG, JPEG, PLY, GLB),
 // else its extension; anything else is tried as a video (libavformat probes the bytes).
@@ -70,16 +96,25 @@ struct Picture {
 };
 
 // image.cc: decodes an image file and area-averages it down so that its longer side has at
-// most `max_side` pixels (0: no limit). InvalidArgument naming the format on a bad file.
-Result<Picture> DecodeImage(std::string_view data, const std::string& format, uint32_t max_side);
+// most `max_side` pixels (0: no limit). PNG (libpng) and JPEG (libjpeg) are decoded row by row
+// into the smaller picture, so memory follows the output, not the declared size; binary
+// PGM/PPM; BMP, TIFF, WebP and the other still formats through libavcodec (DecodeVideo's one
+// frame). The header's size is checked against kMaxPicture* and against the bytes sent before
+// anything is allocated. InvalidArgument naming the format on a bad file, LimitExceeded over
+// a limit or the budget.
+Result<Picture> DecodeImage(std::string_view data, const std::string& format, uint32_t max_side,
+                            const Budget& budget = {});
 
 // video.cc: the first `max_frames` frames of a video file, each scaled so that the longer side
-// has at most `max_side` pixels (alpha 255). InvalidArgument naming the format when the file
-// cannot be demuxed, has no video stream or no frame decodes, and TooManyPoints as soon as the
-// first frame shows that max_frames of its size pass `max_points`.
+// has at most `max_side` pixels (alpha 255, or the file's). InvalidArgument naming the format
+// when the file cannot be demuxed, has no video stream or no frame decodes; TooManyPoints as
+// soon as the first frame shows that max_frames of its size pass `max_points`, or when the
+// frames decoded so far (every one counted, whatever its size) with the last one repeated to
+// max_frames do. Frames over kMaxPicture* are refused before they are decoded.
 Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::string& format,
                                          uint32_t max_frames, uint32_t max_side,
-                                         uint64_t max_points = kMaxImportPoints);
+                                         uint64_t max_points = kMaxImportPoints,
+                                         const Budget& budget = {});
 
 // The error of an import over kMaxImportPoints: `per_frame` points in each of `frames`.
 Status TooManyPoints(uint64_t per_frame, uint64_t frames, Kind kind);
@@ -95,16 +130,31 @@ std::vector<Point> PlaneSurfels(const Picture& pic, const Placement& place, uint
 // metres (0: MeshSpacing), placed by `place` (width unused). Normals follow the triangles'
 // winding (interpolated vertex normals where the file has them); colours come from the
 // embedded base-colour texture, else the vertex colours, else the material's diffuse colour.
+//
+// Only the bytes sent are read: assimp gets an I/O system that serves the file itself and
+// refuses every other name (an external buffer, texture or .mtl is an InvalidArgument naming
+// it; data: URIs are decoded inside the file). OBJ, PLY, STL, OFF, glTF and GLB are read; their
+// declared sizes (GLB chunks, glTF buffers and accessors, PLY and OFF element counts) and
+// glTF's nesting (kMaxJsonDepth, kMaxNodeDepth) are checked against the bytes before assimp
+// parses them (mesh_check.cc), and the scene it builds is validated (indices, counts) before
+// it is sampled.
 Result<std::vector<Point>> SampleMesh(std::string_view data, const std::string& format,
-                                      const Placement& place, double spacing, uint32_t label);
+                                      const Placement& place, double spacing, uint32_t label,
+                                      const Budget& budget = {});
+
+// mesh_check.cc: the checks of a mesh file's declared structure made before assimp reads it
+// (see SampleMesh). `format` is the lower-case extension; "" picks by signature.
+// InvalidArgument naming what is wrong.
+Status CheckMeshFile(std::string_view data, const std::string& format, const std::string& what);
 
 // The default sample spacing of a mesh with `area` m^2 (after scale): 2 mm, coarser where that
 // would give over 200 000 points a frame.
 double MeshSpacing(double area);
 
 // media.cc: checks `req` (InvalidArgument naming the field), decodes the medium and inserts it
-// into its frames of `ds` in one transaction. Nothing is written on any error.
-Result<CommitInfo> Import(Dataset& ds, const ImportRequest& req);
+// into its frames of `ds` in one transaction, within `limits` (its buffers reserved on the
+// job's memory budget, its deadline checked). Nothing is written on any error.
+Result<CommitInfo> Import(Dataset& ds, const ImportRequest& req, const JobLimits& limits = {});
 
 // photo_video.cc: the video tier's codec (storage/photo_video.h: AV1 in IVF through
 // libavcodec), and its installation as the process's (SetPhotoVideoCodec), which every program

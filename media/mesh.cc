@@ -5,11 +5,12 @@
 #include <cstring>
 #include <random>
 
+#include <assimp/IOStream.hpp>
+#include <assimp/IOSystem.hpp>
 #include <assimp/Importer.hpp>
 #include <assimp/material.h>
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
-#include <opencv2/imgcodecs.hpp>
 
 #include "media/media.h"
 #include "media/surfel.h"
@@ -22,9 +23,33 @@ constexpr uint64_t kSeed = 0x68766462'6d657368ull;
 constexpr double kMinSpacing = 0.002;      // metres
 constexpr double kMaxMeshPoints = 200000;  // a frame, at the default spacing
 
-// A mesh's colour source: a texture (BGR(A) as OpenCV decodes), vertex colours, or one colour.
+// assimp's file access for a request's mesh: ReadFileFromMemory serves the file itself and
+// asks this for every other name (a glTF's external buffer, an OBJ's mtllib, ...), which it
+// refuses and remembers, so that no path on the server is ever opened on a client's behalf.
+class RequestOnlyIO : public Assimp::IOSystem {
+ public:
+  explicit RequestOnlyIO(std::string* refused) : refused_(refused) {}
+  bool Exists(const char* name) const override {
+    Refuse(name);
+    return false;
+  }
+  char getOsSeparator() const override { return '/'; }
+  Assimp::IOStream* Open(const char* name, const char*) override {
+    Refuse(name);
+    return nullptr;
+  }
+  void Close(Assimp::IOStream* stream) override { delete stream; }
+
+ private:
+  void Refuse(const char* name) const {
+    if (refused_->empty()) *refused_ = name != nullptr && *name != 0 ? name : "(no name)";
+  }
+  std::string* refused_;
+};
+
+// A mesh's colour source: a texture (RGBA), vertex colours, or one colour.
 struct Colours {
-  cv::Mat texture;
+  Picture texture;
   int uv_channel = -1;
   bool vertex_colours = false;
   std::array<uint8_t, 3> flat{200, 200, 200};
@@ -34,7 +59,11 @@ uint8_t ToByte(double v) {
   return static_cast<uint8_t>(std::clamp(std::lround(v * 255.0), 0L, 255L));
 }
 
-Colours ColoursOf(const aiScene* scene, const aiMesh* mesh) {
+// Embedded textures are decoded as images are (DecodeImage's bounds), at most this many texels
+// a side: plenty for samples 2 mm apart.
+constexpr uint32_t kMaxTextureSide = 4096;
+
+Result<Colours> ColoursOf(const aiScene* scene, const aiMesh* mesh, const Budget& budget) {
   Colours c;
   if (mesh->HasVertexColors(0)) c.vertex_colours = true;
   if (mesh->mMaterialIndex >= scene->mNumMaterials) return c;
@@ -53,16 +82,32 @@ Colours ColoursOf(const aiScene* scene, const aiMesh* mesh) {
     const aiTexture* tex = scene->GetEmbeddedTexture(path.C_Str());
     if (tex == nullptr || !mesh->HasTextureCoords(uv)) continue;
     if (tex->mHeight == 0) {
-      const cv::Mat buf(1, static_cast<int>(tex->mWidth), CV_8UC1,
-                        const_cast<aiTexel*>(tex->pcData));
-      c.texture = cv::imdecode(buf, cv::IMREAD_COLOR);
+      // A compressed file (PNG, JPEG) of mWidth bytes.
+      Result<Picture> pic =
+          DecodeImage(std::string_view(reinterpret_cast<const char*>(tex->pcData), tex->mWidth),
+                      tex->achFormatHint, kMaxTextureSide, budget);
+      if (!pic.ok()) {
+        return Status(pic.status().code(), "the mesh's embedded texture '" +
+                                               std::string(path.C_Str()) + "': " +
+                                               pic.status().message());
+      }
+      c.texture = std::move(pic).value();
     } else {
-      // Raw texels are BGRA already.
-      cv::Mat raw(static_cast<int>(tex->mHeight), static_cast<int>(tex->mWidth), CV_8UC4,
-                  const_cast<aiTexel*>(tex->pcData));
-      c.texture = raw.clone();
+      // Raw BGRA texels, validated by assimp's ValidateDataStructure.
+      const uint64_t n = uint64_t{tex->mWidth} * tex->mHeight;
+      HVDB_RETURN_IF_ERROR(budget.Reserve(n * 4, "the mesh's raw texture"));
+      c.texture.width = static_cast<int>(tex->mWidth);
+      c.texture.height = static_cast<int>(tex->mHeight);
+      c.texture.rgba.resize(n * 4);
+      for (uint64_t i = 0; i < n; ++i) {
+        const aiTexel& t = tex->pcData[i];
+        c.texture.rgba[4 * i] = t.r;
+        c.texture.rgba[4 * i + 1] = t.g;
+        c.texture.rgba[4 * i + 2] = t.b;
+        c.texture.rgba[4 * i + 3] = t.a;
+      }
     }
-    if (!c.texture.empty()) {
+    if (c.texture.width > 0 && c.texture.height > 0) {
       c.uv_channel = static_cast<int>(uv);
       break;
     }
@@ -88,21 +133,40 @@ double MeshSpacing(double area) {
   return std::max(kMinSpacing, std::sqrt(area / kMaxMeshPoints));
 }
 
+// What assimp's scene of a file may take, in bytes of the file: its arrays of vertices, faces
+// and normals, a copy of the buffers, the post-processing's copies.
+constexpr uint64_t kAssimpBytesPerFileByte = 12;
+
 Result<std::vector<Point>> SampleMesh(std::string_view data, const std::string& format,
-                                      const Placement& place, double spacing, uint32_t label) {
+                                      const Placement& place, double spacing, uint32_t label,
+                                      const Budget& budget) {
   const std::string what = "import_media: the mesh (" + (format.empty() ? "?" : format) + ")";
   if (data.empty()) return Status::InvalidArgument(what + " is empty");
+  HVDB_RETURN_IF_ERROR(CheckMeshFile(data, format, what));
+  HVDB_RETURN_IF_ERROR(budget.Reserve(data.size() * kAssimpBytesPerFileByte, what));
   Assimp::Importer importer;
-  // Node transforms baked in, polygons split into triangles, points and lines dropped.
+  std::string refused;
+  importer.SetIOHandler(new RequestOnlyIO(&refused));  // the importer owns it
+  // Node transforms baked in, polygons split into triangles, points and lines dropped; the
+  // scene validated first (face indices within the vertices, counts, references), before any
+  // step or our sampler reads it.
   importer.SetPropertyInteger(AI_CONFIG_PP_SBP_REMOVE,
                               aiPrimitiveType_POINT | aiPrimitiveType_LINE);
+  const std::string hint = format.empty() && data.substr(0, 4) == "glTF" ? "glb" : format;
   const aiScene* scene = importer.ReadFileFromMemory(
       data.data(), data.size(),
-      aiProcess_Triangulate | aiProcess_PreTransformVertices | aiProcess_SortByPType,
-      format.c_str());
+      aiProcess_ValidateDataStructure | aiProcess_Triangulate | aiProcess_PreTransformVertices |
+          aiProcess_SortByPType,
+      hint.c_str());
+  if (!refused.empty()) {
+    return Status::InvalidArgument(what + " refers to '" + refused +
+                                   "', outside the bytes sent: only the file itself and data: "
+                                   "URIs are read; embed it (GLB, or a data: URI) or leave it out");
+  }
   if (scene == nullptr) {
     return Status::InvalidArgument(what + " could not be read: " + importer.GetErrorString());
   }
+  HVDB_RETURN_IF_ERROR(budget.CheckTime(what));
   std::vector<Colours> colours(scene->mNumMeshes);
   std::vector<Triangle> tris;
   std::vector<double> cdf;  // cumulative area (model units^2)
@@ -111,10 +175,16 @@ Result<std::vector<Point>> SampleMesh(std::string_view data, const std::string& 
   for (unsigned m = 0; m < scene->mNumMeshes; ++m) {
     const aiMesh* mesh = scene->mMeshes[m];
     if (!(mesh->mPrimitiveTypes & aiPrimitiveType_TRIANGLE)) continue;
-    colours[m] = ColoursOf(scene, mesh);
+    HVDB_ASSIGN_OR_RETURN(colours[m], ColoursOf(scene, mesh, budget));
     for (unsigned f = 0; f < mesh->mNumFaces; ++f) {
       const aiFace& face = mesh->mFaces[f];
       if (face.mNumIndices != 3) continue;
+      // ValidateDataStructure checked these; checked again where they are used, as the
+      // sampler's own precondition.
+      if (face.mIndices[0] >= mesh->mNumVertices || face.mIndices[1] >= mesh->mNumVertices ||
+          face.mIndices[2] >= mesh->mNumVertices) {
+        return Status::InvalidArgument(what + " has a face whose vertex does not exist");
+      }
       Triangle t{mesh, &colours[m], {face.mIndices[0], face.mIndices[1], face.mIndices[2]}};
       const aiVector3D* v = mesh->mVertices;
       for (unsigned k : t.v) {
@@ -146,6 +216,7 @@ Result<std::vector<Point>> SampleMesh(std::string_view data, const std::string& 
         " points, over the limit of " + std::to_string(kMaxImportPoints) + "; use a larger one");
   }
   const size_t n = static_cast<size_t>(std::max(1.0, n_real));
+  HVDB_RETURN_IF_ERROR(budget.Reserve(n * sizeof(Point), what + ": its samples"));
   const std::array<double, 9> R = RotationMatrix(place.rotate_deg);
   const Vec3 c{(lo.x + hi.x) / 2.0, (lo.y + hi.y) / 2.0, (lo.z + hi.z) / 2.0};
   auto rotate = [&R](const Vec3& v) {
@@ -157,6 +228,7 @@ Result<std::vector<Point>> SampleMesh(std::string_view data, const std::string& 
   auto uniform = [&rng]() { return static_cast<double>(rng() >> 11) * 0x1.0p-53; };
   std::vector<Point> out(n);
   for (size_t i = 0; i < n; ++i) {
+    if (i % (1u << 16) == 0) HVDB_RETURN_IF_ERROR(budget.CheckTime(what));
     const size_t k = std::min<size_t>(
         std::upper_bound(cdf.begin(), cdf.end(), uniform() * area) - cdf.begin(), tris.size() - 1);
     const Triangle& t = tris[k];
@@ -205,11 +277,11 @@ Result<std::vector<Point>> SampleMesh(std::string_view data, const std::string& 
         v += w[j] * m->mTextureCoords[col.uv_channel][t.v[j]].y;
       }
       // Repeat wrapping; v runs up the image.
-      const int tw = col.texture.cols, th = col.texture.rows;
-      const int x = std::clamp(static_cast<int>((u - std::floor(u)) * tw), 0, tw - 1);
-      const int y = std::clamp(static_cast<int>((1 - (v - std::floor(v))) * th), 0, th - 1);
-      const uint8_t* px = col.texture.ptr(y) + x * col.texture.channels();
-      rgb = {px[2] / 255.0, px[1] / 255.0, px[0] / 255.0};
+      const int tw = col.texture.width, th = col.texture.height;
+      const int x = std::isfinite(u) ? std::clamp(static_cast<int>((u - std::floor(u)) * tw), 0, tw - 1) : 0;
+      const int y = std::isfinite(v) ? std::clamp(static_cast<int>((1 - (v - std::floor(v))) * th), 0, th - 1) : 0;
+      const uint8_t* px = col.texture.rgba.data() + (static_cast<size_t>(y) * tw + x) * 4;
+      rgb = {px[0] / 255.0, px[1] / 255.0, px[2] / 255.0};
     } else if (col.vertex_colours) {
       rgb = {0, 0, 0};
       for (int j = 0; j < 3; ++j) {

@@ -75,6 +75,16 @@ struct LogScope {
   ~LogScope() { tl_log = nullptr; }
 };
 
+// A demuxer that names another resource (an HLS or DASH playlist's segments, a concat list's
+// files, a QuickTime reference) would open it on the server: every such open is refused, and
+// the protocol whitelist (which nested demuxers inherit) allows none.
+thread_local std::string* tl_refused = nullptr;
+
+int RefuseOpen(AVFormatContext*, AVIOContext**, const char* url, int, AVDictionary**) {
+  if (tl_refused != nullptr && tl_refused->empty()) *tl_refused = url != nullptr ? url : "";
+  return AVERROR(EPERM);
+}
+
 std::string AvError(int err, const std::string& log = "") {
   char buf[AV_ERROR_MAX_STRING_SIZE] = {};
   av_strerror(err, buf, sizeof buf);
@@ -104,7 +114,7 @@ struct Demuxer {
 
 Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::string& format,
                                          uint32_t max_frames, uint32_t max_side,
-                                         uint64_t max_points) {
+                                         uint64_t max_points, const Budget& budget) {
   const std::string what = "import_media: the video (" + (format.empty() ? "?" : format) + ")";
   if (data.empty()) return Status::InvalidArgument(what + " is empty");
   MemoryFile file{reinterpret_cast<const uint8_t*>(data.data()),
@@ -125,13 +135,28 @@ Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::strin
   d.fmt->flags |= AVFMT_FLAG_CUSTOM_IO;
   // The extension helps the probe of formats without a signature.
   const AVInputFormat* hint = format.empty() ? nullptr : av_find_input_format(format.c_str());
-  int err = avformat_open_input(&d.fmt, nullptr, hint, nullptr);
+  std::string refused;
+  tl_refused = &refused;
+  struct ClearRefused {
+    ~ClearRefused() { tl_refused = nullptr; }
+  } clear_refused;
+  d.fmt->io_open = RefuseOpen;
+  AVDictionary* opts = nullptr;
+  av_dict_set(&opts, "protocol_whitelist", "none", 0);
+  int err = avformat_open_input(&d.fmt, nullptr, hint, &opts);
+  av_dict_free(&opts);
+  const auto outside = [&]() {
+    return Status::InvalidArgument(what + " refers to '" + refused +
+                                   "', outside the bytes sent; only the file itself is read");
+  };
   if (err < 0) {
     // On failure avformat_open_input frees the context (not our custom IO).
     d.fmt = nullptr;
+    if (!refused.empty()) return outside();
     return Status::InvalidArgument(what + " could not be demuxed: " + AvError(err, log));
   }
   err = avformat_find_stream_info(d.fmt, nullptr);
+  if (!refused.empty()) return outside();
   if (err < 0) {
     return Status::InvalidArgument(what + ": no stream information: " + AvError(err, log));
   }
@@ -141,8 +166,21 @@ Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::strin
     return Status::InvalidArgument(what + " has no video stream that libavcodec decodes (" +
                                    AvError(stream, log) + ")");
   }
+  // The declared size first: a frame over the limit is refused before a decoder exists, and
+  // the decoder itself refuses any later frame over it (a stream may change size).
+  const AVCodecParameters* par = d.fmt->streams[stream]->codecpar;
+  if (par->width < 0 || par->height < 0 || uint64_t(par->width) > kMaxPictureSide ||
+      uint64_t(par->height) > kMaxPictureSide ||
+      uint64_t(par->width) * uint64_t(par->height) > kMaxPicturePixels) {
+    return Status::LimitExceeded(what + " declares " + std::to_string(par->width) + "x" +
+                                 std::to_string(par->height) + " pixels a frame, over the limit "
+                                 "of " + std::to_string(kMaxPictureSide) + " a side and " +
+                                 std::to_string(kMaxPicturePixels >> 20) + " M pixels");
+  }
   d.codec = avcodec_alloc_context3(decoder);
-  avcodec_parameters_to_context(d.codec, d.fmt->streams[stream]->codecpar);
+  avcodec_parameters_to_context(d.codec, par);
+  d.codec->max_pixels = static_cast<int64_t>(kMaxPicturePixels);
+  d.codec->thread_count = 1;  // one request, one core; and its memory is what is reserved
   err = avcodec_open2(d.codec, decoder, nullptr);
   if (err < 0) {
     return Status::InvalidArgument(what + ": the " + decoder->name +
@@ -153,6 +191,10 @@ Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::strin
 
   std::vector<Picture> out;
   std::string decode_error;
+  // The decoder's own pictures (the frame, its references, the converter's copy), reserved at
+  // kDecoderBytesPerPixel of the largest frame seen; the pictures made, as they are made.
+  constexpr uint64_t kDecoderBytesPerPixel = 24;
+  uint64_t largest = 0, total_points = 0;
   // Converts the decoded frame to RGBA at the texel grid's size.
   auto take = [&]() -> Status {
     const int fw = d.frame->width, fh = d.frame->height;
@@ -164,10 +206,28 @@ Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::strin
       w = std::max(1, static_cast<int>(std::lround(fw * f)));
       h = std::max(1, static_cast<int>(std::lround(fh * f)));
     }
+    HVDB_RETURN_IF_ERROR(budget.CheckTime(what));
+    const uint64_t per = uint64_t{static_cast<uint32_t>(w)} * h;
     // Refused before the rest is decoded (frames past the video's end repeat its last).
-    if (out.empty() && uint64_t{static_cast<uint32_t>(w)} * h * max_frames > max_points) {
-      return TooManyPoints(uint64_t{static_cast<uint32_t>(w)} * h, max_frames, Kind::kVideo);
+    if (out.empty() && per * max_frames > max_points) {
+      return TooManyPoints(per, max_frames, Kind::kVideo);
     }
+    // Every frame counts, whatever its size: a stream may grow after its first frame.
+    total_points += per;
+    if (total_points > max_points) {
+      return Status::InvalidArgument("import_media.frames: the video's first " +
+                                     std::to_string(out.size() + 1) + " frames already hold " +
+                                     std::to_string(total_points) +
+                                     " points, over the limit of " + std::to_string(max_points) +
+                                     " points an import; give fewer frames or fewer texels");
+    }
+    const uint64_t pixels = uint64_t{static_cast<uint32_t>(fw)} * static_cast<uint32_t>(fh);
+    if (pixels > largest) {
+      HVDB_RETURN_IF_ERROR(budget.Reserve((pixels - largest) * kDecoderBytesPerPixel,
+                                          what + ": its decoder's pictures"));
+      largest = pixels;
+    }
+    HVDB_RETURN_IF_ERROR(budget.Reserve(per * 4, what + ": its frames"));
     d.sws = sws_getCachedContext(d.sws, fw, fh, static_cast<AVPixelFormat>(d.frame->format), w,
                                  h, AV_PIX_FMT_RGBA, SWS_AREA | SWS_ACCURATE_RND, nullptr,
                                  nullptr, nullptr);
@@ -222,6 +282,7 @@ Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::strin
     }
     HVDB_RETURN_IF_ERROR(drain());
   }
+  if (!refused.empty()) return outside();
   if (out.empty()) {
     if (decode_error.empty()) decode_error = log;
     return Status::InvalidArgument(what + ": no frame decoded" +

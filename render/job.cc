@@ -50,6 +50,9 @@ Status InField(const std::string& field, const Status& st) {
 }
 
 constexpr uint32_t kMaxRenderLod = 16;
+// What an image holds per pixel while a job draws it (float RGBA + depth: 20 bytes; the
+// renderer's accumulators about as much again; the encoded image), for the job's budget.
+constexpr uint64_t kImageBytesPerPixel = 64;
 // Replies must fit the client's frame limit (256 MiB) with room to spare.
 constexpr size_t kMaxEncodedImage = 200u << 20;
 
@@ -112,6 +115,19 @@ Result<Camera> ViewFromWire(const wire::View& view, const DatasetInfo& info,
         eye[static_cast<size_t>(i)] = l.eye(i);
         target[static_cast<size_t>(i)] = l.target(i);
         if (l.up_size() == 3) up[static_cast<size_t>(i)] = l.up(i);
+      }
+      // Said here in the request's words: LookAt leaves such a camera without a pose, which
+      // Validate would report as a bad pose matrix.
+      const double dx = target[0] - eye[0], dy = target[1] - eye[1], dz = target[2] - eye[2];
+      if (dx == 0 && dy == 0 && dz == 0) {
+        return Invalid(field + ".look_at", "eye and target are the same point: the camera "
+                                           "looks nowhere");
+      }
+      const double cx = dy * up[2] - dz * up[1], cy = dz * up[0] - dx * up[2],
+                   cz = dx * up[1] - dy * up[0];
+      if (cx == 0 && cy == 0 && cz == 0) {
+        return Invalid(field + ".look_at.up", "is parallel to the view direction (or zero): "
+                                              "give an up that is not");
       }
       return Camera::LookAt(eye, target, up, l.fov_y_deg(), l.width(), l.height());
     }
@@ -311,7 +327,15 @@ Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> da
       }
       space = std::get<Window>(region);
     }
-    for (uint32_t f : r.frames()) {
+    for (int i = 0; i < r.frames_size(); ++i) {
+      const uint32_t f = r.frames(i);
+      // A frame past the dataset's end would render an empty image without a word.
+      if (f >= info.frame_count) {
+        return Invalid("render.frames[" + std::to_string(i) + "]",
+                       "frame " + std::to_string(f) + " is past the dataset's frames (" +
+                           std::to_string(info.frame_count) + ": 0 to " +
+                           std::to_string(info.frame_count == 0 ? 0 : info.frame_count - 1) + ")");
+      }
       Window w = space;
       w.lo[3] = w.hi[3] = f / info.fps;  // frame f is at t = f / fps
       job->regions_.push_back(w);
@@ -333,6 +357,18 @@ Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> da
   for (size_t i = 0; i < job->views_.size(); ++i) {
     job->steps_.push_back({i, job->regions_.size() == 1 ? 0 : i, job->query_.lod, false});
   }
+  // The images' buffers, reserved before any is made: the largest view's pixels at
+  // kImageBytesPerPixel (the float image and depth, the renderer's accumulators, the encoded
+  // copy; a textured render's sources are reserved as they are decoded).
+  uint64_t pixels = 0;
+  for (const Camera& v : job->views_) {
+    const uint64_t w = job->options_.width != 0 ? job->options_.width : v.width;
+    const uint64_t h = job->options_.height != 0 ? job->options_.height : v.height;
+    pixels = std::max(pixels, w * h);
+  }
+  job->image_lease_ = limits.job.Lease();
+  HVDB_RETURN_IF_ERROR(job->image_lease_.Reserve(
+      pixels * kImageBytesPerPixel, "render: an image of " + std::to_string(pixels) + " pixels"));
   return job;
 }
 
@@ -345,6 +381,7 @@ Status RenderJob::Query(const Step& step, const std::atomic<bool>* cancelled,
                         Points* out) const {
   out->points.clear();
   out->region = SIZE_MAX;
+  if (out->lease.held() == 0) out->lease = limits_.job.Lease();
   QueryOptions q = query_;
   q.lod = step.lod;
   HVDB_ASSIGN_OR_RETURN(auto cursor, dataset_->Query(regions_[step.region], q));
@@ -361,6 +398,18 @@ Status RenderJob::Query(const Step& step, const std::atomic<bool>* cancelled,
                                    std::to_string(limits_.max_points) +
                                    " points, the limit per image; use a coarser lod "
                                    "or a smaller region");
+    }
+    HVDB_RETURN_IF_ERROR(limits_.job.CheckTime("render"));
+    // The points' capacity is reserved before the vector grows to it.
+    const size_t need = out->points.size() + batch.points.size();
+    if (need > out->points.capacity()) {
+      const size_t cap = std::max(need, 2 * out->points.capacity());
+      const uint64_t reserved = out->lease.held() / sizeof(Point);
+      if (cap > reserved) {
+        HVDB_RETURN_IF_ERROR(out->lease.Reserve((cap - reserved) * sizeof(Point),
+                                                "render: the region's points"));
+      }
+      out->points.reserve(cap);
     }
     if (highlight_mask_ != 0) {
       // The overlay: selected points' colours blended toward the highlight colour.
@@ -587,6 +636,8 @@ Status RenderJob::Texture(const Camera& view, const RenderOptions& o, Renderer& 
 
 Result<wire::RenderReply> RenderJob::Render(size_t i, Renderer& renderer,
                                             const std::atomic<bool>* cancelled) {
+  HVDB_RETURN_IF_ERROR(limits_.job.CheckTime("render: image " + std::to_string(i + 1) + " of " +
+                                             std::to_string(steps_.size())));
   HVDB_RETURN_IF_ERROR(Draw(i, renderer, cancelled));
   const Image& img = image_;
   wire::RenderReply reply;
@@ -705,7 +756,14 @@ Status ParseCameraPath(const std::string& json_text, wire::Render* request) {
         return Invalid(where, "needs look_at, camera or dataset_camera");
       }
       if (e.contains("frame")) {
-        request->add_frames(e["frame"].get<uint32_t>());
+        // get<uint32_t> would wrap -1 and cut 10^12 to another frame: checked as a number.
+        const json& f = e["frame"];
+        if (!f.is_number_integer() || (f.is_number_integer() && !f.is_number_unsigned() &&
+                                       f.get<int64_t>() < 0) ||
+            (f.is_number_unsigned() && f.get<uint64_t>() > UINT32_MAX)) {
+          return Invalid(where, "frame: a frame number, 0 to 4294967295 (got " + f.dump() + ")");
+        }
+        request->add_frames(f.get<uint32_t>());
         ++with_frame;
       }
     } catch (const json::exception& ex) {

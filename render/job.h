@@ -28,6 +28,7 @@
 #include "render/shadow.h"
 #include "render/video_encoder.h"
 #include "storage/database.h"
+#include "storage/job_limits.h"
 
 namespace hvdb::render {
 
@@ -36,6 +37,9 @@ struct RenderLimits {
   // too while it draws one); hvdb-server: --max-render-points.
   uint64_t max_points = 16u << 20;
   uint32_t max_images = 100000;  // images in one sequence
+  // The memory the job's points and images may take from the process's budget, and its
+  // deadline (service::Service sets these; default: none).
+  JobLimits job;
 };
 
 class RenderJob {
@@ -79,6 +83,7 @@ class RenderJob {
     size_t region = SIZE_MAX;
     int lod = -1;
     std::vector<Point> points;
+    JobLease lease;  // the points' capacity, reserved from RenderLimits::job
     bool Holds(const Step& s) const { return region == s.region && lod == s.lod; }
   };
 
@@ -144,6 +149,7 @@ class RenderJob {
   // The next step's points, filled by prefetch_'s thread; read only after prefetch_.get().
   // With current_, a job may hold two images' points: up to 2x RenderLimits::max_points.
   Points next_;
+  JobLease image_lease_;  // image_'s and the renderer's buffers (an estimate per pixel)
   std::future<Status> prefetch_;
   std::atomic<bool> stop_{false};  // set by the destructor: the prefetch gives up
 };

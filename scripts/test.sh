@@ -19,24 +19,26 @@ cmake --build build-asan --target storage_tests server_tests service_tests codec
   ingest_points_tests photo_video_tests
 ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
   ctest --test-dir build-asan --output-on-failure -j2 --timeout 900 \
-  -R '^(Crc32c|Point|BufferPool|ConvertTest|ServiceTest|Lod|KdTree|Hyperslice|Wal|Dataset|FollowerTest|WatchTest|WatchServerTest|Photos|PhotoVideo|Crash|Corruption|ColdTier|RecordBlock|FaultInjection|Server|HttpServer|Hardening|HttpHeadCheck|Printable|WsCodec|WebPath|OriginAllowed|CodecTest|DepthSigma|PhotoConsistency|GeometricConsistencyTest|BillboardTest|SegmentationTest)' \
-  -E 'SlowReaderDoesNotGrowServerMemory|PipelinedQueriesOfClientsThatDoNotRead|TheServerWideBudgetHolds|PingsOfAClientThatDoesNotRead|PingPayloadsOverTheLimit|ConnectionsBeforeTheirHelloCannotAnnounce|AClientThatNeverReleasesHoldsOnlyItsRing|ClientsKilledWhileHoldingSlotsLeakNothing|PhotoConsistency.Throughput|PanopticViewsReadBack'
+  -R '^(Crc32c|Point|BufferPool|ConvertTest|ServiceTest|Lod|KdTree|Hyperslice|Wal|Dataset|FollowerTest|WatchTest|WatchServerTest|Photos|PhotoVideo|Crash|Corruption|ColdTier|RecordBlock|FaultInjection|Server|HttpServer|Hardening|HttpHeadCheck|Printable|WsCodec|WebPath|OriginAllowed|CodecTest|DepthSigma|PhotoConsistency|GeometricConsistencyTest|BillboardTest|SegmentationTest|ImportMediaLimitsTest)' \
+  -E 'SlowReaderDoesNotGrowServerMemory|PipelinedQueriesOfClientsThatDoNotRead|TheServerWideBudgetHolds|PingsOfAClientThatDoesNotRead|PingPayloadsOverTheLimit|ConnectionsBeforeTheirHelloCannotAnnounce|AClientThatNeverReleasesHoldsOnlyItsRing|ClientsKilledWhileHoldingSlotsLeakNothing|PhotoConsistency.Throughput|PanopticViewsReadBack|ServedEveryFileIsRefusedTheServerKeepsServingWithinItsBudget|AValidPictureOfAQuarterGigapixel'
 
 # Fuzz the decoders with clang's libFuzzer, 20 seconds each: the frame and message decoder of
 # the socket protocol, the WebSocket messages and HTTP requests of the browser's, the hvdb7
 # point-stream decoder, its octree geometry on its own, and the cold tier's record blocks (codec/), the photo files and the log
-# records of storage/, and the image decoder of formats/.
+# records of storage/, the image decoder of formats/, and import-media's image, video and mesh
+# decoders (media/).
 CC=clang CXX=clang++ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DHVDB_FUZZ=ON -DHVDB_BUILD_BENCH=OFF >/dev/null
 cmake --build build-fuzz --target frame_decoder_fuzz ws_message_fuzz http_request_fuzz \
   hvdb7_decoder_fuzz octree_fuzz photo_decoder_fuzz wal_record_fuzz image_decode_fuzz \
-  record_block_fuzz
+  record_block_fuzz media_import_fuzz
 for target in frame_decoder_fuzz:server/fuzz_corpus ws_message_fuzz:server/ws_fuzz_corpus \
   http_request_fuzz:server/http_fuzz_corpus \
   hvdb7_decoder_fuzz:codec/fuzz_corpus octree_fuzz:codec/octree_fuzz_corpus \
   photo_decoder_fuzz:storage/photo_fuzz_corpus \
   wal_record_fuzz:storage/wal_fuzz_corpus image_decode_fuzz:formats/image_fuzz_corpus \
-  record_block_fuzz:codec/record_block_fuzz_corpus; do
+  record_block_fuzz:codec/record_block_fuzz_corpus \
+  media_import_fuzz:media/import_fuzz_corpus; do
   corpus=$(mktemp -d)
   cp "tests/${target#*:}"/* "$corpus"/
   "build-fuzz/tests/${target%%:*}" -max_total_time=20 -rss_limit_mb=2048 "$corpus" 2>&1 | tail -n 2

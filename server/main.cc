@@ -79,9 +79,14 @@ int main(int argc, char** argv) {
   size_t memory_budget_mb = 0;
   app.add_option("--memory-budget", memory_budget_mb,
                  "MiB of results buffered for all connections together; past it a connection "
-                 "holding results gets no more until it reads them (default: 1/8 of RAM, " +
+                 "holding results gets no more until it reads them. The same number bounds the "
+                 "memory that import-media and render jobs hold together (default: 1/8 of RAM, " +
                      std::to_string(hvdb::server::DefaultMemoryBudget() >> 20) + " MiB here)")
       ->check(CLI::Range(size_t{16}, size_t{1} << 24));
+  app.add_option("--max-job-seconds", c.max_job_seconds,
+                 "seconds one import-media or render job may run before it is stopped with an "
+                 "error naming this limit (0: no bound)")
+      ->capture_default_str()->check(CLI::Range(0u, 86400u));
   app.add_option("--max-inflight", c.max_inflight, "requests in flight per connection")
       ->capture_default_str()->check(CLI::Range(1u, 4096u));
   app.add_option("--idle-timeout", c.idle_timeout_s, "seconds before an idle connection closes")

@@ -1,5 +1,6 @@
 #include "server/server.h"
 
+#include "storage/job_limits.h"
 #include "storage/log.h"
 #include "storage/rados_env.h"
 
@@ -43,7 +44,8 @@ Server::Server(Config config, std::unique_ptr<Database> db)
       io_(static_cast<int>(config_.io_threads)),
       workers_(config_.worker_threads),
       renders_(config_.max_renders),
-      service_(db_.get(), config_.data_dir, db_->options().env, &graph_cuts_),
+      service_(db_.get(), config_.data_dir, db_->options().env, &graph_cuts_,
+               service::JobConfig{config_.memory_budget, config_.max_job_seconds}),
       acceptor_(io_),
       unix_acceptor_(io_),
       signals_(io_),
@@ -188,12 +190,7 @@ std::string DefaultWebRoot() {
 uint16_t Server::http_port() const { return http_ ? http_->port() : 0; }
 std::string Server::web_root() const { return http_ ? http_->web_root() : ""; }
 
-size_t DefaultMemoryBudget() {
-  const long pages = ::sysconf(_SC_PHYS_PAGES);
-  const long page = ::sysconf(_SC_PAGESIZE);
-  if (pages <= 0 || page <= 0) return size_t{1} << 30;
-  return std::max<size_t>(size_t{64} << 20, static_cast<size_t>(pages) * page / 8);
-}
+size_t DefaultMemoryBudget() { return static_cast<size_t>(hvdb::DefaultMemoryBudget()); }
 
 // "TOKEN ro|rw" lines ('#' comments, blank lines). A file that grants nothing would leave the
 // server open to everyone, so it is refused, as is a token listed twice (which role was meant?).

@@ -76,7 +76,11 @@ struct Config {
   size_t outbound_high_water = 4u << 20;
   // All connections' buffered results together ("" budget: DefaultMemoryBudget()). Past it a
   // connection that already holds results gets no more until it reads them.
+  // The same number also bounds the memory that import and render jobs hold together
+  // (service::JobConfig; docs/PROTOCOL.md, "Limits").
   size_t memory_budget = 0;
+  // Seconds one import or render job may run (0: no bound).
+  uint32_t max_job_seconds = 600;
   size_t max_ingest_bytes = 512u << 20;   // per connection, points of frames not yet loaded
   uint32_t max_slice_frames = 64;
   // Render requests (docs/PROTOCOL.md, "Rendering"): at most this many at once, server-wide

@@ -19,8 +19,15 @@ bool IsUnknownDataset(const Status& s) {
   return s.IsNotFound() && s.message().rfind(kUnknownDataset, 0) == 0;
 }
 
-Service::Service(Database* db, std::string data_dir, Env* env, edit::GraphCutCache* graph_cuts)
-    : db_(db), data_dir_(std::move(data_dir)), env_(env), graph_cuts_(graph_cuts) {
+Service::Service(Database* db, std::string data_dir, Env* env, edit::GraphCutCache* graph_cuts,
+                 const JobConfig& jobs)
+    : db_(db),
+      data_dir_(std::move(data_dir)),
+      env_(env),
+      graph_cuts_(graph_cuts),
+      jobs_(jobs),
+      job_memory_(jobs.memory_budget != 0 ? jobs.memory_budget : DefaultMemoryBudget(),
+                  jobs.memory_flag) {
   // Every transport and the embedded mode read photos through here: those coded as video
   // (storage/photo_video.h) need the codec, which storage/ cannot link.
   media::InstallPhotoVideoCodec();
@@ -133,13 +140,22 @@ Result<CommitInfo> Service::Composite(const std::string& name, const edit::Compo
 Result<CommitInfo> Service::ImportMedia(const std::string& name,
                                        const media::ImportRequest& req) {
   HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
-  return media::Import(*ds, req);
+  return media::Import(*ds, req, NewJob());
+}
+
+JobLimits Service::NewJob() {
+  JobLimits l;
+  l.memory = &job_memory_;
+  l.max_seconds = jobs_.max_job_seconds;
+  return l;
 }
 
 Result<std::unique_ptr<render::RenderJob>> Service::Render(const wire::Render& request,
                                                            const render::RenderLimits& limits) {
   HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(request.dataset()));
-  return render::RenderJob::Create(std::move(ds), request, limits);
+  render::RenderLimits l = limits;
+  l.job = NewJob();
+  return render::RenderJob::Create(std::move(ds), request, l);
 }
 
 Result<std::unique_ptr<WatchHandle>> Service::Watch(const std::string& name,

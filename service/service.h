@@ -25,8 +25,17 @@
 #include "media/media.h"
 #include "render/job.h"
 #include "storage/database.h"
+#include "storage/job_limits.h"
 
 namespace hvdb::service {
+
+// The bounds of the jobs that decode what a client sends (import-media) and of render jobs
+// (docs/PROTOCOL.md, "Limits"): memory they may hold together, and seconds each may run.
+struct JobConfig {
+  uint64_t memory_budget = 0;  // 0: DefaultMemoryBudget()
+  uint32_t max_job_seconds = 0;  // 0: no deadline (the embedded mode's default)
+  std::string memory_flag = "--memory-budget";  // named in errors
+};
 
 // The coarsest level of detail a query or render may ask for.
 inline constexpr int kMaxLod = 64;
@@ -52,8 +61,9 @@ class Service {
   // `db` outlives the service. Clipboards are kept in DIR/clipboards of `data_dir` through `env`
   // (null: the POSIX files). `graph_cuts`: the cache of the last cut (hvdb-server keeps one, so
   // that a cut after one more stroke is a re-cut); null: none.
+  // `jobs`: the memory and time bounds of import and render jobs.
   Service(Database* db, std::string data_dir, Env* env = nullptr,
-          edit::GraphCutCache* graph_cuts = nullptr);
+          edit::GraphCutCache* graph_cuts = nullptr, const JobConfig& jobs = {});
 
   Database& db() { return *db_; }
 
@@ -88,11 +98,13 @@ class Service {
   Result<edit::CopyResult> Copy(const std::string& name, const edit::CopyRequest& req);
   Result<CommitInfo> Paste(const std::string& name, const edit::PasteRequest& req);
   Result<CommitInfo> Composite(const std::string& name, const edit::CompositeRequest& req);
-  // An image, video or mesh file decoded here (media/media.h) and inserted in one transaction.
+  // An image, video or mesh file decoded here (media/media.h) and inserted in one transaction,
+  // within the job bounds.
   Result<CommitInfo> ImportMedia(const std::string& name, const media::ImportRequest& req);
 
   // ---- Rendering: the request checked and the job made; the caller brings a renderer (the
-  // server's pool, or one made in this process) and asks for the images one by one.
+  // server's pool, or one made in this process) and asks for the images one by one. The job
+  // holds its points and images within the job bounds (limits.job is set here).
   Result<std::unique_ptr<render::RenderJob>> Render(const wire::Render& request,
                                                     const render::RenderLimits& limits = {});
 
@@ -101,6 +113,10 @@ class Service {
   std::string data_dir_;
   Env* env_;
   edit::GraphCutCache* graph_cuts_;
+  JobConfig jobs_;
+  JobBudget job_memory_;
+  // A job's bounds, starting now.
+  JobLimits NewJob();
 };
 
 }  // namespace hvdb::service

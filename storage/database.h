@@ -234,7 +234,8 @@ struct CompactInfo {
   uint32_t frames = 0;             // frames rewritten into the cold tier
   uint32_t already = 0;            // frames in the range that were compressed already
   uint64_t points = 0;             // their points
-  uint64_t bytes_before = 0, bytes_after = 0;  // their tree files' bytes
+  // Their tree files' bytes (before: with the buffered points' 64-byte records).
+  uint64_t bytes_before = 0, bytes_after = 0;
   // The video tier of photos (Dataset::CompactPhotos): runs written (one video per camera and
   // stretch of frames), their pictures, cameras whose photos in the range were one run
   // already, the image bytes before (per-frame images and replaced videos) and after (the

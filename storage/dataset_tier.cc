@@ -62,7 +62,9 @@ Status DatasetImpl::CompactFrame(uint32_t frame, CompactInfo* info, bool* stale)
   std::vector<Point> pts;
   HVDB_RETURN_IF_ERROR(LivePoints(*v, v->slots.size(), &pts));
   if (pts.empty()) return Status::OK();
-  uint64_t before = 0;
+  // The buffer's points count as the 64-byte records they are held as (in the buffer T0 and
+  // its log): a frame of buffered points only was 0 bytes "before" its compaction.
+  uint64_t before = v->t0.size() * kPointRecordSize;
   for (const TreeSlot& s : v->slots) before += s.tree ? s.tree->file_bytes() : 0;
   return InstallCompacted(v, pts.size(), before,
                           [&](const std::string& path, uint64_t seq) {

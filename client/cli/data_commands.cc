@@ -137,7 +137,10 @@ int CmdDescribe(Context& ctx, const NameArgs& a) {
   }
   const json tiers = {
       {"hot", {{"points", st.points - st.cold_points},
-               {"tree_bytes", st.tree_bytes - st.cold_tree_bytes}}},
+               {"tree_bytes", st.tree_bytes - st.cold_tree_bytes},
+               // Points not yet in a tree: in the frame's buffer (and the log), 64 bytes each.
+               {"buffered_points", st.buffered_points},
+               {"buffer_bytes", st.buffered_points * kPointRecordSize}}},
       {"cold", {{"frames", st.cold_frames}, {"points", st.cold_points},
                 {"tree_bytes", st.cold_tree_bytes}}}};
   if (a.json) {
@@ -168,9 +171,12 @@ int CmdDescribe(Context& ctx, const NameArgs& a) {
               info.bounds_max[2]);
   std::printf("cameras   %zu\n", info.cameras.size());
   std::printf("last lsn  %llu\n", static_cast<unsigned long long>(info.last_lsn));
-  std::printf("storage   hot %.1f MiB (%llu points), cold %.1f MiB (%u frames, %llu points)\n",
-              static_cast<double>(st.tree_bytes - st.cold_tree_bytes) / (1 << 20),
+  std::printf("storage   hot %.1f MiB (%llu points, %llu of them buffered), cold %.1f MiB (%u "
+              "frames, %llu points)\n",
+              static_cast<double>(st.tree_bytes - st.cold_tree_bytes +
+                                  st.buffered_points * kPointRecordSize) / (1 << 20),
               static_cast<unsigned long long>(st.points - st.cold_points),
+              static_cast<unsigned long long>(st.buffered_points),
               static_cast<double>(st.cold_tree_bytes) / (1 << 20), st.cold_frames,
               static_cast<unsigned long long>(st.cold_points));
   return kExitOk;

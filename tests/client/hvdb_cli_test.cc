@@ -245,6 +245,10 @@ TEST_F(HvdbCliTest, ImportQueryEditUndoCheck) {
   json d = RunJson("describe walk");
   EXPECT_EQ(d["storage"]["cold"]["frames"], 3);
   EXPECT_EQ(d["storage"]["hot"]["tree_bytes"], 0);
+  // Hot points outside trees are the buffer's, and counted as its bytes.
+  EXPECT_EQ(d["storage"]["hot"]["buffer_bytes"].get<uint64_t>(),
+            64 * d["storage"]["hot"]["buffered_points"].get<uint64_t>());
+  EXPECT_EQ(d["storage"]["hot"]["buffered_points"], d["storage"]["hot"]["points"]);
   EXPECT_GT(d["storage"]["cold"]["tree_bytes"].get<double>(), 0);
   EXPECT_EQ(RunJson("window walk " + std::string(kEverything))["points"], before["points"]);
   EXPECT_EQ(RunJson("window walk --label-mask 4 " + std::string(kEverything))["points"], legs);

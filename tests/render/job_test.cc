@@ -186,6 +186,58 @@ TEST_F(RenderJobTest, RejectsBadRequestsNamingTheField) {
   EXPECT_EQ((*job2)->RenderImage(0, *cpu, &cancelled).status().code(), StatusCode::kCancelled);
 }
 
+// Findings of a probe of the render requests: a camera that looks nowhere, frames that do not
+// exist, and jobs past their memory or time.
+TEST_F(RenderJobTest, RequestsThatCannotRenderAreSaidInTheRequestsWords) {
+  auto error = [&](const wire::Render& r, const render::RenderLimits& l = {}) {
+    auto job = RenderJob::Create(ds_, r, l);
+    return job.ok() ? std::string("ok") : job.status().message();
+  };
+  wire::Render base;
+  base.set_dataset("scene");
+  *base.mutable_region() = FrameRegion(0);
+  SetLookAt(base.mutable_view());
+  wire::Render r = base;
+  wire::LookAt* l = r.mutable_view()->mutable_look_at();
+  for (int i = 0; i < 3; ++i) l->set_target(i, l->eye(i));
+  EXPECT_NE(error(r).find("eye and target are the same point"), std::string::npos) << error(r);
+  r = base;
+  l = r.mutable_view()->mutable_look_at();
+  l->clear_up();
+  for (int i = 0; i < 3; ++i) l->add_up(l->target(i) - l->eye(i));
+  EXPECT_NE(error(r).find("render.view.look_at.up"), std::string::npos) << error(r);
+  // A path whose frame is past the dataset's three.
+  wire::Render seq;
+  seq.set_dataset("scene");
+  SetLookAt(seq.add_path());
+  seq.add_frames(0);
+  SetLookAt(seq.add_path());
+  seq.add_frames(4294967295u);
+  EXPECT_EQ(error(seq).rfind("render.frames[1]: frame 4294967295 is past", 0), 0u) << error(seq);
+  EXPECT_FALSE(render::ParseCameraPath(
+                   R"({"cameras": [{"frame": -1, "dataset_camera": 2}]})", &seq).ok());
+  EXPECT_FALSE(render::ParseCameraPath(
+                   R"({"cameras": [{"frame": 1000000000000, "dataset_camera": 2}]})", &seq).ok());
+  // Memory: the image's buffers come out of the job budget before anything is drawn.
+  JobBudget small(512u << 10, "--memory-budget");  // under one 160 x 120 image
+  render::RenderLimits tight;
+  tight.job.memory = &small;
+  const std::string m = error(base, tight);
+  EXPECT_NE(m.find("--memory-budget"), std::string::npos) << m;
+  EXPECT_EQ(small.used(), 0u);  // given back with the job
+  // Time: a job past --max-job-seconds stops at its next image, saying so.
+  render::RenderLimits late;
+  late.job.max_seconds = 1;
+  late.job.start = std::chrono::steady_clock::now() - std::chrono::seconds(2);
+  auto job = RenderJob::Create(ds_, base, late);
+  ASSERT_TRUE(job.ok());
+  auto cpu = render::MakeCpuRenderer();
+  auto reply = (*job)->Render(0, *cpu);
+  ASSERT_FALSE(reply.ok());
+  EXPECT_EQ(reply.status().code(), StatusCode::kLimitExceeded);
+  EXPECT_NE(reply.status().message().find("--max-job-seconds"), std::string::npos);
+}
+
 TEST_F(RenderJobTest, ProgressiveGivesACoarsePreviewFirst) {
   wire::Render req;
   req.set_dataset("scene");

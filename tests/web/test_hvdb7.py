@@ -29,6 +29,7 @@ def write_results():
     out = os.environ.get("HVDB_WEB_RESULTS")
     if out and RESULTS:
         RESULTS["machine"] = {"cpus": os.cpu_count(), "browser": "headless Chromium, SwiftShader WebGL2"}
+        os.makedirs(os.path.dirname(out), exist_ok=True)
         with open(os.path.join(os.path.dirname(out), "web_hvdb7.json"), "w") as f:
             json.dump(RESULTS, f, indent=2, sort_keys=True)
 

@@ -42,6 +42,7 @@ def live_dataset(server, files):
     RESULTS["machine"] = {"cpus": os.cpu_count(), "browser": "headless Chromium, SwiftShader WebGL2"}
     out = os.environ.get("HVDB_WEB_RESULTS")
     if out and "event_to_screen_ms" in RESULTS:
+        os.makedirs(os.path.dirname(out), exist_ok=True)
         with open(os.path.join(os.path.dirname(out), "web_live.json"), "w") as f:
             json.dump(RESULTS, f, indent=2, sort_keys=True)
 
