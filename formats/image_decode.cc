@@ -1,4 +1,5 @@
 #include "formats/image_decode.h"
+#include "formats/jpeg_error.h"
 
 #include <csetjmp>
 #include <cstdio>  // before jpeglib.h, which uses FILE and size_t without including them
@@ -9,8 +10,6 @@
 #include <sstream>
 #include <vector>
 
-#include <jerror.h>
-#include <jpeglib.h>
 #include <png.h>
 #include <opencv2/imgproc.hpp>
 
@@ -57,31 +56,10 @@ Result<cv::Mat> DecodePng(const std::string& bytes, const std::string& path, boo
   return out;
 }
 
-struct JpegError {
-  jpeg_error_mgr mgr;
-  std::jmp_buf jump;
-  char message[JMSG_LENGTH_MAX];
-};
-
-void OnJpegError(j_common_ptr cinfo) {
-  auto* e = reinterpret_cast<JpegError*>(cinfo->err);
-  (*cinfo->err->format_message)(cinfo, e->message);
-  std::longjmp(e->jump, 1);
-}
-
-// libjpeg only warns about corrupt data (a truncated file decodes with grey at the end): a
-// warning is an error here; trace messages are dropped.
-void OnJpegMessage(j_common_ptr cinfo, int level) {
-  if (level < 0) OnJpegError(cinfo);
-}
-
 Result<cv::Mat> DecodeJpeg(const std::string& bytes, const std::string& path, bool colour) {
   jpeg_decompress_struct cinfo;
   JpegError err;
-  cinfo.err = jpeg_std_error(&err.mgr);
-  err.mgr.error_exit = OnJpegError;
-  err.mgr.emit_message = OnJpegMessage;
-  err.message[0] = 0;
+  UseJpegError(&cinfo, &err);
   cv::Mat out;
   if (setjmp(err.jump)) {
     jpeg_destroy_decompress(&cinfo);

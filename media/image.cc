@@ -8,7 +8,7 @@
 // itself where the grid is that much smaller. Other still formats (BMP, TIFF, WebP, ...) go
 // through libavcodec's bounded decoders (video.cc).
 #include <csetjmp>
-#include <cstdio>  // before jpeglib.h, which uses FILE and size_t without including them
+#include <cstdio>
 #include <cstring>
 
 #include <algorithm>
@@ -16,10 +16,9 @@
 #include <string>
 #include <vector>
 
-#include <jerror.h>
-#include <jpeglib.h>
 #include <png.h>
 
+#include "formats/jpeg_error.h"
 #include "media/media.h"
 
 namespace hvdb::media {
@@ -181,7 +180,7 @@ Result<Picture> DecodePng(std::string_view data, const std::string& what, uint32
   // IHDR is the first chunk; the sum of the IDAT chunks bounds what the pixels can be:
   // deflate expands at most 1032:1.
   if (data.size() < 33 || std::memcmp(b + 12, "IHDR", 4) != 0) {
-    return Status::InvalidArgument(what + " is not a readable PNG (no IHDR chunk)");
+    return Status::InvalidArgument(what + " could not be decoded: not a readable PNG (no IHDR chunk)");
   }
   const uint64_t w = Be32(b + 16), h = Be32(b + 20);
   HVDB_RETURN_IF_ERROR(CheckDeclared(what, w, h));
@@ -207,7 +206,7 @@ Result<Picture> DecodePng(std::string_view data, const std::string& what, uint32
   Status budget_error;
   if (setjmp(png_jmpbuf(png))) {
     png_destroy_read_struct(&png, &info, nullptr);
-    return Status::InvalidArgument(what + " is not a readable PNG (" + src.message + ")");
+    return Status::InvalidArgument(what + " could not be decoded: not a readable PNG (" + src.message + ")");
   }
   png_set_read_fn(png, &src, PngRead);
   png_set_user_limits(png, kMaxPictureSide, kMaxPictureSide);
@@ -250,33 +249,13 @@ Result<Picture> DecodePng(std::string_view data, const std::string& what, uint32
   return pic;
 }
 
-// ---- JPEG. libjpeg only warns about corrupt data (a truncated file decodes with grey at the
-// end): a warning is an error here.
-
-struct JpegError {
-  jpeg_error_mgr mgr;
-  std::jmp_buf jump;
-  char message[JMSG_LENGTH_MAX];
-};
-
-void OnJpegError(j_common_ptr cinfo) {
-  auto* e = reinterpret_cast<JpegError*>(cinfo->err);
-  (*cinfo->err->format_message)(cinfo, e->message);
-  std::longjmp(e->jump, 1);
-}
-
-void OnJpegMessage(j_common_ptr cinfo, int level) {
-  if (level < 0) OnJpegError(cinfo);
-}
+// ---- JPEG (libjpeg-turbo: RGBA out, scaled while decoding).
 
 Result<Picture> DecodeJpeg(std::string_view data, const std::string& what, uint32_t max_side,
                            const Budget& budget) {
   jpeg_decompress_struct cinfo;
-  JpegError err;
-  cinfo.err = jpeg_std_error(&err.mgr);
-  err.mgr.error_exit = OnJpegError;
-  err.mgr.emit_message = OnJpegMessage;
-  err.message[0] = 0;
+  formats::JpegError err;
+  formats::UseJpegError(&cinfo, &err);
   Picture pic;
   std::vector<uint8_t> row;
   Status early;  // a limit or the budget, found between libjpeg's calls
@@ -284,7 +263,7 @@ Result<Picture> DecodeJpeg(std::string_view data, const std::string& what, uint3
   if (setjmp(err.jump)) {
     // What was reserved goes back with the job's lease.
     jpeg_destroy_decompress(&cinfo);
-    return Status::InvalidArgument(what + " is not a readable JPEG (" + err.message + ")");
+    return Status::InvalidArgument(what + " could not be decoded: not a readable JPEG (" + err.message + ")");
   }
   jpeg_create_decompress(&cinfo);
   jpeg_mem_src(&cinfo, reinterpret_cast<const unsigned char*>(data.data()),
