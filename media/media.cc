@@ -140,10 +140,9 @@ Result<CommitInfo> Import(Dataset& ds, const ImportRequest& req, const JobLimits
           DecodeVideo(req.data, fmt, static_cast<uint32_t>(frames), side, kMaxImportPoints, budget));
       // Every frame's texels, the last one's repeated to the end of the range.
       uint64_t total = 0;
-      for (uint64_t k = 0; k < frames; ++k) {
-        const Picture& pic = pics[std::min<size_t>(k, pics.size() - 1)];
-        total += static_cast<uint64_t>(pic.width) * pic.height;
-      }
+      for (const Picture& pic : pics) total += static_cast<uint64_t>(pic.width) * pic.height;
+      total += (frames - pics.size()) * static_cast<uint64_t>(pics.back().width) *
+               static_cast<uint64_t>(pics.back().height);
       if (total > kMaxImportPoints) {
         const Picture& end = pics.back();
         return TooManyPoints(static_cast<uint64_t>(end.width) * end.height, frames, kind);

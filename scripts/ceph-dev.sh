@@ -171,6 +171,15 @@ case "$cmd" in
   osd-start)
     ceph-osd -c "$conf" -i 0 2>>"$dir/log/setup.log"
     wait_osd up
+    # Up is not serving: its placement groups peer first, and a client's operation waits for
+    # that (past a short store timeout=S, under load). Wait until every one is active+clean.
+    for _ in $(seq 1 120); do
+      ceph -c "$conf" --connect-timeout 5 pg stat 2>/dev/null |
+        grep -qE '^(0 pgs:|([0-9]+) pgs: \2 active\+clean)' && exit 0
+      sleep 0.5
+    done
+    echo "ceph-dev.sh: the OSD's placement groups are not active+clean after 60 s" >&2
+    exit 1
     ;;
   status) ceph -c "$conf" --connect-timeout 5 -s ;;
   *) usage ;;
