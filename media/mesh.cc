@@ -1,6 +1,14 @@
 // Mesh files (OBJ, PLY, glTF/GLB, STL, ... through assimp) sampled into surfels: area-uniform,
 // deterministic, with the surface's normals and colours.
+#include <fcntl.h>
+#include <poll.h>
+#include <signal.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <random>
@@ -14,6 +22,14 @@
 
 #include "media/media.h"
 #include "media/surfel.h"
+
+#if defined(__SANITIZE_ADDRESS__)
+#define HVDB_UNDER_ASAN 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+#define HVDB_UNDER_ASAN 1
+#endif
+#endif
 
 namespace hvdb::media {
 namespace {
@@ -137,26 +153,25 @@ double MeshSpacing(double area) {
 // and normals, a copy of the buffers, the post-processing's copies.
 constexpr uint64_t kAssimpBytesPerFileByte = 12;
 
-Result<std::vector<Point>> SampleMesh(std::string_view data, const std::string& format,
+namespace {
+
+// assimp's parse and our sampling of it, run in the child process of SampleMesh.
+Result<std::vector<Point>> SampleHere(std::string_view data, const std::string& format,
                                       const Placement& place, double spacing, uint32_t label,
-                                      const Budget& budget) {
-  const std::string what = "import_media: the mesh (" + (format.empty() ? "?" : format) + ")";
-  if (data.empty()) return Status::InvalidArgument(what + " is empty");
-  HVDB_RETURN_IF_ERROR(CheckMeshFile(data, format, what));
-  HVDB_RETURN_IF_ERROR(budget.Reserve(data.size() * kAssimpBytesPerFileByte, what));
+                                      const Budget& budget, const std::string& what) {
   Assimp::Importer importer;
   std::string refused;
   importer.SetIOHandler(new RequestOnlyIO(&refused));  // the importer owns it
-  // Node transforms baked in, polygons split into triangles, points and lines dropped; the
-  // scene validated first (face indices within the vertices, counts, references), before any
-  // step or our sampler reads it.
+  // Node transforms baked in, points and lines dropped; the scene validated first (face indices
+  // within the vertices, counts, references), before any step or our sampler reads it.
+  // Polygons are split into triangles below, not by aiProcess_Triangulate: that step aborts the
+  // process (an assertion) on some scenes that pass validation (found by media_import_fuzz).
   importer.SetPropertyInteger(AI_CONFIG_PP_SBP_REMOVE,
                               aiPrimitiveType_POINT | aiPrimitiveType_LINE);
   const std::string hint = format.empty() && data.substr(0, 4) == "glTF" ? "glb" : format;
   const aiScene* scene = importer.ReadFileFromMemory(
       data.data(), data.size(),
-      aiProcess_ValidateDataStructure | aiProcess_Triangulate | aiProcess_PreTransformVertices |
-          aiProcess_SortByPType,
+      aiProcess_ValidateDataStructure | aiProcess_PreTransformVertices | aiProcess_SortByPType,
       hint.c_str());
   if (!refused.empty()) {
     return Status::InvalidArgument(what + " refers to '" + refused +
@@ -174,32 +189,36 @@ Result<std::vector<Point>> SampleMesh(std::string_view data, const std::string& 
   double area = 0;
   for (unsigned m = 0; m < scene->mNumMeshes; ++m) {
     const aiMesh* mesh = scene->mMeshes[m];
-    if (!(mesh->mPrimitiveTypes & aiPrimitiveType_TRIANGLE)) continue;
+    if (!(mesh->mPrimitiveTypes & (aiPrimitiveType_TRIANGLE | aiPrimitiveType_POLYGON))) continue;
     HVDB_ASSIGN_OR_RETURN(colours[m], ColoursOf(scene, mesh, budget));
     for (unsigned f = 0; f < mesh->mNumFaces; ++f) {
       const aiFace& face = mesh->mFaces[f];
-      if (face.mNumIndices != 3) continue;
+      if (face.mNumIndices < 3 || face.mIndices == nullptr) continue;
       // ValidateDataStructure checked these; checked again where they are used, as the
       // sampler's own precondition.
-      if (face.mIndices[0] >= mesh->mNumVertices || face.mIndices[1] >= mesh->mNumVertices ||
-          face.mIndices[2] >= mesh->mNumVertices) {
-        return Status::InvalidArgument(what + " has a face whose vertex does not exist");
-      }
-      Triangle t{mesh, &colours[m], {face.mIndices[0], face.mIndices[1], face.mIndices[2]}};
-      const aiVector3D* v = mesh->mVertices;
-      for (unsigned k : t.v) {
-        const aiVector3D& p = v[k];
-        if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) {
-          return Status::InvalidArgument(what + " has a vertex that is not finite");
+      for (unsigned k = 0; k < face.mNumIndices; ++k) {
+        if (face.mIndices[k] >= mesh->mNumVertices) {
+          return Status::InvalidArgument(what + " has a face whose vertex does not exist");
         }
-        lo = aiVector3D(std::min(lo.x, p.x), std::min(lo.y, p.y), std::min(lo.z, p.z));
-        hi = aiVector3D(std::max(hi.x, p.x), std::max(hi.y, p.y), std::max(hi.z, p.z));
       }
-      const double a = 0.5 * Norm(Cross(Sub(v[t.v[1]], v[t.v[0]]), Sub(v[t.v[2]], v[t.v[0]])));
-      if (!(a > 0)) continue;  // degenerate: nothing to sample
-      area += a;
-      tris.push_back(t);
-      cdf.push_back(area);
+      // A polygon as a fan of triangles around its first vertex (exact for convex ones).
+      for (unsigned j = 1; j + 1 < face.mNumIndices; ++j) {
+        Triangle t{mesh, &colours[m], {face.mIndices[0], face.mIndices[j], face.mIndices[j + 1]}};
+        const aiVector3D* v = mesh->mVertices;
+        for (unsigned k : t.v) {
+          const aiVector3D& p = v[k];
+          if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) {
+            return Status::InvalidArgument(what + " has a vertex that is not finite");
+          }
+          lo = aiVector3D(std::min(lo.x, p.x), std::min(lo.y, p.y), std::min(lo.z, p.z));
+          hi = aiVector3D(std::max(hi.x, p.x), std::max(hi.y, p.y), std::max(hi.z, p.z));
+        }
+        const double a = 0.5 * Norm(Cross(Sub(v[t.v[1]], v[t.v[0]]), Sub(v[t.v[2]], v[t.v[0]])));
+        if (!(a > 0)) continue;  // degenerate: nothing to sample
+        area += a;
+        tris.push_back(t);
+        cdf.push_back(area);
+      }
     }
   }
   if (tris.empty()) {
@@ -296,6 +315,135 @@ Result<std::vector<Point>> SampleMesh(std::string_view data, const std::string& 
     p.b = ToByte(rgb[2]);
   }
   return out;
+}
+
+}  // namespace
+
+// assimp's importers trust their input: fuzzing found an abort (an assertion in a
+// post-processing step), a crash (its binary PLY reader) and a loop without end (its PLY
+// header parser) on files that pass every check we make first. So the parse runs in a child
+// process: a crash or a hang there is the request's error, not the server's end. The child
+// gets a CPU limit (the job's time left) and, outside the sanitizer builds, a data limit (what
+// was reserved for it), and sends the samples back through a pipe.
+Result<std::vector<Point>> SampleMesh(std::string_view data, const std::string& format,
+                                      const Placement& place, double spacing, uint32_t label,
+                                      const Budget& budget) {
+  const std::string what = "import_media: the mesh (" + (format.empty() ? "?" : format) + ")";
+  if (data.empty()) return Status::InvalidArgument(what + " is empty");
+  HVDB_RETURN_IF_ERROR(CheckMeshFile(data, format, what));
+  const uint64_t parse_bytes = data.size() * kAssimpBytesPerFileByte;
+  HVDB_RETURN_IF_ERROR(budget.Reserve(parse_bytes, what));
+  // Seconds the parse may take: the job's time left, else kMaxParseSeconds.
+  constexpr double kMaxParseSeconds = 120;
+  double seconds = kMaxParseSeconds;
+  if (budget.limits != nullptr && budget.limits->max_seconds != 0) {
+    const std::chrono::duration<double> used = std::chrono::steady_clock::now() - budget.limits->start;
+    seconds = std::max(0.0, budget.limits->max_seconds - used.count());
+  }
+  HVDB_RETURN_IF_ERROR(budget.CheckTime(what));
+  int fds[2];
+  if (::pipe2(fds, O_CLOEXEC) != 0) return Status::FromErrno(what + ": pipe", errno);
+  const pid_t pid = ::fork();
+  if (pid < 0) {
+    const int err = errno;
+    ::close(fds[0]);
+    ::close(fds[1]);
+    return Status::FromErrno(what + ": fork", err);
+  }
+  if (pid == 0) {
+    ::close(fds[0]);
+    const rlim_t cpu = static_cast<rlim_t>(std::ceil(seconds)) + 1;
+    rlimit rl{cpu, cpu};
+    ::setrlimit(RLIMIT_CPU, &rl);
+#ifndef HVDB_UNDER_ASAN
+    // The data segment as it is, plus what was reserved for the parse and the samples (ASan's
+    // shadow memory would not fit such a limit).
+    long pages = 0, data_pages = 0;
+    if (FILE* f = std::fopen("/proc/self/statm", "r")) {
+      long skip = 0;
+      if (std::fscanf(f, "%ld %ld %ld %ld %ld %ld", &pages, &skip, &skip, &skip, &skip,
+                      &data_pages) != 6) {
+        data_pages = 0;
+      }
+      std::fclose(f);
+    }
+    if (data_pages > 0) {
+      const rlim_t limit = static_cast<rlim_t>(data_pages) * ::sysconf(_SC_PAGESIZE) +
+                           parse_bytes + (uint64_t{kMaxImportPoints} * sizeof(Point)) +
+                           (rlim_t{256} << 20);
+      rlimit dl{limit, limit};
+      ::setrlimit(RLIMIT_DATA, &dl);
+    }
+#endif
+    std::string out;
+    Result<std::vector<Point>> r = SampleHere(data, format, place, spacing, label, Budget{}, what);
+    if (r.ok()) {
+      out.push_back('\1');
+      out.append(reinterpret_cast<const char*>(r->data()), r->size() * sizeof(Point));
+    } else {
+      out.push_back('\0');
+      out.push_back(static_cast<char>(r.status().code()));
+      out.append(r.status().message());
+    }
+    for (size_t at = 0; at < out.size();) {
+      const ssize_t n = ::write(fds[1], out.data() + at, out.size() - at);
+      if (n <= 0) break;
+      at += static_cast<size_t>(n);
+    }
+    ::_exit(0);
+  }
+  ::close(fds[1]);
+  std::string got;
+  char buf[1 << 16];
+  const auto deadline = std::chrono::steady_clock::now() +
+                        std::chrono::milliseconds(static_cast<int64_t>(seconds * 1000) + 2000);
+  bool late = false;
+  for (;;) {
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+        deadline - std::chrono::steady_clock::now());
+    if (left.count() <= 0) {
+      late = true;
+      break;
+    }
+    pollfd p{fds[0], POLLIN, 0};
+    const int ready = ::poll(&p, 1, static_cast<int>(std::min<int64_t>(left.count(), 1000)));
+    if (ready < 0 && errno != EINTR) break;
+    if (ready <= 0) continue;
+    const ssize_t n = ::read(fds[0], buf, sizeof buf);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) break;
+    got.append(buf, static_cast<size_t>(n));
+  }
+  ::close(fds[0]);
+  if (late) ::kill(pid, SIGKILL);
+  int status = 0;
+  while (::waitpid(pid, &status, 0) < 0 && errno == EINTR) {
+  }
+  if (late || (WIFSIGNALED(status) && (WTERMSIG(status) == SIGXCPU || WTERMSIG(status) == SIGKILL))) {
+    return Status::LimitExceeded(what + ": its parser ran past the time left to the job (" +
+                                 std::to_string(static_cast<int>(seconds)) +
+                                 " s; --max-job-seconds)");
+  }
+  if (WIFSIGNALED(status) || got.empty()) {
+    return Status::InvalidArgument(
+        what + " could not be read: its parser (assimp) " +
+        (WIFSIGNALED(status) ? "failed with signal " + std::to_string(WTERMSIG(status))
+                             : std::string("stopped without a result")) +
+        ", on a malformed file or one over the memory reserved for it");
+  }
+  if (got[0] == '\0') {
+    const auto code = static_cast<StatusCode>(got.size() > 1 ? got[1] : 8);
+    return Status(code, got.size() > 2 ? got.substr(2) : what + ": failed");
+  }
+  const size_t n = (got.size() - 1) / sizeof(Point);
+  if ((got.size() - 1) % sizeof(Point) != 0) {
+    return Status::Internal(what + ": the parser's samples came back cut");
+  }
+  HVDB_RETURN_IF_ERROR(budget.Reserve(n * sizeof(Point), what + ": its samples"));
+  budget.Release(parse_bytes);
+  std::vector<Point> pts(n);
+  std::memcpy(pts.data(), got.data() + 1, n * sizeof(Point));
+  return pts;
 }
 
 }  // namespace hvdb::media

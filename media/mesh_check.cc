@@ -344,14 +344,22 @@ Status CheckGlb(std::string_view data, const std::string& what) {
   return CheckGltfJson(json_chunk, bin, true, what);
 }
 
-// PLY: each element's count times the fewest bytes one can take, within the bytes after the
-// header.
+// PLY: a header in the grammar of the format, line by line (assimp's header parser loops
+// without end on some malformed ones: found by media_import_fuzz); a vertex element with x, y
+// and z; each element's count times the fewest bytes one can take within the bytes after it.
 Status CheckPly(std::string_view data, const std::string& what) {
-  const size_t end = data.find("end_header");
+  const size_t end = data.find("\nend_header");
   if (end == std::string_view::npos) return Bad(what, "is a PLY without end_header");
-  std::istringstream in(std::string(data.substr(0, end)));
-  std::string line, format;
+  const std::string_view header = data.substr(0, end + 1);
+  for (char c : header) {
+    if (c != '\n' && c != '\r' && (c < 0x20 || c > 0x7e)) {
+      return Bad(what, "has a PLY header with a byte that is not printable text");
+    }
+  }
+  std::istringstream in{std::string(header)};
+  std::string line, format, element;
   uint64_t need = 0, count = 0, per = 0;
+  bool vx = false, vy = false, vz = false;
   auto close = [&]() {
     need += count * per;
     count = per = 0;
@@ -364,27 +372,61 @@ Status CheckPly(std::string_view data, const std::string& what) {
     if (t == "double" || t == "float64") return 8;
     return 0;
   };
+  const auto bad_line = [&](const std::string& l) {
+    return Bad(what, "has a PLY header line that is not PLY: '" + l.substr(0, 60) + "'");
+  };
+  int n = 0;
   while (std::getline(in, line)) {
+    if (!line.empty() && line.back() == '\r') line.pop_back();
     std::istringstream words(line);
-    std::string key;
+    std::string key, extra;
     words >> key;
+    if (n++ == 0) {
+      if (key != "ply") return bad_line(line);
+      continue;
+    }
+    if (key == "comment" || key == "obj_info") continue;
     if (key == "format") {
-      words >> format;
+      std::string version;
+      words >> format >> version;
+      if ((format != "ascii" && format != "binary_little_endian" &&
+           format != "binary_big_endian") || version.empty() || (words >> extra)) {
+        return bad_line(line);
+      }
     } else if (key == "element") {
       close();
-      std::string name;
-      words >> name >> count;
-      if (!words || count > (uint64_t{1} << 32)) return Bad(what, "has a PLY element count that is not a number of elements");
+      std::string number;
+      words >> element >> number;
+      if (element.empty() || number.empty() || number.size() > 10 ||
+          number.find_first_not_of("0123456789") != std::string::npos || (words >> extra)) {
+        return bad_line(line);
+      }
+      count = std::stoull(number);
     } else if (key == "property") {
-      std::string type;
+      if (element.empty()) return bad_line(line);
+      std::string type, name;
       words >> type;
       const bool list = type == "list";
-      if (list) words >> type;  // the count's type
+      std::string item;
+      if (list) words >> type >> item;  // the count's type, then the items'
+      words >> name;
+      if (scalar(type) == 0 || (list && scalar(item) == 0) || name.empty() || (words >> extra)) {
+        return bad_line(line);
+      }
+      if (element == "vertex" && !list) {
+        vx |= name == "x";
+        vy |= name == "y";
+        vz |= name == "z";
+      }
       // ASCII: a number and a separator at least; binary: the scalar (or the list's count).
-      per += format == "ascii" ? 2 : std::max<uint64_t>(1, scalar(type));
+      per += format == "ascii" ? 2 : scalar(type);
+    } else {
+      return bad_line(line);
     }
   }
   close();
+  if (format.empty()) return Bad(what, "is a PLY without a format line");
+  if (!(vx && vy && vz)) return Bad(what, "is a PLY whose vertex element lacks x, y or z");
   const uint64_t body = data.size() - end;
   if (need > body) {
     return Bad(what, "declares PLY elements that need at least " + std::to_string(need) +
@@ -412,17 +454,16 @@ Status CheckOff(std::string_view data, const std::string& what) {
 }  // namespace
 
 Status CheckMeshFile(std::string_view data, const std::string& format, const std::string& what) {
-  if (data.size() >= 4 && data.substr(0, 4) == "glTF") return CheckGlb(data, what);
-  if (data.size() >= 4 && (data.substr(0, 4) == "ply\n" || data.substr(0, 4) == "ply\r")) {
-    return CheckPly(data, what);
+  const std::string_view sig = data.substr(0, 4);
+  if (sig == "glTF" || format == "glb") {
+    if (sig != "glTF") return Bad(what, "is not a GLB (no glTF signature)");
+    return CheckGlb(data, what);
   }
-  if (format == "gltf") {
-    return CheckGltfJson(data, 0, false, what);
-  }
+  if (sig == "ply\n" || sig == "ply\r" || format == "ply") return CheckPly(data, what);
+  if (format == "gltf") return CheckGltfJson(data, 0, false, what);
   if (format == "off") return CheckOff(data, what);
-  if (format == "obj" || format == "stl" || format == "ply" || format == "glb") {
-    return Status::OK();  // no declared sizes (OBJ, ASCII STL); binary STL is checked by assimp
-  }
+  // OBJ and ASCII STL declare no sizes; binary STL's facet count is checked by assimp.
+  if (format == "obj" || format == "stl") return Status::OK();
   return Bad(what, "is not in a mesh format read here: OBJ, PLY, STL, OFF, glTF or GLB (give "
                    "the file's extension as its format)");
 }
