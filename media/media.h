@@ -137,7 +137,8 @@ std::vector<Point> PlaneSurfels(const Picture& pic, const Placement& place, uint
 // declared sizes (GLB chunks, glTF buffers and accessors, PLY and OFF element counts) and
 // glTF's nesting (kMaxJsonDepth, kMaxNodeDepth) are checked against the bytes before assimp
 // parses them (mesh_check.cc), and the scene it builds is validated (indices, counts) before
-// it is sampled.
+// it is sampled. assimp runs in a child process (CPU- and data-limited): its crash or hang on a
+// malformed file is this call's InvalidArgument or LimitExceeded, not the caller's end.
 Result<std::vector<Point>> SampleMesh(std::string_view data, const std::string& format,
                                       const Placement& place, double spacing, uint32_t label,
                                       const Budget& budget = {});
