@@ -4,7 +4,7 @@ side as one 1.19 M-point cloud, lossless on an 11-bit grid (positions + colour),
 (version 2, the default) against the pair hierarchy (version 1), medians of --runs runs of the
 process (wall and CPU seconds). Writes bench/results/codec_speed.json.
 
-  /usr/bin/python3 bench/codec_speed.py --hvdb-codec build/codec/hvdb-codec
+  /usr/bin/python3 bench/codec_speed.py --hvdb-codec build/client/hvdb-codec
 """
 import argparse, json, os, resource, statistics, subprocess, sys, tempfile, time
 

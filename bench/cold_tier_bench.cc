@@ -18,7 +18,7 @@
 #include <nlohmann/json.hpp>
 
 #include "bench/util.h"
-#include "codec/record_block.h"
+#include "blockcode/record_block.h"
 #include "formats/ply.h"
 #include "storage/database.h"
 
@@ -187,7 +187,7 @@ int main(int argc, char** argv) {
     for (size_t at = 0; at < f.size(); at += 1024) {
       const auto n = static_cast<uint32_t>(std::min<size_t>(1024, f.size() - at));
       coded.emplace_back();
-      codec::EncodeRecordBlock(recs.data() + at * kPointRecordSize, n, &coded.back());
+      blockcode::EncodeRecordBlock(recs.data() + at * kPointRecordSize, n, &coded.back());
       counts.push_back(n);
     }
   }
@@ -198,8 +198,8 @@ int main(int argc, char** argv) {
     for (size_t i = 0; i < coded.size(); ++i) {
       uint32_t n = 0;
       std::string err;
-      if (!codec::DecodeRecordBlock(reinterpret_cast<const uint8_t*>(coded[i].data()),
-                                    coded[i].size(), block.data(), 1024, &n, &err) ||
+      if (!blockcode::DecodeRecordBlock(reinterpret_cast<const uint8_t*>(coded[i].data()),
+                                        coded[i].size(), block.data(), 1024, &n, &err) ||
           n != counts[i]) {
         Die("record block: " + err);
       }

@@ -259,7 +259,7 @@ def main():
     ap.add_argument("--table", metavar="JSON",
                     help="only print the markdown table of an earlier run's JSON")
     ap.add_argument("--tmc3", help="TMC13's tmc3 binary (built outside hvdb)")
-    ap.add_argument("--hvdb-codec", help="build/codec/hvdb-codec")
+    ap.add_argument("--hvdb-codec", help="build/client/hvdb-codec")
     ap.add_argument("--shared-data", default=os.path.join(os.path.dirname(__file__),
                                                           "../../shared/data"))
     ap.add_argument("--frames", type=int, default=4, help="Panoptic frames from --first-frame")

@@ -32,6 +32,7 @@
 #include <vector>
 
 #include "formats/image_io.h"
+#include "protocol/render_convert.h"
 #include "protocol/wire.h"
 #include "render/job.h"
 #include "render/metrics.h"
@@ -508,11 +509,17 @@ int main(int argc, char** argv) {
                 centre, width, height);
       req.add_frames(static_cast<uint32_t>(i % frames.size()));
     }
+    // The job's request, as hvdb-server decodes the wire message.
+    auto job_req = hvdb::wire::FromWire(req);
+    if (!job_req.ok()) {
+      std::fprintf(stderr, "render-bench: %s\n", job_req.status().ToString().c_str());
+      return 1;
+    }
     auto renderer = render::MakeCpuRenderer();
     std::vector<double> fps_runs;
     double query_s = 0, render_s = 0, encode_s = 0;
     for (int run = 0; run < (quick ? 1 : 3); ++run) {
-      auto job = render::RenderJob::Create(*ds, req);
+      auto job = render::RenderJob::Create(*ds, *job_req);
       if (!job.ok()) {
         std::fprintf(stderr, "render-bench: %s\n", job.status().ToString().c_str());
         return 1;
@@ -539,7 +546,7 @@ int main(int argc, char** argv) {
         pts.insert(pts.end(), batch.points.begin(), batch.points.end());
       }
       query_s += Seconds(t0);
-      auto cam = render::ViewFromWire(req.path(i), info, "path");
+      auto cam = render::ViewCamera(job_req->path[size_t(i)], info, "path");
       t0 = Clock::now();
       static render::Image img;  // reused, as RenderJob does
       (void)renderer->RenderInto(pts, *cam, {}, &img);
@@ -586,19 +593,21 @@ int main(int argc, char** argv) {
       SetLookAt(one.mutable_view(), c.eye, c.target, width, height);
       one.set_renderer(hvdb::wire::RENDERER_CPU);
       one.set_progressive(true);
+      auto one_req = hvdb::wire::FromWire(one);
+      if (!one_req.ok()) return 1;
       std::vector<double> first, final_ms;
       uint64_t preview_points = 0, points = 0;
       for (int rep = -1; rep < std::max(reps, 3); ++rep) {
         auto t0 = Clock::now();
-        auto job = render::RenderJob::Create(c.dataset, one);
+        auto job = render::RenderJob::Create(c.dataset, *one_req);
         if (!job.ok()) return 1;
         auto a = (*job)->Render(0, *renderer);
         double t_first = Seconds(t0);
         auto b = (*job)->Render(1, *renderer);
         double t_final = Seconds(t0);
-        if (!a.ok() || !b.ok() || !a->preview()) return 1;
-        preview_points = a->points();
-        points = b->points();
+        if (!a.ok() || !b.ok() || !a->preview) return 1;
+        preview_points = a->points;
+        points = b->points;
         if (rep < 0) continue;  // warm-up: the cache holds the frame, as for a viewer
         first.push_back(t_first * 1e3);
         final_ms.push_back(t_final * 1e3);

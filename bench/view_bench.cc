@@ -29,6 +29,7 @@
 #include "client/backend.h"
 #include "ingest/pipeline.h"
 #include "ingest/recording.h"
+#include "protocol/render_convert.h"
 #include "render/metrics.h"
 #include "render/renderer.h"
 
@@ -230,11 +231,12 @@ int main(int argc, char** argv) {
       req.set_renderer(hvdb::wire::RENDERER_CPU);
       std::string encoded;
       const auto t = std::chrono::steady_clock::now();
-      hvdb::Status st = backend->Render(req, [&](const hvdb::wire::RenderReply& reply) {
-        encoded = reply.png();
+      hvdb::Status st = backend->Render(hvdb::wire::FromWire(req).value(),
+                                        [&](const hvdb::render::RenderReply& reply) {
+        encoded = reply.png;
         if (texture) {
-          default_mode = reply.mode_used();
-          default_choice = reply.mode_choice();
+          default_mode = reply.mode_used;
+          default_choice = reply.mode_choice;
         }
         return hvdb::Status::OK();
       });

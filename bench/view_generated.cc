@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "client/backend.h"
+#include "protocol/render_convert.h"
 #include "ingest/generator.h"
 #include "ingest/pipeline.h"
 #include "render/metrics.h"
@@ -109,8 +110,9 @@ int RunGeneratedViews(const GeneratedViewOptions& opt, nlohmann::json& figures) 
         req.set_billboards(boards);
         req.set_renderer(wire::RENDERER_CPU);
         std::string png;
-        Status st = backend->Render(req, [&](const wire::RenderReply& r) {
-          png = r.png();
+        Status st = backend->Render(wire::FromWire(req).value(),
+                                    [&](const render::RenderReply& r) {
+          png = r.png;
           return Status::OK();
         });
         if (!st.ok()) {

@@ -14,6 +14,7 @@
 
 #include "client/client.h"
 #include "protocol/convert.h"
+#include "protocol/render_convert.h"
 #include "service/service.h"
 #include "render/job.h"
 #include "render/renderer.h"
@@ -207,23 +208,16 @@ class EmbeddedBackend final : public Backend {
     return Do(name, [&](service::Service& x) { return x.GraphCut(name, req); });
   }
 
-  Result<edit::CopyResult> Copy(const std::string& name, int bit,
-                                const std::optional<Region>& region, const std::string& clipboard,
-                                bool cut) override {
-    const edit::CopyRequest req{bit, region, clipboard, cut};
+  Result<edit::CopyResult> Copy(const std::string& name, const edit::CopyRequest& req) override {
     return Do(name, [&](service::Service& x) { return x.Copy(name, req); });
   }
 
-  Result<CommitInfo> Paste(const std::string& name, const std::string& clipboard,
-                           const Affine4& map) override {
-    const edit::PasteRequest req{clipboard, map};
+  Result<CommitInfo> Paste(const std::string& name, const edit::PasteRequest& req) override {
     return Do(name, [&](service::Service& x) { return x.Paste(name, req); });
   }
 
-  Result<CommitInfo> Composite(const std::string& name, const std::vector<Point>& object,
-                               uint32_t first_frame, uint32_t frame_count,
-                               const std::vector<std::array<double, 3>>& trajectory) override {
-    const edit::CompositeRequest req{object, first_frame, frame_count, trajectory};
+  Result<CommitInfo> Composite(const std::string& name,
+                               const edit::CompositeRequest& req) override {
     return Do(name, [&](service::Service& x) { return x.Composite(name, req); });
   }
 
@@ -232,13 +226,13 @@ class EmbeddedBackend final : public Backend {
     return Do(name, [&](service::Service& x) { return x.ImportMedia(name, req); });
   }
 
-  Status Render(const wire::Render& request,
-                const std::function<Status(const wire::RenderReply&)>& on_image) override {
+  Status Render(const render::RenderRequest& request,
+                const std::function<Status(const render::RenderReply&)>& on_image) override {
     // What hvdb-server's sessions do, with a renderer of this process instead of one from the
     // server's pool: the request is checked before a renderer (an EGL context) is made.
     HVDB_ASSIGN_OR_RETURN(
         std::unique_ptr<render::RenderJob> job,
-        Do(request.dataset(), [&](service::Service& x) { return x.Render(request); }));
+        Do(request.dataset, [&](service::Service& x) { return x.Render(request); }));
     std::string why;
     HVDB_ASSIGN_OR_RETURN(std::unique_ptr<render::Renderer> renderer,
                           render::MakeRenderer(job->renderer_kind(), &why));
@@ -246,9 +240,9 @@ class EmbeddedBackend final : public Backend {
     const bool fallback = job->renderer_kind() == render::RendererKind::kAuto &&
                           why.rfind("no EGL context", 0) == 0;
     for (size_t i = 0; i < job->size(); ++i) {
-      HVDB_ASSIGN_OR_RETURN(wire::RenderReply reply, job->Render(i, *renderer));
-      reply.set_fallback(fallback);
-      reply.set_renderer_choice(why);
+      HVDB_ASSIGN_OR_RETURN(render::RenderReply reply, job->Render(i, *renderer));
+      reply.fallback = fallback;
+      reply.renderer_choice = why;
       HVDB_RETURN_IF_ERROR(on_image(reply));
     }
     return Status::OK();
@@ -361,31 +355,23 @@ class RemoteBackend final : public Backend {
     return c ? c->transport() : "not connected";
   }
 
+  // The unary requests: each one generic call with the request table's pair (Call below).
   Result<std::vector<std::string>> ListDatasets() override {
-    HVDB_ASSIGN_OR_RETURN(std::vector<std::string> names,
-                          Run<std::vector<std::string>>(
-                              true, [](Connection& c) { return c.ListDatasets(); }));
+    HVDB_ASSIGN_OR_RETURN(std::vector<std::string> names, Call<service::op::List>({}));
     std::sort(names.begin(), names.end());
     return names;
   }
 
   Result<DatasetInfo> CreateDataset(const DatasetInfo& info) override {
-    return Run<DatasetInfo>(false, [&info](Connection& c) { return c.CreateDataset(info); });
+    return Call<service::op::Create>(info);
   }
 
   Status DropDataset(const std::string& name) override {
-    Result<bool> r = Run<bool>(false, [&name](Connection& c) -> Result<bool> {
-      HVDB_RETURN_IF_ERROR(c.DropDataset(name));
-      return true;
-    });
-    return r.ok() ? Status::OK() : Explain(name, r.status());
+    return Call<service::op::Drop>(name).status();
   }
 
   Result<DatasetInfo> Describe(const std::string& name) override {
-    Result<DatasetInfo> r =
-        Run<DatasetInfo>(true, [&name](Connection& c) { return c.Describe(name); });
-    if (!r.ok()) return Explain(name, r.status());
-    return r;
+    return Call<service::op::Describe>(name);
   }
 
   Result<std::unique_ptr<QueryResults>> Query(const std::string& name, const Region& region,
@@ -411,36 +397,20 @@ class RemoteBackend final : public Backend {
   }
 
   Result<CommitInfo> Commit(const std::string& name, const Transaction& txn) override {
-    Result<CommitInfo> r =
-        Run<CommitInfo>(false, [&](Connection& c) { return c.Commit(name, txn); });
-    if (!r.ok()) return Explain(name, r.status());
-    return r;
+    return Call<service::op::Edit>({name, txn});
   }
 
   Result<CommitInfo> Revert(const std::string& name, uint64_t lsn) override {
-    Result<CommitInfo> r =
-        Run<CommitInfo>(false, [&](Connection& c) { return c.Revert(name, lsn); });
-    if (!r.ok()) return Explain(name, r.status());
-    return r;
+    return Call<service::op::Revert>({name, lsn});
   }
 
   Result<CompactInfo> Compact(const std::string& name, uint32_t first, uint32_t last,
                               bool photos) override {
-    // Safe to repeat: frames compressed (or photos coded) already are left as they are.
-    Result<CompactInfo> r = Run<CompactInfo>(
-        true, [&](Connection& c) { return c.Compact(name, first, last, photos); });
-    if (!r.ok()) return Explain(name, r.status());
-    return r;
+    return Call<service::op::Compact>({name, {first, last, photos}});
   }
 
   Status PutPhoto(const std::string& name, uint32_t frame, const Photo& photo) override {
-    // Safe to repeat: the same photo replaces itself.
-    Result<bool> r = Run<bool>(true, [&](Connection& c) -> Result<bool> {
-      HVDB_RETURN_IF_ERROR(c.PutPhoto(name, frame, photo));
-      return true;
-    });
-    if (!r.ok()) return Explain(name, r.status());
-    return Status::OK();
+    return Call<service::op::PutPhoto>({name, {frame, photo}}).status();
   }
 
   Result<StatsReport> Stats(const std::string& name) override {
@@ -451,37 +421,16 @@ class RemoteBackend final : public Backend {
       HVDB_ASSIGN_OR_RETURN(names, ListDatasets());
     }
     StatsReport report;
-    std::optional<wire::StatsReply> last;
+    std::optional<service::ServerCounters> counters;
     for (const std::string& n : names) {
-      Result<wire::StatsReply> r =
-          Run<wire::StatsReply>(true, [&n](Connection& c) { return c.Stats(n); });
-      if (!r.ok()) return Explain(n, r.status());
-      StatsReport::Entry e;
-      e.name = n;
-      e.last_lsn = r->last_lsn();
-      e.stats = wire::FromWire(r->dataset());
-      report.datasets.push_back(std::move(e));
-      last = std::move(r).value();
+      HVDB_ASSIGN_OR_RETURN(service::StatsOut r, Call<service::op::Stats>(n));
+      if (r.dataset) report.datasets.push_back({n, r.dataset->stats, r.dataset->last_lsn});
+      counters = std::move(r.server);
     }
-    if (!last) {
-      HVDB_ASSIGN_OR_RETURN(
-          last, Run<wire::StatsReply>(true, [](Connection& c) { return c.Stats(""); }));
+    if (!counters) {
+      HVDB_ASSIGN_OR_RETURN(counters, Call<service::op::ServerStats>({}));
     }
-    ServerCounters s;
-    s.connections_open = last->connections_open();
-    s.connections_total = last->connections_total();
-    s.bytes_in = last->bytes_in();
-    s.bytes_out = last->bytes_out();
-    s.cache_hit_rate = last->cache_hit_rate();
-    s.cache_capacity_bytes = last->cache_capacity_bytes();
-    s.role = last->role();
-    s.leader = last->leader();
-    for (const wire::LatencySummary& l : last->requests()) {
-      s.requests.push_back({l.kind(), l.count(), l.p50_ms(), l.p95_ms(), l.p99_ms()});
-    }
-    std::sort(s.requests.begin(), s.requests.end(),
-              [](const RequestLatency& a, const RequestLatency& b) { return a.kind < b.kind; });
-    report.server = std::move(s);
+    report.server = std::move(counters);
     return report;
   }
 
@@ -499,128 +448,73 @@ class RemoteBackend final : public Backend {
                                "check' on the server's machine, with hvdb-server stopped");
   }
 
-  // The editing operators travel as their values (protocol/convert.h); the server's executor
-  // checks them as the embedded one does.
+  // The editing operators travel as their values; the server's executor checks them as the
+  // embedded one does.
   Result<edit::SelectResult> Select(const std::string& name,
                                     const edit::SelectRequest& req) override {
-    wire::SelectRequest q;
-    q.set_dataset(name);
-    wire::ToWire(req, &q);
-    // Not repeated after a lost connection: it may have been committed.
-    Result<wire::SelectReply> r =
-        Run<wire::SelectReply>(false, [&q](Connection& c) { return c.Select(q); });
-    if (!r.ok()) return Explain(name, r.status());
-    return wire::FromWire(*r);
+    return Call<service::op::Select>({name, req});
   }
 
   Result<edit::GraphCutReply> GraphCut(const std::string& name,
                                        const edit::GraphCutRequest& req) override {
-    wire::GraphCutRequest q;
-    q.set_dataset(name);
-    wire::ToWire(req, &q);
-    Result<wire::GraphCutReply> r =
-        Run<wire::GraphCutReply>(false, [&q](Connection& c) { return c.GraphCut(q); });
-    if (!r.ok()) return Explain(name, r.status());
-    return wire::FromWire(*r);
+    return Call<service::op::GraphCut>({name, req});
   }
 
-  Result<edit::CopyResult> Copy(const std::string& name, int bit,
-                                const std::optional<Region>& region, const std::string& clipboard,
-                                bool cut) override {
-    wire::CopyRequest q;
-    q.set_dataset(name);
-    wire::ToWire(edit::CopyRequest{bit, region, clipboard, cut}, &q);
-    // A copy only rewrites the clipboard: safe to repeat. A cut deletes: not.
-    Result<wire::CopyReply> r =
-        Run<wire::CopyReply>(!cut, [&q](Connection& c) { return c.Copy(q); });
-    if (!r.ok()) return Explain(name, r.status());
-    return wire::FromWire(*r);
+  Result<edit::CopyResult> Copy(const std::string& name, const edit::CopyRequest& req) override {
+    return Call<service::op::Copy>({name, req});
   }
 
-  Result<CommitInfo> Paste(const std::string& name, const std::string& clipboard,
-                           const Affine4& map) override {
-    wire::PasteRequest q;
-    q.set_dataset(name);
-    wire::ToWire(edit::PasteRequest{clipboard, map}, &q);
-    Result<CommitInfo> r = Run<CommitInfo>(false, [&q](Connection& c) { return c.Paste(q); });
-    if (!r.ok()) return Explain(name, r.status());
-    return r;
+  Result<CommitInfo> Paste(const std::string& name, const edit::PasteRequest& req) override {
+    return Call<service::op::Paste>({name, req});
   }
 
-  Result<CommitInfo> Composite(const std::string& name, const std::vector<Point>& object,
-                               uint32_t first_frame, uint32_t frame_count,
-                               const std::vector<std::array<double, 3>>& trajectory) override {
-    wire::CompositeRequest q;
-    q.set_dataset(name);
-    wire::ToWire(edit::CompositeRequest{object, first_frame, frame_count, trajectory}, &q);
-    Result<CommitInfo> r = Run<CommitInfo>(false, [&q](Connection& c) { return c.Composite(q); });
-    if (!r.ok()) {
-      Status s = Explain(name, r.status());
-      const size_t bytes = q.ByteSizeLong();
-      if (bytes >= wire::kDefaultMaxFrame / 2) {
-        // The object travels in one request, which the server bounds (--max-frame-bytes).
-        s = Status(s.code(), s.message() + " (the object's " + std::to_string(object.size()) +
-                                 " points make one request of " + std::to_string(bytes >> 20) +
-                                 " MiB, and hvdb-server takes at most 16 MiB unless started "
-                                 "with a larger --max-frame-bytes; thin the object out, or "
-                                 "composite it in parts)");
-      }
-      return s;
-    }
-    return r;
+  Result<CommitInfo> Composite(const std::string& name,
+                               const edit::CompositeRequest& req) override {
+    return Call<service::op::Composite>({name, req});
   }
 
   Result<CommitInfo> ImportMedia(const std::string& name,
                                  const media::ImportRequest& req) override {
-    wire::ImportMediaRequest q;
-    q.set_dataset(name);
-    wire::ToWire(req, &q);
-    const size_t bytes = q.ByteSizeLong();
-    Result<CommitInfo> r = Run<CommitInfo>(false, [&q](Connection& c) { return c.ImportMedia(q); });
-    if (!r.ok()) {
-      Status s = Explain(name, r.status());
-      // The file travels in one request, which the server bounds (--max-frame-bytes): it says
-      // so, or closes the connection while the request is still being sent.
-      if (bytes >= wire::kDefaultMaxFrame - 4096 ||
-          s.message().find("exceeds the limit") != std::string::npos) {
-        s = Status(s.code(), s.message() + " (the file makes one request of " +
-                                 std::to_string(bytes) + " bytes; a server refuses one over " +
-                                 "its --max-frame-bytes, " +
-                                 std::to_string(wire::kDefaultMaxFrame) + " by default; import " +
-                                 "it with --data on the server's machine, or make it smaller)");
-      } else if (s.code() == StatusCode::kIOError && bytes > (64u << 10)) {
-        // A lost connection is either: the size is not known to be the cause.
-        s = Status(s.code(), s.message() + " (the connection closed during the import: a " +
-                                 "server closes it for a request over its --max-frame-bytes, " +
-                                 "which this one of " + std::to_string(bytes) + " bytes passes " +
-                                 "only where that is set below the default of " +
-                                 std::to_string(wire::kDefaultMaxFrame) + ", or it stopped; " +
-                                 "its log says which)");
-      }
-      return s;
-    }
-    return r;
+    return Call<service::op::ImportMedia>({name, req});
   }
 
-  Status Render(const wire::Render& request,
-                const std::function<Status(const wire::RenderReply&)>& on_image) override {
+  Status Render(const render::RenderRequest& request,
+                const std::function<Status(const render::RenderReply&)>& on_image) override {
+    // The request travels as the wire's Render message, each reply back as a RenderReply.
+    wire::Render msg;
+    wire::ToWire(request, &msg);
     // A render only reads, so it is repeated after a lost connection; the images the caller
     // already has are not handed to it again.
     uint32_t delivered = 0;
     auto deliver = [&](const wire::RenderReply& reply) -> Status {
       if (reply.index() < delivered) return Status::OK();
-      HVDB_RETURN_IF_ERROR(on_image(reply));
+      HVDB_RETURN_IF_ERROR(on_image(wire::FromWire(reply)));
       delivered = reply.index() + 1;
       return Status::OK();
     };
     Result<bool> r = Run<bool>(true, [&](Connection& c) -> Result<bool> {
-      HVDB_RETURN_IF_ERROR(c.RenderSequence(request, deliver));
+      HVDB_RETURN_IF_ERROR(c.RenderSequence(msg, deliver));
       return true;
     });
-    return r.ok() ? Status::OK() : Explain(request.dataset(), r.status());
+    return r.ok() ? Status::OK() : Explain(request.dataset, r.status());
   }
 
  private:
+  // A unary request of the table (service/requests.h): encoded with its op's pair, sent (again
+  // after a lost connection only when the op says it is safe to repeat), its reply decoded, and
+  // its error said the one way every request's is (Explain).
+  template <typename Op>
+  Result<typename Op::Out> Call(const typename Op::In& in) {
+    wire::Request req;
+    Op::Put(in, &req);
+    Result<wire::Response> r = Run<wire::Response>(Op::Repeatable(in), [&req](Connection& c) {
+      wire::Request q = req;
+      return c.Call(&q);
+    });
+    if (!r.ok()) return Explain(Op::Kind(), Op::Dataset(in), req, r.status());
+    return Op::TakeReply(*r);
+  }
+
   // The first connection is tried once, so that a wrong address, a stopped server or a bad
   // token is reported at once; afterwards Client reconnects (with backoff) for requests that
   // are safe to repeat.
@@ -632,10 +526,10 @@ class RemoteBackend final : public Backend {
         // Reads go to the writer too: a reader that lags would show an ingest's last frames
         // as missing, and it would load them twice.
         leader_checked_ = true;
-        Result<wire::StatsReply> s =
-            client_->Run<wire::StatsReply>(true, [](Connection& c) { return c.Stats(""); });
-        if (s.ok() && s->role() == "reader" && !s->leader().empty() && s->leader() != address_) {
-          HVDB_RETURN_IF_ERROR(MoveTo(s->leader()));
+        Result<service::ServerCounters> s = client_->Run<service::ServerCounters>(
+            true, [](Connection& c) { return c.Unary<service::op::ServerStats>({}); });
+        if (s.ok() && s->role == "reader" && !s->leader.empty() && s->leader != address_) {
+          HVDB_RETURN_IF_ERROR(MoveTo(s->leader));
           continue;
         }
       }
@@ -652,10 +546,10 @@ class RemoteBackend final : public Backend {
 
   // follow_leader: asks the reader where the writer listens and connects there from now on.
   Status MoveToLeader() {
-    Result<wire::StatsReply> s =
-        client_->Run<wire::StatsReply>(true, [](Connection& c) { return c.Stats(""); });
+    Result<service::ServerCounters> s = client_->Run<service::ServerCounters>(
+        true, [](Connection& c) { return c.Unary<service::op::ServerStats>({}); });
     if (!s.ok()) return Status(s.status().code(), "asking " + address_ + " for the writer: " + s.status().message());
-    const std::string leader = s->leader();
+    const std::string leader = s->leader;
     if (leader.empty()) return Status::NotLeader(address_ + " does not know the writer's address yet");
     if (leader == address_) return Status::NotLeader(address_ + " names itself as the writer");
     return MoveTo(leader);
@@ -687,6 +581,35 @@ class RemoteBackend final : public Backend {
       connected_ = true;
     }
     return Status::OK();
+  }
+
+  // A request's error: a dataset that does not exist, said as every command says it; for the
+  // kinds that carry a file or an object whole (the table's if_too_large), what the server's
+  // frame limit has to do with it.
+  Status Explain(const service::RequestKind& kind, const std::string& name,
+                 const wire::Request& req, Status s) {
+    if (!name.empty()) s = Explain(name, std::move(s));
+    if (kind.if_too_large == nullptr) return s;
+    const size_t bytes = req.ByteSizeLong();
+    // The server says so, or closes the connection while the request is still being sent.
+    if (bytes >= wire::kDefaultMaxFrame - 4096 ||
+        s.message().find("exceeds the limit") != std::string::npos) {
+      return Status(s.code(), s.message() + " (the " + kind.name + " request is " +
+                                  std::to_string(bytes) + " bytes; a server refuses one over " +
+                                  "its --max-frame-bytes, " +
+                                  std::to_string(wire::kDefaultMaxFrame) + " by default: " +
+                                  kind.if_too_large + ")");
+    }
+    if (s.code() == StatusCode::kIOError && bytes > (64u << 10)) {
+      // A lost connection is either: the size is not known to be the cause.
+      return Status(s.code(), s.message() + " (the connection closed during the " + kind.name +
+                                  " request: a server closes it for a request over its " +
+                                  "--max-frame-bytes, which this one of " + std::to_string(bytes) +
+                                  " bytes passes only where that is set below the default of " +
+                                  std::to_string(wire::kDefaultMaxFrame) +
+                                  ", or it stopped; its log says which)");
+    }
+    return s;
   }
 
   // A NotFound about a dataset that does not exist, said the same way by every command (the

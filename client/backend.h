@@ -27,6 +27,8 @@
 #include "edit/operators.h"
 #include "media/media.h"
 #include "protocol/wire.h"
+#include "render/request.h"
+#include "service/requests.h"
 #include "storage/database.h"
 #include "storage/status.h"
 
@@ -54,23 +56,9 @@ class Watcher {
   virtual Result<bool> Next(ChangeEvent* ev, std::chrono::milliseconds timeout) = 0;
 };
 
-// Latency of one kind of request, over the server's recent requests of that kind.
-struct RequestLatency {
-  std::string kind;  // "query", "edit", "ingest", ...
-  uint64_t count = 0;
-  double p50_ms = 0, p95_ms = 0, p99_ms = 0;
-};
-
-// What an hvdb-server reports about itself (the StatsReply of docs/PROTOCOL.md).
-struct ServerCounters {
-  uint64_t connections_open = 0, connections_total = 0;
-  std::vector<RequestLatency> requests;  // sorted by kind
-  uint64_t bytes_in = 0, bytes_out = 0;
-  double cache_hit_rate = 0;  // 0..1
-  uint64_t cache_capacity_bytes = 0;
-  std::string role;    // "writer", or "reader" (follows the writer; refuses writes)
-  std::string leader;  // where the writer listens, as it published it
-};
+// What an hvdb-server reports about itself (the request table's server_stats).
+using RequestLatency = service::RequestLatency;
+using ServerCounters = service::ServerCounters;
 
 struct StatsReport {
   struct Entry {
@@ -137,33 +125,30 @@ class Backend {
   // protocol's fields): a request that changes the others is Unsupported there.
   virtual Result<edit::GraphCutReply> GraphCut(const std::string& name,
                                                const edit::GraphCutRequest& req) = 0;
-  // Copies the points carrying `bit` (within `region`, if given) to the named clipboard; with
-  // `cut`, deletes them in the same step (CopyResult::lsn, else 0).
-  virtual Result<edit::CopyResult> Copy(const std::string& name, int bit,
-                                        const std::optional<Region>& region,
-                                        const std::string& clipboard, bool cut) = 0;
-  // Inserts the clipboard's points moved by `map`, as new points.
-  virtual Result<CommitInfo> Paste(const std::string& name, const std::string& clipboard,
-                                   const Affine4& map) = 0;
-  // Inserts `object` into frames first_frame .. first_frame + frame_count - 1, offset by
+  // Copies the points carrying req.bit (within req.region, if given) to the clipboard
+  // req.clipboard; with req.cut, deletes them in the same step (CopyResult::lsn, else 0).
+  virtual Result<edit::CopyResult> Copy(const std::string& name, const edit::CopyRequest& req) = 0;
+  // Inserts the clipboard's points moved by req.map, as new points.
+  virtual Result<CommitInfo> Paste(const std::string& name, const edit::PasteRequest& req) = 0;
+  // Inserts req.object into frames first_frame .. first_frame + frame_count - 1, offset by
   // trajectory[i] (metres) in frame first_frame + i (static if the trajectory is empty).
-  virtual Result<CommitInfo> Composite(const std::string& name, const std::vector<Point>& object,
-                                       uint32_t first_frame, uint32_t frame_count,
-                                       const std::vector<std::array<double, 3>>& trajectory) = 0;
+  virtual Result<CommitInfo> Composite(const std::string& name,
+                                       const edit::CompositeRequest& req) = 0;
   // Inserts an image, video or mesh file (req.data: its bytes), decoded next to the data
   // (media/media.h), in one transaction.
   virtual Result<CommitInfo> ImportMedia(const std::string& name,
                                          const media::ImportRequest& req) = 0;
 
-  // ---- Rendering (docs/PROTOCOL.md, "Rendering"): the Render request of the wire protocol,
-  // which is how render::RenderJob takes it in both modes (request.dataset names the dataset).
-  // on_image gets each image's reply (encoded PNG or EXR, renderer used, points, render time,
-  // `fallback` when RENDERER_AUTO found no EGL context), in order; a non-OK status from it stops
-  // the rest and is returned. Embedded, the renderer is made in this process with
-  // render::MakeRenderer (a fallback is logged through render::SetLogHandler's handler, stderr
-  // by default); remote, hvdb-server renders and logs it.
-  virtual Status Render(const wire::Render& request,
-                        const std::function<Status(const wire::RenderReply&)>& on_image) = 0;
+  // ---- Rendering (docs/PROTOCOL.md, "Rendering"): a render request (render/request.h), as
+  // render::RenderJob takes it in both modes (request.dataset names the dataset); remote, it
+  // travels as the wire's Render message (protocol/render_convert.h). on_image gets each
+  // image's reply (encoded PNG or EXR, renderer used, points, render time, `fallback` when
+  // RendererKind::kAuto found no EGL context), in order; a non-OK status from it stops the rest
+  // and is returned. Embedded, the renderer is made in this process with render::MakeRenderer
+  // (a fallback is logged through render::SetLogHandler's handler, stderr by default); remote,
+  // hvdb-server renders and logs it.
+  virtual Status Render(const render::RenderRequest& request,
+                        const std::function<Status(const render::RenderReply&)>& on_image) = 0;
 };
 
 // On a data directory, opened (with an advisory lock) on first use.

@@ -399,30 +399,19 @@ Status Connection::Ping() {
 }
 
 Result<std::vector<std::string>> Connection::ListDatasets() {
-  wire::Request req;
-  req.mutable_list();
-  HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
-  return std::vector<std::string>(r.datasets().names().begin(), r.datasets().names().end());
+  return Unary<service::op::List>({});
 }
 
 Result<DatasetInfo> Connection::CreateDataset(const DatasetInfo& info) {
-  wire::Request req;
-  wire::ToWire(info, req.mutable_create());
-  HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
-  return wire::FromWire(r.info());
+  return Unary<service::op::Create>(info);
 }
 
 Status Connection::DropDataset(const std::string& name) {
-  wire::Request req;
-  req.mutable_drop()->set_name(name);
-  return Call(&req).status();
+  return Unary<service::op::Drop>(name).status();
 }
 
 Result<DatasetInfo> Connection::Describe(const std::string& dataset) {
-  wire::Request req;
-  req.mutable_describe()->set_dataset(dataset);
-  HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
-  return wire::FromWire(r.info());
+  return Unary<service::op::Describe>(dataset);
 }
 
 Result<std::unique_ptr<QueryStream>> Connection::Query(const std::string& dataset,
@@ -618,40 +607,20 @@ Status WatchStream::Cancel() {
 }
 
 Result<CommitInfo> Connection::Commit(const std::string& dataset, const Transaction& txn) {
-  wire::Request req;
-  req.mutable_edit()->set_dataset(dataset);
-  wire::ToWire(txn, req.mutable_edit());
-  HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
-  return wire::FromWire(r.commit());
+  return Unary<service::op::Edit>({dataset, txn});
 }
 
 Result<CommitInfo> Connection::Revert(const std::string& dataset, uint64_t lsn) {
-  wire::Request req;
-  req.mutable_revert()->set_dataset(dataset);
-  req.mutable_revert()->set_lsn(lsn);
-  HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
-  return wire::FromWire(r.commit());
+  return Unary<service::op::Revert>({dataset, lsn});
 }
 
 Result<CompactInfo> Connection::Compact(const std::string& dataset, uint32_t first,
                                         uint32_t last, bool photos) {
-  wire::Request req;
-  auto* c = req.mutable_compact();
-  c->set_dataset(dataset);
-  c->set_first(first);
-  c->set_last(last);
-  c->set_photos(photos);
-  HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
-  return wire::FromWire(r.compacted());
+  return Unary<service::op::Compact>({dataset, {first, last, photos}});
 }
 
 Status Connection::PutPhoto(const std::string& dataset, uint32_t frame, const Photo& photo) {
-  wire::Request req;
-  auto* p = req.mutable_put_photo();
-  p->set_dataset(dataset);
-  p->set_frame(frame);
-  wire::ToWire(photo, p);
-  return Call(&req).status();
+  return Unary<service::op::PutPhoto>({dataset, {frame, photo}}).status();
 }
 
 Result<uint64_t> Connection::Ingest(const std::string& dataset, uint32_t frame,

@@ -26,6 +26,7 @@
 #include <vector>
 
 #include "protocol/wire.h"
+#include "service/requests.h"
 #include "storage/database.h"
 
 namespace hvdb::client {
@@ -164,6 +165,18 @@ class Connection {
   Status RenderSequence(const wire::Render& req,
                         const std::function<Status(const wire::RenderReply&)>& on_image);
 
+  // A unary request of the table (service/requests.h), encoded and decoded with its op's pair.
+  // The methods above that take values are this, for the op of their kind.
+  template <typename Op>
+  Result<typename Op::Out> Unary(const typename Op::In& in) {
+    wire::Request req;
+    Op::Put(in, &req);
+    HVDB_ASSIGN_OR_RETURN(wire::Response r, Call(&req));
+    return Op::TakeReply(r);
+  }
+  // One request, its one response (an error response as its Status): the wire level.
+  Result<wire::Response> Call(wire::Request* req);
+
   // Pipelining: send a request (its id is assigned and returned), collect its responses later.
   Result<uint64_t> Send(wire::Request* req);
   // The next response to request `id` (responses to other requests are kept for later).
@@ -186,7 +199,6 @@ class Connection {
     int slot = -1;
   };
   explicit Connection(std::unique_ptr<Impl> impl);
-  Result<wire::Response> Call(wire::Request* req);
   // The next response to `id`; a records attachment for it goes straight into *records
   // (when given) instead of in->records.
   Status ReceiveFull(uint64_t id, Incoming* in, std::vector<Point>* records);

@@ -545,7 +545,7 @@ class Database {
                 const std::string& clipboard, bool cut) {
     std::optional<Region> r = ToOptionalRegion(region);
     edit::CopyResult c =
-        Take(Call([&](client::Backend& b) { return b.Copy(name, bit, r, clipboard, cut); }));
+        Take(Call([&](client::Backend& b) { return b.Copy(name, {bit, r, clipboard, cut}); }));
     return py::dict("points"_a = c.points, "lsn"_a = c.lsn);
   }
 
@@ -554,7 +554,7 @@ class Database {
     Affine4 map;
     map.a = a;
     map.c = c;
-    return CommitDict(Take(Call([&](client::Backend& b) { return b.Paste(name, clipboard, map); })));
+    return CommitDict(Take(Call([&](client::Backend& b) { return b.Paste(name, {clipboard, map}); })));
   }
 
   // A single view's image (docs/PROTOCOL.md, "Rendering"): the look-at camera of
@@ -568,21 +568,22 @@ class Database {
                   bool view_dependent, bool texture, bool billboards,
                   const std::vector<double>& shadow_light, bool shadow_directional,
                   uint32_t shadow_casters, float shadow_strength) {
-    wire::Render req;
-    req.set_dataset(name);
-    wire::ToWire(ToRegion(region), req.mutable_region());
-    wire::LookAt* l = req.mutable_view()->mutable_look_at();
-    for (double v : eye) l->add_eye(v);
-    for (double v : target) l->add_target(v);
-    for (double v : up) l->add_up(v);
-    l->set_fov_y_deg(fov);
-    l->set_width(width);
-    l->set_height(height);
+    render::RenderRequest req;
+    req.dataset = name;
+    req.region = ToRegion(region);
+    render::LookAtView l;
+    l.eye = eye;
+    l.target = target;
+    l.up = up;
+    l.fov_y_deg = fov;
+    l.width = width;
+    l.height = height;
+    req.view = l;
     // "auto" leaves mode, texture and billboards unset: the render job picks the frame's best.
     if (mode == "visibility") {
-      req.set_mode(wire::RENDER_VISIBILITY);
+      req.mode = render::Mode::kVisibility;
     } else if (mode == "probabilistic") {
-      req.set_mode(wire::RENDER_PROBABILISTIC);
+      req.mode = render::Mode::kProbabilistic;
     } else if (mode == "textured") {
       texture = true;
     } else if (mode == "billboards") {
@@ -591,39 +592,44 @@ class Database {
       Throw(Status::InvalidArgument("mode: '" + mode + "' is not auto, visibility, "
                                     "probabilistic, textured or billboards"));
     }
-    req.set_lod(lod);
-    req.set_view_dependent(view_dependent);
-    if (texture) req.set_texture(true);
-    if (billboards) req.set_billboards(true);
+    req.lod = lod;  // any level: storage refuses one past the dataset's coarsest
+    req.view_dependent = view_dependent;
+    if (texture) req.texture = true;
+    if (billboards) req.billboards = true;
     if (!shadow_light.empty()) {  // render/job.cc checks the values (render.shadow_*)
-      for (double v : shadow_light) req.add_shadow_light(v);
-      req.set_shadow_directional(shadow_directional);
-      req.set_shadow_casters(shadow_casters);
-      req.set_shadow_strength(shadow_strength == 0 ? 1e-30f : shadow_strength);
+      if (shadow_light.size() != 3) {
+        Throw(Status::InvalidArgument("render.shadow_light: needs 3 values (a position, or "
+                                      "with shadow_directional a direction), or none for no "
+                                      "shadows"));
+      }
+      req.shadow_light = {shadow_light[0], shadow_light[1], shadow_light[2]};
+      req.shadow_directional = shadow_directional;
+      req.shadow_casters = shadow_casters;
+      req.shadow_strength = shadow_strength == 0 ? 1e-30f : shadow_strength;
     }
     if (renderer == "auto") {
-      req.set_renderer(wire::RENDERER_AUTO);
+      req.renderer = render::RendererKind::kAuto;
     } else if (renderer == "egl") {
-      req.set_renderer(wire::RENDERER_EGL);
+      req.renderer = render::RendererKind::kEgl;
     } else if (renderer == "cpu") {
-      req.set_renderer(wire::RENDERER_CPU);
+      req.renderer = render::RendererKind::kCpu;
     } else {
       Throw(Status::InvalidArgument("renderer: '" + renderer + "' is not auto, egl or cpu"));
     }
-    req.set_format(exr ? wire::IMAGE_EXR : wire::IMAGE_PNG);
-    wire::RenderReply reply;
+    req.format = exr ? render::ImageFormat::kExr : render::ImageFormat::kPng;
+    render::RenderReply reply;
     Check(Call([&](client::Backend& b) {
-      return b.Render(req, [&](const wire::RenderReply& r) {
+      return b.Render(req, [&](const render::RenderReply& r) {
         reply = r;
         return Status::OK();
       });
     }));
-    py::dict d("width"_a = reply.width(), "height"_a = reply.height(),
-               "renderer"_a = reply.renderer_used(), "renderer_choice"_a = reply.renderer_choice(),
-               "points"_a = reply.points(), "render_ms"_a = reply.render_ms(),
-               "mode"_a = reply.mode_used(), "mode_choice"_a = reply.mode_choice());
+    py::dict d("width"_a = reply.width, "height"_a = reply.height,
+               "renderer"_a = reply.renderer_used, "renderer_choice"_a = reply.renderer_choice,
+               "points"_a = reply.points, "render_ms"_a = reply.render_ms,
+               "mode"_a = reply.mode_used, "mode_choice"_a = reply.mode_choice);
     if (exr) {
-      render::Image img = Take(formats::DecodeExr(reply.exr()));
+      render::Image img = Take(formats::DecodeExr(reply.exr));
       py::array_t<float> rgba({img.height, img.width, 4u});
       py::array_t<float> depth({img.height, img.width});
       std::memcpy(rgba.mutable_data(), img.rgba.data(), img.rgba.size() * sizeof(float));
@@ -632,7 +638,7 @@ class Database {
       d["depth"] = depth;
       return d;
     }
-    std::vector<uchar> bytes(reply.png().begin(), reply.png().end());
+    std::vector<uchar> bytes(reply.png.begin(), reply.png.end());
     cv::Mat m = cv::imdecode(bytes, cv::IMREAD_UNCHANGED);
     if (m.empty()) Throw(Status::Internal("render: the PNG does not decode"));
     int ch = m.channels();

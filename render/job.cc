@@ -4,8 +4,10 @@
 
 #include "render/projective_texture.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <variant>
 #include <nlohmann/json.hpp>
 
 namespace hvdb::render {
@@ -49,7 +51,6 @@ Status InField(const std::string& field, const Status& st) {
   return Status(st.code(), field + ": " + st.message());
 }
 
-constexpr uint32_t kMaxRenderLod = 16;
 // What an image holds per pixel while a job draws it (float RGBA + depth: 20 bytes; the
 // renderer's accumulators about as much again; the encoded image), for the job's budget.
 constexpr uint64_t kImageBytesPerPixel = 64;
@@ -91,135 +92,82 @@ Camera CameraFromInfo(const CameraInfo& info) {
   return c;
 }
 
-Result<Camera> ViewFromWire(const wire::View& view, const DatasetInfo& info,
-                            const std::string& field) {
-  switch (view.kind_case()) {
-    case wire::View::kCamera: {
-      auto ci = wire::FromWire(view.camera());
-      if (!ci.ok()) return InField(field, ci.status());
-      return CameraFromInfo(*ci);
+Result<Camera> ViewCamera(const View& view, const DatasetInfo& info, const std::string& field) {
+  if (const auto* c = std::get_if<CameraInfo>(&view)) return CameraFromInfo(*c);
+  if (const auto* d = std::get_if<DatasetCameraView>(&view)) {
+    for (const CameraInfo& c : info.cameras) {
+      if (c.id == d->id) return CameraFromInfo(c);
     }
-    case wire::View::kLookAt: {
-      const wire::LookAt& l = view.look_at();
-      if (l.eye_size() != 3 || l.target_size() != 3) {
-        return Invalid(field + ".look_at", "eye and target need 3 values each");
-      }
-      if (l.up_size() != 0 && l.up_size() != 3) {
-        return Invalid(field + ".look_at.up", "needs 3 values (or none for 0 1 0)");
-      }
-      if (!(l.fov_y_deg() > 0 && l.fov_y_deg() < 180)) {
-        return Invalid(field + ".look_at.fov_y_deg", "must be in (0, 180) degrees");
-      }
-      std::array<double, 3> eye{}, target{}, up{0, 1, 0};
-      for (int i = 0; i < 3; ++i) {
-        eye[static_cast<size_t>(i)] = l.eye(i);
-        target[static_cast<size_t>(i)] = l.target(i);
-        if (l.up_size() == 3) up[static_cast<size_t>(i)] = l.up(i);
-      }
-      // Said here in the request's words: LookAt leaves such a camera without a pose, which
-      // Validate would report as a bad pose matrix.
-      const double dx = target[0] - eye[0], dy = target[1] - eye[1], dz = target[2] - eye[2];
-      if (dx == 0 && dy == 0 && dz == 0) {
-        return Invalid(field + ".look_at", "eye and target are the same point: the camera "
-                                           "looks nowhere");
-      }
-      const double cx = dy * up[2] - dz * up[1], cy = dz * up[0] - dx * up[2],
-                   cz = dx * up[1] - dy * up[0];
-      if (cx == 0 && cy == 0 && cz == 0) {
-        return Invalid(field + ".look_at.up", "is parallel to the view direction (or zero): "
-                                              "give an up that is not");
-      }
-      return Camera::LookAt(eye, target, up, l.fov_y_deg(), l.width(), l.height());
-    }
-    case wire::View::kDatasetCamera: {
-      for (const CameraInfo& c : info.cameras) {
-        if (c.id == view.dataset_camera()) return CameraFromInfo(c);
-      }
-      return Invalid(field + ".dataset_camera", "dataset '" + info.name + "' has no camera " +
-                                                    std::to_string(view.dataset_camera()));
-    }
-    default:
-      return Invalid(field, "needs a camera, a look_at or a dataset_camera");
+    return Invalid(field + ".dataset_camera",
+                   "dataset '" + info.name + "' has no camera " + std::to_string(d->id));
   }
+  const LookAtView& l = std::get<LookAtView>(view);
+  if (!(l.fov_y_deg > 0 && l.fov_y_deg < 180)) {
+    return Invalid(field + ".look_at.fov_y_deg", "must be in (0, 180) degrees");
+  }
+  const std::array<double, 3>& eye = l.eye;
+  const std::array<double, 3>& target = l.target;
+  const std::array<double, 3> up = l.up.value_or(std::array<double, 3>{0, 1, 0});
+  // Said here in the request's words: LookAt leaves such a camera without a pose, which
+  // Validate would report as a bad pose matrix.
+  const double dx = target[0] - eye[0], dy = target[1] - eye[1], dz = target[2] - eye[2];
+  if (dx == 0 && dy == 0 && dz == 0) {
+    return Invalid(field + ".look_at", "eye and target are the same point: the camera "
+                                       "looks nowhere");
+  }
+  const double cx = dy * up[2] - dz * up[1], cy = dz * up[0] - dx * up[2],
+               cz = dx * up[1] - dy * up[0];
+  if (cx == 0 && cy == 0 && cz == 0) {
+    return Invalid(field + ".look_at.up", "is parallel to the view direction (or zero): "
+                                          "give an up that is not");
+  }
+  return Camera::LookAt(eye, target, up, l.fov_y_deg, l.width, l.height);
 }
 
 Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> dataset,
-                                                     const wire::Render& r,
+                                                     const RenderRequest& r,
                                                      const RenderLimits& limits) {
   std::unique_ptr<RenderJob> job(new RenderJob());
   const DatasetInfo info = dataset->Info();
   job->dataset_ = std::move(dataset);
   job->limits_ = limits;
-  switch (r.renderer()) {
-    case wire::RENDERER_AUTO:
-      job->kind_ = RendererKind::kAuto;
-      break;
-    case wire::RENDERER_EGL:
-      job->kind_ = RendererKind::kEgl;
-      break;
-    case wire::RENDERER_CPU:
-      job->kind_ = RendererKind::kCpu;
-      break;
-    default:
-      return Invalid("render.renderer", "unknown value " + std::to_string(r.renderer()));
-  }
-  if (!wire::ImageFormat_IsValid(r.format())) {
-    return Invalid("render.format", "unknown value " + std::to_string(r.format()));
-  }
-  job->format_ = r.format();
-  if ((r.format() == wire::IMAGE_MP4 || r.format() == wire::IMAGE_WEBM) && r.path_size() == 0) {
+  // The shape (known renderer, format and mode values; counts of background, highlight_color,
+  // shadow_light and of a look-at's vectors) is the request's type's: the protocol's
+  // render_convert.h checks it where a wire message is decoded.
+  job->kind_ = r.renderer;
+  job->format_ = r.format;
+  const bool video = r.format == ImageFormat::kMp4 || r.format == ImageFormat::kWebm;
+  if (video && r.path.empty()) {
     return Invalid("render.path", "a video (format MP4 or WebM) needs a camera path with at "
                                   "least one view; it has none");
   }
   RenderOptions& o = job->options_;
-  // Unset means RENDER_VISIBILITY for the points (and the depth under a texture).
-  switch (r.has_mode() ? r.mode() : wire::RENDER_VISIBILITY) {
-    case wire::RENDER_VISIBILITY:
-      o.mode = Mode::kVisibility;
-      break;
-    case wire::RENDER_PROBABILISTIC:
-      o.mode = Mode::kProbabilistic;
-      break;
-    default:
-      return Invalid("render.mode", "unknown value " + std::to_string(r.mode()));
-  }
-  if (r.lod() > kMaxRenderLod) {
-    return Invalid("render.lod", std::to_string(r.lod()) + " is out of range (0.." +
-                                     std::to_string(kMaxRenderLod) + ")");
-  }
-  job->query_.lod = static_cast<int>(r.lod());
-  if (r.lod() > static_cast<uint32_t>(job->dataset_->lod_levels())) {
-    return Invalid("render.lod", std::to_string(r.lod()) + " is coarser than dataset '" +
-                                     info.name + "' has (0.." +
-                                     std::to_string(job->dataset_->lod_levels()) + ")");
-  }
-  job->query_.temporal_lod = !r.no_temporal_lod();
-  job->query_.label_mask = r.label_mask();
-  job->highlight_mask_ = r.highlight_mask();
-  if (r.highlight_color_size() == 4) {
-    for (int i = 0; i < 4; ++i) {
-      const float v = r.highlight_color(i);
+  // Unset means kVisibility for the points (and the depth under a texture).
+  o.mode = r.mode.value_or(Mode::kVisibility);
+  // Storage's rule, the one every query follows: 0 .. the dataset's coarsest level.
+  HVDB_RETURN_IF_ERROR(job->dataset_->CheckLod(r.lod));
+  job->query_.lod = static_cast<int>(r.lod);
+  job->query_.temporal_lod = !r.no_temporal_lod;
+  job->query_.label_mask = r.label_mask;
+  job->highlight_mask_ = r.highlight_mask;
+  if (r.highlight_color) {
+    for (size_t i = 0; i < 4; ++i) {
+      const float v = (*r.highlight_color)[i];
       if (!(v >= 0.f && v <= 1.f)) {
         return Invalid("render.highlight_color", "values must be in [0, 1], got " + std::to_string(v));
       }
-      job->highlight_[static_cast<size_t>(i)] = v;
+      job->highlight_[i] = v;
     }
-  } else if (r.highlight_color_size() != 0) {
-    return Invalid("render.highlight_color", "needs 4 values (sRGB RGBA in [0, 1]) or none");
   }
-  if (r.background_size() == 4) {
-    for (int i = 0; i < 4; ++i) o.background[static_cast<size_t>(i)] = r.background(i);
-  } else if (r.background_size() != 0) {
-    return Invalid("render.background", "needs 4 values (linear RGBA) or none");
-  }
-  if (r.depth_threshold() != 0) o.depth_threshold = r.depth_threshold();
-  if (r.cutoff_radius() != 0) o.cutoff_radius = r.cutoff_radius();
-  if ((r.width() == 0) != (r.height() == 0)) {
+  if (r.background) o.background = *r.background;
+  if (r.depth_threshold != 0) o.depth_threshold = r.depth_threshold;
+  if (r.cutoff_radius != 0) o.cutoff_radius = r.cutoff_radius;
+  if ((r.width == 0) != (r.height == 0)) {
     return Invalid("render.width", "give width and height together, or neither");
   }
-  o.width = r.width();
-  o.height = r.height();
-  if (r.view_dependent()) {
+  o.width = r.width;
+  o.height = r.height;
+  if (r.view_dependent) {
     if (info.cameras.empty()) {
       return Invalid("render.view_dependent", "dataset '" + info.name + "' declares no cameras");
     }
@@ -227,63 +175,61 @@ Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> da
     for (const CameraInfo& c : info.cameras)
       o.source_cameras.push_back({c.id, c.world_from_camera});
   }
-  if (r.shadow_light_size() == 3) {
+  if (r.shadow_light) {
     job->shadow_ = true;
-    for (int i = 0; i < 3; ++i) job->shadow_opts_.light[size_t(i)] = r.shadow_light(i);
-    job->shadow_opts_.directional = r.shadow_directional();
-    job->shadow_opts_.caster_bit = r.shadow_casters();
-    if (r.shadow_strength() != 0) job->shadow_opts_.strength = r.shadow_strength();
-    if (r.shadow_map_size() != 0) job->shadow_opts_.map_size = r.shadow_map_size();
+    job->shadow_opts_.light = *r.shadow_light;
+    job->shadow_opts_.directional = r.shadow_directional;
+    job->shadow_opts_.caster_bit = r.shadow_casters;
+    if (r.shadow_strength != 0) job->shadow_opts_.strength = r.shadow_strength;
+    if (r.shadow_map_size != 0) job->shadow_opts_.map_size = r.shadow_map_size;
     HVDB_RETURN_IF_ERROR(CheckShadowOptions(job->shadow_opts_));
-  } else if (r.shadow_light_size() != 0) {
-    return Invalid("render.shadow_light", "needs 3 values (a position, or with "
-                                          "shadow_directional a direction), or none for no shadows");
-  } else if (r.shadow_directional() || r.shadow_casters() != 0 || r.shadow_strength() != 0 ||
-             r.shadow_map_size() != 0) {
+  } else if (r.shadow_directional || r.shadow_casters != 0 || r.shadow_strength != 0 ||
+             r.shadow_map_size != 0) {
     return Invalid("render.shadow_light", "shadow options were given without a light: give "
                                           "shadow_light (3 values)");
   }
-  if (r.texture() && r.path_size() > 0) {
+  const bool texture = r.texture.value_or(false), billboards = r.billboards.value_or(false);
+  if (texture && !r.path.empty()) {
     return Invalid("render.texture", "textures a single view of one frame, not a sequence");
   }
-  if (r.billboards() && r.path_size() > 0) {
+  if (billboards && !r.path.empty()) {
     return Invalid("render.billboards", "draws a single view of one frame, not a sequence");
   }
   // Billboards take precedence over texture; any of the three given and neither true: the
   // points; none given: auto (per image, ResolveColour).
-  if (r.billboards()) {
+  if (billboards) {
     job->colour_ = Colour::kBillboards;
-  } else if (r.texture()) {
+  } else if (texture) {
     job->colour_ = Colour::kTexture;
-  } else if (r.has_mode() || r.has_texture() || r.has_billboards()) {
+  } else if (r.mode || r.texture || r.billboards) {
     job->colour_ = Colour::kPoints;
   }
-  job->sequence_ = r.path_size() > 0;
+  job->sequence_ = !r.path.empty();
   // Views.
-  if (r.path_size() > 0) {
-    if (r.has_view()) return Invalid("render.view", "give a view or a path, not both");
-    if (static_cast<uint64_t>(r.path_size()) > limits.max_images) {
-      return Status::LimitExceeded("render.path: " + std::to_string(r.path_size()) +
+  if (!r.path.empty()) {
+    if (r.view) return Invalid("render.view", "give a view or a path, not both");
+    if (static_cast<uint64_t>(r.path.size()) > limits.max_images) {
+      return Status::LimitExceeded("render.path: " + std::to_string(r.path.size()) +
                                    " images; at most " + std::to_string(limits.max_images) +
                                    " per request");
     }
-    for (int i = 0; i < r.path_size(); ++i) {
+    for (size_t i = 0; i < r.path.size(); ++i) {
       std::string field = "render.path[" + std::to_string(i) + "]";
-      HVDB_ASSIGN_OR_RETURN(Camera c, ViewFromWire(r.path(i), info, field));
+      HVDB_ASSIGN_OR_RETURN(Camera c, ViewCamera(r.path[i], info, field));
       job->views_.push_back(c);
     }
   } else {
-    if (!r.has_view()) return Invalid("render.view", "required (or a path for a sequence)");
-    HVDB_ASSIGN_OR_RETURN(Camera c, ViewFromWire(r.view(), info, "render.view"));
+    if (!r.view) return Invalid("render.view", "required (or a path for a sequence)");
+    HVDB_ASSIGN_OR_RETURN(Camera c, ViewCamera(*r.view, info, "render.view"));
     job->views_.push_back(c);
   }
   for (size_t i = 0; i < job->views_.size(); ++i) {
     std::string field =
-        r.path_size() > 0 ? "render.path[" + std::to_string(i) + "]" : std::string("render.view");
+        !r.path.empty() ? "render.path[" + std::to_string(i) + "]" : std::string("render.view");
     HVDB_RETURN_IF_ERROR(InField(field, CheckRenderArguments(job->views_[i], o)));
   }
-  if (r.format() == wire::IMAGE_MP4 || r.format() == wire::IMAGE_WEBM) {
-    if (r.video_fps() != 0) job->video_fps_ = r.video_fps();
+  if (video) {
+    if (r.video_fps != 0) job->video_fps_ = r.video_fps;
     if (!(job->video_fps_ > 0 && job->video_fps_ <= 1000)) {
       return Invalid("render.video_fps", "must be in (0, 1000] frames a second (0: 30)");
     }
@@ -305,30 +251,29 @@ Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> da
                                   std::to_string(w) + "x" + std::to_string(h));
       }
     }
-  } else if (r.video_fps() != 0) {
+  } else if (r.video_fps != 0) {
     return Invalid("render.video_fps", "is for videos: set format to IMAGE_MP4 or IMAGE_WEBM");
   }
   // Regions.
-  if (r.frames_size() > 0) {
-    if (r.frames_size() != r.path_size()) {
+  if (!r.frames.empty()) {
+    if (r.frames.size() != r.path.size()) {
       return Invalid("render.frames", "needs one frame per view of the path (" +
-                                          std::to_string(r.path_size()) + "), got " +
-                                          std::to_string(r.frames_size()));
+                                          std::to_string(r.path.size()) + "), got " +
+                                          std::to_string(r.frames.size()));
     }
     Window space;
     space.lo = {-1e30, -1e30, -1e30, 0};
     space.hi = {1e30, 1e30, 1e30, 0};
-    if (r.has_region()) {
-      HVDB_ASSIGN_OR_RETURN(Region region, wire::FromWire(r.region()));
-      if (!std::holds_alternative<Window>(region)) {
+    if (r.region) {
+      if (!std::holds_alternative<Window>(*r.region)) {
         return Invalid("render.frames",
                        "frames go with a window region (its x y z bounds), "
                        "not a slice");
       }
-      space = std::get<Window>(region);
+      space = std::get<Window>(*r.region);
     }
-    for (int i = 0; i < r.frames_size(); ++i) {
-      const uint32_t f = r.frames(i);
+    for (size_t i = 0; i < r.frames.size(); ++i) {
+      const uint32_t f = r.frames[i];
       // A frame past the dataset's end would render an empty image without a word.
       if (f >= info.frame_count) {
         return Invalid("render.frames[" + std::to_string(i) + "]",
@@ -341,13 +286,12 @@ Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> da
       job->regions_.push_back(w);
     }
   } else {
-    if (!r.has_region()) return Invalid("render.region", "required (or frames for a sequence)");
-    HVDB_ASSIGN_OR_RETURN(Region region, wire::FromWire(r.region()));
-    job->regions_.push_back(region);
+    if (!r.region) return Invalid("render.region", "required (or frames for a sequence)");
+    job->regions_.push_back(*r.region);
   }
   // Replies.
-  if (r.progressive()) {
-    if (r.path_size() > 0) {
+  if (r.progressive) {
+    if (!r.path.empty()) {
       return Invalid("render.progressive", "is for a single view, not a sequence (path)");
     }
     // About 1/16 of the points: levels hold 2^-i of the samples (thesis 8.4).
@@ -634,42 +578,43 @@ Status RenderJob::Texture(const Camera& view, const RenderOptions& o, Renderer& 
   return ProjectiveTexture(drawn, tv, to, &image_);
 }
 
-Result<wire::RenderReply> RenderJob::Render(size_t i, Renderer& renderer,
-                                            const std::atomic<bool>* cancelled) {
+Result<RenderReply> RenderJob::Render(size_t i, Renderer& renderer,
+                                      const std::atomic<bool>* cancelled) {
   HVDB_RETURN_IF_ERROR(limits_.job.CheckTime("render: image " + std::to_string(i + 1) + " of " +
                                              std::to_string(steps_.size())));
   HVDB_RETURN_IF_ERROR(Draw(i, renderer, cancelled));
   const Image& img = image_;
-  wire::RenderReply reply;
-  if (format_ == wire::IMAGE_MP4 || format_ == wire::IMAGE_WEBM) {
+  RenderReply reply;
+  if (format_ == ImageFormat::kMp4 || format_ == ImageFormat::kWebm) {
     HVDB_RETURN_IF_ERROR(EncodeVideoFrame(i, &reply));
-  } else if (format_ == wire::IMAGE_EXR) {
+  } else if (format_ == ImageFormat::kExr) {
     HVDB_ASSIGN_OR_RETURN(std::string bytes, EncodeExr(img));
     HVDB_RETURN_IF_ERROR(CheckReplySize(bytes));
-    reply.set_exr(std::move(bytes));
+    reply.exr = std::move(bytes);
   } else {
     HVDB_ASSIGN_OR_RETURN(std::string bytes, EncodePng(img));
     HVDB_RETURN_IF_ERROR(CheckReplySize(bytes));
-    reply.set_png(std::move(bytes));
+    reply.png = std::move(bytes);
   }
-  reply.set_images(static_cast<uint32_t>(steps_.size()));
-  reply.set_width(img.width);
-  reply.set_height(img.height);
-  reply.set_renderer_used(renderer.name());
-  reply.set_points(current_.points.size());
-  reply.set_render_ms(billboards_ms_ >= 0 ? billboards_ms_ : renderer.last_stats().milliseconds);
-  reply.set_index(static_cast<uint32_t>(steps_[i].view));
-  reply.set_preview(steps_[i].preview);
-  reply.set_lod(static_cast<uint32_t>(steps_[i].lod));
-  reply.set_last(i + 1 == steps_.size());
-  reply.set_mode_used(mode_used_);
-  reply.set_mode_choice(mode_choice_);
+  reply.images = static_cast<uint32_t>(steps_.size());
+  reply.width = img.width;
+  reply.height = img.height;
+  reply.renderer_used = renderer.name();
+  reply.points = current_.points.size();
+  reply.render_ms = billboards_ms_ >= 0 ? billboards_ms_ : renderer.last_stats().milliseconds;
+  reply.index = static_cast<uint32_t>(steps_[i].view);
+  reply.preview = steps_[i].preview;
+  reply.lod = static_cast<uint32_t>(steps_[i].lod);
+  reply.last = i + 1 == steps_.size();
+  reply.mode_used = mode_used_;
+  reply.mode_choice = mode_choice_;
   return reply;
 }
 
-Status RenderJob::EncodeVideoFrame(size_t i, wire::RenderReply* reply) {
+Status RenderJob::EncodeVideoFrame(size_t i, RenderReply* reply) {
   if (video_ == nullptr) {
-    const VideoContainer c = format_ == wire::IMAGE_MP4 ? VideoContainer::kMp4 : VideoContainer::kWebm;
+    const VideoContainer c =
+        format_ == ImageFormat::kMp4 ? VideoContainer::kMp4 : VideoContainer::kWebm;
     HVDB_ASSIGN_OR_RETURN(video_, VideoEncoder::Create(c, image_.width, image_.height, video_fps_));
   }
   if (video_->frames() != i) {
@@ -678,7 +623,7 @@ Status RenderJob::EncodeVideoFrame(size_t i, wire::RenderReply* reply) {
                                    std::to_string(video_->frames()));
   }
   HVDB_RETURN_IF_ERROR(video_->Add(image_));
-  reply->set_video_codec(video_->codec());
+  reply->video_codec = video_->codec();
   if (i + 1 < steps_.size()) return Status::OK();
   HVDB_ASSIGN_OR_RETURN(std::string bytes, video_->Finish());
   video_.reset();
@@ -687,19 +632,19 @@ Status RenderJob::EncodeVideoFrame(size_t i, wire::RenderReply* reply) {
                                  " MiB, more than a reply may carry; render fewer or smaller "
                                  "images");
   }
-  reply->set_video(std::move(bytes));
+  reply->video = std::move(bytes);
   return Status::OK();
 }
 
-Status ParseCameraPath(const std::string& json_text, wire::Render* request) {
+Status ParseCameraPath(const std::string& json_text, RenderRequest* request) {
   using nlohmann::json;
   json doc = json::parse(json_text, nullptr, /*allow_exceptions=*/false);
   if (doc.is_discarded()) return Invalid("camera path", "not valid JSON");
   if (!doc.is_object() || !doc.contains("cameras") || !doc["cameras"].is_array()) {
     return Invalid("camera path", "expected {\"cameras\": [...]}");
   }
-  request->clear_path();
-  request->clear_frames();
+  request->path.clear();
+  request->frames.clear();
   const json& cams = doc["cameras"];
   size_t with_frame = 0;
   auto numbers = [](const json& j, size_t n, std::vector<double>* out) {
@@ -711,47 +656,52 @@ Status ParseCameraPath(const std::string& json_text, wire::Render* request) {
     }
     return true;
   };
+  auto three = [](const std::vector<double>& a) { return std::array<double, 3>{a[0], a[1], a[2]}; };
   for (size_t i = 0; i < cams.size(); ++i) {
     const json& e = cams[i];
     std::string where = "camera path entry " + std::to_string(i);
     if (!e.is_object()) return Invalid(where, "must be an object");
-    wire::View* v = request->add_path();
     std::vector<double> a;
     try {
       if (e.contains("look_at")) {
         const json& l = e["look_at"];
-        wire::LookAt* o = v->mutable_look_at();
+        LookAtView o;
         if (!numbers(l.value("eye", json()), 3, &a))
           return Invalid(where, "look_at.eye: 3 numbers");
-        for (double x : a) o->add_eye(x);
+        o.eye = three(a);
         if (!numbers(l.value("target", json()), 3, &a)) {
           return Invalid(where, "look_at.target: 3 numbers");
         }
-        for (double x : a) o->add_target(x);
+        o.target = three(a);
         if (l.contains("up")) {
           if (!numbers(l["up"], 3, &a)) return Invalid(where, "look_at.up: 3 numbers");
-          for (double x : a) o->add_up(x);
+          o.up = three(a);
         }
-        o->set_fov_y_deg(l.value("fov_y_deg", 50.0));
-        o->set_width(l.value("width", 1024u));
-        o->set_height(l.value("height", 768u));
+        o.fov_y_deg = l.value("fov_y_deg", 50.0);
+        o.width = l.value("width", 1024u);
+        o.height = l.value("height", 768u);
+        request->path.push_back(o);
       } else if (e.contains("camera")) {
         const json& c = e["camera"];
-        wire::Camera* o = v->mutable_camera();
-        o->set_width(c.at("width").get<uint32_t>());
-        o->set_height(c.at("height").get<uint32_t>());
-        for (const char* k : {"fx", "fy", "cx", "cy"}) o->add_intrinsics(c.at(k).get<double>());
+        CameraInfo o;
+        o.width = c.at("width").get<uint32_t>();
+        o.height = c.at("height").get<uint32_t>();
+        o.fx = c.at("fx").get<double>();
+        o.fy = c.at("fy").get<double>();
+        o.cx = c.at("cx").get<double>();
+        o.cy = c.at("cy").get<double>();
         if (c.contains("distortion")) {
           if (!numbers(c["distortion"], 5, &a))
             return Invalid(where, "camera.distortion: 5 numbers");
-          for (double x : a) o->add_distortion(x);
+          std::copy(a.begin(), a.end(), o.distortion.begin());
         }
         if (!numbers(c.value("world_from_camera", json()), 16, &a)) {
           return Invalid(where, "camera.world_from_camera: 16 numbers, row-major");
         }
-        for (double x : a) o->add_world_from_camera(x);
+        std::copy(a.begin(), a.end(), o.world_from_camera.begin());
+        request->path.push_back(o);
       } else if (e.contains("dataset_camera")) {
-        v->set_dataset_camera(e["dataset_camera"].get<uint32_t>());
+        request->path.push_back(DatasetCameraView{e["dataset_camera"].get<uint32_t>()});
       } else {
         return Invalid(where, "needs look_at, camera or dataset_camera");
       }
@@ -763,7 +713,7 @@ Status ParseCameraPath(const std::string& json_text, wire::Render* request) {
             (f.is_number_unsigned() && f.get<uint64_t>() > UINT32_MAX)) {
           return Invalid(where, "frame: a frame number, 0 to 4294967295 (got " + f.dump() + ")");
         }
-        request->add_frames(f.get<uint32_t>());
+        request->frames.push_back(f.get<uint32_t>());
         ++with_frame;
       }
     } catch (const json::exception& ex) {

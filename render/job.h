@@ -1,4 +1,5 @@
-// Render jobs: a Render request (docs/PROTOCOL.md, "Rendering") run against a dataset.
+// Render jobs: a render request (render/request.h; docs/PROTOCOL.md, "Rendering") run against
+// a dataset.
 //
 // RenderJob validates the request once (views, dataset cameras, options), then renders its
 // images one at a time, each from the points of its region, queried at the request's level of
@@ -10,8 +11,9 @@
 // give the same images and the same errors for the same request.
 //
 // Unlike the rest of render/ (which needs only storage's Point record), this part of it reads
-// a Dataset and speaks the wire protocol's Render messages: it is its own library,
-// hvdb_render_job (render/CMakeLists.txt), so that the renderers do not depend on either.
+// a Dataset: it is its own library, hvdb_render_job (render/CMakeLists.txt), so that the
+// renderers do not depend on it. It takes and gives plain values (render/request.h); the wire
+// protocol's Render messages are converted to and from them by the protocol's render_convert.h.
 #ifndef HVDB_RENDER_JOB_H_
 #define HVDB_RENDER_JOB_H_
 
@@ -22,9 +24,9 @@
 #include <string>
 #include <vector>
 
-#include "protocol/wire.h"
 #include "render/billboard_render.h"
 #include "render/renderer.h"
+#include "render/request.h"
 #include "render/shadow.h"
 #include "render/video_encoder.h"
 #include "storage/database.h"
@@ -45,8 +47,9 @@ struct RenderLimits {
 class RenderJob {
  public:
   // InvalidArgument (naming the field) for a bad request, LimitExceeded for too many images.
+  // The level of detail follows storage's rule (Dataset::CheckLod).
   static Result<std::unique_ptr<RenderJob>> Create(std::shared_ptr<Dataset> dataset,
-                                                   const wire::Render& request,
+                                                   const RenderRequest& request,
                                                    const RenderLimits& limits = {});
   // Stops and waits for a query in flight.
   ~RenderJob();
@@ -57,7 +60,7 @@ class RenderJob {
   // or the billboards. kAuto, the request's default, picks per image the best the frame has.
   enum class Colour : uint8_t { kAuto, kPoints, kTexture, kBillboards };
   RendererKind renderer_kind() const { return kind_; }
-  wire::ImageFormat format() const { return format_; }
+  ImageFormat format() const { return format_; }
 
   // Renders image i (0 <= i < size()) with `renderer`. The points of the previous image are
   // reused when its region and level are the same; those of image i + 1 are queried while
@@ -66,10 +69,11 @@ class RenderJob {
   Result<Image> RenderImage(size_t i, Renderer& renderer,
                             const std::atomic<bool>* cancelled = nullptr);
   // The same, encoded as the request's format into a reply (index, last, preview, lod,
-  // timings filled in). A video (IMAGE_MP4 / IMAGE_WEBM) must be rendered in order: each
-  // image is fed to the encoder and its reply carries none; the last one carries the file.
-  Result<wire::RenderReply> Render(size_t i, Renderer& renderer,
-                                   const std::atomic<bool>* cancelled = nullptr);
+  // timings filled in; fallback and renderer_choice are the caller's, who made the renderer).
+  // A video (kMp4 / kWebm) must be rendered in order: each image is fed to the encoder and
+  // its reply carries none; the last one carries the file.
+  Result<RenderReply> Render(size_t i, Renderer& renderer,
+                             const std::atomic<bool>* cancelled = nullptr);
 
  private:
   // One reply: which view, which region, at which level.
@@ -95,15 +99,15 @@ class RenderJob {
   // Draws image i into image_.
   Status Draw(size_t i, Renderer& renderer, const std::atomic<bool>* cancelled);
   // Feeds image_ (image i of a video) to video_; the last one's reply gets the file.
-  Status EncodeVideoFrame(size_t i, wire::RenderReply* reply);
+  Status EncodeVideoFrame(size_t i, RenderReply* reply);
   // What draws step i (colour_, or kAuto's choice for its frame), and why, into mode_used_
   // and mode_choice_. Needs step i's points loaded.
   Result<Colour> ResolveColour(size_t i);
   // The photos stored for `frame`, read once per frame for auto, texture and billboards.
   Result<const std::vector<Photo>*> FramePhotos(uint32_t frame);
-  // Render.texture: recolours image_ from the photos of the frame current_ shows.
+  // RenderRequest::texture: recolours image_ from the photos of the frame current_ shows.
   Status Texture(const Camera& view, const RenderOptions& o, Renderer& renderer);
-  // Render.billboards: redraws image_ from the billboards of the frame current_ shows.
+  // RenderRequest::billboards: redraws image_ from the billboards of the frame current_ shows.
   Status Billboards(const Camera& view, const RenderOptions& o);
   // The one frame current_'s points belong to; InvalidArgument naming `field` otherwise.
   Result<uint32_t> SingleFrame(const std::string& field) const;
@@ -111,12 +115,12 @@ class RenderJob {
   std::shared_ptr<Dataset> dataset_;
   RenderLimits limits_;
   RendererKind kind_ = RendererKind::kAuto;
-  wire::ImageFormat format_ = wire::IMAGE_PNG;
+  ImageFormat format_ = ImageFormat::kPng;
   RenderOptions options_;
   QueryOptions query_;
-  Colour colour_ = Colour::kAuto;  // Render.mode / texture / billboards
-  bool sequence_ = false;          // Render.path given (even of one view)
-  // What drew the last image ("visibility", "textured", ...) and why: RenderReply.mode_used,
+  Colour colour_ = Colour::kAuto;  // RenderRequest::mode / texture / billboards
+  bool sequence_ = false;          // RenderRequest::path given (even of one view)
+  // What drew the last image ("visibility", "textured", ...) and why: RenderReply::mode_used,
   // mode_choice.
   std::string mode_used_, mode_choice_;
   std::vector<Photo> photos_;  // the photos of photos_frame_ (FramePhotos)
@@ -134,12 +138,12 @@ class RenderJob {
   std::vector<BillboardSource> boards_;          // the billboards of boards_frame_
   uint32_t boards_frame_ = UINT32_MAX;
   double billboards_ms_ = -1;                    // the last image's billboard draw (-1: none)
-  // IMAGE_MP4 / IMAGE_WEBM: the path's images go into video_ (made at the first image).
+  // kMp4 / kWebm: the path's images go into video_ (made at the first image).
   std::unique_ptr<VideoEncoder> video_;
   double video_fps_ = 30;
-  bool shadow_ = false;                          // Render.shadow_light given
+  bool shadow_ = false;                          // RenderRequest::shadow_light given
   ShadowOptions shadow_opts_;
-  uint32_t highlight_mask_ = 0;                  // the selection overlay (Render.highlight_*)
+  uint32_t highlight_mask_ = 0;                  // the selection overlay (RenderRequest::highlight_*)
   std::array<float, 4> highlight_{1.f, 0.45f, 0.f, 0.5f};
   std::vector<Camera> views_;
   std::vector<Region> regions_;  // one, or one per image
@@ -162,9 +166,9 @@ Camera CameraFromInfo(const CameraInfo& info);
 // saying what is wrong otherwise, so that a bad photo is refused, not stored to fail renders.
 Status CheckPhoto(const Photo& photo);
 
-// A view of a Render request as a render camera. dataset_camera ids are looked up in `info`.
-Result<Camera> ViewFromWire(const wire::View& view, const DatasetInfo& info,
-                            const std::string& field);
+// A view of a render request as a render camera. Dataset camera ids are looked up in `info`;
+// InvalidArgument naming `field` (e.g. "render.view") for a view that cannot be one.
+Result<Camera> ViewCamera(const View& view, const DatasetInfo& info, const std::string& field);
 
 // Parses a camera path for a sequence (the `hvdb render --path` file), JSON:
 //   {"cameras": [ VIEW, ... ]}  where each VIEW is one of
@@ -175,7 +179,7 @@ Result<Camera> ViewFromWire(const wire::View& view, const DatasetInfo& info,
 //     {"dataset_camera": ID}
 //   and may carry "frame": F (then every entry must): image i shows frame F.
 // Fills request->path (and request->frames); InvalidArgument names the entry at fault.
-Status ParseCameraPath(const std::string& json_text, wire::Render* request);
+Status ParseCameraPath(const std::string& json_text, RenderRequest* request);
 
 }  // namespace hvdb::render
 

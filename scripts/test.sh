@@ -1,9 +1,13 @@
 #!/usr/bin/env bash
-# Runs every test: set-up (packages + warnings-as-errors build), the full CTest suite, then
+# Runs every test: the layer map check, set-up (packages + warnings-as-errors build), the full CTest suite, then
 # the storage, server, codec and ingest point tests again under AddressSanitizer +
 # UndefinedBehaviorSanitizer, then the decoders under libFuzzer.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+
+# The layer map first (a second, before any build): includes and links between the folders as
+# docs/ARCHITECTURE.md draws them, and no source file over 800 lines. ctest runs it too.
+/usr/bin/python3 scripts/check_layers.py
 
 bash scripts/setup.sh --all
 ctest --test-dir build --output-on-failure -j2 --timeout 900
@@ -16,7 +20,7 @@ ctest --test-dir build --output-on-failure -j2 --timeout 900
 cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=Debug -DHVDB_SANITIZE=ON -DHVDB_WERROR=ON \
   -DHVDB_BUILD_BENCH=OFF >/dev/null
 cmake --build build-asan --target storage_tests server_tests service_tests codec_tests \
-  ingest_points_tests photo_video_tests
+  blockcode_tests ingest_points_tests photo_video_tests
 ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
   ctest --test-dir build-asan --output-on-failure -j2 --timeout 900 \
   -R '^(Crc32c|Point|BufferPool|ConvertTest|ServiceTest|Lod|KdTree|Hyperslice|Wal|Dataset|FollowerTest|WatchTest|WatchServerTest|Photos|PhotoVideo|Crash|Corruption|ColdTier|RecordBlock|FaultInjection|Server|HttpServer|Hardening|HttpHeadCheck|Printable|WsCodec|WebPath|OriginAllowed|CodecTest|DepthSigma|PhotoConsistency|GeometricConsistencyTest|BillboardTest|SegmentationTest|ImportMediaLimitsTest)' \
@@ -24,7 +28,7 @@ ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
 
 # Fuzz the decoders with clang's libFuzzer, 20 seconds each: the frame and message decoder of
 # the socket protocol, the WebSocket messages and HTTP requests of the browser's, the hvdb7
-# point-stream decoder, its octree geometry on its own, and the cold tier's record blocks (codec/), the photo files and the log
+# point-stream decoder, its octree geometry on its own, and the cold tier's record blocks (blockcode/), the photo files and the log
 # records of storage/, the image decoder of formats/, and import-media's image, video and mesh
 # decoders (media/; the mesh parser runs in a child process, whose crashes are the request's
 # error: their reports land in the temporary corpus, the run goes on).
@@ -38,7 +42,7 @@ for target in frame_decoder_fuzz:server/fuzz_corpus ws_message_fuzz:server/ws_fu
   hvdb7_decoder_fuzz:codec/fuzz_corpus octree_fuzz:codec/octree_fuzz_corpus \
   photo_decoder_fuzz:storage/photo_fuzz_corpus \
   wal_record_fuzz:storage/wal_fuzz_corpus image_decode_fuzz:formats/image_fuzz_corpus \
-  record_block_fuzz:codec/record_block_fuzz_corpus \
+  record_block_fuzz:blockcode/record_block_fuzz_corpus \
   media_import_fuzz:media/import_fuzz_corpus; do
   corpus=$(mktemp -d)
   cp "tests/${target#*:}"/* "$corpus"/

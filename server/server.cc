@@ -54,6 +54,28 @@ Server::Server(Config config, std::unique_ptr<Database> db)
   hvdb::SetLogHandler([](LogSeverity s, const std::string& m) {
     Log(s == LogSeverity::kWarning ? LogLevel::kWarn : LogLevel::kInfo, m);
   });
+  // The stats and server_stats requests report this process through the executor.
+  service_.SetCounters([this] { return Counters(); });
+}
+
+service::ServerCounters Server::Counters() {
+  service::ServerCounters c;
+  c.connections_open = stats_.connections_open;
+  c.connections_total = stats_.connections_total;
+  c.bytes_in = stats_.bytes_in;
+  c.bytes_out = stats_.bytes_out;
+  c.role = role();
+  c.leader = db_->Leader();
+  c.buffered_bytes = static_cast<uint64_t>(std::max<int64_t>(0, buffered()));
+  c.memory_budget_bytes = budget_;
+  CacheStats cache = db_->Cache();
+  c.cache_capacity_bytes = cache.capacity_bytes;
+  const uint64_t lookups = cache.hits + cache.misses;
+  c.cache_hit_rate = lookups ? static_cast<double>(cache.hits) / lookups : 0;
+  for (const auto& sum : stats_.Summaries()) {
+    c.requests.push_back({sum.kind, sum.count, sum.p50_ms, sum.p95_ms, sum.p99_ms});
+  }
+  return c;
 }
 
 Server::~Server() {

@@ -132,6 +132,8 @@ class Server {
   // "writer" or "reader", and the writer's address; NotLeader naming it, for a refused write.
   std::string role() const { return db_->follower() ? "reader" : "writer"; }
   Status NotLeader(const std::string& what) const;
+  // What the stats and server_stats requests report of this server.
+  service::ServerCounters Counters();
   boost::asio::thread_pool& workers() { return workers_; }
   boost::asio::io_context& io() { return io_; }
   ServerStats& stats() { return stats_; }

@@ -4,11 +4,8 @@
 #include <cmath>
 #include <array>
 
-#include <nlohmann/json.hpp>
-
 #include "protocol/convert.h"
 #include "render/job.h"
-#include "server/requests.h"
 
 namespace hvdb::server {
 
@@ -221,60 +218,26 @@ void Session::Dispatch(wire::Request req) {
                                             " requests in flight on this connection; wait for "
                                             "some to finish"));
   }
-  if (Writes(req) && role_ != Role::kReadWrite) {
-    return SendError(id, Status::PermissionDenied(std::string(KindOf(req)) +
+  const service::RequestKind& kind = service::KindOf(req);
+  if (kind.writes && role_ != Role::kReadWrite) {
+    return SendError(id, Status::PermissionDenied(std::string(kind.name) +
                                                   " needs a read-write token"));
   }
-  if (Writes(req) && server_->db().follower()) {
-    return SendError(id, server_->NotLeader(KindOf(req)));
+  if (kind.writes && server_->db().follower()) {
+    return SendError(id, server_->NotLeader(kind.name));
   }
   auto op = std::make_shared<Op>();
   op->id = id;
-  op->kind = KindOf(req);
+  op->kind = kind.name;
   ops_[id] = op;
   Server* s = server_;
+  if (kind.flow == service::Flow::kUnary) {
+    return RunOnWorker(id, [s, req = std::move(req)] {
+      return service::ExecuteUnary(s->service(), req);
+    });
+  }
+  // The streams: the executor's call wrapped in the session's flow control.
   switch (req.body_case()) {
-    case wire::Request::kStats:
-      return RunOnWorker(id, [s, id, name = req.stats().dataset()] {
-        wire::Response r;
-        r.set_id(id);
-        auto* st = r.mutable_stats();
-        st->set_connections_open(s->stats().connections_open);
-        st->set_connections_total(s->stats().connections_total);
-        st->set_bytes_in(s->stats().bytes_in);
-        st->set_bytes_out(s->stats().bytes_out);
-        st->set_role(s->role());
-        st->set_leader(s->db().Leader());
-        st->set_buffered_bytes(static_cast<uint64_t>(std::max<int64_t>(0, s->buffered())));
-        st->set_memory_budget_bytes(s->budget());
-        CacheStats c = s->db().Cache();
-        st->set_cache_capacity_bytes(c.capacity_bytes);
-        uint64_t lookups = c.hits + c.misses;
-        st->set_cache_hit_rate(lookups ? static_cast<double>(c.hits) / lookups : 0);
-        for (const auto& sum : s->stats().Summaries()) {
-          auto* l = st->add_requests();
-          l->set_kind(sum.kind);
-          l->set_count(sum.count);
-          l->set_p50_ms(sum.p50_ms);
-          l->set_p95_ms(sum.p95_ms);
-          l->set_p99_ms(sum.p99_ms);
-        }
-        if (!name.empty()) {
-          auto d = s->service().Stats(name);
-          if (!d.ok()) return ErrorResponse(id, d.status());
-          st->set_last_lsn(d->last_lsn);
-          wire::ToWire(d->stats, st->mutable_dataset());
-          // The same values as JSON, for clients that predate the typed field.
-          const DatasetStats& v = d->stats;
-          nlohmann::json j = {{"frames_with_data", v.frames_with_data}, {"points", v.points},
-                              {"tombstones", v.tombstones}, {"buffered_points", v.buffered_points},
-                              {"trees", v.trees}, {"tree_bytes", v.tree_bytes},
-                              {"wal_bytes", v.wal_bytes}, {"leaf_utilisation", v.leaf_utilisation},
-                              {"cold_frames", v.cold_frames}, {"cold_tree_bytes", v.cold_tree_bytes}};
-          st->set_dataset_json(j.dump());
-        }
-        return r;
-      });
     case wire::Request::kRender:
       return HandleRender(op, req.render());
     case wire::Request::kIngest:
@@ -284,11 +247,11 @@ void Session::Dispatch(wire::Request req) {
     case wire::Request::kWatch:
       return HandleWatch(op, req.watch());
     default:
-      if (IsUnary(req)) return RunOnWorker(id, [s, id, req] { return Execute(s, id, req); });
       ops_.erase(id);
       return SendError(id, Status::InvalidArgument("request: unknown kind"), wire::MALFORMED);
   }
 }
+
 void Session::RunOnWorker(uint64_t id, std::function<wire::Response()> fn) {
   auto self = shared_from_this();
   asio::post(server_->workers(), [self, id, fn = std::move(fn)] {

@@ -27,8 +27,12 @@
 #include "render/job.h"
 #include "server/server.h"
 #include "server/transport.h"
+#include "service/requests.h"
 
 namespace hvdb::server {
+
+// Errors go out as the request table's error responses (service/requests.h).
+using service::ErrorResponse;
 
 class Session : public std::enable_shared_from_this<Session> {
  public:

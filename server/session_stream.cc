@@ -1,7 +1,7 @@
 #include <algorithm>
 
 #include "protocol/convert.h"
-#include "server/requests.h"
+#include "protocol/render_convert.h"
 #include "server/session.h"
 
 namespace hvdb::server {
@@ -290,14 +290,18 @@ void Session::ResumePaused() {
   }
 }
 
-void Session::HandleRender(std::shared_ptr<Op> op, const wire::Render& request) {
-  // An unknown renderer value is refused by RenderJob::Create; until then it counts as auto.
-  render::RendererKind kind = render::RendererKind::kAuto;
-  if (request.renderer() == wire::RENDERER_EGL) kind = render::RendererKind::kEgl;
-  if (request.renderer() == wire::RENDERER_CPU) kind = render::RendererKind::kCpu;
+void Session::HandleRender(std::shared_ptr<Op> op, const wire::Render& message) {
+  // The wire message becomes the render job's request here, at the edge: its shape (known
+  // enum values, counts) is checked by FromWire, the rest by the job.
+  Result<render::RenderRequest> decoded = wire::FromWire(message);
+  if (!decoded.ok()) {
+    ops_.erase(op->id);
+    return SendError(op->id, decoded.status());
+  }
+  render::RenderRequest request = std::move(decoded).value();
   // A bounded number of renders run at once, server-wide; the rest are refused at once
   // (OVERLOADED) rather than queued on the workers behind seconds of rendering.
-  auto lease = server_->renders().TryAcquire(kind);
+  auto lease = server_->renders().TryAcquire(request.renderer);
   if (!lease.ok()) {
     ops_.erase(op->id);
     return SendError(op->id, lease.status());
@@ -306,7 +310,7 @@ void Session::HandleRender(std::shared_ptr<Op> op, const wire::Render& request) 
   op->is_render = true;
   auto self = shared_from_this();
   Server* s = server_;
-  asio::post(server_->workers(), [self, op, s, request] {
+  asio::post(server_->workers(), [self, op, s, request = std::move(request)] {
     wire::Response err;
     try {
       render::RenderLimits limits;
@@ -336,15 +340,15 @@ void Session::RenderNext(std::shared_ptr<Op> op) {
   bool last = true;
   try {
     Result<render::Renderer*> renderer = op->render_lease->Get();
-    Result<wire::RenderReply> reply =
-        !renderer.ok() ? Result<wire::RenderReply>(renderer.status())
-        : op->cancelled ? Result<wire::RenderReply>(Status::Cancelled("render cancelled"))
+    Result<render::RenderReply> reply =
+        !renderer.ok() ? Result<render::RenderReply>(renderer.status())
+        : op->cancelled ? Result<render::RenderReply>(Status::Cancelled("render cancelled"))
                         : op->render_job->Render(op->next_image, **renderer, &op->cancelled);
     if (reply.ok()) {
-      last = reply->last();
-      reply->set_fallback(op->render_lease->fallback());
-      reply->set_renderer_choice(op->render_lease->why());
-      *resp.mutable_render() = std::move(reply).value();
+      last = reply->last;
+      reply->fallback = op->render_lease->fallback();
+      reply->renderer_choice = op->render_lease->why();
+      wire::ToWire(std::move(reply).value(), resp.mutable_render());
     } else {
       resp = ErrorResponse(op->id, reply.status());
     }

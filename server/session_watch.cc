@@ -5,7 +5,6 @@
 // mark, with kMaxWatchInflight events not yet on the strand, or a replay stuck for a second, the
 // watch ends with LAGGED, naming the LSN to resume from.
 #include "protocol/convert.h"
-#include "server/requests.h"
 #include "server/session.h"
 
 namespace hvdb::server {

@@ -5,20 +5,6 @@
 
 namespace hvdb::service {
 
-namespace {
-
-constexpr char kUnknownDataset[] = "no dataset '";
-
-}  // namespace
-
-Status UnknownDataset(const std::string& name) {
-  return Status::NotFound(kUnknownDataset + name + "' (the datasets request lists them)");
-}
-
-bool IsUnknownDataset(const Status& s) {
-  return s.IsNotFound() && s.message().rfind(kUnknownDataset, 0) == 0;
-}
-
 Service::Service(Database* db, std::string data_dir, Env* env, edit::GraphCutCache* graph_cuts,
                  const JobConfig& jobs)
     : db_(db),
@@ -64,10 +50,7 @@ Result<DatasetInfo> Service::Describe(const std::string& name) {
 
 Result<OpenQuery> Service::Query(const std::string& name, const Region& region,
                                  const QueryOptions& opts) {
-  if (opts.lod < 0 || opts.lod > kMaxLod) {
-    return Status::InvalidArgument("query.lod: " + std::to_string(opts.lod) +
-                                   " is out of range 0.." + std::to_string(kMaxLod));
-  }
+  // The level of detail is storage's to check (Dataset::CheckLod), when the query opens.
   OpenQuery q;
   HVDB_ASSIGN_OR_RETURN(q.dataset, Find(name));
   HVDB_ASSIGN_OR_RETURN(q.cursor, q.dataset->Query(region, opts));
@@ -105,6 +88,16 @@ Status Service::PutPhoto(const std::string& name, uint32_t frame, const Photo& p
 Result<DatasetReport> Service::Stats(const std::string& name) {
   HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
   return DatasetReport{ds->Stats(), ds->Info().last_lsn};
+}
+
+ServerCounters Service::Counters() {
+  if (counters_) return counters_();
+  ServerCounters c;
+  CacheStats cache = db_->Cache();
+  c.cache_capacity_bytes = cache.capacity_bytes;
+  const uint64_t lookups = cache.hits + cache.misses;
+  c.cache_hit_rate = lookups ? static_cast<double>(cache.hits) / lookups : 0;
+  return c;
 }
 
 Result<edit::SelectResult> Service::Select(const std::string& name,
@@ -150,9 +143,9 @@ JobLimits Service::NewJob() {
   return l;
 }
 
-Result<std::unique_ptr<render::RenderJob>> Service::Render(const wire::Render& request,
+Result<std::unique_ptr<render::RenderJob>> Service::Render(const render::RenderRequest& request,
                                                            const render::RenderLimits& limits) {
-  HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(request.dataset()));
+  HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(request.dataset));
   render::RenderLimits l = limits;
   l.job = NewJob();
   return render::RenderJob::Create(std::move(ds), request, l);

@@ -17,6 +17,7 @@
 #define HVDB_SERVICE_SERVICE_H_
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -24,6 +25,7 @@
 #include "edit/operators.h"
 #include "media/media.h"
 #include "render/job.h"
+#include "service/requests.h"
 #include "storage/database.h"
 #include "storage/job_limits.h"
 
@@ -37,23 +39,10 @@ struct JobConfig {
   std::string memory_flag = "--memory-budget";  // named in errors
 };
 
-// The coarsest level of detail a query or render may ask for.
-inline constexpr int kMaxLod = 64;
-
-// A NotFound for a dataset that does not exist (wire: UNKNOWN_DATASET, not NOT_FOUND).
-Status UnknownDataset(const std::string& name);
-bool IsUnknownDataset(const Status& s);
-
 // An open query: the cursor and the dataset it reads (kept alive while the cursor is).
 struct OpenQuery {
   std::shared_ptr<Dataset> dataset;
   std::unique_ptr<Cursor> cursor;
-};
-
-// What Stats reports of one dataset.
-struct DatasetReport {
-  DatasetStats stats;
-  uint64_t last_lsn = 0;
 };
 
 class Service {
@@ -86,6 +75,10 @@ class Service {
   // left to fail renders.
   Status PutPhoto(const std::string& name, uint32_t frame, const Photo& photo);
   Result<DatasetReport> Stats(const std::string& name);
+  // What the process reports of itself: hvdb-server's counters through the source it sets
+  // (SetCounters); without one (the embedded mode), this process's block cache only.
+  ServerCounters Counters();
+  void SetCounters(std::function<ServerCounters()> source) { counters_ = std::move(source); }
   // The dataset's changes (storage/watch.h: replay from `from_lsn`, then live), or, for name "",
   // every dataset's changes from now on (from_lsn must be absent). fn runs on the writing thread
   // and must only hand the event on; destroy the handle to stop.
@@ -105,7 +98,7 @@ class Service {
   // ---- Rendering: the request checked and the job made; the caller brings a renderer (the
   // server's pool, or one made in this process) and asks for the images one by one. The job
   // holds its points and images within the job bounds (limits.job is set here).
-  Result<std::unique_ptr<render::RenderJob>> Render(const wire::Render& request,
+  Result<std::unique_ptr<render::RenderJob>> Render(const render::RenderRequest& request,
                                                     const render::RenderLimits& limits = {});
 
  private:
@@ -115,6 +108,7 @@ class Service {
   edit::GraphCutCache* graph_cuts_;
   JobConfig jobs_;
   JobBudget job_memory_;
+  std::function<ServerCounters()> counters_;
   // A job's bounds, starting now.
   JobLimits NewJob();
 };

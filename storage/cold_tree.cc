@@ -5,7 +5,7 @@
 #include <cstring>
 #include <thread>
 
-#include "codec/record_block.h"
+#include "blockcode/record_block.h"
 #include "storage/coding.h"
 #include "storage/crc32c.h"
 
@@ -111,15 +111,15 @@ Status WriteCompressedTree(Env* env, const std::string& path, TreeImage& image, 
       const uint32_t n = RecordsIn(h, blk);
       if (n > 0) {
         std::string p(1, static_cast<char>(ColdCoding::kRecords));
-        codec::EncodeRecordBlock(src, n, &p);
+        blockcode::EncodeRecordBlock(src, n, &p);
         // Decoded back before it is trusted: a record the coder cannot reproduce bit for bit
         // (nonzero reserved bytes), or noise that codes to more than a block, keeps its
         // block stored as it is.
         uint32_t got = 0;
         std::memset(check.data(), 0, bs);
-        if (codec::DecodeRecordBlock(reinterpret_cast<const uint8_t*>(p.data()) + 1,
-                                     p.size() - 1, check.data(), h.points_per_block, &got,
-                                     &err) &&
+        if (blockcode::DecodeRecordBlock(reinterpret_cast<const uint8_t*>(p.data()) + 1,
+                                         p.size() - 1, check.data(), h.points_per_block, &got,
+                                         &err) &&
             got == n && std::memcmp(check.data(), src, bs) == 0 && p.size() < bs) {
           payload[blk] = std::move(p);
           continue;
@@ -213,7 +213,7 @@ Status DecodeColdBlock(const TreeHeader& h, uint32_t blk, const uint8_t* payload
     uint32_t got = 0;
     std::string err;
     if (want == 0) return corrupt("record coding outside the level segments");
-    if (!codec::DecodeRecordBlock(payload + 1, len - 1, dst, h.points_per_block, &got, &err)) {
+    if (!blockcode::DecodeRecordBlock(payload + 1, len - 1, dst, h.points_per_block, &got, &err)) {
       return corrupt("record block: " + err);
     }
     if (got != want) {

@@ -6,8 +6,8 @@
 // (queries, levels of detail, the buffer pool, prefetching) is unchanged: a window decodes only
 // the blocks it touches, coarse levels still come first, and the pool caches decoded blocks.
 //
-// Level-segment blocks are coded as record blocks (codec/record_block.h), lossless for every
-// field; other blocks are stored up to their last non-zero byte.
+// Level-segment blocks are coded as record blocks (blockcode/record_block.h), lossless for
+// every field; other blocks are stored up to their last non-zero byte.
 #ifndef HVDB_STORAGE_COLD_TREE_H_
 #define HVDB_STORAGE_COLD_TREE_H_
 

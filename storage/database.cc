@@ -306,6 +306,9 @@ Dataset::Dataset(std::unique_ptr<DatasetImpl> impl) : impl_(std::move(impl)) {}
 Dataset::~Dataset() = default;
 DatasetInfo Dataset::Info() const { return impl_->Info(); }
 int Dataset::lod_levels() const { return impl_->levels(); }
+Status Dataset::CheckLod(int64_t lod) const {
+  return CheckLodRange(lod, impl_->levels(), impl_->Info().name);
+}
 Result<std::unique_ptr<Cursor>> Dataset::Query(const Region& region, const QueryOptions& opts) {
   return impl_->Query(region, opts);
 }

@@ -262,6 +262,10 @@ class Dataset {
   DatasetInfo Info() const;
   // The coarsest level of detail a query may ask for (Options::lod_levels when created).
   int lod_levels() const;
+  // The one rule for a level of detail, which queries (Query) and render jobs alike follow:
+  // 0 .. lod_levels(), else InvalidArgument "lod: N is out of range 0..L for dataset 'NAME'
+  // (its coarsest level)".
+  Status CheckLod(int64_t lod) const;
   Result<std::unique_ptr<Cursor>> Query(const Region& region, const QueryOptions& opts = {});
   // Adds the points to `frame` with the bulk loader (not logged: durable when it returns, and
   // atomic per frame). Ids of 0 are assigned. Points' frame field is overwritten.

@@ -96,15 +96,19 @@ Result<ManifestContents> DecodeManifest(const std::string& data, const std::stri
 
 }  // namespace
 
+Status CheckLodRange(int64_t lod, int levels, const std::string& dataset) {
+  if (lod >= 0 && lod <= levels) return Status::OK();
+  return Status::InvalidArgument("lod: " + std::to_string(lod) + " is out of range 0.." +
+                                 std::to_string(levels) + " for dataset '" + dataset +
+                                 "' (its coarsest level)");
+}
+
 Result<RegionPlan> PlanRegion(const Region& region, int lod, bool temporal_lod,
                               const FrameMap& frames, const DatasetInfo& info,
                               const Options& opts) {
   RegionPlan plan;
   plan.fps = info.fps;
-  if (lod < 0 || lod > opts.lod_levels) {
-    return Status::InvalidArgument("level of detail " + std::to_string(lod) + " out of range 0.." +
-                                   std::to_string(opts.lod_levels));
-  }
+  HVDB_RETURN_IF_ERROR(CheckLodRange(lod, opts.lod_levels, info.name));
   uint32_t max_frames = 0;
   bool clip_on_limit = false;
   if (const auto* w = std::get_if<Window>(&region)) {

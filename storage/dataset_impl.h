@@ -53,6 +53,8 @@ struct RegionPlan {
 Result<RegionPlan> PlanRegion(const Region& region, int lod, bool temporal_lod,
                               const FrameMap& frames, const DatasetInfo& info,
                               const Options& opts);
+// Dataset::CheckLod: `lod` in 0..levels (the coarsest level) of the dataset named `dataset`.
+Status CheckLodRange(int64_t lod, int levels, const std::string& dataset);
 // Fills step->removed/added from step->relabels: each relabelled point of `v` before and after.
 // InvalidArgument if a point's flipped bits are not as the relabel left them (changed later),
 // NotFound if a point is gone.

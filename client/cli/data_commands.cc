@@ -417,7 +417,7 @@ void AddQueryOptions(CLI::App* cmd, QueryArgs* q) {
   cmd->add_option("name", q->name, "Dataset")->required();
   cmd->add_option("--lod", q->lod,
                   "Finest level returned: 0 = full resolution, each level up about half the points")
-      ->check(CLI::Range(0, 8));
+      ->check(NonNegative());
   cmd->add_flag("--progressive", q->progressive, "Coarse levels first across all frames");
   cmd->add_option("--label-mask", q->label_mask,
                   "Only points with (label & MASK) != 0 (decimal or 0x hex)");

@@ -235,7 +235,7 @@ int CmdCopy(Context& ctx, const CopyArgs& a, bool cut) {
   int rc = kExitOk;
   std::optional<Region> region;
   if (!ParseRegion(a.region, cmd, &region, &rc)) return rc;
-  Result<edit::CopyResult> r = ctx.db().Copy(a.name, a.bit, region, a.clipboard, cut);
+  Result<edit::CopyResult> r = ctx.db().Copy(a.name, {a.bit, region, a.clipboard, cut});
   if (!r.ok()) return Fail(r.status());
   if (!a.json) {
     std::printf("%s %llu points with bit %d to clipboard '%s'\n", cut ? "cut" : "copied",
@@ -274,7 +274,7 @@ int CmdPaste(Context& ctx, const PasteArgs& a) {
   for (double v : map.c) {
     if (!std::isfinite(v)) return Usage(cmd, "--translate must be finite");
   }
-  Result<CommitInfo> ci = ctx.db().Paste(a.name, a.clipboard, map);
+  Result<CommitInfo> ci = ctx.db().Paste(a.name, {a.clipboard, map});
   if (!ci.ok()) return Fail(ExplainClipboard(ci.status(), ctx.db()));
   CommitOutput out = Committed(*ci);
   out.fields = {{"dataset", a.name}, {"clipboard", a.clipboard}};
@@ -313,17 +313,19 @@ int CmdComposite(Context& ctx, const CompositeArgs& a) {
   if (object->empty()) {
     return Fail(Status::InvalidArgument("'" + a.ply + "' has no points to composite"));
   }
-  Result<CommitInfo> ci = ctx.db().Composite(a.name, *object, a.first_frame, a.frames, trajectory);
+  const size_t object_points = object->size();
+  Result<CommitInfo> ci = ctx.db().Composite(
+      a.name, {std::move(*object), a.first_frame, a.frames, trajectory});
   if (!ci.ok()) return Fail(ci.status());
   const uint32_t last = a.first_frame + (a.frames - 1);
   CommitOutput out = Committed(*ci);
   out.fields = {{"dataset", a.name},
-                {"object_points", object->size()},
+                {"object_points", object_points},
                 {"first_frame", a.first_frame},
                 {"last_frame", last},
                 {"moving", !trajectory.empty()}};
   // Not Printf: the path may be longer than its buffer.
-  out.before = "composited " + std::to_string(object->size()) + " points of " + a.ply +
+  out.before = "composited " + std::to_string(object_points) + " points of " + a.ply +
                " into frames " + std::to_string(a.first_frame) + ".." + std::to_string(last) +
                " (" + std::to_string(ci->inserted) + " points" +
                (trajectory.empty() ? "" : ", along the trajectory") + "): ";

@@ -1,6 +1,7 @@
 // The render command of `hvdb`: a region's points through a camera into PNG or EXR images,
 // or a camera path into a sequence or a video (MP4, WebM); the same render job runs in this process (--data) or in
 // hvdb-server (--server).
+#include <array>
 #include <cctype>
 #include <cerrno>
 #include <cstdio>
@@ -15,9 +16,9 @@
 
 #include "client/cli/commands.h"
 #include "client/cli/common.h"
-#include "protocol/wire.h"
 #include "render/job.h"
 #include "render/renderer.h"
+#include "render/request.h"
 
 namespace hvdb::cli {
 namespace {
@@ -84,13 +85,13 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
   const bool look_at = a.camera.look_at_opt->count() > 0,
              camera_file = a.camera.file_opt->count() > 0,
              dataset_camera = a.dataset_camera_opt->count() > 0;
-  wire::ImageFormat format = wire::IMAGE_PNG;
+  render::ImageFormat format = render::ImageFormat::kPng;
   const bool video = a.video_opt->count() > 0;
   if (video) {
     if (HasExtension(a.video, ".mp4")) {
-      format = wire::IMAGE_MP4;
+      format = render::ImageFormat::kMp4;
     } else if (HasExtension(a.video, ".webm")) {
-      format = wire::IMAGE_WEBM;
+      format = render::ImageFormat::kWebm;
     } else {
       return Usage(cmd, "--video '" + a.video + "': the file name must end in .mp4 or .webm");
     }
@@ -99,7 +100,7 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
     if (a.out_dir_opt->count() == 0) {
       return Usage(cmd, "--path needs --out-dir DIR for images, or --video OUT.mp4|webm");
     }
-    format = a.format == "exr" ? wire::IMAGE_EXR : wire::IMAGE_PNG;
+    format = a.format == "exr" ? render::ImageFormat::kExr : render::ImageFormat::kPng;
   } else {
     if (!look_at && !camera_file && !dataset_camera) {
       return Usage(cmd,
@@ -117,49 +118,54 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
                    "--out-dir DIR for a sequence)");
     }
     if (HasExtension(a.out, ".exr")) {
-      format = wire::IMAGE_EXR;
+      format = render::ImageFormat::kExr;
     } else if (!HasExtension(a.out, ".png")) {
       return Usage(cmd, "--out '" + a.out + "': the file name must end in .png or .exr");
     }
   }
 
-  wire::Render req;
-  req.set_dataset(a.name);
-  req.set_lod(static_cast<uint32_t>(a.lod));
-  req.set_label_mask(a.label_mask);
+  render::RenderRequest req;
+  req.dataset = a.name;
+  // Any level >= 0: beyond the dataset's coarsest, storage refuses it (Dataset::CheckLod).
+  req.lod = static_cast<uint32_t>(a.lod);
+  req.label_mask = a.label_mask;
   uint32_t highlight = 0;
   for (int b : a.highlight) highlight |= 1u << b;
-  req.set_highlight_mask(highlight);
-  // Unset on the wire unless asked: the render job's auto picks the frame's best picture.
-  if (a.texture || a.mode == "textured") req.set_texture(true);
-  if (a.billboards || a.mode == "billboards") req.set_billboards(true);
-  for (float v : a.highlight_color) req.add_highlight_color(v);
-  if (a.mode == "visibility") req.set_mode(wire::RENDER_VISIBILITY);
-  if (a.mode == "probabilistic") req.set_mode(wire::RENDER_PROBABILISTIC);
-  req.set_view_dependent(a.view_dependent);
-  req.set_renderer(a.renderer == "egl"   ? wire::RENDERER_EGL
-                   : a.renderer == "cpu" ? wire::RENDERER_CPU
-                                         : wire::RENDERER_AUTO);
-  req.set_format(format);
-  if (video) req.set_video_fps(a.fps);
+  req.highlight_mask = highlight;
+  // Unset unless asked: the render job's auto picks the frame's best picture.
+  if (a.texture || a.mode == "textured") req.texture = true;
+  if (a.billboards || a.mode == "billboards") req.billboards = true;
+  if (!a.highlight_color.empty()) {
+    req.highlight_color = {a.highlight_color[0], a.highlight_color[1], a.highlight_color[2],
+                           a.highlight_color[3]};
+  }
+  if (a.mode == "visibility") req.mode = render::Mode::kVisibility;
+  if (a.mode == "probabilistic") req.mode = render::Mode::kProbabilistic;
+  req.view_dependent = a.view_dependent;
+  req.renderer = a.renderer == "egl"   ? render::RendererKind::kEgl
+                 : a.renderer == "cpu" ? render::RendererKind::kCpu
+                                       : render::RendererKind::kAuto;
+  req.format = format;
+  if (video) req.video_fps = a.fps;
   if (!a.background.empty()) {
     // Given as the PNG shows it (sRGB); the renderer blends in linear light.
-    for (double v : a.background) req.add_background(render::SrgbToLinear(static_cast<float>(v)));
-    req.add_background(1.0f);
+    std::array<float, 4> bg{0, 0, 0, 1.0f};
+    for (size_t i = 0; i < 3; ++i) bg[i] = render::SrgbToLinear(static_cast<float>(a.background[i]));
+    req.background = bg;
   }
   if (!a.shadow_light.empty()) {
-    for (double v : a.shadow_light) req.add_shadow_light(v);
-    req.set_shadow_directional(a.shadow_directional);
-    req.set_shadow_casters(a.shadow_casters);
-    // 0 on the wire means the default; a user's 0 means no darkening: the smallest float.
-    req.set_shadow_strength(a.shadow_strength == 0 ? 1e-30f : a.shadow_strength);
+    req.shadow_light = {a.shadow_light[0], a.shadow_light[1], a.shadow_light[2]};
+    req.shadow_directional = a.shadow_directional;
+    req.shadow_casters = a.shadow_casters;
+    // 0 means the default; a user's 0 means no darkening: the smallest float.
+    req.shadow_strength = a.shadow_strength == 0 ? 1e-30f : a.shadow_strength;
   }
-  if (region) wire::ToWire(*region, req.mutable_region());
+  req.region = region;
   // --size: the size of a look-at camera; for any other camera, the size it is scaled to.
   const bool sized = a.size_opt->count() > 0;
   if (sized && !look_at) {
-    req.set_width(a.camera.size[0]);
-    req.set_height(a.camera.size[1]);
+    req.width = a.camera.size[0];
+    req.height = a.camera.size[1];
   }
   if (sequence) {
     std::ifstream in(a.path, std::ios::binary);
@@ -170,15 +176,15 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
     std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
     Status st = render::ParseCameraPath(text, &req);
     if (!st.ok()) return Fail(Status(st.code(), a.path + ": " + st.message()));
-    if (req.path_size() == 0) {
+    if (req.path.empty()) {
       return Fail(Status::InvalidArgument(a.path + ": the camera path has no cameras"));
     }
-    if (req.frames_size() == 0 && !region) {
+    if (req.frames.empty() && !region) {
       return Usage(cmd, "the entries of '" + a.path +
                             "' have no \"frame\": give the region to show, --box X0 X1 Y0 Y1 Z0 "
                             "Z1 T0 T1 or --normal NX NY NZ NT --offset B --thickness DB");
     }
-    if (req.frames_size() > 0 && region && !std::holds_alternative<Window>(*region)) {
+    if (!req.frames.empty() && region && !std::holds_alternative<Window>(*region)) {
       return Usage(cmd, "the entries of '" + a.path +
                             "' show frames: a region with them must be a --box (its x y z "
                             "bounds apply to every frame)");
@@ -188,13 +194,13 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
     if (!sized) c.size = {640, 480};
     std::optional<CameraInfo> camera = LookAtCamera(c, cmd, &rc);
     if (!camera) return rc;
-    wire::ToWire(*camera, req.mutable_view()->mutable_camera());
+    req.view = *camera;
   } else if (camera_file) {
     Result<CameraInfo> camera = ReadCameraFile(a.camera.file);
     if (!camera.ok()) return Fail(camera.status());
-    wire::ToWire(*camera, req.mutable_view()->mutable_camera());
+    req.view = *camera;
   } else {
-    req.mutable_view()->set_dataset_camera(a.dataset_camera);
+    req.view = render::DatasetCameraView{a.dataset_camera};
   }
 
   // The render library's warnings (the CPU fallback of --renderer auto) in our own voice.
@@ -210,19 +216,19 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
   bool fallback = false;
   bool made_dir = false;
   std::string codec;
-  Status st = ctx.db().Render(req, [&](const wire::RenderReply& r) -> Status {
+  Status st = ctx.db().Render(req, [&](const render::RenderReply& r) -> Status {
     std::string file = a.out;
     if (video) {
       file = a.video;
-      codec = r.video_codec();
+      codec = r.video_codec;
       if (!a.json) {
-        std::fprintf(stderr, "\rhvdb: frame %u of %u", r.index() + 1, r.images());
-        if (r.last()) std::fprintf(stderr, "\n");
+        std::fprintf(stderr, "\rhvdb: frame %u of %u", r.index + 1, r.images);
+        if (r.last) std::fprintf(stderr, "\n");
       }
-      if (r.last()) {
+      if (r.last) {
         // Written whole at the end, through a temporary name: a failed render leaves nothing.
         const std::string tmp = a.video + ".partial";
-        HVDB_RETURN_IF_ERROR(WriteFileBytes(tmp, r.video()));
+        HVDB_RETURN_IF_ERROR(WriteFileBytes(tmp, r.video));
         std::error_code ec;
         fs::rename(tmp, a.video, ec);
         if (ec) {
@@ -240,18 +246,18 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
         made_dir = true;
       }
       file = (fs::path(a.out_dir) /
-              Printf("frame_%04u.%s", r.index(), format == wire::IMAGE_EXR ? "exr" : "png"))
+              Printf("frame_%04u.%s", r.index, format == render::ImageFormat::kExr ? "exr" : "png"))
                  .string();
     }
     if (!video) {
-      HVDB_RETURN_IF_ERROR(WriteFileBytes(file, format == wire::IMAGE_EXR ? r.exr() : r.png()));
+      HVDB_RETURN_IF_ERROR(WriteFileBytes(file, format == render::ImageFormat::kExr ? r.exr : r.png));
     }
     if (images.empty()) {
-      renderer = r.renderer_used();
-      choice = r.renderer_choice();
-      mode_used = r.mode_used();
-      mode_choice = r.mode_choice();
-      fallback = r.fallback();
+      renderer = r.renderer_used;
+      choice = r.renderer_choice;
+      mode_used = r.mode_used;
+      mode_choice = r.mode_choice;
+      fallback = r.fallback;
       if (fallback && ctx.db().remote()) {
         std::fprintf(stderr,
                      "hvdb: warning: hvdb-server at %s could make no EGL context and rendered "
@@ -259,26 +265,26 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
                      ctx.db().where().c_str());
       }
     }
-    total_points += r.points();
-    total_ms += r.render_ms();
-    images.push_back({{"index", r.index()},
+    total_points += r.points;
+    total_ms += r.render_ms;
+    images.push_back({{"index", r.index},
                       {"file", file},
-                      {"width", r.width()},
-                      {"height", r.height()},
-                      {"points", r.points()},
-                      {"render_ms", r.render_ms()},
-                      {"mode", r.mode_used()}});
+                      {"width", r.width},
+                      {"height", r.height},
+                      {"points", r.points},
+                      {"render_ms", r.render_ms},
+                      {"mode", r.mode_used}});
     if (!a.json && !video) {
       if (sequence) {
-        std::printf("%s (%ux%u): %llu points in %.1f ms, %s\n", file.c_str(), r.width(),
-                    r.height(), static_cast<unsigned long long>(r.points()), r.render_ms(),
-                    r.mode_used().c_str());
+        std::printf("%s (%ux%u): %llu points in %.1f ms, %s\n", file.c_str(), r.width,
+                    r.height, static_cast<unsigned long long>(r.points), r.render_ms,
+                    r.mode_used.c_str());
       } else {
         std::printf("rendered %s (%ux%u): %llu points in %.1f ms with %s%s; mode %s (%s)\n",
-                    file.c_str(), r.width(), r.height(),
-                    static_cast<unsigned long long>(r.points()), r.render_ms(),
-                    r.renderer_used().c_str(), r.fallback() ? " (fallback: no EGL context)" : "",
-                    r.mode_used().c_str(), r.mode_choice().c_str());
+                    file.c_str(), r.width, r.height,
+                    static_cast<unsigned long long>(r.points), r.render_ms,
+                    r.renderer_used.c_str(), r.fallback ? " (fallback: no EGL context)" : "",
+                    r.mode_used.c_str(), r.mode_choice.c_str());
       }
       std::fflush(stdout);
     }
@@ -288,7 +294,7 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
   if (!st.ok()) {
     if (sequence && !video && !images.empty()) {
       st = Status(st.code(), st.message() + " (" + std::to_string(images.size()) + " of " +
-                                 std::to_string(req.path_size()) + " images were written to " +
+                                 std::to_string(req.path.size()) + " images were written to " +
                                  a.out_dir + ")");
     }
     return Fail(st);
@@ -351,7 +357,7 @@ void AddRenderCommands(CLI::App& app, Context& ctx) {
                    "Level of detail: 0 = full resolution; each level up about half the points, "
                    "drawn as splats 2^(1/2) larger")
       ->capture_default_str()
-      ->check(CLI::Range(0, 16));
+      ->check(NonNegative());
   render_cmd->add_option("--label-mask", ra.label_mask,
                          "Only points with (label & MASK) != 0 (decimal or 0x hex)");
   render_cmd->add_flag("--texture", ra.texture,

@@ -270,7 +270,7 @@ TEST_F(HvdbCliTest, BadArgumentsExitTwoWithAMessage) {
       {"create walk --fps -3", "--fps"},
       {"window walk --box 1 2 3", "--box"},
       {"window walk --box 1 0 0 1 0 1 0 1", "X0 must be <= X1"},
-      {"window walk --box 0 1 0 1 0 1 0 1 --lod 12", "--lod"},
+      {"window walk --box 0 1 0 1 0 1 0 1 --lod -1", "--lod"},
       {"slice walk --normal 0 0 0 0 --offset 0 --thickness 1", "all zero"},
       {"import walk a.ply", "--frame"},
       {"edit walk", "nothing to do"},
@@ -295,6 +295,12 @@ TEST_F(HvdbCliTest, BadArgumentsExitTwoWithAMessage) {
         << "hvdb " << c.args << "\nstderr: " << r.err;
     EXPECT_EQ(r.err.rfind("hvdb", 0), 0u) << r.err;
   }
+  // A level past the dataset's coarsest is storage's to refuse (exit 1), in its own words.
+  RunResult deep = Run("window walk --box 0 1 0 1 0 1 0 1 --lod 12");
+  EXPECT_EQ(deep.code, 1) << deep.err;
+  EXPECT_EQ(deep.err,
+            "hvdb: InvalidArgument: lod: 12 is out of range 0..5 for dataset 'walk' (its "
+            "coarsest level)\n");
   RunResult r = Run("--help");
   EXPECT_EQ(r.code, 0);
   EXPECT_NE(r.out.find("slice"), std::string::npos) << r.out;
@@ -1298,7 +1304,7 @@ TEST_F(HvdbCliTest, RenderEmbeddedAndThroughServer) {
       {"render scene --box 0 1 0 1 0 1 0 1 --dataset-camera 1 --renderer vulkan --out x.png",
        "--renderer"},
       {"render scene --box 0 1 0 1 0 1 0 1 --dataset-camera 1 --size 0 10 --out x.png", "--size"},
-      {"render scene --box 0 1 0 1 0 1 0 1 --dataset-camera 1 --lod 40 --out x.png", "--lod"},
+      {"render scene --box 0 1 0 1 0 1 0 1 --dataset-camera 1 --lod -1 --out x.png", "--lod"},
       {"render scene --box 0 1 0 1 0 1 0 1 --dataset-camera 1 --background 2 0 0 --out x.png",
        "--background"},
       {"render scene --box 0 1 0 1 0 1 0 1 --look-at 0 0 -3 0 0 0 --fov 50 --up 0 0 1 "
@@ -1333,6 +1339,9 @@ TEST_F(HvdbCliTest, RenderEmbeddedAndThroughServer) {
       {"render scene" + view + " --view-dependent --out x.png", "declares no cameras"},
       {"render scene --path missing.json --out-dir d", "missing.json"},
       {"render scene" + view + " --out no/such/dir/x.png", "cannot write 'no/such/dir/x.png'"},
+      // A level past the dataset's coarsest: storage's one rule, the same words as a query's.
+      {"render scene" + view + " --lod 40 --out x.png",
+       "InvalidArgument: lod: 40 is out of range 0..5 for dataset 'scene' (its coarsest level)"},
   };
   for (const auto& [args, expect] : errors) {
     for (const std::string& mode : {std::string(), remote}) {

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Writes the seed corpus of hvdb7_decoder_fuzz with the hvdb-codec tool (run by hand after a
-# bitstream change: bash tests/codec/make_fuzz_corpus.sh build/codec/hvdb-codec
+# bitstream change: bash tests/codec/make_fuzz_corpus.sh build/client/hvdb-codec
 # tests/codec/fuzz_corpus). Each seed is one selector byte (bit 0: decode against the fuzzer's
 # fixed 64-point reference) followed by a stream.
 set -euo pipefail

@@ -24,6 +24,7 @@
 #include "client/backend.h"
 #include "formats/image_io.h"
 #include "ingest/generator.h"
+#include "protocol/render_convert.h"
 #include "protocol/wire.h"
 #include "render/metrics.h"
 #include "render/renderer.h"
@@ -158,8 +159,9 @@ double Quantile(std::vector<double> v, double q) {
 render::Srgb8Image RenderPng(client::Backend& backend, const wire::Render& req, const std::string& path,
                              Status* st) {
   std::string png;
-  *st = backend.Render(req, [&](const wire::RenderReply& reply) {
-    png = reply.png();
+  Result<render::RenderRequest> r = wire::FromWire(req);  // as hvdb-server decodes it
+  *st = !r.ok() ? r.status() : backend.Render(*r, [&](const render::RenderReply& reply) {
+    png = reply.png;
     return Status::OK();
   });
   std::ofstream(path, std::ios::binary) << png;
@@ -522,7 +524,8 @@ TEST(Pipeline, DepthRecordingThroughTheServer) {
   wire::ToWire(info_camera0(**backend), cam);
   wire::ToWire(Region{Window{{-1e9, -1e9, -1e9, 0}, {1e9, 1e9, 1e9, 0}}}, bare.mutable_region());
   bare.set_texture(true);
-  Status st = (*backend)->Render(bare, [](const wire::RenderReply&) { return Status::OK(); });
+  Status st = (*backend)->Render(wire::FromWire(bare).value(),
+                                 [](const render::RenderReply&) { return Status::OK(); });
   EXPECT_TRUE(st.IsNotFound()) << st.ToString();
   EXPECT_NE(st.ToString().find("no photos"), std::string::npos) << st.ToString();
 }
@@ -683,7 +686,8 @@ TEST(Pipeline, BillboardsThroughTheServer) {
   req.mutable_view()->set_dataset_camera(colour0);
   wire::ToWire(Region{w}, req.mutable_region());
   req.set_billboards(true);
-  st = (*backend)->Render(req, [](const wire::RenderReply&) { return Status::OK(); });
+  st = (*backend)->Render(wire::FromWire(req).value(),
+                          [](const render::RenderReply&) { return Status::OK(); });
   EXPECT_TRUE(st.IsNotFound()) << st.ToString();
   EXPECT_NE(st.ToString().find("no billboards"), std::string::npos) << st.ToString();
   // A billboard whose maps do not decode is refused when stored.

@@ -59,8 +59,8 @@ class RenderColourTest : public ::testing::Test {
   }
 
   // The request's one image and its reply.
-  std::pair<formats::Srgb8Image, wire::RenderReply> Draw(const wire::Render& req) {
-    auto job = RenderJob::Create(ds_, req);
+  std::pair<formats::Srgb8Image, render::RenderReply> Draw(const wire::Render& req) {
+    auto job = CreateJob(ds_, req);
     EXPECT_TRUE(job.ok()) << job.status().ToString();
     if (!job.ok()) return {};
     auto reply = (*job)->Render(0, *cpu_);
@@ -86,15 +86,15 @@ TEST_F(RenderColourTest, ADefaultRenderOfAFrameWithPhotosIsTheTexturedPicture) {
   points_req.set_mode(wire::RENDER_VISIBILITY);
   auto [points, points_reply] = Draw(points_req);
 
-  EXPECT_EQ(reply.mode_used(), "textured");
-  EXPECT_EQ(reply.mode_choice(), "auto: 4 photos of frame 0");
-  EXPECT_EQ(textured_reply.mode_used(), "textured");
-  EXPECT_EQ(textured_reply.mode_choice(), "asked for");
-  EXPECT_EQ(points_reply.mode_used(), "visibility");
-  EXPECT_EQ(points_reply.mode_choice(), "asked for");
+  EXPECT_EQ(reply.mode_used, "textured");
+  EXPECT_EQ(reply.mode_choice, "auto: 4 photos of frame 0");
+  EXPECT_EQ(textured_reply.mode_used, "textured");
+  EXPECT_EQ(textured_reply.mode_choice, "asked for");
+  EXPECT_EQ(points_reply.mode_used, "visibility");
+  EXPECT_EQ(points_reply.mode_choice, "asked for");
   ASSERT_EQ(by_default.data.size(), textured.data.size());
   EXPECT_EQ(by_default.data, textured.data);  // the same job, the same image, bit for bit
-  EXPECT_EQ(reply.png(), textured_reply.png());
+  EXPECT_EQ(reply.png, textured_reply.png);
   // And not the points' picture: the stripes come from the photos.
   EXPECT_LT(render::Psnr(by_default, points), 25);
 
@@ -102,12 +102,12 @@ TEST_F(RenderColourTest, ADefaultRenderOfAFrameWithPhotosIsTheTexturedPicture) {
   wire::Render untextured = Request(0);
   untextured.set_texture(false);
   auto [plain, plain_reply] = Draw(untextured);
-  EXPECT_EQ(plain_reply.mode_used(), "visibility");
+  EXPECT_EQ(plain_reply.mode_used, "visibility");
   EXPECT_EQ(plain.data, points.data);
   // An explicit probabilistic mode draws the points in it.
   wire::Render prob = Request(0);
   prob.set_mode(wire::RENDER_PROBABILISTIC);
-  EXPECT_EQ(Draw(prob).second.mode_used(), "probabilistic");
+  EXPECT_EQ(Draw(prob).second.mode_used, "probabilistic");
 }
 
 // Photos coded as video (Dataset::CompactPhotos, storage/photo_video.h) texture the same
@@ -122,8 +122,8 @@ TEST_F(RenderColourTest, PhotosCodedAsVideoTextureTheSamePicture) {
   EXPECT_EQ(info->photo_runs, 4u);  // one per camera
   EXPECT_GE(info->photo_min_psnr, kPhotoVideoMinPsnr);
   auto [after, after_reply] = Draw(Request(0));
-  EXPECT_EQ(after_reply.mode_used(), "textured");
-  EXPECT_EQ(after_reply.mode_choice(), "auto: 4 photos of frame 0");
+  EXPECT_EQ(after_reply.mode_used, "textured");
+  EXPECT_EQ(after_reply.mode_choice, "auto: 4 photos of frame 0");
   ASSERT_EQ(after.data.size(), before.data.size());
   EXPECT_GE(render::Psnr(after, before), 38) << "the textured picture moved";
 }
@@ -131,8 +131,8 @@ TEST_F(RenderColourTest, PhotosCodedAsVideoTextureTheSamePicture) {
 TEST_F(RenderColourTest, AutoDrawsThePointsWhereTextureCannotHelp) {
   // A frame without photos: the points, no error.
   auto [img, reply] = Draw(Request(1));
-  EXPECT_EQ(reply.mode_used(), "visibility");
-  EXPECT_EQ(reply.mode_choice(), "auto: no photos of frame 1");
+  EXPECT_EQ(reply.mode_used, "visibility");
+  EXPECT_EQ(reply.mode_choice, "auto: no photos of frame 1");
   // A sequence over the frame with photos, even of one view: the points (texture is refused
   // for a path, auto does not try it).
   wire::Render seq = Request(0);
@@ -140,28 +140,28 @@ TEST_F(RenderColourTest, AutoDrawsThePointsWhereTextureCannotHelp) {
   seq.clear_region();
   SetLookAt(seq.add_path());
   seq.add_frames(0);
-  auto job = RenderJob::Create(ds_, seq);
+  auto job = CreateJob(ds_, seq);
   ASSERT_TRUE(job.ok()) << job.status().ToString();
   auto r = (*job)->Render(0, *cpu_);
   ASSERT_TRUE(r.ok()) << r.status().ToString();
-  EXPECT_EQ(r->mode_used(), "visibility");
-  EXPECT_EQ(r->mode_choice().rfind("auto: a sequence", 0), 0u) << r->mode_choice();
+  EXPECT_EQ(r->mode_used, "visibility");
+  EXPECT_EQ(r->mode_choice.rfind("auto: a sequence", 0), 0u) << r->mode_choice;
   // A selection overlay shows on the points' colours.
   wire::Render lit = Request(0);
   lit.set_highlight_mask(1);
-  EXPECT_EQ(Draw(lit).second.mode_used(), "visibility");
+  EXPECT_EQ(Draw(lit).second.mode_used, "visibility");
   // A progressive request: the preview is the points, the final image textured.
   wire::Render prog = Request(0);
   prog.set_progressive(true);
-  auto pj = RenderJob::Create(ds_, prog);
+  auto pj = CreateJob(ds_, prog);
   ASSERT_TRUE(pj.ok());
   ASSERT_EQ((*pj)->size(), 2u);
-  EXPECT_EQ((*pj)->Render(0, *cpu_)->mode_used(), "visibility");
-  EXPECT_EQ((*pj)->Render(1, *cpu_)->mode_used(), "textured");
+  EXPECT_EQ((*pj)->Render(0, *cpu_)->mode_used, "visibility");
+  EXPECT_EQ((*pj)->Render(1, *cpu_)->mode_used, "textured");
   // Asked for, texture on a frame without photos stays an error naming the field.
   wire::Render missing = Request(1);
   missing.set_texture(true);
-  auto mj = RenderJob::Create(ds_, missing);
+  auto mj = CreateJob(ds_, missing);
   ASSERT_TRUE(mj.ok());
   auto bad = (*mj)->Render(0, *cpu_);
   ASSERT_FALSE(bad.ok());

@@ -7,7 +7,9 @@
 #include <string>
 #include <vector>
 
+#include "protocol/render_convert.h"
 #include "protocol/wire.h"
+#include "render/job.h"
 #include "render/renderer.h"
 #include "storage/database.h"
 #include "tests/render/test_scenes.h"
@@ -72,6 +74,15 @@ inline void SetLookAt(wire::View* v, uint32_t w = 160, uint32_t h = 120) {
 
 inline render::Camera TheLookAt(uint32_t w = 160, uint32_t h = 120) {
   return render::Camera::LookAt({1.05, 1.4, 3.5}, {0, 0, 0}, {0, 1, 0}, 50, w, h);
+}
+
+// A render job made from a wire request, as hvdb-server's sessions make it: the message
+// decoded (its shape checked) into a render::RenderRequest, then the job.
+inline Result<std::unique_ptr<render::RenderJob>> CreateJob(std::shared_ptr<Dataset> dataset,
+                                                            const wire::Render& request,
+                                                            const render::RenderLimits& limits = {}) {
+  HVDB_ASSIGN_OR_RETURN(render::RenderRequest r, wire::FromWire(request));
+  return render::RenderJob::Create(std::move(dataset), r, limits);
 }
 
 }  // namespace hvdb::render_test

@@ -48,7 +48,7 @@ TEST_F(RenderJobTest, RendersTheRegionLikeTheRendererDoes) {
   *req.mutable_region() = FrameRegion(1);
   SetLookAt(req.mutable_view());
   req.set_renderer(wire::RENDERER_CPU);
-  auto job = RenderJob::Create(ds_, req);
+  auto job = CreateJob(ds_, req);
   ASSERT_TRUE(job.ok()) << job.status().ToString();
   EXPECT_EQ((*job)->size(), 1u);
   EXPECT_EQ((*job)->renderer_kind(), render::RendererKind::kCpu);
@@ -61,11 +61,11 @@ TEST_F(RenderJobTest, RendersTheRegionLikeTheRendererDoes) {
   EXPECT_GE(render::Psnr(formats::ToSrgb8(*img), formats::ToSrgb8(*direct)), 50);
   auto reply = (*job)->Render(0, *cpu);
   ASSERT_TRUE(reply.ok());
-  EXPECT_TRUE(reply->last());
-  EXPECT_EQ(reply->width(), 160u);
-  EXPECT_EQ(reply->points(), 3000u);
-  EXPECT_EQ(reply->renderer_used(), cpu->name());
-  EXPECT_EQ(reply->png().substr(1, 3), "PNG");
+  EXPECT_TRUE(reply->last);
+  EXPECT_EQ(reply->width, 160u);
+  EXPECT_EQ(reply->points, 3000u);
+  EXPECT_EQ(reply->renderer_used, cpu->name());
+  EXPECT_EQ(reply->png.substr(1, 3), "PNG");
 }
 
 // The selection as an overlay: the points carrying the highlighted bit are drawn in their
@@ -88,7 +88,7 @@ TEST_F(RenderJobTest, HighlightShowsASelection) {
   req.set_renderer(wire::RENDERER_CPU);
   req.set_highlight_mask(1u << 3);
   for (float v : {0.f, 0.f, 1.f, 1.f}) req.add_highlight_color(v);  // all blue
-  auto job = RenderJob::Create(ds_, req);
+  auto job = CreateJob(ds_, req);
   ASSERT_TRUE(job.ok()) << job.status().ToString();
   auto cpu = render::MakeCpuRenderer();
   auto img = (*job)->RenderImage(0, *cpu);
@@ -104,10 +104,10 @@ TEST_F(RenderJobTest, HighlightShowsASelection) {
   EXPECT_LT(render::Psnr(formats::ToSrgb8(*img), formats::ToSrgb8(*plain)), 30);
   // Colours outside [0, 1], or not four of them, are refused naming the field.
   req.set_highlight_color(0, 2.f);
-  EXPECT_EQ(RenderJob::Create(ds_, req).status().message().rfind("render.highlight_color:", 0), 0u);
+  EXPECT_EQ(CreateJob(ds_, req).status().message().rfind("render.highlight_color:", 0), 0u);
   req.clear_highlight_color();
   req.add_highlight_color(1.f);
-  EXPECT_EQ(RenderJob::Create(ds_, req).status().message().rfind("render.highlight_color:", 0), 0u);
+  EXPECT_EQ(CreateJob(ds_, req).status().message().rfind("render.highlight_color:", 0), 0u);
 }
 
 TEST_F(RenderJobTest, SequencesFollowFramesAndCameras) {
@@ -120,7 +120,7 @@ TEST_F(RenderJobTest, SequencesFollowFramesAndCameras) {
   auto dataset_view = req.add_path();
   dataset_view->set_dataset_camera(2);
   req.add_frames(0);
-  auto job = RenderJob::Create(ds_, req);
+  auto job = CreateJob(ds_, req);
   ASSERT_TRUE(job.ok()) << job.status().ToString();
   ASSERT_EQ((*job)->size(), 4u);
   auto cpu = render::MakeCpuRenderer();
@@ -136,7 +136,7 @@ TEST_F(RenderJobTest, SequencesFollowFramesAndCameras) {
 
 TEST_F(RenderJobTest, RejectsBadRequestsNamingTheField) {
   auto error = [&](const wire::Render& r, std::shared_ptr<Dataset> ds = nullptr) {
-    auto job = RenderJob::Create(ds ? ds : ds_, r);
+    auto job = CreateJob(ds ? ds : ds_, r);
     return job.ok() ? std::string("ok") : job.status().message();
   };
   wire::Render base;
@@ -148,8 +148,8 @@ TEST_F(RenderJobTest, RejectsBadRequestsNamingTheField) {
   r.clear_view();
   EXPECT_EQ(error(r).rfind("render.view:", 0), 0u) << error(r);
   r = base;
-  r.set_lod(40);
-  EXPECT_EQ(error(r).rfind("render.lod:", 0), 0u);
+  r.set_lod(40);  // storage's one rule for a level of detail (Dataset::CheckLod)
+  EXPECT_EQ(error(r), "lod: 40 is out of range 0..5 for dataset 'scene' (its coarsest level)");
   r = base;
   r.add_background(1);
   EXPECT_EQ(error(r).rfind("render.background:", 0), 0u);
@@ -177,12 +177,12 @@ TEST_F(RenderJobTest, RejectsBadRequestsNamingTheField) {
   EXPECT_EQ(error(r).rfind("render.mode:", 0), 0u);
   render::RenderLimits few;
   few.max_points = 100;
-  auto job = RenderJob::Create(ds_, base, few);
+  auto job = CreateJob(ds_, base, few);
   ASSERT_TRUE(job.ok());
   auto cpu = render::MakeCpuRenderer();
   EXPECT_EQ((*job)->RenderImage(0, *cpu).status().code(), StatusCode::kLimitExceeded);
   std::atomic<bool> cancelled{true};
-  auto job2 = RenderJob::Create(ds_, base);
+  auto job2 = CreateJob(ds_, base);
   EXPECT_EQ((*job2)->RenderImage(0, *cpu, &cancelled).status().code(), StatusCode::kCancelled);
 }
 
@@ -190,7 +190,7 @@ TEST_F(RenderJobTest, RejectsBadRequestsNamingTheField) {
 // exist, and jobs past their memory or time.
 TEST_F(RenderJobTest, RequestsThatCannotRenderAreSaidInTheRequestsWords) {
   auto error = [&](const wire::Render& r, const render::RenderLimits& l = {}) {
-    auto job = RenderJob::Create(ds_, r, l);
+    auto job = CreateJob(ds_, r, l);
     return job.ok() ? std::string("ok") : job.status().message();
   };
   wire::Render base;
@@ -214,10 +214,11 @@ TEST_F(RenderJobTest, RequestsThatCannotRenderAreSaidInTheRequestsWords) {
   SetLookAt(seq.add_path());
   seq.add_frames(4294967295u);
   EXPECT_EQ(error(seq).rfind("render.frames[1]: frame 4294967295 is past", 0), 0u) << error(seq);
+  render::RenderRequest parsed;
   EXPECT_FALSE(render::ParseCameraPath(
-                   R"({"cameras": [{"frame": -1, "dataset_camera": 2}]})", &seq).ok());
+                   R"({"cameras": [{"frame": -1, "dataset_camera": 2}]})", &parsed).ok());
   EXPECT_FALSE(render::ParseCameraPath(
-                   R"({"cameras": [{"frame": 1000000000000, "dataset_camera": 2}]})", &seq).ok());
+                   R"({"cameras": [{"frame": 1000000000000, "dataset_camera": 2}]})", &parsed).ok());
   // Memory: the image's buffers come out of the job budget before anything is drawn.
   JobBudget small(512u << 10, "--memory-budget");  // under one 160 x 120 image
   render::RenderLimits tight;
@@ -229,7 +230,7 @@ TEST_F(RenderJobTest, RequestsThatCannotRenderAreSaidInTheRequestsWords) {
   render::RenderLimits late;
   late.job.max_seconds = 1;
   late.job.start = std::chrono::steady_clock::now() - std::chrono::seconds(2);
-  auto job = RenderJob::Create(ds_, base, late);
+  auto job = CreateJob(ds_, base, late);
   ASSERT_TRUE(job.ok());
   auto cpu = render::MakeCpuRenderer();
   auto reply = (*job)->Render(0, *cpu);
@@ -244,27 +245,27 @@ TEST_F(RenderJobTest, ProgressiveGivesACoarsePreviewFirst) {
   *req.mutable_region() = FrameRegion(1);
   SetLookAt(req.mutable_view());
   req.set_progressive(true);
-  auto job = RenderJob::Create(ds_, req);
+  auto job = CreateJob(ds_, req);
   ASSERT_TRUE(job.ok()) << job.status().ToString();
   ASSERT_EQ((*job)->size(), 2u);
   auto cpu = render::MakeCpuRenderer();
   auto preview = (*job)->Render(0, *cpu);
   auto full = (*job)->Render(1, *cpu);
   ASSERT_TRUE(preview.ok() && full.ok());
-  EXPECT_TRUE(preview->preview());
-  EXPECT_FALSE(preview->last());
-  EXPECT_EQ(preview->lod(), 4u);  // lod + 4 (the dataset has 5 levels)
-  EXPECT_FALSE(full->preview());
-  EXPECT_TRUE(full->last());
-  EXPECT_EQ(full->lod(), 0u);
-  EXPECT_EQ(full->points(), 3000u);
-  EXPECT_LT(preview->points(), full->points() / 8);
-  EXPECT_GT(preview->points(), 0u);
-  EXPECT_EQ(preview->index(), 0u);
-  EXPECT_EQ(full->index(), 0u);
-  EXPECT_EQ(preview->width(), 80u);  // half the size
-  EXPECT_EQ(preview->height(), 60u);
-  EXPECT_EQ(full->width(), 160u);
+  EXPECT_TRUE(preview->preview);
+  EXPECT_FALSE(preview->last);
+  EXPECT_EQ(preview->lod, 4u);  // lod + 4 (the dataset has 5 levels)
+  EXPECT_FALSE(full->preview);
+  EXPECT_TRUE(full->last);
+  EXPECT_EQ(full->lod, 0u);
+  EXPECT_EQ(full->points, 3000u);
+  EXPECT_LT(preview->points, full->points / 8);
+  EXPECT_GT(preview->points, 0u);
+  EXPECT_EQ(preview->index, 0u);
+  EXPECT_EQ(full->index, 0u);
+  EXPECT_EQ(preview->width, 80u);  // half the size
+  EXPECT_EQ(preview->height, 60u);
+  EXPECT_EQ(full->width, 160u);
   // The preview's grown splats still close the surface: it looks like the final image
   // rendered at its size.
   auto a = (*job)->RenderImage(0, *cpu);
@@ -276,22 +277,22 @@ TEST_F(RenderJobTest, ProgressiveGivesACoarsePreviewFirst) {
   EXPECT_GE(render::Psnr(formats::ToSrgb8(*a), formats::ToSrgb8(*b)), 18);
   // Near the coarsest level the preview is the coarsest level; at it, there is none.
   req.set_lod(3);
-  auto near = RenderJob::Create(ds_, req);
+  auto near = CreateJob(ds_, req);
   ASSERT_TRUE(near.ok());
   ASSERT_EQ((*near)->size(), 2u);
-  EXPECT_EQ((*near)->Render(0, *cpu)->lod(), 5u);
+  EXPECT_EQ((*near)->Render(0, *cpu)->lod, 5u);
   req.set_lod(5);
-  auto coarsest = RenderJob::Create(ds_, req);
+  auto coarsest = CreateJob(ds_, req);
   ASSERT_TRUE(coarsest.ok());
   EXPECT_EQ((*coarsest)->size(), 1u);
   // Not for sequences; and no level beyond the dataset's.
   req.set_lod(6);
-  EXPECT_EQ(RenderJob::Create(ds_, req).status().message().rfind("render.lod:", 0), 0u);
+  EXPECT_EQ(CreateJob(ds_, req).status().message().rfind("lod: 6 is out of range 0..5", 0), 0u);
   req.set_lod(0);
   req.clear_view();
   SetLookAt(req.add_path());
   req.add_frames(0);
-  EXPECT_EQ(RenderJob::Create(ds_, req).status().message().rfind("render.progressive:", 0), 0u);
+  EXPECT_EQ(CreateJob(ds_, req).status().message().rfind("render.progressive:", 0), 0u);
 }
 
 TEST_F(RenderJobTest, ThePipelinedSequenceDrawsWhatEachFrameHolds) {
@@ -304,7 +305,7 @@ TEST_F(RenderJobTest, ThePipelinedSequenceDrawsWhatEachFrameHolds) {
     SetLookAt(req.add_path());
     req.add_frames(f);
   }
-  auto job = RenderJob::Create(ds_, req);
+  auto job = CreateJob(ds_, req);
   ASSERT_TRUE(job.ok());
   auto cpu = render::MakeCpuRenderer();
   for (size_t i = 0; i < frames.size(); ++i) {
@@ -316,7 +317,7 @@ TEST_F(RenderJobTest, ThePipelinedSequenceDrawsWhatEachFrameHolds) {
   }
   // Cancelled mid-sequence: the next image says so (its query may already have run).
   std::atomic<bool> cancelled{false};
-  auto job2 = RenderJob::Create(ds_, req);
+  auto job2 = CreateJob(ds_, req);
   ASSERT_TRUE(job2.ok());
   ASSERT_TRUE((*job2)->RenderImage(0, *cpu, &cancelled).ok());
   cancelled = true;
@@ -325,17 +326,17 @@ TEST_F(RenderJobTest, ThePipelinedSequenceDrawsWhatEachFrameHolds) {
   render::RenderLimits few;
   few.max_points = 3000;
   wire::Render mixed = req;
-  auto job3 = RenderJob::Create(ds_, mixed, few);
+  auto job3 = CreateJob(ds_, mixed, few);
   ASSERT_TRUE(job3.ok());
   EXPECT_TRUE((*job3)->RenderImage(0, *cpu).ok());
   few.max_points = 2999;
-  auto job4 = RenderJob::Create(ds_, mixed, few);
+  auto job4 = CreateJob(ds_, mixed, few);
   ASSERT_TRUE(job4.ok());
   EXPECT_EQ((*job4)->RenderImage(0, *cpu).status().code(), StatusCode::kLimitExceeded);
 }
 
 TEST(CameraPathTest, ParsesTheThreeViewKinds) {
-  wire::Render req;
+  render::RenderRequest req;
   Status st = render::ParseCameraPath(R"({"cameras": [
       {"frame": 3, "look_at": {"eye": [0, 0, -3], "target": [0, 0, 0], "up": [0, -1, 0],
                                "fov_y_deg": 40, "width": 320, "height": 240}},
@@ -345,13 +346,13 @@ TEST(CameraPathTest, ParsesTheThreeViewKinds) {
       {"frame": 5, "dataset_camera": 2}]})",
                                       &req);
   ASSERT_TRUE(st.ok()) << st.ToString();
-  ASSERT_EQ(req.path_size(), 3);
-  EXPECT_EQ(req.frames_size(), 3);
-  EXPECT_EQ(req.frames(2), 5u);
-  EXPECT_EQ(req.path(0).look_at().fov_y_deg(), 40);
-  EXPECT_EQ(req.path(0).look_at().up(1), -1);
-  EXPECT_EQ(req.path(1).camera().intrinsics(2), 31.5);
-  EXPECT_EQ(req.path(2).dataset_camera(), 2u);
+  ASSERT_EQ(req.path.size(), 3u);
+  EXPECT_EQ(req.frames.size(), 3u);
+  EXPECT_EQ(req.frames[2], 5u);
+  EXPECT_EQ(std::get<render::LookAtView>(req.path[0]).fov_y_deg, 40);
+  EXPECT_EQ((*std::get<render::LookAtView>(req.path[0]).up)[1], -1);
+  EXPECT_EQ(std::get<CameraInfo>(req.path[1]).cx, 31.5);
+  EXPECT_EQ(std::get<render::DatasetCameraView>(req.path[2]).id, 2u);
   EXPECT_FALSE(render::ParseCameraPath("{", &req).ok());
   EXPECT_FALSE(render::ParseCameraPath(R"({"cameras": [{"frame": 1, "dataset_camera": 1},
                                                        {"dataset_camera": 1}]})",

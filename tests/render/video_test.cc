@@ -107,7 +107,7 @@ class VideoJobTest : public ::testing::Test {
 
 TEST_F(VideoJobTest, APathBecomesOneVideoInTheLastReply) {
   for (wire::ImageFormat f : {wire::IMAGE_MP4, wire::IMAGE_WEBM}) {
-    auto job = RenderJob::Create(ds_, VideoRequest(7, f));
+    auto job = CreateJob(ds_, VideoRequest(7, f));
     ASSERT_TRUE(job.ok()) << job.status().ToString();
     ASSERT_EQ((*job)->size(), 7u);
     auto cpu = render::MakeCpuRenderer();
@@ -115,13 +115,13 @@ TEST_F(VideoJobTest, APathBecomesOneVideoInTheLastReply) {
     for (size_t i = 0; i < 7; ++i) {
       auto reply = (*job)->Render(i, *cpu);
       ASSERT_TRUE(reply.ok()) << reply.status().ToString();
-      EXPECT_EQ(reply->index(), i);
-      EXPECT_EQ(reply->images(), 7u);
-      EXPECT_EQ(reply->last(), i == 6);
-      EXPECT_TRUE(reply->png().empty());
-      EXPECT_FALSE(reply->video_codec().empty());
-      EXPECT_EQ(reply->video().empty(), i != 6);
-      video = reply->video();
+      EXPECT_EQ(reply->index, i);
+      EXPECT_EQ(reply->images, 7u);
+      EXPECT_EQ(reply->last, i == 6);
+      EXPECT_TRUE(reply->png.empty());
+      EXPECT_FALSE(reply->video_codec.empty());
+      EXPECT_EQ(reply->video.empty(), i != 6);
+      video = reply->video;
     }
     Probe p = Decode(video, dir_.path());
     ASSERT_TRUE(p.error.empty()) << p.error;
@@ -140,7 +140,7 @@ TEST_F(VideoJobTest, APathBecomesOneVideoInTheLastReply) {
 
 TEST_F(VideoJobTest, BadVideoRequestsAreRefusedNamingTheField) {
   auto error = [&](const wire::Render& r) {
-    auto job = RenderJob::Create(ds_, r);
+    auto job = CreateJob(ds_, r);
     EXPECT_FALSE(job.ok());
     return job.ok() ? std::string("ok") : job.status().ToString();
   };
@@ -177,11 +177,11 @@ TEST_F(VideoJobTest, ShadowFieldsReachTheRender) {
   SetLookAt(req.mutable_view());
   req.set_renderer(wire::RENDERER_CPU);
   auto cpu = render::MakeCpuRenderer();
-  auto plain = (*RenderJob::Create(ds_, req))->RenderImage(0, *cpu);
+  auto plain = (*CreateJob(ds_, req))->RenderImage(0, *cpu);
   ASSERT_TRUE(plain.ok());
   for (double v : {0.0, 3.0, 0.0}) req.add_shadow_light(v);
   req.set_shadow_casters(4);
-  auto job = RenderJob::Create(ds_, req);
+  auto job = CreateJob(ds_, req);
   ASSERT_TRUE(job.ok()) << job.status().ToString();
   auto lit = (*job)->RenderImage(0, *cpu);
   ASSERT_TRUE(lit.ok()) << lit.status().ToString();
@@ -194,7 +194,7 @@ TEST_F(VideoJobTest, ShadowFieldsReachTheRender) {
   EXPECT_EQ(brighter, 0u);
   // Errors name the field.
   auto error = [&](const wire::Render& r) {
-    auto j = RenderJob::Create(ds_, r);
+    auto j = CreateJob(ds_, r);
     return j.ok() ? std::string("ok") : j.status().ToString();
   };
   wire::Render bad = req;
@@ -212,7 +212,7 @@ TEST_F(VideoJobTest, ShadowFieldsReachTheRender) {
   // A lamp inside the casters: refused when the casters are known, at render time.
   bad = req;
   bad.set_shadow_light(1, 0.8);
-  auto inside = RenderJob::Create(ds_, bad);
+  auto inside = CreateJob(ds_, bad);
   ASSERT_TRUE(inside.ok());
   auto img = (*inside)->RenderImage(0, *cpu);
   EXPECT_TRUE(img.status().IsInvalidArgument());

@@ -23,6 +23,7 @@
 #include "client/client.h"
 #include "formats/image_io.h"
 #include "protocol/convert.h"
+#include "protocol/render_convert.h"
 #include "protocol/ws_codec.h"
 #include "tests/server/server_process.h"
 
@@ -343,7 +344,12 @@ std::vector<Case> Cases() {
     auto render = [&](std::string name, wire::Render req) {
       req.set_dataset("d");
       add(name, StatusCode::kInvalidArgument, wire::INVALID_PARAMETER,
-          [req](Service& x) { return x.Render(req); },
+          [req](Service& x) -> Status {
+            // As hvdb-server decodes it (protocol/render_convert.h), then the executor's job.
+            Result<render::RenderRequest> r = wire::FromWire(req);
+            if (!r.ok()) return r.status();
+            return x.Render(*r).status();
+          },
           [req](wire::Request* r) { *r->mutable_render() = req; });
     };
     wire::Render base;
@@ -364,6 +370,9 @@ std::vector<Case> Cases() {
     video.set_width(63);
     video.set_height(48);
     render("render: a video of odd width", video);
+    wire::Render deep = base;
+    deep.set_lod(65);  // storage's rule, as for a query (Dataset::CheckLod)
+    render("render: level 65", deep);
   }
   return cases;
 }

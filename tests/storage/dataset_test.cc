@@ -679,6 +679,14 @@ TEST_F(DatasetTest, InvalidParameters) {
   QueryOptions o;
   o.lod = 9;
   EXPECT_TRUE(ds_->Query(Everything(), o).status().IsInvalidArgument());
+  // The one rule for a level of detail (Dataset::CheckLod), which render jobs follow too.
+  const std::string range = " is out of range 0.." + std::to_string(ds_->lod_levels()) +
+                            " for dataset '" + ds_->Info().name + "' (its coarsest level)";
+  EXPECT_EQ(ds_->Query(Everything(), o).status().message(), "lod: 9" + range);
+  EXPECT_EQ(ds_->CheckLod(-1).message(), "lod: -1" + range);
+  EXPECT_TRUE(ds_->CheckLod(0).ok());
+  EXPECT_TRUE(ds_->CheckLod(ds_->lod_levels()).ok());
+  EXPECT_TRUE(ds_->CheckLod(ds_->lod_levels() + 1).IsInvalidArgument());
   Window w = Everything();
   w.lo[1] = NAN;
   EXPECT_TRUE(ds_->Query(w).status().IsInvalidArgument());

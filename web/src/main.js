@@ -18,8 +18,6 @@ import { MediaImport } from './media_import.js';
 import { RenderExport } from './render_export.js';
 import { Hvdb7Decoder } from './hvdb7.js';
 
-const kMaxLod = 12;
-
 function parseParams() {
   const q = new URLSearchParams(location.search);
   const nums = (s, n, what) => {
@@ -206,7 +204,8 @@ class App {
     this.store.reset();
     this.viewMode = 'frames';
     this.ui.setFrameRange(this.info.frame_count);
-    this.ui.setLodRange(kMaxLod, this.lod);
+    // The slider's range is the dataset's (its coarsest level, learned from the first batch).
+    this.ui.setLodRange(this.lodMax(), this.lod);
     const p = this.params;
     if (initial && p.lookAt) {
       this.cam.set(p.lookAt.slice(0, 3), p.lookAt.slice(3, 6), p.fov, DEFAULT_UP);
@@ -289,7 +288,7 @@ class App {
   }
 
   onBatch(d) {
-    if (this.store.maxLevel !== null) this.ui.setLodRange(Math.min(kMaxLod, this.store.maxLevel), this.lod);
+    if (this.store.maxLevel !== null) this.ui.setLodRange(this.lodMax(), this.lod);
     // A reload after an edit keeps the old picture until the new one is complete.
     if (d !== this.target || d.quiet) return;
     this.shown = d;
@@ -321,10 +320,15 @@ class App {
     return this.gotoFrame(((this.frame + delta) % n + n) % n);
   }
 
+  // The coarsest level the slider offers: the dataset's, once a batch has said it; until then
+  // the level shown (a level past the dataset's is the server's to refuse, with its range).
+  lodMax() {
+    return this.store.maxLevel !== null ? this.store.maxLevel : this.lod;
+  }
+
   async setLod(l) {
-    const max = this.store.maxLevel !== null ? Math.min(kMaxLod, this.store.maxLevel) : kMaxLod;
-    const lod = Math.min(Math.max(0, l), max);
-    this.ui.setLodRange(max, lod);
+    const lod = this.store.maxLevel !== null ? Math.min(Math.max(0, l), this.store.maxLevel) : Math.max(0, l);
+    this.ui.setLodRange(Math.max(this.lodMax(), lod), lod);
     if (lod === this.lod) return;
     this.lod = lod;
     await this.showCurrent();

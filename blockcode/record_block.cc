@@ -1,4 +1,4 @@
-#include "codec/record_block.h"
+#include "blockcode/record_block.h"
 
 #include <algorithm>
 #include <array>
@@ -6,7 +6,7 @@
 #include <cstring>
 #include <vector>
 
-namespace hvdb::codec {
+namespace hvdb::blockcode {
 namespace {
 
 // A field of the 64-byte record (docs/FORMAT.md "Point record") and how it is predicted.
@@ -518,4 +518,4 @@ bool DecodeRecordBlock(const uint8_t* src, size_t len, uint8_t* dst, uint32_t ca
   return true;
 }
 
-}  // namespace hvdb::codec
+}  // namespace hvdb::blockcode

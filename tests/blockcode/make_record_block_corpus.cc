@@ -1,11 +1,11 @@
 // Writes the seed corpus of record_block_fuzz (run by hand after a change of the record-block
-// coding): g++ -std=c++20 -I. tests/codec/make_record_block_corpus.cc codec/record_block.cc
-// -o /tmp/mk && /tmp/mk tests/codec/record_block_fuzz_corpus
+// coding): g++ -std=c++20 -I. tests/blockcode/make_record_block_corpus.cc blockcode/record_block.cc
+// -o /tmp/mk && /tmp/mk tests/blockcode/record_block_fuzz_corpus
 #include <cstdio>
 #include <random>
 #include <string>
 #include <vector>
-#include "codec/record_block.h"
+#include "blockcode/record_block.h"
 int main(int, char** argv) {
   std::mt19937_64 rng(5);
   for (int k = 0; k < 6; ++k) {
@@ -19,7 +19,7 @@ int main(int, char** argv) {
       r[62] = r[63] = 0;
     }
     std::string out;
-    hvdb::codec::EncodeRecordBlock(recs.data(), n, &out);
+    hvdb::blockcode::EncodeRecordBlock(recs.data(), n, &out);
     std::string path = std::string(argv[1]) + "/seed" + std::to_string(k);
     FILE* f = std::fopen(path.c_str(), "wb");
     std::fwrite(out.data(), 1, out.size(), f);

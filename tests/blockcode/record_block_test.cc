@@ -1,6 +1,6 @@
-// Record blocks (codec/record_block.h): bit-exact round trips of random and real records, and
+// Record blocks (blockcode/record_block.h): bit-exact round trips of random and real records, and
 // damage refused instead of decoded into garbage or a crash.
-#include "codec/record_block.h"
+#include "blockcode/record_block.h"
 
 #include <algorithm>
 #include <cstring>
@@ -13,7 +13,7 @@
 #include "formats/ply.h"
 #include "storage/point.h"
 
-namespace hvdb::codec {
+namespace hvdb::blockcode {
 namespace {
 
 std::vector<uint8_t> Records(const std::vector<Point>& pts) {
@@ -149,4 +149,4 @@ TEST(RecordBlock, DamageIsRefused) {
 }
 
 }  // namespace
-}  // namespace hvdb::codec
+}  // namespace hvdb::blockcode
