@@ -24,7 +24,7 @@ esac
 PACKAGES=(
   build-essential cmake ninja-build pkg-config ca-certificates
   libboost-dev libopencv-dev libdraco-dev libopenexr-dev libglm-dev libnanoflann-dev
-  libpng-dev libjpeg-dev
+  libpng-dev libjpeg-dev zlib1g-dev
   libegl-dev libgl-dev libopengl-dev libegl-mesa0 libgl1-mesa-dri
   libprotobuf-dev protobuf-compiler nlohmann-json3-dev libcli11-dev liburing-dev librados-dev
   libavformat-dev libavcodec-dev libswscale-dev libavutil-dev libassimp-dev
