@@ -315,6 +315,14 @@ Result<std::unique_ptr<Cursor>> Dataset::Query(const Region& region, const Query
 Result<uint64_t> Dataset::BulkLoad(uint32_t frame, std::vector<Point> points) {
   return impl_->BulkLoad(frame, std::move(points));
 }
+Result<uint64_t> Dataset::BulkLoadGaussians(uint32_t frame, std::vector<Point> points,
+                                           const GaussianColumns& attrs) {
+  return impl_->BulkLoadGaussians(frame, std::move(points), attrs);
+}
+Result<GaussianColumns> Dataset::ReadGaussians(std::span<const Point> points,
+                                               uint64_t* derived) const {
+  return impl_->ReadGaussians(points, derived);
+}
 Result<CommitInfo> Dataset::Commit(const Transaction& txn) { return impl_->Commit(txn); }
 Result<CommitInfo> Dataset::Revert(uint64_t lsn) { return impl_->Revert(lsn); }
 DatasetStats Dataset::Stats() const { return impl_->Stats(); }

@@ -18,6 +18,7 @@
 #include <mutex>
 #include <memory>
 #include <optional>
+#include <span>
 #include <string>
 #include <variant>
 #include <vector>
@@ -31,6 +32,7 @@ namespace hvdb {
 
 class BufferPool;
 class DatasetImpl;
+struct GaussianColumns;
 class CursorImpl;
 
 struct Options {
@@ -105,6 +107,9 @@ struct DatasetInfo {
   double fps = 30.0;
   double space_time_scale = 1.0;  // s: metres per second in hyperslices over (x, y, z, s t)
   std::vector<CameraInfo> cameras;
+  // A Gaussian-splat dataset: its points also carry 3DGS attributes (opacity, SH colour, the
+  // stored scales and rotation) in the Gaussian column (storage/gaussian_column.h).
+  bool gaussians = false;
   // Derived on every read:
   uint32_t frame_count = 0;  // max(declared, highest frame with data + 1)
   std::array<float, 3> bounds_min{}, bounds_max{};  // of all points (empty: all zero)
@@ -227,6 +232,8 @@ struct DatasetStats {
   uint64_t merges = 0;       // trees built by the merger since open
   uint64_t checkpoints = 0;  // log segments closed since open
   double leaf_utilisation = 0;  // points / (leaf blocks * b) over all trees
+  // Gaussian datasets: the Gaussian column's segment files, records and bytes.
+  uint64_t gaussian_segments = 0, gaussian_records = 0, gaussian_bytes = 0;
 };
 
 // What Dataset::Compact did.
@@ -270,6 +277,17 @@ class Dataset {
   // Adds the points to `frame` with the bulk loader (not logged: durable when it returns, and
   // atomic per frame). Ids of 0 are assigned. Points' frame field is overwritten.
   Result<uint64_t> BulkLoad(uint32_t frame, std::vector<Point> points);
+  // Gaussian datasets: BulkLoad of splats, each point with its record in `attrs` (same
+  // order; GaussianColumns in storage/gaussian_column.h). The engine issues the ids (points'
+  // ids are overwritten) and makes the records durable before the points. InvalidArgument on
+  // a dataset made without --gaussians or a count that differs.
+  Result<uint64_t> BulkLoadGaussians(uint32_t frame, std::vector<Point> points,
+                                     const GaussianColumns& attrs);
+  // The Gaussian records of `points` (by id), in their order, at the highest SH degree among
+  // them. A point without a stored record (an edit inserted it, or the dataset has no
+  // Gaussian column) gets DeriveGaussian's; *derived (optional) counts them.
+  Result<GaussianColumns> ReadGaussians(std::span<const Point> points,
+                                        uint64_t* derived = nullptr) const;
   // Applies the transaction atomically and durably (when Options::sync).
   Result<CommitInfo> Commit(const Transaction& txn);
   // Commits the inverse of transaction `lsn`, derived from the log.

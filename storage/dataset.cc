@@ -25,7 +25,9 @@ std::string FormatNumber(double v) {
 }
 
 constexpr char kManifestMagic[8] = {'H', 'V', 'D', 'B', 'M', 'A', 'N', '\0'};
-constexpr uint32_t kManifestVersion = 1;
+// Version 2 adds a flags word after the cameras (bit 0: a Gaussian-splat dataset); version 1
+// manifests are still read.
+constexpr uint32_t kManifestVersion = 2;
 
 std::string EncodeManifest(const DatasetInfo& info, const Options& opts) {
   Writer w;
@@ -47,6 +49,7 @@ std::string EncodeManifest(const DatasetInfo& info, const Options& opts) {
     for (double v : c.distortion) w.Put<double>(v);
     for (double v : c.world_from_camera) w.Put<double>(v);
   }
+  w.Put<uint32_t>(info.gaussians ? 1u : 0u);
   w.Put<uint32_t>(crc32c::Mask(crc32c::Value(w.data().data(), w.data().size())));
   return std::move(w.data());
 }
@@ -72,7 +75,7 @@ Result<ManifestContents> DecodeManifest(const std::string& data, const std::stri
   if (!r.GetBytes(magic, 8) || std::memcmp(magic, kManifestMagic, 8) != 0) {
     return corrupt("bad magic");
   }
-  if (!r.Get(&version) || version != kManifestVersion) {
+  if (!r.Get(&version) || version < 1 || version > kManifestVersion) {
     return corrupt("unsupported version " + std::to_string(version));
   }
   if (!r.GetString(&m.info.name) || !r.Get(&m.info.fps) || !r.Get(&m.info.space_time_scale) ||
@@ -88,6 +91,11 @@ Result<ManifestContents> DecodeManifest(const std::string& data, const std::stri
     for (double& v : c.world_from_camera) ok = ok && r.Get(&v);
     if (!ok) return corrupt("bad camera " + std::to_string(i));
     m.info.cameras.push_back(std::move(c));
+  }
+  if (version >= 2) {
+    uint32_t flags = 0;
+    if (!r.Get(&flags) || (flags & ~1u) != 0) return corrupt("bad flags");
+    m.info.gaussians = (flags & 1u) != 0;
   }
   m.block_size = bs;
   m.lod_levels = static_cast<int>(levels);
@@ -279,6 +287,9 @@ Status DatasetImpl::Start(Loaded l, bool writer) {
   }
   next_id_ = l.next_id;
   next_seq_ = l.next_seq;
+  if (info_.gaussians) {
+    HVDB_ASSIGN_OR_RETURN(gaussians_, GaussianColumn::Open(env_, dir_, writer, l.next_id));
+  }
   if (!writer) {
     follow_start_ = l.wal_start;
     follow_offset_ = l.wal_exists ? l.wal_bytes : 0;
@@ -505,6 +516,12 @@ DatasetStats DatasetImpl::Stats() const {
   s.merges = merges_.load();
   s.checkpoints = checkpoints_.load();
   s.leaf_utilisation = leaf_blocks ? static_cast<double>(leaf_points) / (leaf_blocks * b) : 0;
+  if (gaussians_) {
+    const GaussianColumn::Totals t = gaussians_->totals();
+    s.gaussian_segments = t.segments;
+    s.gaussian_records = t.records;
+    s.gaussian_bytes = t.bytes;
+  }
   return s;
 }
 
@@ -518,6 +535,7 @@ std::vector<std::string> DatasetImpl::Check() const {
     std::lock_guard<std::mutex> l(mu_);
     snap = frames_;
   }
+  if (gaussians_) add(gaussians_->Verify());
   // Frame state files as stored (the in-memory versions may be newer: those are in the log).
   auto names = env_->ListDir(dir_ + "/frames");
   if (!names.ok()) {

@@ -28,6 +28,7 @@
 #include "storage/buffer_pool.h"
 #include "storage/database.h"
 #include "storage/frame_state.h"
+#include "storage/gaussian_column.h"
 #include "storage/hyperslice.h"
 #include "storage/kdtree_builder.h"
 #include "storage/wal.h"
@@ -79,6 +80,13 @@ class DatasetImpl {
   DatasetInfo Info() const;
   Result<std::unique_ptr<Cursor>> Query(const Region& region, const QueryOptions& opts);
   Result<uint64_t> BulkLoad(uint32_t frame, std::vector<Point> points);
+  // storage/dataset_gaussians.cc: the Gaussian column.
+  Result<uint64_t> BulkLoadGaussians(uint32_t frame, std::vector<Point> points,
+                                     const GaussianColumns& attrs);
+  Result<GaussianColumns> ReadGaussians(std::span<const Point> points, uint64_t* derived) const;
+  // InvalidArgument when `txn` would rotate or scale points of a Gaussian dataset (their SH
+  // and stored scales are not transformed yet).
+  Status CheckGaussianTxn(const Transaction& txn) const;
   Result<CommitInfo> Commit(const Transaction& txn);
   Result<CommitInfo> Revert(uint64_t lsn);
   DatasetStats Stats() const;
@@ -237,6 +245,8 @@ class DatasetImpl {
   // next state is durable.
   std::map<uint32_t, std::vector<std::shared_ptr<KdTree>>> retired_;
   std::atomic<bool> follower_{false};
+  // Gaussian datasets: the column of 3DGS attributes (null otherwise); opened by Start.
+  std::unique_ptr<GaussianColumn> gaussians_;
   // A follower's place in wal.log (follow_mu_; Refresh and Promote hold it).
   std::mutex follow_mu_;
   uint64_t follow_start_ = 0, follow_offset_ = 0;

@@ -100,6 +100,7 @@ class DatasetImpl::Working {
 // Writing
 
 Result<CommitInfo> DatasetImpl::Commit(const Transaction& txn) {
+  HVDB_RETURN_IF_ERROR(CheckGaussianTxn(txn));
   WriteRequest w;
   w.kind = WriteRequest::Kind::kTxn;
   w.txn = &txn;

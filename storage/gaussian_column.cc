@@ -1,0 +1,460 @@
+#include "storage/gaussian_column.h"
+
+#include <algorithm>
+#include <cinttypes>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <numeric>
+
+#include "storage/coding.h"
+#include "storage/crc32c.h"
+
+namespace hvdb {
+namespace {
+
+constexpr char kSegmentMagic[8] = {'H', 'V', 'D', 'B', 'G', 'S', 'C', '\0'};
+constexpr uint32_t kSegmentVersion = 1;
+constexpr size_t kSegmentHeaderSize = 64;
+constexpr uint32_t kBlockRecords = 1024;
+constexpr uint64_t kMaxSegmentRecords = uint64_t{1} << 32;
+
+std::string SegmentName(uint64_t first_id) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%016" PRIx64 ".gsc", first_id);
+  return buf;
+}
+
+bool ParseSegmentName(const std::string& name, uint64_t* first_id) {
+  if (name.size() != 20 || !name.ends_with(".gsc")) return false;
+  uint64_t v = 0;
+  for (size_t i = 0; i < 16; ++i) {
+    const char c = name[i];
+    const int d = c >= '0' && c <= '9' ? c - '0' : c >= 'a' && c <= 'f' ? c - 'a' + 10 : -1;
+    if (d < 0) return false;
+    v = v << 4 | static_cast<uint64_t>(d);
+  }
+  *first_id = v;
+  return true;
+}
+
+// Symmetric 3x3 eigen-decomposition by cyclic Jacobi rotations: exact enough for a covariance
+// in a few sweeps, and no dependency for one matrix size.
+void Eigen3(const double a_in[3][3], double evals[3], double evecs[3][3]) {
+  double a[3][3], v[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+  std::memcpy(a, a_in, sizeof a);
+  for (int sweep = 0; sweep < 32; ++sweep) {
+    const double off = a[0][1] * a[0][1] + a[0][2] * a[0][2] + a[1][2] * a[1][2];
+    if (off < 1e-30) break;
+    for (int p = 0; p < 2; ++p) {
+      for (int q = p + 1; q < 3; ++q) {
+        if (std::fabs(a[p][q]) < 1e-300) continue;
+        const double theta = (a[q][q] - a[p][p]) / (2 * a[p][q]);
+        const double t = (theta >= 0 ? 1 : -1) / (std::fabs(theta) + std::sqrt(theta * theta + 1));
+        const double c = 1 / std::sqrt(t * t + 1), s = t * c;
+        for (int k = 0; k < 3; ++k) {  // A <- A J
+          const double akp = a[k][p], akq = a[k][q];
+          a[k][p] = c * akp - s * akq;
+          a[k][q] = s * akp + c * akq;
+        }
+        for (int k = 0; k < 3; ++k) {  // A <- J^T A
+          const double apk = a[p][k], aqk = a[q][k];
+          a[p][k] = c * apk - s * aqk;
+          a[q][k] = s * apk + c * aqk;
+        }
+        for (int k = 0; k < 3; ++k) {
+          const double vkp = v[k][p], vkq = v[k][q];
+          v[k][p] = c * vkp - s * vkq;
+          v[k][q] = s * vkp + c * vkq;
+        }
+      }
+    }
+  }
+  for (int i = 0; i < 3; ++i) evals[i] = a[i][i];
+  std::memcpy(evecs, v, sizeof v);
+}
+
+std::string Hex(uint64_t v) {
+  char buf[24];
+  std::snprintf(buf, sizeof buf, "%" PRIu64, v);
+  return buf;
+}
+
+}  // namespace
+
+void DeriveGaussian(const Point& p, float* rec) {
+  std::fill(rec, rec + GaussianRecordFloats(0), 0.f);
+  double cov[3][3];
+  if (p.flags & kFlagHasCovariance) {
+    const auto& c = p.cov;
+    const double m[3][3] = {{c[0], c[1], c[2]}, {c[1], c[3], c[4]}, {c[2], c[4], c[5]}};
+    std::memcpy(cov, m, sizeof cov);
+  } else {
+    const double s2 = 1e-6;  // 1 mm: a point with no footprint of its own
+    const double m[3][3] = {{s2, 0, 0}, {0, s2, 0}, {0, 0, s2}};
+    std::memcpy(cov, m, sizeof cov);
+  }
+  double ev[3], v[3][3];
+  Eigen3(cov, ev, v);
+  // A proper rotation: flip the third axis if the eigenvectors form a left-handed frame.
+  const double det = v[0][0] * (v[1][1] * v[2][2] - v[1][2] * v[2][1]) -
+                     v[0][1] * (v[1][0] * v[2][2] - v[1][2] * v[2][0]) +
+                     v[0][2] * (v[1][0] * v[2][1] - v[1][1] * v[2][0]);
+  if (det < 0) {
+    for (int k = 0; k < 3; ++k) v[k][2] = -v[k][2];
+  }
+  for (int i = 0; i < 3; ++i) {
+    rec[kGsScale + i] = static_cast<float>(0.5 * std::log(std::max(ev[i], 1e-20)));
+  }
+  // Quaternion (w x y z) of the rotation whose columns are the eigenvectors (Shepperd's method).
+  const double tr = v[0][0] + v[1][1] + v[2][2];
+  double w, x, y, z;
+  if (tr > 0) {
+    const double s = std::sqrt(tr + 1) * 2;
+    w = 0.25 * s, x = (v[2][1] - v[1][2]) / s, y = (v[0][2] - v[2][0]) / s, z = (v[1][0] - v[0][1]) / s;
+  } else if (v[0][0] > v[1][1] && v[0][0] > v[2][2]) {
+    const double s = std::sqrt(1 + v[0][0] - v[1][1] - v[2][2]) * 2;
+    w = (v[2][1] - v[1][2]) / s, x = 0.25 * s, y = (v[0][1] + v[1][0]) / s, z = (v[0][2] + v[2][0]) / s;
+  } else if (v[1][1] > v[2][2]) {
+    const double s = std::sqrt(1 + v[1][1] - v[0][0] - v[2][2]) * 2;
+    w = (v[0][2] - v[2][0]) / s, x = (v[0][1] + v[1][0]) / s, y = 0.25 * s, z = (v[1][2] + v[2][1]) / s;
+  } else {
+    const double s = std::sqrt(1 + v[2][2] - v[0][0] - v[1][1]) * 2;
+    w = (v[1][0] - v[0][1]) / s, x = (v[0][2] + v[2][0]) / s, y = (v[1][2] + v[2][1]) / s, z = 0.25 * s;
+  }
+  rec[kGsRotation + 0] = static_cast<float>(w);
+  rec[kGsRotation + 1] = static_cast<float>(x);
+  rec[kGsRotation + 2] = static_cast<float>(y);
+  rec[kGsRotation + 3] = static_cast<float>(z);
+  rec[kGsOpacity] = static_cast<float>(std::log(0.99 / 0.01));
+  constexpr double kC0 = 0.28209479177387814;
+  const uint8_t rgb[3] = {p.r, p.g, p.b};
+  for (int c = 0; c < 3; ++c) rec[kGsDc + c] = static_cast<float>((rgb[c] / 255.0 - 0.5) / kC0);
+}
+
+std::array<float, 6> GaussianCovariance(const float* rec) {
+  double w = rec[kGsRotation], x = rec[kGsRotation + 1], y = rec[kGsRotation + 2],
+         z = rec[kGsRotation + 3];
+  const double n = std::sqrt(w * w + x * x + y * y + z * z);
+  if (n > 0) {
+    w /= n, x /= n, y /= n, z /= n;
+  } else {
+    w = 1, x = y = z = 0;
+  }
+  const double R[3][3] = {{1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)},
+                          {2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)},
+                          {2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)}};
+  double s2[3];
+  for (int i = 0; i < 3; ++i) s2[i] = std::exp(2.0 * rec[kGsScale + i]);
+  auto c = [&](int i, int j) {
+    return static_cast<float>(R[i][0] * R[j][0] * s2[0] + R[i][1] * R[j][1] * s2[1] +
+                              R[i][2] * R[j][2] * s2[2]);
+  };
+  return {c(0, 0), c(0, 1), c(0, 2), c(1, 1), c(1, 2), c(2, 2)};
+}
+
+Status ValidateGaussianColumns(const GaussianColumns& cols) {
+  if (cols.sh_degree < 0 || cols.sh_degree > kMaxGaussianShDegree) {
+    return Status::InvalidArgument("Gaussian attributes: SH degree must be 0..3, got " +
+                                   std::to_string(cols.sh_degree));
+  }
+  const size_t stride = cols.stride();
+  if (cols.values.size() % stride != 0) {
+    return Status::InvalidArgument("Gaussian attributes: " + std::to_string(cols.values.size()) +
+                                   " values are not whole records of " + std::to_string(stride));
+  }
+  for (size_t i = 0; i < cols.values.size(); ++i) {
+    if (!std::isfinite(cols.values[i])) {
+      return Status::InvalidArgument("Gaussian attributes: splat " + std::to_string(i / stride) +
+                                     ": value " + std::to_string(i % stride) + " is not finite");
+    }
+  }
+  return Status::OK();
+}
+
+struct GaussianColumn::Segment {
+  std::string path;
+  std::shared_ptr<RandomAccessFile> file;
+  uint64_t first_id = 0, count = 0;
+  int degree = 0;
+  bool antialiased = false;
+  std::vector<uint32_t> crcs;  // masked, per block of kBlockRecords records
+  size_t record_bytes() const { return 4 * GaussianRecordFloats(degree); }
+};
+
+Result<std::unique_ptr<GaussianColumn>> GaussianColumn::Open(Env* env,
+                                                             const std::string& dataset_dir,
+                                                             bool writer, uint64_t next_id) {
+  const std::string dir = dataset_dir + "/gaussians";
+  if (writer) HVDB_RETURN_IF_ERROR(env->CreateDirs(dir));
+  std::unique_ptr<GaussianColumn> col(new GaussianColumn(env, dir));
+  if (!env->Exists(dir)) return col;
+  HVDB_ASSIGN_OR_RETURN(auto names, env->ListDir(dir));
+  for (const std::string& name : names) {
+    uint64_t first = 0;
+    const bool seg = ParseSegmentName(name, &first);
+    if (writer && (!seg || first >= next_id)) {
+      // A temporary file, or the segment of a load cut short: its ids were never issued.
+      HVDB_RETURN_IF_ERROR(env->Remove(dir + "/" + name));
+      continue;
+    }
+    if (!seg) continue;
+    HVDB_ASSIGN_OR_RETURN(auto s, col->OpenSegment(name));
+    col->segments_[s->first_id] = std::move(s);
+  }
+  return col;
+}
+
+Result<std::shared_ptr<const GaussianColumn::Segment>> GaussianColumn::OpenSegment(
+    const std::string& name) {
+  auto s = std::make_shared<Segment>();
+  s->path = dir_ + "/" + name;
+  auto corrupt = [&](const std::string& m) { return Status::Corruption(s->path + ": " + m); };
+  HVDB_ASSIGN_OR_RETURN(s->file, env_->OpenRead(s->path));
+  if (s->file->size() < kSegmentHeaderSize + 4) return corrupt("truncated header");
+  uint8_t h[kSegmentHeaderSize];
+  HVDB_RETURN_IF_ERROR(s->file->Read(0, sizeof h, h));
+  if (std::memcmp(h, kSegmentMagic, 8) != 0) return corrupt("bad magic");
+  if (crc32c::Unmask(DecodeLE<uint32_t>(h + 60)) != crc32c::Value(h, 60)) {
+    return corrupt("header checksum mismatch");
+  }
+  if (DecodeLE<uint32_t>(h + 8) != kSegmentVersion) {
+    return corrupt("unsupported version " + std::to_string(DecodeLE<uint32_t>(h + 8)));
+  }
+  const uint32_t degree = DecodeLE<uint32_t>(h + 12);
+  const uint32_t flags = DecodeLE<uint32_t>(h + 16);
+  const uint32_t block_records = DecodeLE<uint32_t>(h + 20);
+  s->first_id = DecodeLE<uint64_t>(h + 24);
+  s->count = DecodeLE<uint64_t>(h + 32);
+  if (degree > kMaxGaussianShDegree || block_records != kBlockRecords ||
+      s->count == 0 || s->count > kMaxSegmentRecords || s->first_id == 0) {
+    return corrupt("bad header");
+  }
+  s->degree = static_cast<int>(degree);
+  s->antialiased = (flags & 1) != 0;
+  const uint64_t blocks = (s->count + kBlockRecords - 1) / kBlockRecords;
+  const uint64_t table_at = kSegmentHeaderSize + s->count * s->record_bytes();
+  if (s->file->size() != table_at + 4 * blocks + 4) {
+    return corrupt("size " + std::to_string(s->file->size()) + " is not what its header says (" +
+                   std::to_string(table_at + 4 * blocks + 4) + ")");
+  }
+  std::vector<uint8_t> table(4 * blocks + 4);
+  HVDB_RETURN_IF_ERROR(s->file->Read(table_at, table.size(), table.data()));
+  if (crc32c::Unmask(DecodeLE<uint32_t>(table.data() + 4 * blocks)) !=
+      crc32c::Value(table.data(), 4 * blocks)) {
+    return corrupt("checksum table mismatch");
+  }
+  s->crcs.resize(blocks);
+  for (uint64_t b = 0; b < blocks; ++b) s->crcs[b] = DecodeLE<uint32_t>(table.data() + 4 * b);
+  return std::shared_ptr<const Segment>(std::move(s));
+}
+
+Status GaussianColumn::Write(uint64_t first_id, const GaussianColumns& cols) {
+  HVDB_RETURN_IF_ERROR(ValidateGaussianColumns(cols));
+  const uint64_t n = cols.size();
+  if (n == 0) return Status::OK();
+  if (n > kMaxSegmentRecords) return Status::InvalidArgument("Gaussian attributes: too many splats");
+  uint8_t h[kSegmentHeaderSize] = {};
+  std::memcpy(h, kSegmentMagic, 8);
+  EncodeLE<uint32_t>(h + 8, kSegmentVersion);
+  EncodeLE<uint32_t>(h + 12, static_cast<uint32_t>(cols.sh_degree));
+  EncodeLE<uint32_t>(h + 16, cols.antialiased ? 1u : 0u);
+  EncodeLE<uint32_t>(h + 20, kBlockRecords);
+  EncodeLE<uint64_t>(h + 24, first_id);
+  EncodeLE<uint64_t>(h + 32, n);
+  EncodeLE<uint32_t>(h + 60, crc32c::Mask(crc32c::Value(h, 60)));
+
+  const std::string name = SegmentName(first_id);
+  const std::string tmp = dir_ + "/" + name + ".tmp", path = dir_ + "/" + name;
+  HVDB_ASSIGN_OR_RETURN(auto f, env_->OpenWrite(tmp, /*truncate=*/true));
+  auto fail = [&](Status st) {
+    f.reset();
+    (void)env_->Remove(tmp);  // the error reported is the write's
+    return st;
+  };
+  Status st = f->Append(std::string_view(reinterpret_cast<const char*>(h), sizeof h));
+  if (!st.ok()) return fail(st);
+  const size_t rb = 4 * cols.stride();
+  std::string block, table;
+  for (uint64_t b = 0; b * kBlockRecords < n; ++b) {
+    const uint64_t lo = b * kBlockRecords, hi = std::min<uint64_t>(n, lo + kBlockRecords);
+    block.resize((hi - lo) * rb);
+    if constexpr (std::endian::native == std::endian::little) {
+      std::memcpy(block.data(), cols.values.data() + lo * cols.stride(), block.size());
+    } else {
+      for (size_t k = 0; k < block.size() / 4; ++k) {
+        EncodeLE<float>(reinterpret_cast<uint8_t*>(block.data()) + 4 * k,
+                        cols.values[lo * cols.stride() + k]);
+      }
+    }
+    uint8_t c[4];
+    EncodeLE<uint32_t>(c, crc32c::Mask(crc32c::Value(block.data(), block.size())));
+    table.append(reinterpret_cast<const char*>(c), 4);
+    st = f->Append(block);
+    if (!st.ok()) return fail(st);
+  }
+  uint8_t c[4];
+  EncodeLE<uint32_t>(c, crc32c::Mask(crc32c::Value(table.data(), table.size())));
+  table.append(reinterpret_cast<const char*>(c), 4);
+  st = f->Append(table);
+  if (st.ok()) st = f->Sync();
+  if (!st.ok()) return fail(st);
+  f.reset();
+  st = env_->Rename(tmp, path);
+  if (!st.ok()) return fail(st);
+  HVDB_RETURN_IF_ERROR(env_->SyncDir(dir_));
+  HVDB_ASSIGN_OR_RETURN(auto seg, OpenSegment(name));
+  std::lock_guard<std::mutex> lk(mu_);
+  segments_[first_id] = std::move(seg);
+  return Status::OK();
+}
+
+Status GaussianColumn::Remove(uint64_t first_id) {
+  {
+    std::lock_guard<std::mutex> lk(mu_);
+    segments_.erase(first_id);
+  }
+  return env_->Remove(dir_ + "/" + SegmentName(first_id));
+}
+
+Status GaussianColumn::Rescan() {
+  if (!env_->Exists(dir_)) return Status::OK();
+  HVDB_ASSIGN_OR_RETURN(auto names, env_->ListDir(dir_));
+  for (const std::string& name : names) {
+    uint64_t first = 0;
+    if (!ParseSegmentName(name, &first)) continue;
+    {
+      std::lock_guard<std::mutex> lk(mu_);
+      if (segments_.count(first)) continue;
+    }
+    auto s = OpenSegment(name);
+    if (!s.ok()) {
+      if (!env_->Exists(dir_ + "/" + name)) continue;  // removed meanwhile
+      return s.status();
+    }
+    std::lock_guard<std::mutex> lk(mu_);
+    segments_[first] = std::move(s).value();
+  }
+  return Status::OK();
+}
+
+Status GaussianColumn::Read(std::span<const uint64_t> ids, GaussianColumns* out,
+                            std::vector<bool>* found) {
+  // Resolve each id to its segment; rescan once if some are unknown (a follower's view).
+  std::vector<std::shared_ptr<const Segment>> seg_of(ids.size());
+  auto resolve = [&]() {
+    std::lock_guard<std::mutex> lk(mu_);
+    bool missing = false;
+    for (size_t i = 0; i < ids.size(); ++i) {
+      if (seg_of[i]) continue;
+      auto it = segments_.upper_bound(ids[i]);
+      if (it != segments_.begin()) {
+        --it;
+        if (ids[i] - it->first < it->second->count) {
+          seg_of[i] = it->second;
+          continue;
+        }
+      }
+      missing = true;
+    }
+    return missing;
+  };
+  if (resolve()) {
+    HVDB_RETURN_IF_ERROR(Rescan());
+    resolve();
+  }
+  int degree = 0;
+  for (const auto& s : seg_of) {
+    if (s) {
+      degree = std::max(degree, s->degree);
+      out->antialiased = out->antialiased || s->antialiased;
+    }
+  }
+  out->sh_degree = degree;
+  const size_t stride = GaussianRecordFloats(degree);
+  out->values.assign(ids.size() * stride, 0.f);
+  found->assign(ids.size(), false);
+
+  // Read block by block: the ids of a query come in tree order, so sort them by (segment,
+  // index) and read each needed block once, checked.
+  std::vector<uint32_t> order(ids.size());
+  std::iota(order.begin(), order.end(), 0u);
+  order.erase(std::remove_if(order.begin(), order.end(), [&](uint32_t i) { return !seg_of[i]; }),
+              order.end());
+  std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) {
+    if (seg_of[a]->first_id != seg_of[b]->first_id) return seg_of[a]->first_id < seg_of[b]->first_id;
+    return ids[a] < ids[b];
+  });
+  std::vector<uint8_t> block;
+  const Segment* cur = nullptr;
+  uint64_t cur_block = UINT64_MAX;
+  for (uint32_t i : order) {
+    const Segment& s = *seg_of[i];
+    const uint64_t k = ids[i] - s.first_id, b = k / kBlockRecords;
+    const size_t rb = s.record_bytes();
+    if (&s != cur || b != cur_block) {
+      const uint64_t lo = b * kBlockRecords, hi = std::min<uint64_t>(s.count, lo + kBlockRecords);
+      block.resize((hi - lo) * rb);
+      HVDB_RETURN_IF_ERROR(s.file->Read(kSegmentHeaderSize + lo * rb, block.size(), block.data()));
+      if (crc32c::Unmask(s.crcs[b]) != crc32c::Value(block.data(), block.size())) {
+        return Status::Corruption(s.path + ": block " + std::to_string(b) +
+                                  " checksum mismatch (records of ids " +
+                                  Hex(s.first_id + lo) + ".." + Hex(s.first_id + hi - 1) + ")");
+      }
+      cur = &s;
+      cur_block = b;
+    }
+    const uint8_t* src = block.data() + (k % kBlockRecords) * rb;
+    float* dst = out->values.data() + i * stride;
+    const size_t nf = rb / 4;
+    // Degree padding: the rest coefficients are channel-major, so each channel's run moves.
+    const size_t rest_src = (nf - kGsRest) / 3, rest_dst = (stride - kGsRest) / 3;
+    for (size_t f = 0; f < kGsRest; ++f) dst[f] = DecodeLE<float>(src + 4 * f);
+    for (size_t ch = 0; ch < 3; ++ch) {
+      for (size_t j = 0; j < rest_src; ++j) {
+        dst[kGsRest + ch * rest_dst + j] = DecodeLE<float>(src + 4 * (kGsRest + ch * rest_src + j));
+      }
+    }
+    (*found)[i] = true;
+  }
+  return Status::OK();
+}
+
+GaussianColumn::Totals GaussianColumn::totals() const {
+  std::lock_guard<std::mutex> lk(mu_);
+  Totals t;
+  for (const auto& [first, s] : segments_) {
+    ++t.segments;
+    t.records += s->count;
+    t.bytes += s->file->size();
+  }
+  return t;
+}
+
+std::vector<std::string> GaussianColumn::Verify() const {
+  std::vector<std::string> problems;
+  std::vector<std::shared_ptr<const Segment>> segs;
+  {
+    std::lock_guard<std::mutex> lk(mu_);
+    for (const auto& [first, s] : segments_) segs.push_back(s);
+  }
+  std::vector<uint8_t> block;
+  for (const auto& s : segs) {
+    const size_t rb = s->record_bytes();
+    for (uint64_t b = 0; b < s->crcs.size(); ++b) {
+      const uint64_t lo = b * kBlockRecords, hi = std::min<uint64_t>(s->count, lo + kBlockRecords);
+      block.resize((hi - lo) * rb);
+      Status st = s->file->Read(kSegmentHeaderSize + lo * rb, block.size(), block.data());
+      if (!st.ok()) {
+        problems.push_back(s->path + ": " + st.message());
+        break;
+      }
+      if (crc32c::Unmask(s->crcs[b]) != crc32c::Value(block.data(), block.size())) {
+        problems.push_back(s->path + ": block " + std::to_string(b) + " checksum mismatch");
+      }
+    }
+  }
+  return problems;
+}
+
+}  // namespace hvdb

@@ -1,0 +1,105 @@
+// The Gaussian column of a Gaussian-splat dataset (DatasetInfo::gaussians): what a 3D Gaussian
+// splat holds beyond the 64-byte point record, kept as 3DGS trainers store it (log scales, a
+// logit opacity, the quaternion as given, spherical-harmonic coefficients), so that a splat file
+// that goes in comes out bit for bit.
+//
+// Out of core, in immutable segment files DIR/<dataset>/gaussians/<first id>.gsc
+// (docs/FORMAT.md "Gaussian column segment"): the records of a run of consecutive point ids, in
+// id order, with a CRC-32C per block of records. Keyed by point id, not by tree position, the
+// column is untouched by everything that moves records (merges, the cold tier, transforms in
+// time, deletes and their undo); a segment is made durable before the points it describes
+// are (Dataset::BulkLoadGaussians), and recovery deletes a segment whose ids were never issued.
+#ifndef HVDB_STORAGE_GAUSSIAN_COLUMN_H_
+#define HVDB_STORAGE_GAUSSIAN_COLUMN_H_
+
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "storage/env.h"
+#include "storage/point.h"
+#include "storage/status.h"
+
+namespace hvdb {
+
+inline constexpr int kMaxGaussianShDegree = 3;
+
+// Floats of one record at SH degree d: opacity, scale[3], rotation[4] (w x y z), dc[3], then
+// 3 * ((d + 1)^2 - 1) rest coefficients channel-major (R's, then G's, then B's), as the 3DGS PLY.
+constexpr size_t GaussianRecordFloats(int degree) {
+  return 11 + 3 * static_cast<size_t>((degree + 1) * (degree + 1) - 1);
+}
+// Offsets into a record.
+enum GaussianField : size_t {
+  kGsOpacity = 0, kGsScale = 1, kGsRotation = 4, kGsDc = 8, kGsRest = 11
+};
+
+// Records of n splats, structure of records: values[i * stride() ...].
+struct GaussianColumns {
+  int sh_degree = 0;
+  bool antialiased = false;  // SPZ's flag: trained with Mip-Splatting's 3D filter
+  std::vector<float> values;
+
+  size_t stride() const { return GaussianRecordFloats(sh_degree); }
+  size_t size() const { return values.size() / stride(); }
+  float* record(size_t i) { return values.data() + i * stride(); }
+  const float* record(size_t i) const { return values.data() + i * stride(); }
+};
+
+// A point's Gaussian when it has no stored record (inserted by an edit, or into a dataset made
+// without them): scales and rotation from the eigenvectors of its covariance, opacity
+// Logit(0.99), SH degree 0 from its colour. Writes GaussianRecordFloats(0) floats at rec.
+void DeriveGaussian(const Point& p, float* rec);
+
+// The covariance upper triangle (xx xy xz yy yz zz) that record rec implies: R S S^T R^T with
+// S = diag(exp(scale)) and R of the normalised quaternion (identity if it is zero), in double.
+std::array<float, 6> GaussianCovariance(const float* rec);
+
+// InvalidArgument naming the splat and value if a record is not finite or the degree is not
+// 0..3, or the values' length is not a multiple of the stride.
+Status ValidateGaussianColumns(const GaussianColumns& cols);
+
+class GaussianColumn {
+ public:
+  // Opens DIR/gaussians (created if absent, for a writer). A writer removes temporary files and
+  // segments whose first id is >= next_id (written for points whose load never committed).
+  static Result<std::unique_ptr<GaussianColumn>> Open(Env* env, const std::string& dataset_dir,
+                                                      bool writer, uint64_t next_id);
+
+  // Writes the segment of ids [first_id, first_id + cols.size()) durably (temporary file,
+  // sync, rename, directory sync). The caller issued those ids and loads their points after.
+  Status Write(uint64_t first_id, const GaussianColumns& cols);
+  // Removes the segment starting at first_id (its points' load failed).
+  Status Remove(uint64_t first_id);
+
+  // The records of `ids` at the highest degree among them (lower ones padded with zeros),
+  // in the order given; found[i] false where an id has no record (its values are zero).
+  // Corruption names the segment and block on a checksum mismatch.
+  Status Read(std::span<const uint64_t> ids, GaussianColumns* out, std::vector<bool>* found);
+
+  struct Totals {
+    uint64_t segments = 0, records = 0, bytes = 0;
+  };
+  Totals totals() const;
+  // Every block's checksum; one line per problem.
+  std::vector<std::string> Verify() const;
+
+ private:
+  struct Segment;
+  GaussianColumn(Env* env, std::string dir) : env_(env), dir_(std::move(dir)) {}
+  Result<std::shared_ptr<const Segment>> OpenSegment(const std::string& name);
+  Status Rescan();  // picks up segments another process wrote (followers)
+
+  Env* const env_;
+  const std::string dir_;
+  mutable std::mutex mu_;
+  std::map<uint64_t, std::shared_ptr<const Segment>> segments_;  // by first id
+};
+
+}  // namespace hvdb
+
+#endif  // HVDB_STORAGE_GAUSSIAN_COLUMN_H_

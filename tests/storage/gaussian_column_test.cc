@@ -1,0 +1,354 @@
+// The Gaussian column (storage/gaussian_column.h): records stored bit for bit and read back by
+// id through every path that moves points, durable before their points (crash and power loss
+// at every step of a load, through the fault Env), corruption named, edits it cannot follow
+// refused.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <random>
+
+#include "storage/database.h"
+#include "storage/gaussian_column.h"
+#include "tests/storage/fault_env.h"
+#include "tests/storage/test_util.h"
+
+namespace hvdb::testing {
+namespace {
+
+// n splats of SH degree `degree`: anisotropic, varied opacity, random SH (seeded).
+void MakeSplats(uint64_t seed, size_t n, int degree, std::vector<Point>* pts,
+                GaussianColumns* cols) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<float> g(0.f, 1.f);
+  pts->clear();
+  cols->sh_degree = degree;
+  cols->values.assign(n * cols->stride(), 0.f);
+  for (size_t i = 0; i < n; ++i) {
+    float* rec = cols->record(i);
+    for (size_t k = 0; k < cols->stride(); ++k) rec[k] = g(rng);
+    for (int k = 0; k < 3; ++k) rec[kGsScale + k] = -4.f + 0.5f * g(rng);
+    Point p = RandomPoint(rng, 0);
+    p.id = 0;
+    p.cov = GaussianCovariance(rec);
+    p.flags = kFlagHasCovariance;
+    pts->push_back(p);
+  }
+}
+
+// The records of a frame's points, ordered by id (= load order).
+struct Read {
+  std::vector<Point> points;
+  GaussianColumns cols;
+  uint64_t derived = 0;
+};
+Read ReadFrame(Dataset& ds, uint32_t frame) {
+  Read r;
+  auto cur = ds.Query(FrameWindow(frame, ds.Info().fps));
+  EXPECT_TRUE(cur.ok()) << cur.status().ToString();
+  if (!cur.ok()) return r;
+  Batch b;
+  while (true) {
+    auto more = (*cur)->Next(&b);
+    EXPECT_TRUE(more.ok());
+    if (!more.ok() || !*more) break;
+    r.points.insert(r.points.end(), b.points.begin(), b.points.end());
+  }
+  std::sort(r.points.begin(), r.points.end(),
+            [](const Point& x, const Point& y) { return x.id < y.id; });
+  auto cols = ds.ReadGaussians(r.points, &r.derived);
+  EXPECT_TRUE(cols.ok()) << cols.status().ToString();
+  if (cols.ok()) r.cols = std::move(cols).value();
+  return r;
+}
+
+bool SameBits(const std::vector<float>& a, const std::vector<float>& b) {
+  return a.size() == b.size() && std::memcmp(a.data(), b.data(), 4 * a.size()) == 0;
+}
+
+std::shared_ptr<Dataset> MakeGaussianDataset(Database& db, const std::string& name) {
+  DatasetInfo info;
+  info.name = name;
+  info.fps = 30;
+  info.gaussians = true;
+  auto ds = db.CreateDataset(info);
+  EXPECT_TRUE(ds.ok()) << ds.status().ToString();
+  return ds.ok() ? *ds : nullptr;
+}
+
+TEST(GaussianColumnTest, RecordsComeBackBitForBitAfterMergesColdTierAndReopen) {
+  TempDir dir;
+  std::vector<Point> pts3, pts0;
+  GaussianColumns c3, c0;
+  MakeSplats(1, 5000, 3, &pts3, &c3);
+  MakeSplats(2, 1200, 0, &pts0, &c0);
+  Options o;
+  o.t0_points = 256;
+  {
+    auto db = Database::Open(dir.path(), o);
+    ASSERT_TRUE(db.ok());
+    auto ds = MakeGaussianDataset(**db, "splats");
+    ASSERT_TRUE(ds);
+    ASSERT_TRUE(ds->BulkLoadGaussians(0, pts3, c3).ok());
+    ASSERT_TRUE(ds->BulkLoadGaussians(1, pts0, c0).ok());
+    // A second load into a frame that holds points goes through the merger's path.
+    std::vector<Point> more(pts0.begin(), pts0.begin() + 100);
+    GaussianColumns cm = c0;
+    cm.values.resize(100 * cm.stride());
+    ASSERT_TRUE(ds->BulkLoadGaussians(1, more, cm).ok());
+    ASSERT_TRUE(ds->WaitForMerges().ok());
+    ASSERT_TRUE(ds->Compact(0, 1).ok());
+    DatasetStats s = ds->Stats();
+    EXPECT_EQ(s.gaussian_segments, 3u);
+    EXPECT_EQ(s.gaussian_records, 5000u + 1200 + 100);
+    EXPECT_GT(s.gaussian_bytes, 5000u * 4 * GaussianRecordFloats(3));
+  }
+  auto db = Database::Open(dir.path(), o);
+  ASSERT_TRUE(db.ok());
+  auto ds = (*db)->GetDataset("splats");
+  ASSERT_TRUE(ds.ok());
+  EXPECT_TRUE((*ds)->Info().gaussians);
+  Read r0 = ReadFrame(**ds, 0);
+  ASSERT_EQ(r0.points.size(), 5000u);
+  EXPECT_EQ(r0.derived, 0u);
+  EXPECT_EQ(r0.cols.sh_degree, 3);
+  EXPECT_TRUE(SameBits(r0.cols.values, c3.values));
+  for (size_t i = 0; i < pts3.size(); ++i) {
+    ASSERT_EQ(r0.points[i].x, pts3[i].x);
+    ASSERT_EQ(r0.points[i].cov, pts3[i].cov);
+  }
+  Read r1 = ReadFrame(**ds, 1);
+  ASSERT_EQ(r1.points.size(), 1300u);
+  EXPECT_EQ(r1.cols.sh_degree, 0);
+  std::vector<float> want = c0.values;
+  want.insert(want.end(), c0.values.begin(), c0.values.begin() + 100 * c0.stride());
+  EXPECT_TRUE(SameBits(r1.cols.values, want));
+  EXPECT_TRUE((*ds)->Check().empty());
+
+  // Both frames at once: degree 0 records padded to degree 3 with zeros, each channel's run.
+  std::vector<Point> both = {r0.points[7], r1.points[3]};
+  auto mixed = (*ds)->ReadGaussians(both);
+  ASSERT_TRUE(mixed.ok());
+  ASSERT_EQ(mixed->sh_degree, 3);
+  EXPECT_EQ(0, std::memcmp(mixed->record(0), c3.record(7), 4 * c3.stride()));
+  const float* rec = mixed->record(1);
+  EXPECT_EQ(0, std::memcmp(rec, c0.record(3), 4 * kGsRest));
+  for (size_t k = kGsRest; k < mixed->stride(); ++k) EXPECT_EQ(rec[k], 0.f);
+}
+
+TEST(GaussianColumnTest, EditsKeepRecordsAndRotationsAreRefused) {
+  TempDir dir;
+  auto db = Database::Open(dir.path());
+  ASSERT_TRUE(db.ok());
+  auto ds = MakeGaussianDataset(**db, "splats");
+  std::vector<Point> pts;
+  GaussianColumns cols;
+  MakeSplats(3, 300, 2, &pts, &cols);
+  ASSERT_TRUE(ds->BulkLoadGaussians(4, pts, cols).ok());
+  Read before = ReadFrame(*ds, 4);
+
+  // A move in space and time keeps each point's record (the column is keyed by id).
+  Transaction move;
+  Affine4 shift;
+  shift.c = {0.5, 0, 0, 1.0 / 30};
+  move.Transform(Selection{}, shift);
+  auto moved = ds->Commit(move);
+  ASSERT_TRUE(moved.ok()) << moved.status().ToString();
+  Read after = ReadFrame(*ds, 5);
+  ASSERT_EQ(after.points.size(), 300u);
+  EXPECT_EQ(after.derived, 0u);
+  EXPECT_TRUE(SameBits(after.cols.values, before.cols.values));
+
+  // Delete, then undo: the records come back with the points.
+  Transaction del;
+  del.DeleteSelection(Selection{});
+  auto d = ds->Commit(del);
+  ASSERT_TRUE(d.ok());
+  EXPECT_TRUE(ReadFrame(*ds, 5).points.empty());
+  ASSERT_TRUE(ds->Revert(d->lsn).ok());
+  EXPECT_TRUE(SameBits(ReadFrame(*ds, 5).cols.values, before.cols.values));
+
+  // Rotations and scales are refused with the reason.
+  Transaction rot;
+  Affine4 r;
+  r.a = {0, -1, 0, 0, 1, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+  rot.Transform(Selection{}, r);
+  auto refused = ds->Commit(rot);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_EQ(refused.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(refused.status().message().find("not yet rotate or scale"), std::string::npos);
+
+  // A point an edit inserts without a record reads as its derived Gaussian.
+  Transaction ins;
+  Point p = pts[0];
+  p.id = 0;
+  p.frame = 9;
+  ins.Insert({p});
+  ASSERT_TRUE(ds->Commit(ins).ok());
+  Read nine = ReadFrame(*ds, 9);
+  ASSERT_EQ(nine.points.size(), 1u);
+  EXPECT_EQ(nine.derived, 1u);
+}
+
+TEST(GaussianColumnTest, PlainDatasetsRefuseSplatsAndDeriveGaussians) {
+  TempDir dir;
+  auto db = Database::Open(dir.path());
+  ASSERT_TRUE(db.ok());
+  DatasetInfo info;
+  info.name = "plain";
+  auto ds = (*db)->CreateDataset(info);
+  ASSERT_TRUE(ds.ok());
+  std::vector<Point> pts;
+  GaussianColumns cols;
+  MakeSplats(4, 10, 0, &pts, &cols);
+  auto st = (*ds)->BulkLoadGaussians(0, pts, cols);
+  ASSERT_FALSE(st.ok());
+  EXPECT_NE(st.status().message().find("--gaussians"), std::string::npos);
+  EXPECT_FALSE(std::filesystem::exists(dir.path() + "/plain/gaussians"));  // pays nothing
+
+  // Derived: the covariance the record implies is the point's.
+  Point p;
+  p.flags = kFlagHasCovariance;
+  p.cov = {4e-4f, 1e-4f, -5e-5f, 2e-4f, 3e-5f, 1e-4f};
+  p.r = 200, p.g = 100, p.b = 0;
+  float rec[GaussianRecordFloats(0)];
+  DeriveGaussian(p, rec);
+  std::array<float, 6> back = GaussianCovariance(rec);
+  for (int k = 0; k < 6; ++k) EXPECT_NEAR(back[k], p.cov[k], 1e-8) << k;
+  EXPECT_NEAR(0.5 + 0.28209479177387814 * rec[kGsDc], 200 / 255.0, 1e-6);
+  EXPECT_NEAR(1 / (1 + std::exp(-rec[kGsOpacity])), 0.99, 1e-6);
+
+  // A load whose counts disagree, or with a NaN, is refused whole.
+  auto gds = MakeGaussianDataset(**db, "g");
+  GaussianColumns short_cols = cols;
+  short_cols.values.resize(5 * cols.stride());
+  EXPECT_FALSE(gds->BulkLoadGaussians(0, pts, short_cols).ok());
+  GaussianColumns nan_cols = cols;
+  nan_cols.values[3] = std::nanf("");
+  auto nan = gds->BulkLoadGaussians(0, pts, nan_cols);
+  ASSERT_FALSE(nan.ok());
+  EXPECT_NE(nan.status().message().find("splat 0"), std::string::npos);
+  EXPECT_EQ(gds->Info().point_count, 0u);
+}
+
+TEST(GaussianColumnTest, CorruptSegmentIsNamed) {
+  TempDir dir;
+  std::string seg;
+  std::vector<Point> pts;
+  GaussianColumns cols;
+  MakeSplats(5, 3000, 1, &pts, &cols);
+  {
+    auto db = Database::Open(dir.path());
+    ASSERT_TRUE(db.ok());
+    auto ds = MakeGaussianDataset(**db, "splats");
+    ASSERT_TRUE(ds->BulkLoadGaussians(0, pts, cols).ok());
+  }
+  for (const auto& e : std::filesystem::directory_iterator(dir.path() + "/splats/gaussians")) {
+    seg = e.path();
+  }
+  ASSERT_FALSE(seg.empty());
+  {
+    std::fstream f(seg, std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(64 + 4 * 1500 * GaussianRecordFloats(1));  // in block 1
+    char c = 0x5a;
+    f.write(&c, 1);
+  }
+  auto db = Database::Open(dir.path());
+  ASSERT_TRUE(db.ok());
+  auto ds = (*db)->GetDataset("splats");
+  ASSERT_TRUE(ds.ok());
+  auto cur = (*ds)->Query(EverythingWindow());
+  ASSERT_TRUE(cur.ok());
+  Batch b;
+  std::vector<Point> all;
+  while (*(*cur)->Next(&b)) all.insert(all.end(), b.points.begin(), b.points.end());
+  auto cols_read = (*ds)->ReadGaussians(all);
+  ASSERT_FALSE(cols_read.ok());
+  EXPECT_EQ(cols_read.status().code(), StatusCode::kCorruption);
+  EXPECT_NE(cols_read.status().message().find(seg), std::string::npos);
+  EXPECT_NE(cols_read.status().message().find("block 1"), std::string::npos);
+  auto problems = (*ds)->Check();
+  ASSERT_EQ(problems.size(), 1u);
+  EXPECT_NE(problems[0].find("block 1 checksum mismatch"), std::string::npos);
+}
+
+// A crash between any two mutating calls of a Gaussian load, then a power loss: the frame is
+// whole with every record, or absent with no segment left behind.
+TEST(GaussianColumnTest, CrashAtEveryCallOfALoadLeavesItWholeOrAbsent) {
+  TempDir tmp;
+  const std::string path = tmp.path() + "/db";
+  std::vector<Point> pts;
+  GaussianColumns cols;
+  MakeSplats(6, 2500, 3, &pts, &cols);
+  FaultEnv env(tmp.path() + "/aside");
+  Options o;
+  o.env = &env;
+  auto fresh = [&]() {
+    std::filesystem::remove_all(path);
+    env.Reset();
+    auto db = Database::Open(path, o);
+    ASSERT_TRUE(db.ok());
+    auto ds = MakeGaussianDataset(**db, "splats");
+    ASSERT_TRUE(ds);
+    // One committed load before: it must survive every crash of the next one.
+    std::vector<Point> first(pts.begin(), pts.begin() + 10);
+    GaussianColumns fc = cols;
+    fc.values.resize(10 * fc.stride());
+    ASSERT_TRUE(ds->BulkLoadGaussians(0, first, fc).ok());
+  };
+  uint64_t total = 0;
+  {
+    fresh();
+    auto db = Database::Open(path, o);
+    ASSERT_TRUE(db.ok());
+    auto ds = (*db)->GetDataset("splats");
+    const uint64_t before = env.mutating_calls();
+    ASSERT_TRUE((*ds)->BulkLoadGaussians(1, pts, cols).ok());
+    total = env.mutating_calls() - before;
+  }
+  ASSERT_GT(total, 4u);
+  int whole = 0, absent = 0;
+  for (uint64_t k = 1; k <= total + 1; ++k) {
+    SCOPED_TRACE("crash after call " + std::to_string(k) + " of " + std::to_string(total));
+    fresh();
+    if (HasFatalFailure()) return;
+    bool acked = false;
+    {
+      auto db = Database::Open(path, o);
+      ASSERT_TRUE(db.ok());
+      auto ds = (*db)->GetDataset("splats");
+      ASSERT_TRUE(ds.ok());
+      env.CrashAfter(k);
+      acked = (*ds)->BulkLoadGaussians(1, pts, cols).ok();
+    }
+    env.PowerLoss();
+    auto db = Database::Open(path, o);
+    ASSERT_TRUE(db.ok());
+    auto ds = (*db)->GetDataset("splats");
+    ASSERT_TRUE(ds.ok());
+    Read r0 = ReadFrame(**ds, 0);
+    ASSERT_EQ(r0.points.size(), 10u);
+    EXPECT_EQ(r0.derived, 0u);
+    Read r1 = ReadFrame(**ds, 1);
+    if (r1.points.empty()) {
+      EXPECT_FALSE(acked);
+      ++absent;
+      EXPECT_EQ((*ds)->Stats().gaussian_segments, 1u) << "an orphan segment was left";
+    } else {
+      ++whole;
+      ASSERT_EQ(r1.points.size(), pts.size());
+      EXPECT_EQ(r1.derived, 0u);
+      EXPECT_TRUE(SameBits(r1.cols.values, cols.values));
+    }
+    EXPECT_TRUE((*ds)->Check().empty());
+  }
+  EXPECT_GT(whole, 0);
+  EXPECT_GT(absent, 0);
+  std::printf("[ fault ] Gaussian load: %llu mutating calls; %d crashes left it whole, %d absent\n",
+              static_cast<unsigned long long>(total), whole, absent);
+}
+
+}  // namespace
+}  // namespace hvdb::testing
