@@ -135,9 +135,16 @@ class EmbeddedBackend final : public Backend {
         new EmbeddedResults(std::move(q.dataset), std::move(q.cursor)));
   }
 
-  Result<uint64_t> BulkLoad(const std::string& name, uint32_t frame,
-                            std::vector<Point> points) override {
-    return Do(name, [&](service::Service& x) { return x.BulkLoad(name, frame, std::move(points)); });
+  Result<uint64_t> BulkLoad(const std::string& name, uint32_t frame, std::vector<Point> points,
+                            const GaussianColumns* gaussians) override {
+    return Do(name, [&](service::Service& x) {
+      return x.BulkLoad(name, frame, std::move(points), gaussians);
+    });
+  }
+
+  Result<service::GaussianRead> ReadGaussianRecords(const std::string& name,
+                                                    std::vector<uint64_t> ids) override {
+    return Do(name, [&](service::Service& x) { return x.ReadGaussians(name, ids); });
   }
 
   Result<CommitInfo> Commit(const std::string& name, const Transaction& txn) override {
@@ -387,13 +394,18 @@ class RemoteBackend final : public Backend {
         new RemoteResults(std::move(stream).value(), std::move(first), *more));
   }
 
-  Result<uint64_t> BulkLoad(const std::string& name, uint32_t frame,
-                            std::vector<Point> points) override {
+  Result<uint64_t> BulkLoad(const std::string& name, uint32_t frame, std::vector<Point> points,
+                            const GaussianColumns* gaussians) override {
     Result<uint64_t> r = Run<uint64_t>(false, [&](Connection& c) {
-      return c.Ingest(name, frame, std::span<const Point>(points));
+      return c.Ingest(name, frame, std::span<const Point>(points), gaussians);
     });
     if (!r.ok()) return Explain(name, r.status());
     return r;
+  }
+
+  Result<service::GaussianRead> ReadGaussianRecords(const std::string& name,
+                                                    std::vector<uint64_t> ids) override {
+    return Call<service::op::ReadGaussians>({name, std::move(ids)});
   }
 
   Result<CommitInfo> Commit(const std::string& name, const Transaction& txn) override {
@@ -633,6 +645,54 @@ class RemoteBackend final : public Backend {
 };
 
 }  // namespace
+
+Result<GaussianColumns> Backend::ReadGaussians(const std::string& name,
+                                               std::span<const Point> points, uint64_t* derived) {
+  GaussianColumns out;
+  std::vector<bool> found;
+  // Requests of kMaxGaussianReadIds ids; the records of all at the highest degree among them.
+  std::vector<GaussianColumns> parts;
+  int degree = 0;
+  for (size_t at = 0; at < points.size(); at += service::kMaxGaussianReadIds) {
+    const size_t n = std::min(service::kMaxGaussianReadIds, points.size() - at);
+    std::vector<uint64_t> ids(n);
+    for (size_t i = 0; i < n; ++i) ids[i] = points[at + i].id;
+    HVDB_ASSIGN_OR_RETURN(service::GaussianRead r, ReadGaussianRecords(name, std::move(ids)));
+    if (r.found.size() != n || r.records.size() != n) {
+      return Status::IOError("read_gaussians: " + std::to_string(r.records.size()) +
+                             " records for " + std::to_string(n) + " ids");
+    }
+    degree = std::max(degree, r.records.sh_degree);
+    out.antialiased = out.antialiased || r.records.antialiased;
+    found.insert(found.end(), r.found.begin(), r.found.end());
+    parts.push_back(std::move(r.records));
+  }
+  out.sh_degree = degree;
+  const size_t stride = out.stride();
+  out.values.reserve(points.size() * stride);
+  for (const GaussianColumns& p : parts) {
+    if (p.sh_degree == degree) {
+      out.values.insert(out.values.end(), p.values.begin(), p.values.end());
+      continue;
+    }
+    // A lower degree: each channel's rest coefficients move to their place, the others zero.
+    const size_t ps = p.stride(), rest_src = (ps - kGsRest) / 3, rest_dst = (stride - kGsRest) / 3;
+    for (size_t i = 0; i < p.size(); ++i) {
+      const float* src = p.record(i);
+      const size_t base = out.values.size();
+      out.values.resize(base + stride, 0.f);
+      std::copy(src, src + kGsRest, out.values.begin() + static_cast<std::ptrdiff_t>(base));
+      for (size_t ch = 0; ch < 3; ++ch) {
+        for (size_t j = 0; j < rest_src; ++j) {
+          out.values[base + kGsRest + ch * rest_dst + j] = src[kGsRest + ch * rest_src + j];
+        }
+      }
+    }
+  }
+  const uint64_t n = DeriveMissing(points, found, &out);
+  if (derived) *derived = n;
+  return out;
+}
 
 std::unique_ptr<Backend> MakeEmbeddedBackend(std::string data_dir, size_t cache_bytes) {
   return std::make_unique<EmbeddedBackend>(std::move(data_dir), cache_bytes);

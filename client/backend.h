@@ -93,8 +93,17 @@ class Backend {
                                                       const Region& region,
                                                       const QueryOptions& opts) = 0;
   // Bulk-loads one frame (atomic per frame); returns the number of points loaded.
+  // gaussians: a Gaussian-splat dataset's records of the points, in their order.
   virtual Result<uint64_t> BulkLoad(const std::string& name, uint32_t frame,
-                                    std::vector<Point> points) = 0;
+                                    std::vector<Point> points,
+                                    const GaussianColumns* gaussians = nullptr) = 0;
+  // The Gaussian records of points (by id) of a Gaussian-splat dataset, in their order, those
+  // of points without one derived from the point (DeriveMissing; *derived counts them).
+  Result<GaussianColumns> ReadGaussians(const std::string& name, std::span<const Point> points,
+                                        uint64_t* derived = nullptr);
+  // One request's worth of ReadGaussians (service::kMaxGaussianReadIds at most).
+  virtual Result<service::GaussianRead> ReadGaussianRecords(const std::string& name,
+                                                            std::vector<uint64_t> ids) = 0;
   virtual Result<CommitInfo> Commit(const std::string& name, const Transaction& txn) = 0;
   virtual Result<CommitInfo> Revert(const std::string& name, uint64_t lsn) = 0;
   // The cold tier: frames [first, last] compressed now.

@@ -624,7 +624,12 @@ Status Connection::PutPhoto(const std::string& dataset, uint32_t frame, const Ph
 }
 
 Result<uint64_t> Connection::Ingest(const std::string& dataset, uint32_t frame,
-                                    std::span<const Point> pts) {
+                                    std::span<const Point> pts,
+                                    const GaussianColumns* gaussians) {
+  if (gaussians && gaussians->size() != pts.size()) {
+    return Status::InvalidArgument("ingest: " + std::to_string(pts.size()) + " points but " +
+                                   std::to_string(gaussians->size()) + " Gaussian records");
+  }
   const size_t chunk = wire::kMaxBatchPoints;
   // Chunks are pipelined: sent back to back, acknowledged in order.
   std::vector<uint64_t> ids;
@@ -636,6 +641,7 @@ Result<uint64_t> Connection::Ingest(const std::string& dataset, uint32_t frame,
     ing->set_dataset(dataset);
     ing->set_frame(frame);
     wire::EncodeColumns(pts.subspan(at, n), ing->mutable_points());
+    if (gaussians) wire::EncodeGaussians(*gaussians, at, n, ing->mutable_gaussians());
     at += n;
     ing->set_last(at == pts.size());
     HVDB_ASSIGN_OR_RETURN(uint64_t id, Send(&req));

@@ -141,7 +141,9 @@ class Connection {
                               bool photos = false);
   Status PutPhoto(const std::string& dataset, uint32_t frame, const Photo& photo);
   // Bulk-loads the points into `frame`, sent in chunks of at most 1 MiB.
-  Result<uint64_t> Ingest(const std::string& dataset, uint32_t frame, std::span<const Point> pts);
+  // gaussians: a Gaussian-splat dataset's records of pts, sent with each chunk.
+  Result<uint64_t> Ingest(const std::string& dataset, uint32_t frame, std::span<const Point> pts,
+                          const GaussianColumns* gaussians = nullptr);
   Result<wire::StatsReply> Stats(const std::string& dataset = "");
   // Subscribes to the dataset's changes ("": every dataset's, live only); from_lsn: the changes
   // after it first. Returns once the server has accepted it (errors such as an unknown dataset

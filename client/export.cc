@@ -7,10 +7,44 @@
 #include <limits>
 
 #include "client/backend.h"
+#include "formats/gaussian_points.h"
 
 namespace hvdb::client {
 
 using formats::FileCodec;
+
+namespace {
+
+// One frame's splats as a file of `format`, in load order (ids ascending), written whole or not
+// at all (temporary name, then rename).
+Status WriteSplatFile(Backend& db, const std::string& name, const std::string& path,
+                      formats::GaussianFormat format, std::vector<Point>* pts) {
+  std::sort(pts->begin(), pts->end(), [](const Point& a, const Point& b) { return a.id < b.id; });
+  HVDB_ASSIGN_OR_RETURN(GaussianColumns records, db.ReadGaussians(name, *pts));
+  const formats::GaussianCloud cloud = formats::PointsToCloud(*pts, records);
+  Result<std::string> bytes = format == formats::GaussianFormat::kSpz
+                                  ? formats::WriteSpz(cloud, path)
+                              : format == formats::GaussianFormat::kSplat
+                                  ? formats::WriteSplat(cloud, path)
+                                  : formats::WriteGaussianPly(cloud, path);
+  HVDB_RETURN_IF_ERROR(bytes.status());
+  const std::string tmp = path + ".tmp";
+  {
+    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
+    out.write(bytes->data(), static_cast<std::streamsize>(bytes->size()));
+    out.flush();
+    if (!out) {
+      std::filesystem::remove(tmp);
+      return Status::IOError(tmp + ": write failed (disk full?)");
+    }
+  }
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) return Status::IOError(path + ": " + ec.message());
+  return Status::OK();
+}
+
+}  // namespace
 
 Result<std::vector<std::string>> ExportFrames(Backend& db, const std::string& name,
                                               const std::string& dir, const ExportOptions& o,
@@ -26,7 +60,12 @@ Result<std::vector<std::string>> ExportFrames(Backend& db, const std::string& na
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
   if (ec) return Status::IOError(dir + ": " + ec.message());
-  const char* ext = o.codec == FileCodec::kHvdb7   ? "hv7"
+  using formats::GaussianFormat;
+  const bool splats = o.splats != GaussianFormat::kUnknown;
+  const char* ext = splats ? (o.splats == GaussianFormat::kSpz     ? "spz"
+                              : o.splats == GaussianFormat::kSplat ? "splat"
+                                                                   : "ply")
+                    : o.codec == FileCodec::kHvdb7 ? "hv7"
                     : o.codec == FileCodec::kDraco ? "drc"
                                                    : "ply";
   std::vector<std::string> files;
@@ -43,13 +82,21 @@ Result<std::vector<std::string>> ExportFrames(Backend& db, const std::string& na
     std::vector<Point> pts;
     Batch b;
     while (true) {
+      // The batch a last Next (false) leaves is not a batch: a remote query leaves the one
+      // before it there.
       HVDB_ASSIGN_OR_RETURN(bool more, q->Next(&b));
-      pts.insert(pts.end(), b.points.begin(), b.points.end());
       if (!more) break;
+      pts.insert(pts.end(), b.points.begin(), b.points.end());
     }
     char file[64];
     std::snprintf(file, sizeof file, "_%06u.%s", f, ext);
     const std::string path = dir + "/" + name + file;
+    if (splats) {
+      HVDB_RETURN_IF_ERROR(WriteSplatFile(db, name, path, o.splats, &pts));
+      files.push_back(path);
+      if (progress) progress(f - o.first + 1, last - o.first);
+      continue;
+    }
     const bool temporal = o.temporal && have_ref && !pts.empty() && !ref.points.empty();
     HVDB_ASSIGN_OR_RETURN(auto writer, formats::OpenCompressedWriter(path, o.codec, o.encode,
                                                                      temporal ? &ref : nullptr));

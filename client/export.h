@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "codec/codec.h"
+#include "formats/gaussians.h"
 #include "formats/point_files.h"
 #include "storage/status.h"
 
@@ -23,9 +24,13 @@ struct ExportOptions {
   bool temporal = false;        // hvdb7: each frame coded against the decoded previous one
   uint32_t first = 0;
   uint32_t count = 0;  // 0: to the last frame
+  // Gaussian-splat files instead (k3dgsPly, kSpz, kSplat): each frame's splats in load order,
+  // with their Gaussian records (derived for points that have none).
+  formats::GaussianFormat splats = formats::GaussianFormat::kUnknown;
 };
 
-// Writes frames first.. of a dataset as DIR/NAME_FFFFFF.{hv7,drc,ply}, one file per frame;
+// Writes frames first.. of a dataset as DIR/NAME_FFFFFF.{hv7,drc,ply} (splats:
+// .{ply,spz,splat}), one file per frame, each whole or absent;
 // progress(done, total) after each. Returns the files written.
 Result<std::vector<std::string>> ExportFrames(Backend& db, const std::string& name,
                                               const std::string& dir, const ExportOptions& o,

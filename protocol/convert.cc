@@ -308,6 +308,9 @@ void ToWire(const hvdb::DatasetStats& s, wire::DatasetStats* out) {
   out->set_cold_trees(s.cold_trees);
   out->set_cold_tree_bytes(s.cold_tree_bytes);
   out->set_cold_points(s.cold_points);
+  out->set_gaussian_segments(s.gaussian_segments);
+  out->set_gaussian_records(s.gaussian_records);
+  out->set_gaussian_bytes(s.gaussian_bytes);
 }
 
 void ToWire(const hvdb::CompactInfo& c, wire::CompactReply* out) {
@@ -362,6 +365,9 @@ hvdb::DatasetStats FromWire(const wire::DatasetStats& s) {
   d.cold_trees = s.cold_trees();
   d.cold_tree_bytes = s.cold_tree_bytes();
   d.cold_points = s.cold_points();
+  d.gaussian_segments = s.gaussian_segments();
+  d.gaussian_records = s.gaussian_records();
+  d.gaussian_bytes = s.gaussian_bytes();
   return d;
 }
 
@@ -370,6 +376,7 @@ void ToWire(const hvdb::DatasetInfo& info, wire::CreateDataset* out) {
   out->set_fps(info.fps);
   out->set_space_time_scale(info.space_time_scale);
   out->set_frame_count(info.frame_count);
+  out->set_gaussians(info.gaussians);
   for (const CameraInfo& cam : info.cameras) ToWire(cam, out->add_cameras());
 }
 
@@ -379,6 +386,7 @@ Result<hvdb::DatasetInfo> FromWire(const wire::CreateDataset& c) {
   info.fps = c.fps();
   info.space_time_scale = c.space_time_scale() == 0 ? 1.0 : c.space_time_scale();
   info.frame_count = c.frame_count();
+  info.gaussians = c.gaussians();
   for (const auto& cam : c.cameras()) {
     HVDB_ASSIGN_OR_RETURN(CameraInfo ci, FromWire(cam));
     info.cameras.push_back(std::move(ci));

@@ -138,6 +138,46 @@ void EncodeColumns(std::span<const Point> pts, PointColumns* out) {
   }
 }
 
+void EncodeGaussians(const GaussianColumns& cols, size_t first, size_t n, GaussianRecords* out) {
+  out->set_count(static_cast<uint32_t>(n));
+  out->set_sh_degree(static_cast<uint32_t>(cols.sh_degree));
+  out->set_antialiased(cols.antialiased);
+  const size_t stride = cols.stride();
+  std::string* v = out->mutable_values();
+  v->resize(4 * stride * n);
+  auto* dst = reinterpret_cast<uint8_t*>(v->data());
+  const float* src = cols.values.data() + first * stride;
+  for (size_t k = 0; k < stride * n; ++k) EncodeLE<float>(dst + 4 * k, src[k]);
+}
+
+Status DecodeGaussians(const GaussianRecords& in, GaussianColumns* out) {
+  if (in.sh_degree() > static_cast<uint32_t>(kMaxGaussianShDegree)) {
+    return Status::InvalidArgument("Gaussian records: SH degree " +
+                                   std::to_string(in.sh_degree()) + " is not 0..3");
+  }
+  const int degree = static_cast<int>(in.sh_degree());
+  if (!out->values.empty() && degree != out->sh_degree) {
+    return Status::InvalidArgument("Gaussian records: SH degree " + std::to_string(degree) +
+                                   " after chunks of degree " + std::to_string(out->sh_degree));
+  }
+  const size_t stride = GaussianRecordFloats(degree);
+  if (in.values().size() != 4 * stride * in.count()) {
+    return Status::InvalidArgument("Gaussian records: " + std::to_string(in.values().size()) +
+                                   " bytes for " + std::to_string(in.count()) +
+                                   " records of degree " + std::to_string(degree) + ", expected " +
+                                   std::to_string(4 * stride * in.count()));
+  }
+  out->sh_degree = degree;
+  out->antialiased = out->antialiased || in.antialiased();
+  const size_t before = out->values.size();
+  out->values.resize(before + stride * in.count());
+  const auto* src = reinterpret_cast<const uint8_t*>(in.values().data());
+  for (size_t k = 0; k < stride * in.count(); ++k) {
+    out->values[before + k] = DecodeLE<float>(src + 4 * k);
+  }
+  return Status::OK();
+}
+
 Status DecodeColumns(const PointColumns& in, std::vector<Point>* out) {
   const size_t n = in.count();
   auto check = [&](const std::string& col, size_t width, const char* name) -> Status {
@@ -365,6 +405,7 @@ void ToWire(const hvdb::DatasetInfo& info, wire::DatasetInfo* out) {
   for (float v : info.bounds_max) out->add_bounds_max(v);
   out->set_point_count(info.point_count);
   out->set_last_lsn(info.last_lsn);
+  out->set_gaussians(info.gaussians);
   for (const CameraInfo& c : info.cameras) ToWire(c, out->add_cameras());
 }
 
@@ -378,6 +419,7 @@ hvdb::DatasetInfo FromWire(const wire::DatasetInfo& in) {
   for (int i = 0; i < 3 && i < in.bounds_max_size(); ++i) info.bounds_max[static_cast<size_t>(i)] = in.bounds_max(i);
   info.point_count = in.point_count();
   info.last_lsn = in.last_lsn();
+  info.gaussians = in.gaussians();
   for (const auto& c : in.cameras()) {
     auto cam = FromWire(c);
     if (cam.ok()) info.cameras.push_back(*cam);

@@ -16,6 +16,7 @@
 
 #include "protocol/hvdb.pb.h"
 #include "storage/database.h"
+#include "storage/gaussian_column.h"
 #include "storage/point.h"
 #include "storage/status.h"
 
@@ -63,6 +64,11 @@ bool ParseFrameHeader(const uint8_t header[4], uint32_t max_frame, uint32_t* len
 // ---- Points ----
 void EncodeColumns(std::span<const Point> pts, PointColumns* out);
 Status DecodeColumns(const PointColumns& in, std::vector<Point>* out);
+// Gaussian records [first, first + n) of `cols`.
+void EncodeGaussians(const GaussianColumns& cols, size_t first, size_t n, GaussianRecords* out);
+// Appends the message's records to *out: its degree when *out is empty, else the same one.
+// InvalidArgument when the bytes are not `count` records of that degree.
+Status DecodeGaussians(const GaussianRecords& in, GaussianColumns* out);
 // Draco: positions quantised to `position_bits` and colours to 8 bits; ids and frames exact.
 Status EncodeDraco(std::span<const Point> pts, int position_bits, std::string* out);
 Status DecodeDraco(const std::string& data, std::vector<Point>* out);

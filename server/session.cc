@@ -278,6 +278,11 @@ void Session::HandleIngest(uint64_t id, const wire::Ingest& ing) {
       ingest_bytes_ -= it->second.size() * sizeof(Point);
       ingest_.erase(it);
     }
+    auto g = ingest_gaussians_.find(key);
+    if (g != ingest_gaussians_.end()) {
+      ingest_bytes_ -= g->second.values.size() * sizeof(float);
+      ingest_gaussians_.erase(g);
+    }
     if (!ing.last()) ingest_failed_.insert(key);
     ops_.erase(id);
     SendError(id, st);
@@ -296,6 +301,28 @@ void Session::HandleIngest(uint64_t id, const wire::Ingest& ing) {
     return fail(st);
   }
   ingest_bytes_ += (pts.size() - before) * sizeof(Point);
+  // A Gaussian frame's chunks each carry their points' records; the first chunk says which.
+  const bool gaussian_frame = ingest_gaussians_.count(key) > 0 || (before == 0 && ing.has_gaussians());
+  if (gaussian_frame != ing.has_gaussians()) {
+    return fail(Status::InvalidArgument(
+        "ingest: frame " + std::to_string(ing.frame()) +
+        ": Gaussian records must come with every chunk of a frame or with none"));
+  }
+  if (gaussian_frame) {
+    GaussianColumns& g = ingest_gaussians_[key];
+    const size_t gbefore = g.values.size();
+    Status gs = wire::DecodeGaussians(ing.gaussians(), &g);
+    if (gs.ok() && ing.gaussians().count() != pts.size() - before) {
+      gs = Status::InvalidArgument("ingest: a chunk of " + std::to_string(pts.size() - before) +
+                                   " points carries " + std::to_string(ing.gaussians().count()) +
+                                   " Gaussian records");
+    }
+    if (!gs.ok()) {
+      g.values.resize(gbefore);
+      return fail(gs);
+    }
+    ingest_bytes_ += (g.values.size() - gbefore) * sizeof(float);
+  }
   if (ingest_bytes_ > server_->config().max_ingest_bytes) {
     return fail(Status::LimitExceeded("ingest: more than " +
                                       std::to_string(server_->config().max_ingest_bytes >> 20) +
@@ -313,9 +340,15 @@ void Session::HandleIngest(uint64_t id, const wire::Ingest& ing) {
   auto frame_points = std::make_shared<std::vector<Point>>(std::move(pts));
   ingest_bytes_ -= frame_points->size() * sizeof(Point);
   ingest_.erase(key);
+  std::shared_ptr<GaussianColumns> gaussians;
+  if (auto g = ingest_gaussians_.find(key); g != ingest_gaussians_.end()) {
+    gaussians = std::make_shared<GaussianColumns>(std::move(g->second));
+    ingest_bytes_ -= gaussians->values.size() * sizeof(float);
+    ingest_gaussians_.erase(g);
+  }
   Server* s = server_;
-  RunOnWorker(id, [s, id, name = ing.dataset(), frame = ing.frame(), frame_points] {
-    auto n = s->service().BulkLoad(name, frame, std::move(*frame_points));
+  RunOnWorker(id, [s, id, name = ing.dataset(), frame = ing.frame(), frame_points, gaussians] {
+    auto n = s->service().BulkLoad(name, frame, std::move(*frame_points), gaussians.get());
     if (!n.ok()) return ErrorResponse(id, n.status());
     wire::Response r;
     r.set_id(id);

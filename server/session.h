@@ -244,6 +244,8 @@ class Session : public std::enable_shared_from_this<Session> {
   std::vector<std::vector<Point>> spare_;
   // Bulk ingest: points of frames whose last chunk has not come yet.
   std::map<std::pair<std::string, uint32_t>, std::vector<Point>> ingest_;
+  // The Gaussian records of a frame's chunks (Ingest.gaussians), beside ingest_'s points.
+  std::map<std::pair<std::string, uint32_t>, GaussianColumns> ingest_gaussians_;
   size_t ingest_bytes_ = 0;
   std::set<std::pair<std::string, uint32_t>> ingest_failed_;  // until their `last` chunk
 };

@@ -14,6 +14,9 @@ Result<Drop::Out> Drop::Run(Service& x, const In& in) {
   return Empty{};
 }
 Result<Describe::Out> Describe::Run(Service& x, const In& in) { return x.Describe(in); }
+Result<ReadGaussians::Out> ReadGaussians::Run(Service& x, const In& in) {
+  return x.ReadGaussians(in.dataset, in.value);
+}
 Result<Edit::Out> Edit::Run(Service& x, const In& in) { return x.Commit(in.dataset, in.value); }
 Result<Revert::Out> Revert::Run(Service& x, const In& in) {
   return x.Revert(in.dataset, in.value);

@@ -1,5 +1,7 @@
 #include "service/requests.h"
 
+#include "storage/coding.h"
+
 #include <algorithm>
 #include <array>
 
@@ -345,6 +347,58 @@ Result<Compact::Out> Compact::TakeReply(const wire::Response& r) {
   return wire::FromWire(r.compacted());
 }
 
+// read_gaussians
+HVDB_KIND(ReadGaussians, kReadGaussians)
+HVDB_REPEATABLE_BY_ROW(ReadGaussians)
+HVDB_ON_DATASET(ReadGaussians)
+void ReadGaussians::Put(const In& in, wire::Request* req) {
+  wire::ReadGaussians* r = req->mutable_read_gaussians();
+  r->set_dataset(in.dataset);
+  std::string* ids = r->mutable_ids();
+  ids->resize(8 * in.value.size());
+  for (size_t i = 0; i < in.value.size(); ++i) {
+    EncodeLE<uint64_t>(reinterpret_cast<uint8_t*>(ids->data()) + 8 * i, in.value[i]);
+  }
+}
+Result<ReadGaussians::In> ReadGaussians::Take(const wire::Request& req) {
+  const std::string& b = req.read_gaussians().ids();
+  if (b.size() % 8 != 0) {
+    return Status::InvalidArgument("read_gaussians: ids hold " + std::to_string(b.size()) +
+                                   " bytes, not a multiple of 8");
+  }
+  if (b.size() / 8 > kMaxGaussianReadIds) {
+    return Status::InvalidArgument("read_gaussians: " + std::to_string(b.size() / 8) +
+                                   " ids, at most " + std::to_string(kMaxGaussianReadIds) +
+                                   " a request");
+  }
+  In in{req.read_gaussians().dataset(), std::vector<uint64_t>(b.size() / 8)};
+  for (size_t i = 0; i < in.value.size(); ++i) {
+    in.value[i] = DecodeLE<uint64_t>(reinterpret_cast<const uint8_t*>(b.data()) + 8 * i);
+  }
+  return in;
+}
+void ReadGaussians::PutReply(const Out& out, wire::Response* r) {
+  wire::GaussianRecords* g = r->mutable_gaussians();
+  wire::EncodeGaussians(out.records, 0, out.records.size(), g);
+  std::string* found = g->mutable_found();
+  found->assign((out.found.size() + 7) / 8, '\0');
+  for (size_t i = 0; i < out.found.size(); ++i) {
+    if (out.found[i]) (*found)[i / 8] = static_cast<char>((*found)[i / 8] | (1 << (i % 8)));
+  }
+}
+Result<ReadGaussians::Out> ReadGaussians::TakeReply(const wire::Response& r) {
+  if (!r.has_gaussians()) return WrongReply(Kind(), r);
+  Out out;
+  HVDB_RETURN_IF_ERROR(wire::DecodeGaussians(r.gaussians(), &out.records));
+  const size_t n = r.gaussians().count();
+  if (r.gaussians().found().size() != (n + 7) / 8) {
+    return Status::InvalidArgument("read_gaussians reply: found bitmap of the wrong size");
+  }
+  out.found.resize(n);
+  for (size_t i = 0; i < n; ++i) out.found[i] = (r.gaussians().found()[i / 8] >> (i % 8)) & 1;
+  return out;
+}
+
 #undef HVDB_EDIT_OP
 #undef HVDB_COMMIT_REPLY
 #undef HVDB_ON_DATASET
@@ -352,5 +406,7 @@ Result<Compact::Out> Compact::TakeReply(const wire::Response& r) {
 #undef HVDB_KIND
 
 }  // namespace op
+
+
 
 }  // namespace hvdb::service

@@ -79,7 +79,8 @@ struct RequestKind {
     "thin the object out, or composite it in parts")                                           \
   X(ImportMedia, kImportMedia, "import_media", true, kUnary, false,                             \
     "import it with --data on the server's machine, or make it smaller")                       \
-  X(Compact, kCompact, "compact", true, kUnary, true, nullptr)
+  X(Compact, kCompact, "compact", true, kUnary, true, nullptr)                                  \
+  X(ReadGaussians, kReadGaussians, "read_gaussians", false, kUnary, true, nullptr)
 
 // Every row, in the table's order.
 std::span<const RequestKind> Requests();
@@ -144,6 +145,16 @@ struct StatsOut {
   std::optional<DatasetReport> dataset;
 };
 
+// read_gaussians: the stored records of ids; found[i] false where id i has none (its record is
+// zero: DeriveMissing fills it from the point).
+struct GaussianRead {
+  GaussianColumns records;
+  std::vector<bool> found;
+};
+// The most ids one read_gaussians request may name: its reply, 7.4 MiB at degree 3, stays
+// within a server's default frame limit (16 MiB).
+inline constexpr size_t kMaxGaussianReadIds = size_t{1} << 15;
+
 namespace op {
 
 #define HVDB_OP(NAME, IN, OUT)                                             \
@@ -176,6 +187,7 @@ HVDB_OP(Paste, On<edit::PasteRequest>, CommitInfo)
 HVDB_OP(Composite, On<edit::CompositeRequest>, CommitInfo)
 HVDB_OP(ImportMedia, On<media::ImportRequest>, CommitInfo)
 HVDB_OP(Compact, On<wire::CompactArgs>, CompactInfo)
+HVDB_OP(ReadGaussians, On<std::vector<uint64_t>>, GaussianRead)
 
 #undef HVDB_OP
 

@@ -58,9 +58,23 @@ Result<OpenQuery> Service::Query(const std::string& name, const Region& region,
 }
 
 Result<uint64_t> Service::BulkLoad(const std::string& name, uint32_t frame,
-                                   std::vector<Point> points) {
+                                   std::vector<Point> points, const GaussianColumns* gaussians) {
   HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
+  if (gaussians) return ds->BulkLoadGaussians(frame, std::move(points), *gaussians);
+  if (ds->Info().gaussians) {
+    return Status::InvalidArgument("dataset '" + name +
+                                   "' holds Gaussian splats: load splat files (3DGS PLY, SPZ, "
+                                   ".splat) into it, with their Gaussian attributes");
+  }
   return ds->BulkLoad(frame, std::move(points));
+}
+
+Result<GaussianRead> Service::ReadGaussians(const std::string& name,
+                                            std::span<const uint64_t> ids) {
+  HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
+  GaussianRead out;
+  HVDB_RETURN_IF_ERROR(ds->ReadGaussianRecords(ids, &out.records, &out.found));
+  return out;
 }
 
 Result<CommitInfo> Service::Commit(const std::string& name, const Transaction& txn) {

@@ -64,7 +64,10 @@ class Service {
   Result<std::shared_ptr<Dataset>> Find(const std::string& name);
 
   Result<OpenQuery> Query(const std::string& name, const Region& region, const QueryOptions& opts);
-  Result<uint64_t> BulkLoad(const std::string& name, uint32_t frame, std::vector<Point> points);
+  // gaussians: a Gaussian-splat dataset's records of the points (Dataset::BulkLoadGaussians).
+  Result<uint64_t> BulkLoad(const std::string& name, uint32_t frame, std::vector<Point> points,
+                            const GaussianColumns* gaussians = nullptr);
+  Result<GaussianRead> ReadGaussians(const std::string& name, std::span<const uint64_t> ids);
   Result<CommitInfo> Commit(const std::string& name, const Transaction& txn);
   Result<CommitInfo> Revert(const std::string& name, uint64_t lsn);
   // The cold tier: frames [first, last] compressed now (Dataset::Compact); with `photos`,

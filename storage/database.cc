@@ -323,6 +323,10 @@ Result<GaussianColumns> Dataset::ReadGaussians(std::span<const Point> points,
                                                uint64_t* derived) const {
   return impl_->ReadGaussians(points, derived);
 }
+Status Dataset::ReadGaussianRecords(std::span<const uint64_t> ids, GaussianColumns* out,
+                                    std::vector<bool>* found) const {
+  return impl_->ReadGaussianRecords(ids, out, found);
+}
 Result<CommitInfo> Dataset::Commit(const Transaction& txn) { return impl_->Commit(txn); }
 Result<CommitInfo> Dataset::Revert(uint64_t lsn) { return impl_->Revert(lsn); }
 DatasetStats Dataset::Stats() const { return impl_->Stats(); }

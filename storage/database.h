@@ -288,6 +288,10 @@ class Dataset {
   // Gaussian column) gets DeriveGaussian's; *derived (optional) counts them.
   Result<GaussianColumns> ReadGaussians(std::span<const Point> points,
                                         uint64_t* derived = nullptr) const;
+  // The stored records of `ids` (GaussianColumn::Read): found[i] false where an id has none
+  // (DeriveMissing fills those from their points).
+  Status ReadGaussianRecords(std::span<const uint64_t> ids, GaussianColumns* out,
+                             std::vector<bool>* found) const;
   // Applies the transaction atomically and durably (when Options::sync).
   Result<CommitInfo> Commit(const Transaction& txn);
   // Commits the inverse of transaction `lsn`, derived from the log.

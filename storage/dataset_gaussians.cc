@@ -31,27 +31,23 @@ Result<uint64_t> DatasetImpl::BulkLoadGaussians(uint32_t frame, std::vector<Poin
   return loaded;
 }
 
+Status DatasetImpl::ReadGaussianRecords(std::span<const uint64_t> ids, GaussianColumns* out,
+                                        std::vector<bool>* found) const {
+  if (gaussians_) return gaussians_->Read(ids, out, found);
+  *out = GaussianColumns{};
+  out->values.assign(ids.size() * out->stride(), 0.f);
+  found->assign(ids.size(), false);
+  return Status::OK();
+}
+
 Result<GaussianColumns> DatasetImpl::ReadGaussians(std::span<const Point> points,
                                                    uint64_t* derived) const {
+  std::vector<uint64_t> ids(points.size());
+  for (size_t i = 0; i < points.size(); ++i) ids[i] = points[i].id;
   GaussianColumns out;
   std::vector<bool> found;
-  if (gaussians_) {
-    std::vector<uint64_t> ids(points.size());
-    for (size_t i = 0; i < points.size(); ++i) ids[i] = points[i].id;
-    HVDB_RETURN_IF_ERROR(gaussians_->Read(ids, &out, &found));
-  } else {
-    out.values.assign(points.size() * out.stride(), 0.f);
-    found.assign(points.size(), false);
-  }
-  uint64_t n = 0;
-  const size_t stride = out.stride();
-  for (size_t i = 0; i < points.size(); ++i) {
-    if (found[i]) continue;
-    float* rec = out.values.data() + i * stride;
-    std::fill(rec, rec + stride, 0.f);
-    DeriveGaussian(points[i], rec);
-    ++n;
-  }
+  HVDB_RETURN_IF_ERROR(ReadGaussianRecords(ids, &out, &found));
+  const uint64_t n = DeriveMissing(points, found, &out);
   if (derived) *derived = n;
   return out;
 }

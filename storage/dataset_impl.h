@@ -84,6 +84,8 @@ class DatasetImpl {
   Result<uint64_t> BulkLoadGaussians(uint32_t frame, std::vector<Point> points,
                                      const GaussianColumns& attrs);
   Result<GaussianColumns> ReadGaussians(std::span<const Point> points, uint64_t* derived) const;
+  Status ReadGaussianRecords(std::span<const uint64_t> ids, GaussianColumns* out,
+                             std::vector<bool>* found) const;
   // InvalidArgument when `txn` would rotate or scale points of a Gaussian dataset (their SH
   // and stored scales are not transformed yet).
   Status CheckGaussianTxn(const Transaction& txn) const;

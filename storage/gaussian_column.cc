@@ -132,6 +132,21 @@ void DeriveGaussian(const Point& p, float* rec) {
   for (int c = 0; c < 3; ++c) rec[kGsDc + c] = static_cast<float>((rgb[c] / 255.0 - 0.5) / kC0);
 }
 
+uint64_t DeriveMissing(std::span<const Point> points, const std::vector<bool>& found,
+                       GaussianColumns* cols) {
+  const size_t stride = cols->stride();
+  cols->values.resize(points.size() * stride, 0.f);
+  uint64_t n = 0;
+  for (size_t i = 0; i < points.size(); ++i) {
+    if (i < found.size() && found[i]) continue;
+    float* rec = cols->record(i);
+    std::fill(rec, rec + stride, 0.f);
+    DeriveGaussian(points[i], rec);
+    ++n;
+  }
+  return n;
+}
+
 std::array<float, 6> GaussianCovariance(const float* rec) {
   double w = rec[kGsRotation], x = rec[kGsRotation + 1], y = rec[kGsRotation + 2],
          z = rec[kGsRotation + 3];

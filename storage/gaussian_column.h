@@ -55,6 +55,11 @@ struct GaussianColumns {
 // Logit(0.99), SH degree 0 from its colour. Writes GaussianRecordFloats(0) floats at rec.
 void DeriveGaussian(const Point& p, float* rec);
 
+// Fills the records of the points whose found[i] is false with DeriveGaussian's (the rest of a
+// higher-degree record zero); returns how many.
+uint64_t DeriveMissing(std::span<const Point> points, const std::vector<bool>& found,
+                       GaussianColumns* cols);
+
 // The covariance upper triangle (xx xy xz yy yz zz) that record rec implies: R S S^T R^T with
 // S = diag(exp(scale)) and R of the normalised quaternion (identity if it is zero), in double.
 std::array<float, 6> GaussianCovariance(const float* rec);

@@ -10,7 +10,9 @@
 #include <vector>
 
 #include "client/cli/commands.h"
+#include "client/cli/splat_files.h"
 #include "client/cli/common.h"
+#include "client/cli/splat_files.h"
 #include "client/export.h"
 #include "codec/codec.h"
 #include "formats/ply.h"
@@ -26,6 +28,7 @@ struct CreateArgs {
   double fps = 0;
   double scale = 1.0;
   uint32_t frames = 0;
+  bool gaussians = false;
 };
 
 struct ImportArgs {
@@ -116,10 +119,12 @@ int CmdCreate(Context& ctx, const CreateArgs& a) {
   want.fps = a.fps;
   want.space_time_scale = a.scale;
   want.frame_count = a.frames;
+  want.gaussians = a.gaussians;
   Result<DatasetInfo> info = ctx.db().CreateDataset(want);
   if (!info.ok()) return Fail(info.status());
-  std::printf("created dataset '%s' (%g fps, space-time scale %g m/s)\n", info->name.c_str(),
-              info->fps, info->space_time_scale);
+  std::printf("created %sdataset '%s' (%g fps, space-time scale %g m/s)\n",
+              info->gaussians ? "Gaussian-splat " : "", info->name.c_str(), info->fps,
+              info->space_time_scale);
   return kExitOk;
 }
 
@@ -142,7 +147,9 @@ int CmdDescribe(Context& ctx, const NameArgs& a) {
                {"buffered_points", st.buffered_points},
                {"buffer_bytes", st.buffered_points * kPointRecordSize}}},
       {"cold", {{"frames", st.cold_frames}, {"points", st.cold_points},
-                {"tree_bytes", st.cold_tree_bytes}}}};
+                {"tree_bytes", st.cold_tree_bytes}}},
+      {"gaussians", {{"segments", st.gaussian_segments}, {"records", st.gaussian_records},
+                     {"bytes", st.gaussian_bytes}}}};
   if (a.json) {
     json cams = json::array();
     for (const CameraInfo& c : info.cameras) {
@@ -157,11 +164,13 @@ int CmdDescribe(Context& ctx, const NameArgs& a) {
                {"bounds_min", info.bounds_min},
                {"bounds_max", info.bounds_max},
                {"last_lsn", info.last_lsn},
+               {"gaussians", info.gaussians},
                {"storage", tiers},
                {"cameras", cams}});
     return kExitOk;
   }
-  std::printf("dataset   %s\n", info.name.c_str());
+  std::printf("dataset   %s%s\n", info.name.c_str(),
+              info.gaussians ? " (Gaussian splats)" : "");
   std::printf("fps       %g\n", info.fps);
   std::printf("scale     %g m/s (space-time)\n", info.space_time_scale);
   std::printf("frames    %u (%.3f s)\n", info.frame_count, duration);
@@ -179,6 +188,12 @@ int CmdDescribe(Context& ctx, const NameArgs& a) {
               static_cast<unsigned long long>(st.buffered_points),
               static_cast<double>(st.cold_tree_bytes) / (1 << 20), st.cold_frames,
               static_cast<unsigned long long>(st.cold_points));
+  if (info.gaussians) {
+    std::printf("gaussians %.1f MiB (%llu records in %llu segments)\n",
+                static_cast<double>(st.gaussian_bytes) / (1 << 20),
+                static_cast<unsigned long long>(st.gaussian_records),
+                static_cast<unsigned long long>(st.gaussian_segments));
+  }
   return kExitOk;
 }
 
@@ -219,9 +234,16 @@ Result<std::vector<Point>> ReadDracoFrame(const std::string& path, const formats
 
 int CmdExport(Context& ctx, const ExportArgs& a) {
   client::ExportOptions o;
-  Status st = formats::ParseFileCodec(a.codec, &o.codec);
-  if (!st.ok()) return Usage("export", st.message());
-  if (a.temporal && o.codec != formats::FileCodec::kHvdb7) {
+  if (a.codec == "3dgs" || a.codec == "spz" || a.codec == "splat") {
+    o.splats = a.codec == "spz"     ? formats::GaussianFormat::kSpz
+               : a.codec == "splat" ? formats::GaussianFormat::kSplat
+                                    : formats::GaussianFormat::k3dgsPly;
+  } else {
+    Status st = formats::ParseFileCodec(a.codec, &o.codec);
+    if (!st.ok()) return Usage("export", st.message());
+  }
+  if (a.temporal && (o.codec != formats::FileCodec::kHvdb7 ||
+                     o.splats != formats::GaussianFormat::kUnknown)) {
     return Usage("export", "--temporal is for --codec hvdb7");
   }
   o.encode.qp = a.qp;
@@ -248,7 +270,11 @@ int CmdExport(Context& ctx, const ExportArgs& a) {
   return kExitOk;
 }
 
-int CmdImport(Context& ctx, const ImportArgs& a) {
+int CmdImport(Context& ctx, const ImportArgs& args) {
+  Result<std::vector<std::string>> files = ExpandSequence(args.files);
+  if (!files.ok()) return Fail(files.status());
+  ImportArgs a = args;
+  a.files = std::move(files).value();
   if (a.files.size() - 1 > UINT32_MAX - uint64_t{a.frame}) {
     return Usage("import", "--frame " + std::to_string(a.frame) + " plus " +
                                std::to_string(a.files.size()) + " files passes frame 2^32-1");
@@ -256,6 +282,10 @@ int CmdImport(Context& ctx, const ImportArgs& a) {
   // An unknown dataset is reported before any file is read.
   Result<DatasetInfo> info = ctx.db().Describe(a.name);
   if (!info.ok()) return Fail(info.status());
+  if (info->gaussians && a.units_scale != 1.0) {
+    return Usage("import", "--units-scale is for point files; a Gaussian-splat dataset keeps "
+                           "the splats' own coordinates");
+  }
   Clock::time_point start = Clock::now();
   ProgressBar bar(a.files.size());
   uint64_t total = 0, skipped_total = 0;
@@ -276,8 +306,21 @@ int CmdImport(Context& ctx, const ImportArgs& a) {
     ro.default_sigma = a.sigma;
     ro.skip_invalid = a.skip_invalid;
     uint64_t skipped = 0;
+    // A Gaussian-splat dataset reads every file as splats; another refuses one it recognises.
+    GaussianColumns records;
+    const formats::GaussianFormat sniffed =
+        info->gaussians ? formats::GaussianFormat::kUnknown : SniffSplatFile(a.files[i]);
+    if (sniffed != formats::GaussianFormat::kUnknown) {
+      bar.Clear();
+      return Fail(Status::InvalidArgument(
+          a.files[i] + " is a " + formats::GaussianFormatName(sniffed) +
+          " file of Gaussian splats, and '" + a.name +
+          "' holds plain points: import it into a dataset made with `hvdb create NAME --fps F "
+          "--gaussians` (" + done(i) + ")"));
+    }
     Result<std::vector<Point>> pts =
-        formats::IsHvdb7File(a.files[i])   ? ReadStreamFrame(a.files[i], ro, &reference)
+        info->gaussians                    ? ReadSplatFrame(a.files[i], ro.frame, &records)
+        : formats::IsHvdb7File(a.files[i]) ? ReadStreamFrame(a.files[i], ro, &reference)
         : formats::IsDracoFile(a.files[i]) ? ReadDracoFrame(a.files[i], ro)
                                            : ReadPlyNoting(a.files[i], ro, &skipped, &bar);
     if (!pts.ok()) {
@@ -288,7 +331,8 @@ int CmdImport(Context& ctx, const ImportArgs& a) {
       for (Point& p : *pts) p.id = 0;
     }
     size_t n = pts->size();
-    Result<uint64_t> loaded = ctx.db().BulkLoad(a.name, ro.frame, std::move(pts).value());
+    Result<uint64_t> loaded = ctx.db().BulkLoad(a.name, ro.frame, std::move(pts).value(),
+                                                info->gaussians ? &records : nullptr);
     if (!loaded.ok()) {
       bar.Clear();
       return Fail(Status(loaded.status().code(),
@@ -453,6 +497,9 @@ void AddDataCommands(CLI::App& app, Context& ctx) {
       ->capture_default_str()
       ->check(Positive());
   create_cmd->add_option("--frames", create.frames, "Declared number of frames");
+  create_cmd->add_flag("--gaussians", create.gaussians,
+                       "A Gaussian-splat dataset: its points also keep 3DGS attributes (opacity, "
+                       "spherical harmonics), loaded from 3DGS PLY, SPZ or .splat files");
   ctx.Add(create_cmd, [](Context& c) { return CmdCreate(c, data_args.create); });
 
   NameArgs& describe = data_args.describe;
@@ -466,7 +513,9 @@ void AddDataCommands(CLI::App& app, Context& ctx) {
   CLI::App* import_cmd = app.add_subcommand(
       "import", "Bulk-load PLY files into consecutive frames N, N+1, ... (replaces nothing)");
   import_cmd->add_option("name", imports.name, "Dataset")->required();
-  import_cmd->add_option("files", imports.files, "PLY files, one frame each")->required();
+  import_cmd->add_option("files", imports.files,
+                         "Files, one frame each; a directory: its files in name order")
+      ->required();
   import_cmd->add_option("--frame", imports.frame, "Frame of the first file")->required();
   import_cmd
       ->add_option("--units-scale", imports.units_scale,
@@ -485,17 +534,22 @@ void AddDataCommands(CLI::App& app, Context& ctx) {
   import_cmd->footer(
       "Files may be PLY, hvdb7 streams (hvdb export, hvdb-codec) or Draco files "
       "(hvdb export --codec draco); temporal hvdb7 streams must follow the frame "
-      "they were coded against.");
+      "they were coded against. A Gaussian-splat dataset (hvdb create --gaussians) takes "
+      "3DGS PLY, SPZ (v2, v3) and .splat files, told apart by their content.");
   ctx.Add(import_cmd, [](Context& c) { return CmdImport(c, data_args.imports); });
 
   ExportArgs& exports = data_args.exports;
   CLI::App* export_cmd = app.add_subcommand(
-      "export", "Write frames as files DIR/NAME_FFFFFF.hv7 (or .drc, .ply), one per frame");
+      "export", "Write frames as files DIR/NAME_FFFFFF.hv7 (or .drc, .ply, .spz, .splat), one "
+                "per frame");
   export_cmd->add_option("name", exports.name, "Dataset")->required();
   export_cmd->add_option("dir", exports.dir, "Output directory (created if missing)")->required();
-  export_cmd->add_option("--codec", exports.codec, "hvdb7 (docs/CODEC.md), draco or raw (PLY)")
+  export_cmd
+      ->add_option("--codec", exports.codec,
+                   "hvdb7 (docs/CODEC.md), draco or raw (PLY); Gaussian splats: 3dgs (the "
+                   "3DGS PLY), spz or splat")
       ->capture_default_str()
-      ->check(CLI::IsMember({"raw", "hvdb7", "draco"}));
+      ->check(CLI::IsMember({"raw", "hvdb7", "draco", "3dgs", "spz", "splat"}));
   export_cmd->add_option("--qp", exports.qp, "Position bits over each frame's extent")
       ->capture_default_str()
       ->check(CLI::Range(1, 30));
