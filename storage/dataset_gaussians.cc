@@ -1,6 +1,7 @@
 // The Gaussian column of a dataset (storage/gaussian_column.h): loads with records, reads of
 // them, and the edits the column cannot follow yet.
 #include <algorithm>
+#include <thread>
 
 #include "storage/dataset_impl.h"
 
@@ -23,10 +24,20 @@ Result<uint64_t> DatasetImpl::BulkLoadGaussians(uint32_t frame, std::vector<Poin
   if (follower_.load()) return BulkLoad(frame, std::move(points));  // NotLeader
   // Issue the ids first, write their records durably, then load the points: a crash between
   // leaves a segment whose ids recovery finds unissued (GaussianColumn::Open removes it).
+  // The segment is written on a thread of its own while the frame's tree is built (both are
+  // hundreds of MB for a million splats), and the tree is installed only once it is durable.
   const uint64_t first = next_id_.fetch_add(points.size());
   for (size_t i = 0; i < points.size(); ++i) points[i].id = first + i;
-  HVDB_RETURN_IF_ERROR(gaussians_->Write(first, attrs));
-  Result<uint64_t> loaded = BulkLoad(frame, std::move(points));
+  Status written;
+  std::thread writer([&] { written = gaussians_->Write(first, attrs); });
+  bool joined = false;
+  auto join = [&] {
+    if (!joined) writer.join();
+    joined = true;
+    return written;
+  };
+  Result<uint64_t> loaded = BulkLoadThen(frame, std::move(points), join);
+  (void)join();  // the load failed first: its error is the one reported
   if (!loaded.ok()) (void)gaussians_->Remove(first);  // the error reported is the load's
   return loaded;
 }

@@ -80,6 +80,10 @@ class DatasetImpl {
   DatasetInfo Info() const;
   Result<std::unique_ptr<Cursor>> Query(const Region& region, const QueryOptions& opts);
   Result<uint64_t> BulkLoad(uint32_t frame, std::vector<Point> points);
+  // BulkLoad that calls before_install (when set) after the frame's tree is built and before it
+  // is installed; its error fails the load.
+  Result<uint64_t> BulkLoadThen(uint32_t frame, std::vector<Point> points,
+                                const std::function<Status()>& before_install);
   // storage/dataset_gaussians.cc: the Gaussian column.
   Result<uint64_t> BulkLoadGaussians(uint32_t frame, std::vector<Point> points,
                                      const GaussianColumns& attrs);

@@ -115,6 +115,11 @@ Result<CommitInfo> DatasetImpl::Revert(uint64_t lsn) {
 }
 
 Result<uint64_t> DatasetImpl::BulkLoad(uint32_t frame, std::vector<Point> points) {
+  return BulkLoadThen(frame, std::move(points), nullptr);
+}
+
+Result<uint64_t> DatasetImpl::BulkLoadThen(uint32_t frame, std::vector<Point> points,
+                                           const std::function<Status()>& before_install) {
   if (frame >= kMaxFrame) {
     return Status::InvalidArgument("frame " + std::to_string(frame) + " out of range");
   }
@@ -146,6 +151,13 @@ Result<uint64_t> DatasetImpl::BulkLoad(uint32_t frame, std::vector<Point> points
     w.prebuilt_slot = TargetSlot(none, points.size());
     HVDB_ASSIGN_OR_RETURN(w.prebuilt, BuildMerged(none, w.prebuilt_slot, std::move(points), /*sync=*/true));
     points.clear();
+  }
+  if (before_install) {
+    Status ready = before_install();
+    if (!ready.ok()) {
+      if (w.prebuilt) w.prebuilt->MarkObsolete();
+      return ready;
+    }
   }
   auto submitted = Submit(&w);
   if (!submitted.ok() && w.prebuilt) w.prebuilt->MarkObsolete();

@@ -5,6 +5,14 @@
 #include <filesystem>
 #include <fstream>
 
+#include <fcntl.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+
 #include "formats/gaussian_points.h"
 
 namespace hvdb::cli {
@@ -63,11 +71,47 @@ formats::GaussianFormat SniffSplatFile(const std::string& path) {
   return f == formats::GaussianFormat::kSplat ? formats::GaussianFormat::kUnknown : f;
 }
 
+// A file mapped read-only: a splat file is read once, front to back, so mapping it spares the
+// copy (and the zeroing of a buffer) of a few hundred MB.
+class MappedFile {
+ public:
+  ~MappedFile() {
+    if (data_ != nullptr && size_ > 0) ::munmap(data_, size_);
+    if (fd_ >= 0) ::close(fd_);
+  }
+  Status Open(const std::string& path) {
+    fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd_ < 0) return Status::IOError(path + ": cannot open: " + std::strerror(errno));
+    struct stat st;
+    if (::fstat(fd_, &st) != 0) return Status::IOError(path + ": " + std::strerror(errno));
+    if (!S_ISREG(st.st_mode)) return Status::InvalidArgument(path + ": not a regular file");
+    size_ = static_cast<size_t>(st.st_size);
+    if (size_ == 0) return Status::OK();
+    data_ = ::mmap(nullptr, size_, PROT_READ, MAP_PRIVATE | MAP_POPULATE, fd_, 0);
+    if (data_ == MAP_FAILED) {
+      data_ = nullptr;
+      return Status::IOError(path + ": cannot map: " + std::strerror(errno));
+    }
+    return Status::OK();
+  }
+  std::string_view view() const {
+    return data_ ? std::string_view(static_cast<const char*>(data_), size_) : std::string_view();
+  }
+
+ private:
+  int fd_ = -1;
+  void* data_ = nullptr;
+  size_t size_ = 0;
+};
+
 Result<std::vector<Point>> ReadSplatFrame(const std::string& path, uint32_t frame,
                                           GaussianColumns* records) {
-  HVDB_ASSIGN_OR_RETURN(std::string bytes, ReadFile(path, SIZE_MAX));
-  HVDB_ASSIGN_OR_RETURN(formats::GaussianCloud cloud, formats::ReadGaussians(bytes, path));
-  bytes = {};
+  formats::GaussianCloud cloud;
+  {
+    MappedFile file;
+    HVDB_RETURN_IF_ERROR(file.Open(path));
+    HVDB_ASSIGN_OR_RETURN(cloud, formats::ReadGaussians(file.view(), path));
+  }
   std::vector<Point> points;
   formats::CloudToPoints(cloud, frame, &points, records);
   return points;
