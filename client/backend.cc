@@ -249,7 +249,7 @@ class EmbeddedBackend final : public Backend {
     for (size_t i = 0; i < job->size(); ++i) {
       HVDB_ASSIGN_OR_RETURN(render::RenderReply reply, job->Render(i, *renderer));
       reply.fallback = fallback;
-      reply.renderer_choice = why;
+      if (reply.renderer_choice.empty()) reply.renderer_choice = why;
       HVDB_RETURN_IF_ERROR(on_image(reply));
     }
     return Status::OK();

@@ -83,6 +83,7 @@ void ToWire(const render::RenderRequest& r, wire::Render* out) {
   if (r.view) ToWire(*r.view, out->mutable_view());
   if (r.mode) {
     out->set_mode(*r.mode == render::Mode::kProbabilistic ? wire::RENDER_PROBABILISTIC
+                  : *r.mode == render::Mode::kGaussian    ? wire::RENDER_GAUSSIAN
                                                           : wire::RENDER_VISIBILITY);
   }
   out->set_view_dependent(r.view_dependent);
@@ -145,6 +146,7 @@ Result<render::RenderRequest> FromWire(const wire::Render& r) {
     switch (r.mode()) {
       case wire::RENDER_VISIBILITY: out.mode = render::Mode::kVisibility; break;
       case wire::RENDER_PROBABILISTIC: out.mode = render::Mode::kProbabilistic; break;
+      case wire::RENDER_GAUSSIAN: out.mode = render::Mode::kGaussian; break;
       default: return Invalid("render.mode", "unknown value " + std::to_string(r.mode()));
     }
   }

@@ -584,13 +584,15 @@ class Database {
       req.mode = render::Mode::kVisibility;
     } else if (mode == "probabilistic") {
       req.mode = render::Mode::kProbabilistic;
+    } else if (mode == "gaussian") {
+      req.mode = render::Mode::kGaussian;
     } else if (mode == "textured") {
       texture = true;
     } else if (mode == "billboards") {
       billboards = true;
     } else if (mode != "auto") {
       Throw(Status::InvalidArgument("mode: '" + mode + "' is not auto, visibility, "
-                                    "probabilistic, textured or billboards"));
+                                    "probabilistic, gaussian, textured or billboards"));
     }
     req.lod = lod;  // any level: storage refuses one past the dataset's coarsest
     req.view_dependent = view_dependent;

@@ -7,6 +7,8 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
+#include <thread>
 #include <variant>
 #include <nlohmann/json.hpp>
 
@@ -54,6 +56,8 @@ Status InField(const std::string& field, const Status& st) {
 // What an image holds per pixel while a job draws it (float RGBA + depth: 20 bytes; the
 // renderer's accumulators about as much again; the encoded image), for the job's budget.
 constexpr uint64_t kImageBytesPerPixel = 64;
+
+int HardwareThreads() { return std::max(1, static_cast<int>(std::thread::hardware_concurrency())); }
 // Replies must fit the client's frame limit (256 MiB) with room to spare.
 constexpr size_t kMaxEncodedImage = 200u << 20;
 
@@ -203,6 +207,21 @@ Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> da
     job->colour_ = Colour::kTexture;
   } else if (r.mode || r.texture || r.billboards) {
     job->colour_ = Colour::kPoints;
+  }
+  if (r.mode == Mode::kGaussian) {
+    if (texture || billboards) {
+      return Invalid("render.mode", "gaussian draws the splats' own colours; texture and "
+                                    "billboards draw the photos: give one of them");
+    }
+    job->colour_ = Colour::kGaussian;
+  }
+  // A Gaussian-splat dataset is drawn as 3DGS draws it unless the request says otherwise.
+  job->gaussian_ = job->colour_ == Colour::kGaussian ||
+                   (job->colour_ == Colour::kAuto && info.gaussians);
+  if (job->gaussian_ && job->shadow_) {
+    return Invalid("render.shadow_light", "shadows darken the point modes' images by their "
+                                          "depth; gaussian mode has none (give mode "
+                                          "visibility or probabilistic)");
   }
   job->sequence_ = !r.path.empty();
   // Views.
@@ -368,6 +387,7 @@ Status RenderJob::Query(const Step& step, const std::atomic<bool>* cancelled,
     }
     out->points.insert(out->points.end(), batch.points.begin(), batch.points.end());
   }
+  if (gaussian_) HVDB_RETURN_IF_ERROR(MakeCloud(out));
   out->region = step.region;
   out->lod = step.lod;
   return Status::OK();
@@ -416,6 +436,11 @@ Status RenderJob::Draw(size_t i, Renderer& renderer, const std::atomic<bool>* ca
   // The billboards replace the points, which are then not drawn (their frame is all they are
   // needed for).
   HVDB_ASSIGN_OR_RETURN(const Colour colour, ResolveColour(i));
+  gaussian_ms_ = -1;
+  if (colour == Colour::kGaussian) {
+    billboards_ms_ = -1;
+    return DrawGaussians(view, o);
+  }
   if (colour == Colour::kBillboards) {
     const auto t0 = std::chrono::steady_clock::now();
     HVDB_RETURN_IF_ERROR(Billboards(view, o));
@@ -456,10 +481,17 @@ Result<RenderJob::Colour> RenderJob::ResolveColour(size_t i) {
   auto use = [&](Colour c, std::string why) {
     mode_used_ = c == Colour::kTexture      ? "textured"
                  : c == Colour::kBillboards ? "billboards"
+                 : c == Colour::kGaussian   ? "gaussian"
                                             : points_mode;
     mode_choice_ = std::move(why);
     return c;
   };
+  if (gaussian_) {
+    return use(Colour::kGaussian, colour_ == Colour::kGaussian
+                                      ? "asked for"
+                                      : "auto: a Gaussian-splat dataset draws its splats as "
+                                        "3DGS does");
+  }
   // The progressive preview stays a plain point rendering: a quick look.
   if (steps_[i].preview) return use(Colour::kPoints, "a progressive preview draws the points");
   if (colour_ != Colour::kAuto) return use(colour_, "asked for");
@@ -602,6 +634,13 @@ Result<RenderReply> RenderJob::Render(size_t i, Renderer& renderer,
   reply.renderer_used = renderer.name();
   reply.points = current_.points.size();
   reply.render_ms = billboards_ms_ >= 0 ? billboards_ms_ : renderer.last_stats().milliseconds;
+  if (gaussian_ms_ >= 0) {
+    reply.renderer_used = "cpu: 3DGS rasteriser (" + std::to_string(HardwareThreads()) +
+                          " threads)";
+    reply.renderer_choice = "gaussian mode draws with the CPU 3DGS rasteriser (" +
+                            renderer.name() + " draws the point modes)";
+    reply.render_ms = gaussian_ms_;
+  }
   reply.index = static_cast<uint32_t>(steps_[i].view);
   reply.preview = steps_[i].preview;
   reply.lod = static_cast<uint32_t>(steps_[i].lod);

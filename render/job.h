@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "render/billboard_render.h"
+#include "render/gaussian_raster.h"
 #include "render/renderer.h"
 #include "render/request.h"
 #include "render/shadow.h"
@@ -58,7 +59,9 @@ class RenderJob {
   size_t size() const { return steps_.size(); }
   // What colours an image: the points (in options' mode), the photos over the points' depth,
   // or the billboards. kAuto, the request's default, picks per image the best the frame has.
-  enum class Colour : uint8_t { kAuto, kPoints, kTexture, kBillboards };
+  // kGaussian: the splats as 3DGS draws them (render/gaussian_raster.h), with the dataset's
+  // Gaussian records (DatasetInfo::gaussians; derived ones for points without).
+  enum class Colour : uint8_t { kAuto, kPoints, kTexture, kBillboards, kGaussian };
   RendererKind renderer_kind() const { return kind_; }
   ImageFormat format() const { return format_; }
 
@@ -87,7 +90,10 @@ class RenderJob {
     size_t region = SIZE_MAX;
     int lod = -1;
     std::vector<Point> points;
-    JobLease lease;  // the points' capacity, reserved from RenderLimits::job
+    // Gaussian mode: the points as a 3DGS cloud with their records (made once per region and
+    // level, shared by the images that show them).
+    formats::GaussianCloud cloud;
+    JobLease lease;  // the points' capacity (and the cloud's), reserved from RenderLimits::job
     bool Holds(const Step& s) const { return region == s.region && lod == s.lod; }
   };
 
@@ -138,6 +144,17 @@ class RenderJob {
   std::vector<BillboardSource> boards_;          // the billboards of boards_frame_
   uint32_t boards_frame_ = UINT32_MAX;
   double billboards_ms_ = -1;                    // the last image's billboard draw (-1: none)
+  // Gaussian mode: whether the points' clouds are made (the request's mode, or auto on a
+  // Gaussian-splat dataset), and the last image's rasteriser run (-1 ms: none).
+  bool gaussian_ = false;
+  GaussianRenderStats gaussian_stats_;
+  int gaussian_threads_ = 0;
+  double gaussian_ms_ = -1;
+  GaussianImage gimg_;  // the rasteriser's output, reused
+  // Draws image_ with the 3DGS rasteriser from current_.cloud.
+  Status DrawGaussians(const Camera& view, const RenderOptions& o);
+  // Gaussian mode: out's points' records (highlighted when asked) as out->cloud.
+  Status MakeCloud(Points* out) const;
   // kMp4 / kWebm: the path's images go into video_ (made at the first image).
   std::unique_ptr<VideoEncoder> video_;
   double video_fps_ = 30;

@@ -63,7 +63,9 @@ struct Camera {
   Status Validate() const;
 };
 
-enum class Mode : uint8_t { kVisibility, kProbabilistic };
+// kGaussian is the render job's (render/job.h): 3D Gaussian splatting as its reference
+// rasteriser draws (render/gaussian_raster.h); the point renderers draw the other two.
+enum class Mode : uint8_t { kVisibility, kProbabilistic, kGaussian };
 
 // A source (acquisition) camera of the recording, for view-dependent blending: points carry
 // the id of the camera they came from (Point::camera).

@@ -347,7 +347,7 @@ void Session::RenderNext(std::shared_ptr<Op> op) {
     if (reply.ok()) {
       last = reply->last;
       reply->fallback = op->render_lease->fallback();
-      reply->renderer_choice = op->render_lease->why();
+      if (reply->renderer_choice.empty()) reply->renderer_choice = op->render_lease->why();
       wire::ToWire(std::move(reply).value(), resp.mutable_render());
     } else {
       resp = ErrorResponse(op->id, reply.status());

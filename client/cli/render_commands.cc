@@ -141,6 +141,7 @@ int CmdRender(Context& ctx, const RenderArgs& a) {
   }
   if (a.mode == "visibility") req.mode = render::Mode::kVisibility;
   if (a.mode == "probabilistic") req.mode = render::Mode::kProbabilistic;
+  if (a.mode == "gaussian") req.mode = render::Mode::kGaussian;
   req.view_dependent = a.view_dependent;
   req.renderer = a.renderer == "egl"   ? render::RendererKind::kEgl
                  : a.renderer == "cpu" ? render::RendererKind::kCpu
@@ -425,13 +426,16 @@ void AddRenderCommands(CLI::App& app, Context& ctx) {
   const std::string look = "Appearance";
   render_cmd
       ->add_option("--mode", ra.mode,
-                   "auto: the frame's best picture (its billboards where stored, else its photos "
+                   "auto: a Gaussian-splat dataset's splats as 3DGS draws them (gaussian), else "
+                   "the frame's best picture (its billboards where stored, else its photos "
                    "as --texture, else the points in visibility mode; one view of one frame); "
                    "the points: visibility (fuzzy depth test, blending: thesis fig. 5.2) or "
-                   "probabilistic (front to back until opaque: 5.4.1); textured (= --texture); "
-                   "billboards (= --billboards). The output says which mode drew")
+                   "probabilistic (front to back until opaque: 5.4.1); gaussian (the 3DGS "
+                   "rasteriser, sorted, opacity and SH colour; any dataset); textured (= "
+                   "--texture); billboards (= --billboards). The output says which mode drew")
       ->capture_default_str()
-      ->check(CLI::IsMember({"auto", "visibility", "probabilistic", "textured", "billboards"}))
+      ->check(CLI::IsMember(
+          {"auto", "visibility", "probabilistic", "gaussian", "textured", "billboards"}))
       ->group(look);
   render_cmd
       ->add_flag("--view-dependent", ra.view_dependent,

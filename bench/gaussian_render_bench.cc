@@ -1,0 +1,267 @@
+// gaussian-render-bench: the CPU 3DGS rasteriser (render/gaussian_raster.h) at 1920x1080.
+//
+// The scene is synthetic and seeded, shaped like a trained 3DGS scene: flat splats lying on
+// surfaces (a floor, a back wall and a dozen spheres, splats spread by area), each with two
+// tangent scales about the local spacing and a thin normal one, so that most are a few pixels
+// across on screen; opacities mostly high with a tail of faint ones; SH of degree 3 with small
+// view-dependent terms. Rendered --reps times per size after one warm-up render (which grows
+// the rasteriser's buffers); medians of wall time, of the process's CPU time, and of the
+// rasteriser's three stages. JSON to --out (bench/results/gaussian_render.json).
+#include <time.h>
+
+#include <CLI/CLI.hpp>
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <random>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "formats/gaussians.h"
+#include "formats/image_io.h"
+#include "render/gaussian_raster.h"
+
+namespace render = hvdb::render;
+using hvdb::formats::GaussianCloud;
+using nlohmann::json;
+
+namespace {
+
+using V3 = std::array<double, 3>;
+
+V3 Cross(const V3& a, const V3& b) {
+  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+}
+V3 Normalised(const V3& a) {
+  const double n = std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+  return {a[0] / n, a[1] / n, a[2] / n};
+}
+
+// The quaternion (w x y z) of the rotation whose columns are c0 c1 c2 (orthonormal, right-handed).
+std::array<float, 4> Quaternion(const V3& c0, const V3& c1, const V3& c2) {
+  const double m00 = c0[0], m11 = c1[1], m22 = c2[2];
+  double w, x, y, z;
+  const double tr = m00 + m11 + m22;
+  if (tr > 0) {
+    const double s = std::sqrt(tr + 1) * 2;
+    w = s / 4, x = (c1[2] - c2[1]) / s, y = (c2[0] - c0[2]) / s, z = (c0[1] - c1[0]) / s;
+  } else if (m00 > m11 && m00 > m22) {
+    const double s = std::sqrt(1 + m00 - m11 - m22) * 2;
+    w = (c1[2] - c2[1]) / s, x = s / 4, y = (c1[0] + c0[1]) / s, z = (c2[0] + c0[2]) / s;
+  } else if (m11 > m22) {
+    const double s = std::sqrt(1 + m11 - m00 - m22) * 2;
+    w = (c2[0] - c0[2]) / s, x = (c1[0] + c0[1]) / s, y = s / 4, z = (c2[1] + c1[2]) / s;
+  } else {
+    const double s = std::sqrt(1 + m22 - m00 - m11) * 2;
+    w = (c0[1] - c1[0]) / s, x = (c2[0] + c0[2]) / s, y = (c2[1] + c1[2]) / s, z = s / 4;
+  }
+  return {static_cast<float>(w), static_cast<float>(x), static_cast<float>(y),
+          static_cast<float>(z)};
+}
+
+// n splats on a floor (y = 1, y points down), a back wall (z = 6) and 12 spheres, seen by
+// Camera() below.
+GaussianCloud Scene(size_t n, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> uni(0, 1);
+  auto range = [&](double lo, double hi) { return lo + (hi - lo) * uni(rng); };
+  struct Sphere {
+    V3 c;
+    double r;
+    std::array<float, 3> dc;
+  };
+  std::vector<Sphere> spheres;
+  for (int i = 0; i < 12; ++i) {
+    const double r = range(0.25, 0.8);
+    spheres.push_back({{range(-3, 3), 1 - r, range(-0.5, 5)},
+                       r,
+                       {static_cast<float>(range(-1.5, 1.5)), static_cast<float>(range(-1.5, 1.5)),
+                        static_cast<float>(range(-1.5, 1.5))}});
+  }
+  const double floor_area = 10.0 * 8, wall_area = 10.0 * 5;
+  double sphere_area = 0;
+  for (const Sphere& s : spheres) sphere_area += 4 * M_PI * s.r * s.r;
+  const double total = floor_area + wall_area + sphere_area;
+  const double spacing = std::sqrt(total / static_cast<double>(n));
+
+  GaussianCloud g;
+  g.sh_degree = 3;
+  g.Resize(n);
+  const size_t K = g.sh_rest_per_splat();
+  for (size_t i = 0; i < n; ++i) {
+    const double pick = range(0, total);
+    V3 p, normal;
+    std::array<float, 3> dc;
+    if (pick < floor_area) {
+      p = {range(-5, 5), 1, range(-2, 6)};
+      normal = {0, -1, 0};
+      const bool check = (static_cast<int>(std::floor(p[0] * 2)) + static_cast<int>(std::floor(p[2] * 2))) % 2;
+      dc = check ? std::array<float, 3>{1.2f, 1.1f, 0.9f} : std::array<float, 3>{-1.0f, -0.9f, -0.8f};
+    } else if (pick < floor_area + wall_area) {
+      p = {range(-5, 5), range(-4, 1), 6};
+      normal = {0, 0, -1};
+      dc = {static_cast<float>(0.3 * std::sin(p[0] * 3)), -0.2f, 0.6f};
+    } else {
+      double at = pick - floor_area - wall_area;
+      size_t k = 0;
+      while (k + 1 < spheres.size() && at > 4 * M_PI * spheres[k].r * spheres[k].r) {
+        at -= 4 * M_PI * spheres[k].r * spheres[k].r;
+        ++k;
+      }
+      const Sphere& s = spheres[k];
+      std::normal_distribution<double> nd(0, 1);
+      normal = Normalised({nd(rng), nd(rng), nd(rng)});
+      p = {s.c[0] + s.r * normal[0], s.c[1] + s.r * normal[1], s.c[2] + s.r * normal[2]};
+      dc = s.dc;
+    }
+    // Tangent frame, turned by a random angle about the normal.
+    const V3 helper = std::abs(normal[1]) < 0.9 ? V3{0, 1, 0} : V3{1, 0, 0};
+    const V3 a = Normalised(Cross(helper, normal)), b = Cross(normal, a);
+    const double phi = range(0, 2 * M_PI);
+    const V3 t1 = {std::cos(phi) * a[0] + std::sin(phi) * b[0], std::cos(phi) * a[1] + std::sin(phi) * b[1],
+                   std::cos(phi) * a[2] + std::sin(phi) * b[2]};
+    const V3 t2 = Cross(normal, t1);
+    const auto q = Quaternion(t1, t2, normal);
+    for (int c = 0; c < 3; ++c) g.position[3 * i + c] = static_cast<float>(p[c]);
+    for (int c = 0; c < 4; ++c) g.rotation[4 * i + c] = q[c];
+    g.scale[3 * i] = static_cast<float>(std::log(spacing * range(0.4, 1.0)));
+    g.scale[3 * i + 1] = static_cast<float>(std::log(spacing * range(0.3, 0.8)));
+    g.scale[3 * i + 2] = static_cast<float>(std::log(spacing * 0.05));
+    g.opacity[i] = static_cast<float>(uni(rng) < 0.7 ? range(1, 6) : range(-4, 1));
+    for (int c = 0; c < 3; ++c) g.sh_dc[3 * i + c] = dc[c] + static_cast<float>(range(-0.2, 0.2));
+    for (size_t k = 0; k < K; ++k) g.sh_rest[i * K + k] = static_cast<float>(range(-0.08, 0.08));
+  }
+  return g;
+}
+
+render::Camera Camera(uint32_t width, uint32_t height) {
+  return render::Camera::LookAt({0.4, -1.1, -4.5}, {0, 0.2, 1.5}, {0, -1, 0}, 50, width, height);
+}
+
+double CpuSeconds() {
+  timespec ts;
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) + static_cast<double>(ts.tv_nsec) * 1e-9;
+}
+
+double Median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v.empty() ? 0 : v[v.size() / 2];
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app("gaussian-render-bench: the CPU 3DGS rasteriser on synthetic scenes at 1080p");
+  std::string out = "bench/results/gaussian_render.json";
+  std::string millions = "1,0.3";
+  std::string png;
+  int reps = 7;
+  int threads = 0;
+  uint32_t width = 1920, height = 1080;
+  bool quick = false;
+  app.add_option("--out", out, "JSON file")->capture_default_str();
+  app.add_option("--millions", millions, "Scene sizes, millions of splats, comma-separated")
+      ->capture_default_str();
+  app.add_option("--reps", reps, "Timed renders per scene (median)")->capture_default_str();
+  app.add_option("--threads", threads, "Rasteriser threads (0: every core)")->capture_default_str();
+  app.add_option("--width", width, "Image width")->capture_default_str();
+  app.add_option("--height", height, "Image height")->capture_default_str();
+  app.add_option("--png", png, "Write the first scene's image here (8-bit RGB)");
+  app.add_flag("--quick", quick, "Smoke run: 0.1 M splats, 2 renders");
+  CLI11_PARSE(app, argc, argv);
+  if (quick) millions = "0.1", reps = 2;
+
+  std::vector<double> sizes;
+  std::stringstream list(millions);
+  for (std::string item; std::getline(list, item, ',');) sizes.push_back(std::stod(item));
+  const unsigned used_threads =
+      threads > 0 ? static_cast<unsigned>(threads) : std::max(1u, std::thread::hardware_concurrency());
+  const render::Camera camera = Camera(width, height);
+  render::GaussianRasterizer rasterizer;
+  render::GaussianRenderOptions options;
+  options.threads = threads;
+  json scenes = json::array();
+  for (size_t s = 0; s < sizes.size(); ++s) {
+    const size_t n = static_cast<size_t>(sizes[s] * 1e6);
+    const GaussianCloud cloud = Scene(n, 42);
+    render::GaussianImage image;
+    render::GaussianRenderStats stats;
+    hvdb::Status st = rasterizer.Render(cloud, camera, options, &image, &stats);  // warm-up
+    if (!st.ok()) {
+      std::fprintf(stderr, "gaussian-render-bench: %s\n", st.ToString().c_str());
+      return 1;
+    }
+    std::vector<double> wall, cpu, pre, bin, blend;
+    for (int r = 0; r < reps; ++r) {
+      const double c0 = CpuSeconds();
+      const auto t0 = std::chrono::steady_clock::now();
+      st = rasterizer.Render(cloud, camera, options, &image, &stats);
+      const double ms =
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+      if (!st.ok()) {
+        std::fprintf(stderr, "gaussian-render-bench: %s\n", st.ToString().c_str());
+        return 1;
+      }
+      wall.push_back(ms);
+      cpu.push_back((CpuSeconds() - c0) * 1e3);
+      pre.push_back(stats.preprocess_ms);
+      bin.push_back(stats.bin_ms);
+      blend.push_back(stats.blend_ms);
+    }
+    double mean_alpha = 0;
+    for (float a : image.alpha) mean_alpha += a;
+    mean_alpha /= static_cast<double>(image.alpha.size());
+    const double ms = Median(wall), cpu_ms = Median(cpu);
+    const double rate = static_cast<double>(n) / (ms / 1e3);
+    // As if the process had every core to itself: splats per CPU-second times the threads.
+    const double cpu_rate = static_cast<double>(n) * used_threads / (cpu_ms / 1e3);
+    std::printf("%zu splats %ux%u, %u threads: %.1f ms median of %d (%.2f M splats/s; CPU %.1f ms, "
+                "%.2f M splats/s with the cores to itself); preprocess %.1f, bin %.1f, blend %.1f "
+                "ms; %llu visible, %llu tile entries, mean alpha %.2f\n",
+                n, width, height, used_threads, ms, reps, rate / 1e6, cpu_ms, cpu_rate / 1e6,
+                Median(pre), Median(bin), Median(blend),
+                static_cast<unsigned long long>(stats.splats_visible),
+                static_cast<unsigned long long>(stats.tile_entries), mean_alpha);
+    std::fflush(stdout);
+    scenes.push_back({{"splats", n},
+                      {"visible", stats.splats_visible},
+                      {"tile_entries", stats.tile_entries},
+                      {"mean_alpha", mean_alpha},
+                      {"median_ms", ms},
+                      {"runs_ms", wall},
+                      {"median_cpu_ms", cpu_ms},
+                      {"splats_per_s", rate},
+                      {"splats_per_cpu_s_times_threads", cpu_rate},
+                      {"median_preprocess_ms", Median(pre)},
+                      {"median_bin_ms", Median(bin)},
+                      {"median_blend_ms", Median(blend)},
+                      {"target", {{"name", "splats/s at 1080p, 2 cores"},
+                                  {"limit", 10e6},
+                                  {"met", rate >= 10e6}}}});
+    if (s == 0 && !png.empty()) {
+      hvdb::formats::Srgb8Image img;
+      img.width = image.width, img.height = image.height, img.channels = 3;
+      const std::vector<uint8_t> rgba = image.ToRgba8();
+      for (size_t i = 0; i < rgba.size(); i += 4) img.data.insert(img.data.end(), &rgba[i], &rgba[i + 3]);
+      if (!hvdb::formats::WriteSrgb8Png(img, png).ok()) std::fprintf(stderr, "cannot write %s\n", png.c_str());
+    }
+  }
+  json doc = {{"benchmark", "gaussian-render-bench"},
+              {"scene", "synthetic 3DGS-like: flat splats on a floor, a wall and 12 spheres, SH "
+                        "degree 3, seed 42"},
+              {"size", std::to_string(width) + "x" + std::to_string(height)},
+              {"threads", used_threads},
+              {"hardware_threads", std::thread::hardware_concurrency()},
+              {"reps", reps},
+              {"scenes", scenes}};
+  std::ofstream(out) << doc.dump(2) << "\n";
+  std::printf("wrote %s\n", out.c_str());
+  return 0;
+}
