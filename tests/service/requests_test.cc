@@ -5,6 +5,8 @@
 
 #include <gtest/gtest.h>
 
+#include <cstring>
+
 #include <filesystem>
 #include <set>
 
@@ -149,6 +151,50 @@ TEST_F(ExecuteUnaryTest, AnswersEachUnaryKindThroughTheExecutor) {
   ASSERT_TRUE(served.ok());
   EXPECT_EQ(served->role, "writer");
   EXPECT_EQ(served->connections_total, 42u);
+}
+
+TEST_F(ExecuteUnaryTest, ReadGaussiansAnswersTheRecordsAndWhichAreStored) {
+  DatasetInfo info;
+  info.name = "g";
+  info.fps = 30;
+  info.gaussians = true;
+  wire::Request create;
+  op::Create::Put(info, &create);
+  auto made = op::Create::TakeReply(ExecuteUnary(*x_, create));
+  ASSERT_TRUE(made.ok());
+  EXPECT_TRUE(made->gaussians);
+  std::vector<Point> pts(3);
+  GaussianColumns cols;
+  cols.sh_degree = 1;
+  cols.values.resize(3 * cols.stride());
+  for (size_t i = 0; i < cols.values.size(); ++i) cols.values[i] = 0.25f * static_cast<float>(i);
+  for (size_t i = 0; i < 3; ++i) {
+    pts[i].x = static_cast<float>(i);
+    pts[i].cov = GaussianCovariance(cols.record(i));
+    pts[i].flags = kFlagHasCovariance;
+  }
+  ASSERT_TRUE(x_->BulkLoad("g", 0, pts, &cols).ok());
+  // A plain point load into a Gaussian dataset is refused: its records would be missing.
+  auto plain = x_->BulkLoad("g", 1, pts);
+  ASSERT_FALSE(plain.ok());
+  EXPECT_NE(plain.status().message().find("Gaussian splats"), std::string::npos);
+
+  wire::Request req;
+  op::ReadGaussians::Put({"g", {3, 1, 999}}, &req);  // ids 1..3 were issued; 999 was not
+  auto got = op::ReadGaussians::TakeReply(ExecuteUnary(*x_, req));
+  ASSERT_TRUE(got.ok()) << got.status().ToString();
+  EXPECT_EQ(got->found, (std::vector<bool>{true, true, false}));
+  ASSERT_EQ(got->records.size(), 3u);
+  EXPECT_EQ(got->records.sh_degree, 1);
+  EXPECT_EQ(0, std::memcmp(got->records.record(0), cols.record(2), 4 * cols.stride()));
+  EXPECT_EQ(0, std::memcmp(got->records.record(1), cols.record(0), 4 * cols.stride()));
+  EXPECT_EQ(got->records.record(2)[kGsOpacity], 0.f);
+
+  // Ids that are not whole u64s, or too many: the request's shape is wrong.
+  req.mutable_read_gaussians()->mutable_ids()->push_back('x');
+  wire::Response r = ExecuteUnary(*x_, req);
+  ASSERT_TRUE(r.has_error());
+  EXPECT_NE(r.error().message().find("multiple of 8"), std::string::npos);
 }
 
 TEST_F(ExecuteUnaryTest, RefusesWhatIsNotUnary) {

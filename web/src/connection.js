@@ -54,7 +54,7 @@ export function decodeBinary(buffer) {
 // The body kind of a Response (its oneof field), e.g. "batch", "done", "error".
 function bodyKind(r) {
   for (const k of ['error', 'batch', 'done', 'render', 'info', 'datasets', 'commit', 'selected',
-    'graph_cut', 'copied', 'compacted', 'pong', 'stats', 'server', 'ack', 'event']) {
+    'graph_cut', 'copied', 'compacted', 'pong', 'stats', 'server', 'gaussians', 'ack', 'event']) {
     if (r[k] !== undefined && r[k] !== null) return k;
   }
   return null;

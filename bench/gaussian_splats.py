@@ -1,0 +1,145 @@
+#!/usr/bin/python3
+"""gaussian-splats: Gaussian-splat datasets as a user runs them, whole `hvdb` processes (issue 47).
+
+Makes a seeded synthetic 3DGS PLY (degree 3, anisotropic splats, varied opacity; --splats, default
+1 M) and times, each --reps times (median, min, max of the wall clock of the process):
+  import   `hvdb import DS --frame F FILE.ply` into a Gaussian-splat dataset (target: <= 1 s)
+  render   `hvdb render DS ... --size 1920 1080 --out x.png`, gaussian mode (the default for such
+           a dataset); with the rasteriser's own time (render_ms) and splats/s from both
+  export   `hvdb export DS DIR --codec 3dgs|spz` of one frame, and the bytes written
+and `hvdb describe` alone beside them (what starting the process and opening the data directory
+cost at that moment). Checks that the exported 3DGS PLY is the imported file byte for byte.
+
+Usage: bench/gaussian_splats.py [--build build] [--reps 5] [--splats 1000000]
+                                [--out bench/results/gaussian_splats.json]
+"""
+import argparse
+import json
+import os
+import re
+import resource
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+
+
+def run(cmd):
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        sys.exit(f"gaussian_splats: {' '.join(cmd)} failed ({r.returncode}): {r.stderr}")
+    return r.stdout
+
+
+def clocked(cmd):
+    """(wall seconds, CPU seconds of the child, its stdout)."""
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    out = run(cmd)
+    wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime), out
+
+
+def stats(xs):
+    return {"median": statistics.median(xs), "min": min(xs), "max": max(xs), "n": len(xs)}
+
+
+def write_ply(path, n, seed=1):
+    """A 3DGS PLY in the Inria layout: splats in a 4 m ball, log scales around 1.8 cm."""
+    rng = np.random.default_rng(seed)
+    names = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"] +
+             [f"f_rest_{i}" for i in range(45)] +
+             ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
+    a = rng.normal(size=(n, len(names))).astype("<f4")
+    a[:, 0:3] *= 1.2
+    a[:, 3:6] = 0
+    a[:, 9:54] *= 0.2
+    a[:, 55:58] = -4 + 0.5 * rng.normal(size=(n, 3))
+    header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {n}\n" +
+              "".join(f"property float {k}\n" for k in names) + "end_header\n")
+    with open(path, "wb") as f:
+        f.write(header.encode())
+        f.write(a.tobytes())
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--build", default=os.path.join(ROOT, "build"))
+    ap.add_argument("--reps", type=int, default=5)
+    ap.add_argument("--splats", type=int, default=1_000_000)
+    ap.add_argument("--out", default=os.path.join(HERE, "results", "gaussian_splats.json"))
+    a = ap.parse_args()
+    hvdb = os.path.join(a.build, "client", "hvdb")
+    work = tempfile.mkdtemp(prefix="hvdb-splats-")
+    try:
+        ply = os.path.join(work, "scene.ply")
+        write_ply(ply, a.splats)
+        data = ["--data", os.path.join(work, "data")]
+        run([hvdb] + data + ["create", "s", "--fps", "30", "--gaussians"])
+        imp, imp_cpu, base = [], [], []
+        for i in range(a.reps):
+            w, _, _ = clocked([hvdb] + data + ["describe", "s"])
+            base.append(w)
+            w, c, _ = clocked([hvdb] + data + ["import", "s", "--frame", str(i), ply])
+            imp.append(w)
+            imp_cpu.append(c)
+        rend, rend_ms = [], []
+        box = ["--box", "-1e9", "1e9", "-1e9", "1e9", "-1e9", "1e9", "0", "0"]
+        for i in range(a.reps):
+            w, _, out = clocked([hvdb] + data + ["render", "s"] + box +
+                                ["--look-at", "0", "0", "-8", "0", "0", "0", "--fov", "60",
+                                 "--size", "1920", "1080", "--out",
+                                 os.path.join(work, "x.png"), "--json"])
+            rend.append(w)
+            j = json.loads(out)
+            rend_ms.append(j["render_ms"])
+            if j.get("mode") != "gaussian":
+                sys.exit(f"gaussian_splats: render drew mode {j.get('mode')}, not gaussian")
+        exports = {}
+        for codec in ("3dgs", "spz"):
+            walls = []
+            for i in range(a.reps):
+                d = os.path.join(work, f"out-{codec}-{i}")
+                w, _, _ = clocked([hvdb] + data + ["export", "s", d, "--codec", codec,
+                                                   "--count", "1"])
+                walls.append(w)
+            f = os.listdir(d)[0]
+            exports[codec] = {"wall_s": stats(walls), "bytes": os.path.getsize(os.path.join(d, f))}
+            if codec == "3dgs":
+                with open(os.path.join(d, f), "rb") as x, open(ply, "rb") as y:
+                    exports[codec]["identical_to_input"] = x.read() == y.read()
+        n = a.splats
+        result = {
+            "schema": "hvdb-gaussian-splats/1",
+            "splats": n,
+            "sh_degree": 3,
+            "input_bytes": os.path.getsize(ply),
+            "load_average": os.getloadavg()[0],
+            "cores": os.cpu_count(),
+            "describe_wall_s": stats(base),
+            "import": {"wall_s": stats(imp), "cpu_s": stats(imp_cpu),
+                       "target_s": 1.0, "met": statistics.median(imp) <= 1.0},
+            "render_1080p": {"wall_s": stats(rend), "rasteriser_ms": stats(rend_ms),
+                             "splats_per_s_whole_command": n / statistics.median(rend),
+                             "splats_per_s_rasteriser": n / (statistics.median(rend_ms) / 1e3),
+                             "target_splats_per_s": 10e6},
+            "export": exports,
+        }
+        os.makedirs(os.path.dirname(a.out), exist_ok=True)
+        with open(a.out, "w") as f:
+            json.dump(result, f, indent=2)
+        print(json.dumps(result, indent=2))
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
