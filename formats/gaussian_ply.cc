@@ -24,7 +24,20 @@ struct Prop {
   std::string name;
   Slot slot;
   int index;  // within the slot: 0..2 of x y z, k of f_rest_k, ...
+  int bytes = 4;  // binary: its size (a float, or an ignored property's scalar type)
 };
+
+// The bytes of a PLY scalar type (both spellings), 0 for none.
+int ScalarBytes(std::string_view t) {
+  if (t == "char" || t == "uchar" || t == "int8" || t == "uint8") return 1;
+  if (t == "short" || t == "ushort" || t == "int16" || t == "uint16") return 2;
+  if (t == "int" || t == "uint" || t == "int32" || t == "uint32" || t == "float" ||
+      t == "float32") {
+    return 4;
+  }
+  if (t == "double" || t == "float64") return 8;
+  return 0;
+}
 
 struct Header {
   Encoding encoding = Encoding::kBinaryLE;
@@ -214,9 +227,18 @@ Result<Header> ParseHeader(std::string_view bytes, const std::string& name) {
       if (w.size() != 3) return bad("expected 'property <type> <name>'");
       std::optional<Prop> p = PropOf(w[2]);
       if (!p) {
-        return bad("unknown vertex property '" + Printable(w[2]) +
-                   "'; a 3DGS PLY has x y z, nx ny nz, f_dc_0..2, f_rest_0..44, opacity, "
-                   "scale_0..2 and rot_0..3");
+        // Trainers add their own per-splat values (Mip-Splatting's filter_3D, colours as
+        // uchar, ...): read over and named in GaussianCloud::ignored, not refused.
+        const int size = ScalarBytes(w[1]);
+        if (size == 0) {
+          return bad("vertex property '" + Printable(w[2]) + "' has unknown type '" +
+                     Printable(w[1]) + "'");
+        }
+        for (const Prop& q : h.props) {
+          if (q.name == w[2]) return bad("vertex property '" + q.name + "' appears twice");
+        }
+        h.props.push_back(Prop{std::string(w[2]), Slot::kIgnored, 0, size});
+        continue;
       }
       if (w[1] != "float" && w[1] != "float32") {
         return bad("vertex property '" + p->name + "' is '" + Printable(w[1]) +
@@ -274,7 +296,12 @@ float* Target(GaussianCloud* c, const Prop& p, size_t i) {
 
 Status ReadBinary(const Header& h, std::string_view data, GaussianCloud* c,
                   const std::string& name) {
-  const size_t stride = 4 * h.props.size();
+  size_t stride = 0;
+  std::vector<size_t> offset(h.props.size());
+  for (size_t k = 0; k < h.props.size(); ++k) {
+    offset[k] = stride;
+    stride += static_cast<size_t>(h.props[k].bytes);
+  }
   if (h.count > data.size() / stride) {
     return Status::Corruption(name + ": truncated: the header declares " +
                               std::to_string(h.count) + " vertices of " + std::to_string(stride) +
@@ -292,7 +319,7 @@ Status ReadBinary(const Header& h, std::string_view data, GaussianCloud* c,
   for (size_t i = 0; i < n; ++i) {
     const char* row = data.data() + i * stride;
     for (size_t k = 0; k < h.props.size(); ++k) {
-      if (float* t = Target(c, h.props[k], i)) *t = LoadFloat(row + 4 * k, big);
+      if (float* t = Target(c, h.props[k], i)) *t = LoadFloat(row + offset[k], big);
     }
   }
   return Status::OK();
@@ -357,6 +384,11 @@ Result<GaussianCloud> ReadGaussianPly(std::string_view bytes, const std::string&
   HVDB_ASSIGN_OR_RETURN(Header h, ParseHeader(bytes, name));
   GaussianCloud c;
   c.sh_degree = h.sh_degree;
+  for (const Prop& p : h.props) {
+    if (p.slot == Slot::kIgnored && p.name != "nx" && p.name != "ny" && p.name != "nz") {
+      c.ignored.push_back(p.name);
+    }
+  }
   const std::string_view data = bytes.substr(h.data_offset);
   if (h.encoding == Encoding::kAscii) {
     HVDB_RETURN_IF_ERROR(ReadAscii(h, data, &c, name));

@@ -53,6 +53,9 @@ struct GaussianCloud {
   // n * 3 * ShRestPerChannel(sh_degree): per splat channel-major, as the Inria PLY stores
   // f_rest_*: the R coefficients in order of degree and then order, then G, then B.
   std::vector<float> sh_rest;
+  // Read only: properties of the file a reader passed over (a 3DGS PLY's extra vertex
+  // properties, e.g. Mip-Splatting's filter_3D), which writing does not bring back.
+  std::vector<std::string> ignored;
 
   size_t size() const { return opacity.size(); }
   size_t sh_rest_per_splat() const { return 3 * static_cast<size_t>(ShRestPerChannel(sh_degree)); }
@@ -88,7 +91,8 @@ GaussianFormat DetectGaussianFormat(std::string_view bytes);
 
 // 3DGS PLY. Reading takes the vertex element's properties in any order, each a float:
 // x y z, f_dc_0..2, f_rest_0..f_rest_{K-1} with K = 3 * ShRestPerChannel(d) (0, 9, 24 or 45),
-// opacity, scale_0..2, rot_0..3, and optionally nx ny nz (ignored). Other properties, other
+// opacity, scale_0..2, rot_0..3, and optionally nx ny nz (ignored). Other scalar properties are
+// read over and named in `ignored` (their values are not kept); list properties, other
 // non-empty elements, or bytes after the vertex data are errors. Writing gives the Inria layout
 // exactly: x y z nx ny nz f_dc_* f_rest_* opacity scale_* rot_*, normals 0, binary little-endian,
 // so a file in that layout reads and writes back byte for byte.

@@ -291,6 +291,7 @@ int CmdImport(Context& ctx, const ImportArgs& args) {
   uint64_t total = 0, skipped_total = 0;
   json frames = json::array();
   codec::Reference reference;  // the previous decoded stream, for temporal ones
+  std::vector<std::string> last_ignored;  // splat files' properties read over, last said
   // Each frame's load is atomic and durable: on a failure at file i, say which frames made it.
   auto done = [&](size_t i) {
     return i == 0 ? std::string("no frame was loaded")
@@ -308,6 +309,7 @@ int CmdImport(Context& ctx, const ImportArgs& args) {
     uint64_t skipped = 0;
     // A Gaussian-splat dataset reads every file as splats; another refuses one it recognises.
     GaussianColumns records;
+    std::vector<std::string> ignored;
     const formats::GaussianFormat sniffed =
         info->gaussians ? formats::GaussianFormat::kUnknown : SniffSplatFile(a.files[i]);
     if (sniffed != formats::GaussianFormat::kUnknown) {
@@ -319,7 +321,7 @@ int CmdImport(Context& ctx, const ImportArgs& args) {
           "--gaussians` (" + done(i) + ")"));
     }
     Result<std::vector<Point>> pts =
-        info->gaussians                    ? ReadSplatFrame(a.files[i], ro.frame, &records)
+        info->gaussians ? ReadSplatFrame(a.files[i], ro.frame, &records, &ignored)
         : formats::IsHvdb7File(a.files[i]) ? ReadStreamFrame(a.files[i], ro, &reference)
         : formats::IsDracoFile(a.files[i]) ? ReadDracoFrame(a.files[i], ro)
                                            : ReadPlyNoting(a.files[i], ro, &skipped, &bar);
@@ -343,6 +345,18 @@ int CmdImport(Context& ctx, const ImportArgs& args) {
     skipped_total += skipped;
     frames.push_back(
         {{"frame", ro.frame}, {"file", a.files[i]}, {"points", n}, {"skipped_invalid", skipped}});
+    if (!ignored.empty()) {
+      // Said once per file set of them: a sequence from one trainer repeats the same ones.
+      frames.back()["ignored_properties"] = ignored;
+      if (ignored != last_ignored && !a.json) {
+        std::string list;
+        for (const std::string& p : ignored) list += (list.empty() ? "" : ", ") + p;
+        bar.Clear();
+        std::fprintf(stderr, "note: %s: vertex properties not kept (hvdb stores 3DGS's own): %s\n",
+                     a.files[i].c_str(), list.c_str());
+      }
+      last_ignored = ignored;
+    }
     bar.Update(i + 1, total);
   }
   bar.Clear();

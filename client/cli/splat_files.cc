@@ -105,13 +105,15 @@ class MappedFile {
 };
 
 Result<std::vector<Point>> ReadSplatFrame(const std::string& path, uint32_t frame,
-                                          GaussianColumns* records) {
+                                          GaussianColumns* records,
+                                          std::vector<std::string>* ignored) {
   formats::GaussianCloud cloud;
   {
     MappedFile file;
     HVDB_RETURN_IF_ERROR(file.Open(path));
     HVDB_ASSIGN_OR_RETURN(cloud, formats::ReadGaussians(file.view(), path));
   }
+  *ignored = cloud.ignored;
   std::vector<Point> points;
   formats::CloudToPoints(cloud, frame, &points, records);
   return points;

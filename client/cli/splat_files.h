@@ -17,10 +17,12 @@ namespace hvdb::cli {
 // kUnknown (.splat files have no signature: a Gaussian dataset reads every file as splats).
 formats::GaussianFormat SniffSplatFile(const std::string& path);
 
-// The splats of a file in any of the three formats, as points of `frame` with their records.
-// Errors name the file.
+// The splats of a file in any of the three formats, as points of `frame` with their records;
+// *ignored: the file's properties that were read over (GaussianCloud::ignored). Errors name the
+// file.
 Result<std::vector<Point>> ReadSplatFrame(const std::string& path, uint32_t frame,
-                                          GaussianColumns* records);
+                                          GaussianColumns* records,
+                                          std::vector<std::string>* ignored);
 
 // The command line's files with each directory replaced by the regular files in it, sorted by
 // name with digit runs compared as numbers (frame_2 before frame_10): a sequence.

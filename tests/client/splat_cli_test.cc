@@ -190,8 +190,22 @@ TEST_F(SplatCliTest, BadFilesNameTheFileAndLoadNothingOfIt) {
   EXPECT_NE(r.err.find("frames 5..5 were loaded"), std::string::npos) << r.err;
   json d = Json("--data d describe s");
   EXPECT_EQ(d["points"], 3000);
-  EXPECT_EQ(d["storage"]["gaussians"]["records"], 3000);
+  EXPECT_EQ(d["storage"]["gaussians"]["records"], 3000);  // (before the two-splat imports)
   EXPECT_EQ(Json("--data d describe plain")["points"], 0);
+
+  // A trainer's extra vertex property is read over and named, not refused.
+  std::string mip = "ply\nformat ascii 1.0\nelement vertex 2\n";
+  for (const char* p : {"x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0",
+                        "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3", "filter_3D"}) {
+    mip += std::string("property float ") + p + "\n";
+  }
+  mip += "end_header\n0 0 0 1 0 0 2 -4 -4 -4 1 0 0 0 0.1\n1 0 0 0 1 0 2 -4 -4 -4 1 0 0 0 0.2\n";
+  r = Run("--data d import s --frame 20 " + Write("mip.ply", mip));
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("mip.ply: vertex properties not kept (hvdb stores 3DGS's own): filter_3D"),
+            std::string::npos) << r.err;
+  json mj = Json("--data d import s --frame 21 mip.ply");
+  EXPECT_EQ(mj["frames"][0]["ignored_properties"], json::array({"filter_3D"}));
 
   // Options that make no sense for splats.
   r = Run("--data d import s --frame 0 seq --units-scale 0.01");

@@ -234,6 +234,39 @@ TEST(GaussianPly, ReadsAnyOrderAsciiAndBigEndian) {
   }
 }
 
+// Trainers' own extra values (Mip-Splatting's filter_3D, colours as uchar, a double) are read
+// over, whatever their size, and named; the splats read as without them.
+TEST(GaussianPly, ExtraScalarPropertiesAreReadOverAndNamed) {
+  const GaussianCloud c = RandomCloud(21, 1, 7);
+  const std::string plain = *WriteGaussianPly(c, "x");
+  const size_t header = plain.find("end_header\n") + 11;
+  std::string extra = plain.substr(0, header);
+  extra.replace(extra.find("property float opacity\n"), 23,
+                "property uchar red\nproperty float opacity\nproperty double filter_3D\n"
+                "property short s\n");
+  const size_t stride = 4 * (6 + 3 + 9 + 1 + 3 + 4);
+  const size_t before = 4 * (6 + 3 + 9);  // x .. f_rest_8, then red, opacity, filter_3D, s
+  for (size_t i = 0; i < c.size(); ++i) {
+    const char* row = plain.data() + header + i * stride;
+    extra.append(row, before);
+    extra.push_back(static_cast<char>(200 + i));
+    extra.append(row + before, 4);  // opacity
+    const double f = 0.125 * static_cast<double>(i);
+    extra.append(reinterpret_cast<const char*>(&f), 8);
+    const int16_t sh = static_cast<int16_t>(-7 * static_cast<int>(i));
+    extra.append(reinterpret_cast<const char*>(&sh), 2);
+    extra.append(row + before + 4, stride - before - 4);
+  }
+  auto back = ReadGaussianPly(extra, "mip.ply");
+  ASSERT_TRUE(back.ok()) << back.status().ToString();
+  ExpectBitIdentical(c, *back);
+  EXPECT_EQ(back->ignored, (std::vector<std::string>{"red", "filter_3D", "s"}));
+  // A list property is still refused: a 3DGS vertex is one row of scalars.
+  std::string list = plain;
+  list.replace(list.find("property float nx"), 17, "property list uchar int nx");
+  EXPECT_FALSE(ReadGaussianPly(list, "list.ply").ok());
+}
+
 TEST(GaussianPly, MalformedFilesAreClearErrors) {
   const GaussianCloud c3 = RandomCloud(9, 3, 4);
   std::vector<std::string> props = {"x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"};
@@ -285,8 +318,8 @@ TEST(GaussianPly, MalformedFilesAreClearErrors) {
   expect_error(good + "xyz", "3 bytes follow the 4 vertices");
   expect_error(good.substr(0, header - 20), "no 'end_header'");
   std::string unknown = good;
-  unknown.replace(unknown.find("property float nx"), 17, "property float qq");
-  expect_error(unknown, "unknown vertex property 'qq'");
+  unknown.replace(unknown.find("property float nx"), 17, "property fl0at qq");
+  expect_error(unknown, "vertex property 'qq' has unknown type 'fl0at'");
   std::string dbl = good;
   dbl.replace(dbl.find("property float opacity"), 22, "property double opacity");
   expect_error(dbl, "'opacity' is 'double'");
