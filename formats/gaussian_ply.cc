@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <cstring>
 #include <optional>
+#include <thread>
 #include <string_view>
 #include <vector>
 
@@ -316,11 +317,40 @@ Status ReadBinary(const Header& h, std::string_view data, GaussianCloud* c,
   }
   c->Resize(n);
   const bool big = h.encoding == Encoding::kBinaryBE;
-  for (size_t i = 0; i < n; ++i) {
-    const char* row = data.data() + i * stride;
+  // Where each kept property goes: its array's splat 0 and the step between splats (Target of
+  // splat 0 and 1), so that the row loop does no switch per value.
+  struct Dest {
+    size_t from;
+    float* base;
+    size_t step;
+  };
+  std::vector<Dest> dests;
+  if (n > 0) {
+    GaussianCloud probe;
+    probe.sh_degree = c->sh_degree;
+    probe.Resize(2);
     for (size_t k = 0; k < h.props.size(); ++k) {
-      if (float* t = Target(c, h.props[k], i)) *t = LoadFloat(row + offset[k], big);
+      float* t0 = Target(&probe, h.props[k], 0);
+      if (t0 == nullptr) continue;
+      float* t1 = Target(&probe, h.props[k], 1);
+      // The same array of *c: the offset of splat 0 within it.
+      float* base = Target(c, h.props[k], 0);
+      dests.push_back({offset[k], base, static_cast<size_t>(t1 - t0)});
     }
+  }
+  // Two halves on two threads: a million splats are 250 MB to spread into six arrays.
+  auto rows = [&](size_t lo, size_t hi) {
+    for (size_t i = lo; i < hi; ++i) {
+      const char* row = data.data() + i * stride;
+      for (const Dest& d : dests) d.base[i * d.step] = LoadFloat(row + d.from, big);
+    }
+  };
+  if (n >= (size_t{1} << 16)) {
+    std::thread other([&] { rows(n / 2, n); });
+    rows(0, n / 2);
+    other.join();
+  } else {
+    rows(0, n);
   }
   return Status::OK();
 }

@@ -19,6 +19,13 @@ std::string FloatText(float v) {
   return v > 0 ? "inf" : "-inf";
 }
 
+// Whether every value is finite: the exponent bits of none are all ones.
+bool AllFinite(const std::vector<float>& a) {
+  uint32_t bad = 0;
+  for (float v : a) bad |= (std::bit_cast<uint32_t>(v) & 0x7f800000u) == 0x7f800000u;
+  return bad == 0;
+}
+
 // The first non-finite value of splat i, as "splat i: <property> is nan", or "".
 std::string NonFiniteIn(const GaussianCloud& c, size_t i) {
   auto check = [&](const std::vector<float>& a, size_t per, const char* prefix,
@@ -156,6 +163,12 @@ Status ValidateGaussianCloud(const GaussianCloud& c, const std::string& name) {
   if (c.sh_dc.size() != 3 * n) return bad_length("sh_dc", c.sh_dc.size(), 3);
   if (c.sh_rest.size() != n * c.sh_rest_per_splat()) {
     return bad_length("sh_rest", c.sh_rest.size(), c.sh_rest_per_splat());
+  }
+  // A branch-free pass over every array first (a million splats hold 59 million values); the
+  // splat and property are looked for only when it finds a non-finite one.
+  if (AllFinite(c.position) && AllFinite(c.sh_dc) && AllFinite(c.sh_rest) &&
+      AllFinite(c.opacity) && AllFinite(c.scale) && AllFinite(c.rotation)) {
+    return Status::OK();
   }
   for (size_t i = 0; i < n; ++i) {
     std::string m = NonFiniteIn(c, i);

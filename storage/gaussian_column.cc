@@ -1,6 +1,7 @@
 #include "storage/gaussian_column.h"
 
 #include <algorithm>
+#include <bit>
 #include <cinttypes>
 #include <cmath>
 #include <cstdio>
@@ -178,6 +179,10 @@ Status ValidateGaussianColumns(const GaussianColumns& cols) {
     return Status::InvalidArgument("Gaussian attributes: " + std::to_string(cols.values.size()) +
                                    " values are not whole records of " + std::to_string(stride));
   }
+  // Branch-free first (a million splats hold 59 million values), then the place of the first.
+  uint32_t bad = 0;
+  for (float v : cols.values) bad |= (std::bit_cast<uint32_t>(v) & 0x7f800000u) == 0x7f800000u;
+  if (bad == 0) return Status::OK();
   for (size_t i = 0; i < cols.values.size(); ++i) {
     if (!std::isfinite(cols.values[i])) {
       return Status::InvalidArgument("Gaussian attributes: splat " + std::to_string(i / stride) +
