@@ -24,6 +24,8 @@
 #include "formats/image_io.h"
 #include "formats/ply.h"
 #include "protocol/wire.h"
+#include "python/common.h"
+#include "python/gaussians.h"
 #include "render/renderer.h"
 #include "storage/point.h"
 
@@ -32,54 +34,6 @@ using namespace pybind11::literals;
 
 namespace hvdb::python {
 namespace {
-
-// A Status on its way to Python: __init__.py maps `code` to an exception class.
-struct StatusError : std::exception {
-  StatusCode code;
-  std::string message;
-  StatusError(StatusCode c, std::string m) : code(c), message(std::move(m)) {}
-  const char* what() const noexcept override { return message.c_str(); }
-};
-
-[[noreturn]] void Throw(const Status& st) { throw StatusError(st.code(), st.message()); }
-void Check(const Status& st) {
-  if (!st.ok()) Throw(st);
-}
-template <typename T>
-T Take(Result<T> r) {
-  if (!r.ok()) Throw(r.status());
-  return std::move(r).value();
-}
-
-py::object& PointDtype() {
-  static py::object* dtype = nullptr;
-  if (dtype == nullptr) {
-    dtype = new py::object(py::module_::import("hvdb").attr("POINT_DTYPE"));
-  }
-  return *dtype;
-}
-
-// Takes ownership of the points: numpy frees them with the array.
-py::array ToArray(std::vector<Point> points) {
-  auto* owned = new std::vector<Point>(std::move(points));
-  py::capsule free(owned, [](void* p) { delete static_cast<std::vector<Point>*>(p); });
-  return py::array(py::dtype::from_args(PointDtype()),
-                   {static_cast<py::ssize_t>(owned->size())},
-                   {static_cast<py::ssize_t>(sizeof(Point))}, owned->data(), free);
-}
-
-// A structured array of POINT_DTYPE (checked in __init__.py) as Points.
-std::vector<Point> FromArray(const py::array& a) {
-  if (a.ndim() != 1 || a.itemsize() != static_cast<py::ssize_t>(sizeof(Point)) ||
-      !(a.flags() & py::array::c_style)) {
-    Throw(Status::InvalidArgument(
-        "points: expected a 1-D C-contiguous array of hvdb.POINT_DTYPE (64-byte records)"));
-  }
-  std::vector<Point> out(static_cast<size_t>(a.shape(0)));
-  if (!out.empty()) std::memcpy(static_cast<void*>(out.data()), a.data(), out.size() * sizeof(Point));
-  for (Point& p : out) p.reserved = 0;
-  return out;
-}
 
 Window ToWindow(const std::array<double, 4>& lo, const std::array<double, 4>& hi) {
   Window w;
@@ -122,7 +76,7 @@ py::dict InfoDict(const DatasetInfo& i) {
   return py::dict("name"_a = i.name, "fps"_a = i.fps, "space_time_scale"_a = i.space_time_scale,
                   "frame_count"_a = i.frame_count, "bounds_min"_a = i.bounds_min,
                   "bounds_max"_a = i.bounds_max, "point_count"_a = i.point_count,
-                  "last_lsn"_a = i.last_lsn, "cameras"_a = cams);
+                  "last_lsn"_a = i.last_lsn, "cameras"_a = cams, "gaussians"_a = i.gaussians);
 }
 
 py::dict CommitDict(const CommitInfo& c) {
@@ -389,11 +343,12 @@ class Database {
   std::vector<std::string> Datasets() {
     return Take(Call([](client::Backend& b) { return b.ListDatasets(); }));
   }
-  py::dict Create(const std::string& name, double fps, double space_time_scale) {
+  py::dict Create(const std::string& name, double fps, double space_time_scale, bool gaussians) {
     DatasetInfo info;
     info.name = name;
     info.fps = fps;
     info.space_time_scale = space_time_scale;
+    info.gaussians = gaussians;
     return InfoDict(Take(Call([&](client::Backend& b) { return b.CreateDataset(info); })));
   }
   void Drop(const std::string& name) {
@@ -449,9 +404,24 @@ class Database {
     return Query(shared_, std::move(results));
   }
 
-  uint64_t BulkLoad(const std::string& name, uint32_t frame, const py::array& points) {
+  uint64_t BulkLoad(const std::string& name, uint32_t frame, const py::array& points,
+                    const py::object& gaussians) {
     std::vector<Point> pts = FromArray(points);
-    return Take(Call([&](client::Backend& b) { return b.BulkLoad(name, frame, std::move(pts)); }));
+    std::optional<GaussianColumns> g;
+    if (!gaussians.is_none()) g = GaussiansFromDict(py::cast<py::dict>(gaussians), pts.size());
+    return Take(Call([&](client::Backend& b) {
+      return b.BulkLoad(name, frame, std::move(pts), g ? &*g : nullptr);
+    }));
+  }
+  // The Gaussian records of points (by id), python/gaussians.h's dict, with `derived`.
+  py::dict Gaussians(const std::string& name, const py::array& points) {
+    std::vector<Point> pts = FromArray(points);
+    uint64_t derived = 0;
+    GaussianColumns g =
+        Take(Call([&](client::Backend& b) { return b.ReadGaussians(name, pts, &derived); }));
+    py::dict d = GaussiansToDict(g);
+    d["derived"] = derived;
+    return d;
   }
 
   // ops: a list of tuples, applied in order as one transaction:
@@ -751,12 +721,15 @@ PYBIND11_MODULE(_hvdb, m) {
       .def_property_readonly("where", &Database::where)
       .def("close", &Database::Close)
       .def("datasets", &Database::Datasets)
-      .def("create", &Database::Create)
+      .def("create", &Database::Create, "name"_a, "fps"_a, "space_time_scale"_a,
+           "gaussians"_a = false)
       .def("drop", &Database::Drop)
       .def("describe", &Database::Describe)
       .def("stats", &Database::Stats)
       .def("query", &Database::Start)
-      .def("bulk_load", &Database::BulkLoad)
+      .def("bulk_load", &Database::BulkLoad, "name"_a, "frame"_a, "points"_a,
+           "gaussians"_a = py::none())
+      .def("gaussians", &Database::Gaussians)
       .def("commit", &Database::Commit)
       .def("revert", &Database::Revert)
       .def("compact", &Database::Compact, "name"_a, "first"_a = 0u, "last"_a = 0xFFFFFFFFu,
@@ -769,6 +742,8 @@ PYBIND11_MODULE(_hvdb, m) {
       .def("render", &Database::Render);
 
   m.def("read_ply", &ReadPly, "path"_a, "scale"_a = 1.0, "skip_invalid"_a = false);
+  m.def("read_splats", &ReadSplats, "path"_a);
+  m.def("write_splats", &WriteSplats, "path"_a, "points"_a, "gaussians"_a, "format"_a);
   m.def("write_ply", &WritePly, "path"_a, "points"_a, "ascii"_a = false);
   m.def("encode_normals", [](const py::array_t<float, py::array::c_style | py::array::forcecast>& n) {
     if (n.ndim() != 2 || n.shape(1) != 3) {

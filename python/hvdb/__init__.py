@@ -24,7 +24,7 @@ from . import _hvdb
 __all__ = [
     "POINT_DTYPE", "FLAG_HAS_NORMAL", "FLAG_HAS_COVARIANCE",
     "open", "connect", "Database", "Transaction",
-    "points", "read_ply", "write_ply", "normals", "times", "to_open3d", "from_open3d",
+    "points", "read_ply", "write_ply", "read_splats", "write_splats", "normals", "times", "to_open3d", "from_open3d",
     "Error", "NotFound", "InvalidArgument", "Corruption", "IOError", "Unavailable",
     "LimitExceeded", "AlreadyExists", "Cancelled", "Internal", "PermissionDenied", "Overloaded",
     "Unsupported", "NotLeader",
@@ -295,6 +295,22 @@ def read_ply(path, scale=1.0, skip_invalid=False):
     return (pts, skipped) if skip_invalid else pts
 
 
+def read_splats(path):
+    """Reads a Gaussian-splat file (3DGS PLY, SPZ or .splat, told apart by content) as
+    (points, gaussians): a POINT_DTYPE array (position, the covariance of each splat's scales
+    and rotation, the colour of its DC term) and the dict of Database.gaussians. Extra vertex
+    properties of a PLY are read over (gaussians["ignored"] names them)."""
+    pts, g, ignored = _hvdb.read_splats(str(path))
+    g["ignored"] = list(ignored)
+    return pts, g
+
+
+def write_splats(path, pts, gaussians, format="3dgs"):
+    """Writes points and their gaussians dict as a splat file: format "3dgs" (the Inria
+    PLY; what read_splats read comes back byte for byte), "spz" or "splat"."""
+    _hvdb.write_splats(str(path), _check_points("points", pts), gaussians, str(format))
+
+
 def write_ply(path, pts, ascii=False):
     """Writes a POINT_DTYPE array as PLY (binary unless ascii), as `hvdb window --out` does."""
     _hvdb.write_ply(str(path), _check_points("points", pts), bool(ascii))
@@ -423,10 +439,12 @@ class Database:
         last_lsn, cameras."""
         return self._call("describe", dataset)
 
-    def create(self, dataset, fps=30.0, space_time_scale=1.0):
-        """Creates an empty dataset at `fps` frames per second; returns its info."""
+    def create(self, dataset, fps=30.0, space_time_scale=1.0, gaussians=False):
+        """Creates an empty dataset at `fps` frames per second; returns its info.
+        gaussians=True: a Gaussian-splat dataset, whose points also keep 3DGS records
+        (opacity, spherical harmonics; see gaussians() and read_splats())."""
         return self._call("create", dataset, _number("fps", fps),
-                          _number("space_time_scale", space_time_scale))
+                          _number("space_time_scale", space_time_scale), bool(gaussians))
 
     def drop(self, dataset):
         """Deletes a dataset and all its data."""
@@ -513,11 +531,21 @@ class Database:
             raise
 
     # -- writes --
-    def load(self, dataset, frame, pts):
+    def load(self, dataset, frame, pts, gaussians=None):
         """Bulk-loads points into a frame (fast, atomic per frame, durable on return; not
-        undoable). Returns the number of points loaded."""
+        undoable). Returns the number of points loaded. A Gaussian-splat dataset's points
+        come with their records: `gaussians`, a dict as read_splats() gives (sh, opacity_logit,
+        log_scale, rotation, one row per point)."""
         return self._call("bulk_load", dataset, _uint32("frame", frame),
-                          _check_points("points", pts))
+                          _check_points("points", pts), gaussians)
+
+    def gaussians(self, dataset, pts):
+        """The 3DGS records of points of a Gaussian-splat dataset (by their ids), one row
+        per point: a dict of float32 arrays opacity (n, activated), opacity_logit (n),
+        log_scale (n, 3), rotation (n, 4: w x y z), sh (n, 3, (d+1)^2: per channel, the DC term
+        first), with sh_degree, antialiased and derived (how many points had no record and
+        got the Gaussian derived from their covariance and colour)."""
+        return self._call("gaussians", dataset, _check_points("points", pts))
 
     def transaction(self, dataset):
         """`with db.transaction(ds) as tx:` collects inserts, deletes, label changes and
