@@ -101,8 +101,10 @@ GaussianCloud Scene(size_t n, uint32_t seed) {
     if (pick < floor_area) {
       p = {range(-5, 5), 1, range(-2, 6)};
       normal = {0, -1, 0};
-      const bool check = (static_cast<int>(std::floor(p[0] * 2)) + static_cast<int>(std::floor(p[2] * 2))) % 2;
-      dc = check ? std::array<float, 3>{1.2f, 1.1f, 0.9f} : std::array<float, 3>{-1.0f, -0.9f, -0.8f};
+      const bool check =
+          (static_cast<int>(std::floor(p[0] * 2)) + static_cast<int>(std::floor(p[2] * 2))) % 2;
+      dc = check ? std::array<float, 3>{1.2f, 1.1f, 0.9f}
+                 : std::array<float, 3>{-1.0f, -0.9f, -0.8f};
     } else if (pick < floor_area + wall_area) {
       p = {range(-5, 5), range(-4, 1), 6};
       normal = {0, 0, -1};
@@ -124,7 +126,8 @@ GaussianCloud Scene(size_t n, uint32_t seed) {
     const V3 helper = std::abs(normal[1]) < 0.9 ? V3{0, 1, 0} : V3{1, 0, 0};
     const V3 a = Normalised(Cross(helper, normal)), b = Cross(normal, a);
     const double phi = range(0, 2 * M_PI);
-    const V3 t1 = {std::cos(phi) * a[0] + std::sin(phi) * b[0], std::cos(phi) * a[1] + std::sin(phi) * b[1],
+    const V3 t1 = {std::cos(phi) * a[0] + std::sin(phi) * b[0],
+                   std::cos(phi) * a[1] + std::sin(phi) * b[1],
                    std::cos(phi) * a[2] + std::sin(phi) * b[2]};
     const V3 t2 = Cross(normal, t1);
     const auto q = Quaternion(t1, t2, normal);
@@ -181,8 +184,8 @@ int main(int argc, char** argv) {
   std::vector<double> sizes;
   std::stringstream list(millions);
   for (std::string item; std::getline(list, item, ',');) sizes.push_back(std::stod(item));
-  const unsigned used_threads =
-      threads > 0 ? static_cast<unsigned>(threads) : std::max(1u, std::thread::hardware_concurrency());
+  const unsigned used_threads = threads > 0 ? static_cast<unsigned>(threads)
+                                            : std::max(1u, std::thread::hardware_concurrency());
   const render::Camera camera = Camera(width, height);
   render::GaussianRasterizer rasterizer;
   render::GaussianRenderOptions options;
@@ -222,40 +225,43 @@ int main(int argc, char** argv) {
     const double rate = static_cast<double>(n) / (ms / 1e3);
     // As if the process had every core to itself: splats per CPU-second times the threads.
     const double cpu_rate = static_cast<double>(n) * used_threads / (cpu_ms / 1e3);
-    std::printf("%zu splats %ux%u, %u threads: %.1f ms median of %d (%.2f M splats/s; CPU %.1f ms, "
-                "%.2f M splats/s with the cores to itself); preprocess %.1f, bin %.1f, blend %.1f "
-                "ms; %llu visible, %llu tile entries, mean alpha %.2f\n",
-                n, width, height, used_threads, ms, reps, rate / 1e6, cpu_ms, cpu_rate / 1e6,
-                Median(pre), Median(bin), Median(blend),
-                static_cast<unsigned long long>(stats.splats_visible),
-                static_cast<unsigned long long>(stats.tile_entries), mean_alpha);
+    std::printf(
+        "%zu splats %ux%u, %u threads: %.1f ms median of %d (%.2f M splats/s; CPU %.1f ms, "
+        "%.2f M splats/s with the cores to itself); preprocess %.1f, bin %.1f, blend %.1f "
+        "ms; %llu visible, %llu tile entries, mean alpha %.2f\n",
+        n, width, height, used_threads, ms, reps, rate / 1e6, cpu_ms, cpu_rate / 1e6, Median(pre),
+        Median(bin), Median(blend), static_cast<unsigned long long>(stats.splats_visible),
+        static_cast<unsigned long long>(stats.tile_entries), mean_alpha);
     std::fflush(stdout);
-    scenes.push_back({{"splats", n},
-                      {"visible", stats.splats_visible},
-                      {"tile_entries", stats.tile_entries},
-                      {"mean_alpha", mean_alpha},
-                      {"median_ms", ms},
-                      {"runs_ms", wall},
-                      {"median_cpu_ms", cpu_ms},
-                      {"splats_per_s", rate},
-                      {"splats_per_cpu_s_times_threads", cpu_rate},
-                      {"median_preprocess_ms", Median(pre)},
-                      {"median_bin_ms", Median(bin)},
-                      {"median_blend_ms", Median(blend)},
-                      {"target", {{"name", "splats/s at 1080p, 2 cores"},
-                                  {"limit", 10e6},
-                                  {"met", rate >= 10e6}}}});
+    scenes.push_back(
+        {{"splats", n},
+         {"visible", stats.splats_visible},
+         {"tile_entries", stats.tile_entries},
+         {"mean_alpha", mean_alpha},
+         {"median_ms", ms},
+         {"runs_ms", wall},
+         {"median_cpu_ms", cpu_ms},
+         {"splats_per_s", rate},
+         {"splats_per_cpu_s_times_threads", cpu_rate},
+         {"median_preprocess_ms", Median(pre)},
+         {"median_bin_ms", Median(bin)},
+         {"median_blend_ms", Median(blend)},
+         {"target",
+          {{"name", "splats/s at 1080p, 2 cores"}, {"limit", 10e6}, {"met", rate >= 10e6}}}});
     if (s == 0 && !png.empty()) {
       hvdb::formats::Srgb8Image img;
       img.width = image.width, img.height = image.height, img.channels = 3;
       const std::vector<uint8_t> rgba = image.ToRgba8();
-      for (size_t i = 0; i < rgba.size(); i += 4) img.data.insert(img.data.end(), &rgba[i], &rgba[i + 3]);
-      if (!hvdb::formats::WriteSrgb8Png(img, png).ok()) std::fprintf(stderr, "cannot write %s\n", png.c_str());
+      for (size_t i = 0; i < rgba.size(); i += 4)
+        img.data.insert(img.data.end(), &rgba[i], &rgba[i + 3]);
+      if (!hvdb::formats::WriteSrgb8Png(img, png).ok())
+        std::fprintf(stderr, "cannot write %s\n", png.c_str());
     }
   }
   json doc = {{"benchmark", "gaussian-render-bench"},
-              {"scene", "synthetic 3DGS-like: flat splats on a floor, a wall and 12 spheres, SH "
-                        "degree 3, seed 42"},
+              {"scene",
+               "synthetic 3DGS-like: flat splats on a floor, a wall and 12 spheres, SH "
+               "degree 3, seed 42"},
               {"size", std::to_string(width) + "x" + std::to_string(height)},
               {"threads", used_threads},
               {"hardware_threads", std::thread::hardware_concurrency()},

@@ -25,7 +25,10 @@
 // C += colour alpha T, T *= 1 - alpha. The pixel is C + T background.
 //
 // Float arithmetic throughout, as the reference; tests/render/gaussian_raster_test.cc checks it
-// against a plain double-precision reading of the same equations.
+// against a plain double-precision reading of the same equations (PSNR > 95 dB, 8-bit values
+// within 1). Speed (bench/gaussian_render_bench.cc): a 1 M-splat scene of splats a few pixels
+// across renders at 1920x1080 in ~125-160 ms on two cores (6-8 M splats/s); gaussian_raster.cc
+// says how the work is organised.
 #ifndef HVDB_RENDER_GAUSSIAN_RASTER_H_
 #define HVDB_RENDER_GAUSSIAN_RASTER_H_
 
@@ -42,7 +45,7 @@ namespace hvdb::render {
 
 struct GaussianRenderOptions {
   std::array<float, 3> background{0, 0, 0};  // added as T * background (display values)
-  int threads = 0;                            // 0: std::thread::hardware_concurrency()
+  int threads = 0;                           // 0: std::thread::hardware_concurrency()
 };
 
 // What the rasteriser computes, before any rounding to 8 bits.
@@ -57,15 +60,17 @@ struct GaussianImage {
 };
 
 struct GaussianRenderStats {
-  uint64_t splats_in = 0;       // cloud.size()
-  uint64_t splats_visible = 0;  // splats that reach at least one pixel's tile (see below)
-  // (splat, tile) pairs blended: the reference's tiles of each splat, less those where its
-  // opacity cannot reach 1/255 at any pixel centre (they would change nothing).
+  uint64_t splats_in = 0;  // cloud.size()
+  // Splats that pass the reference's culling and can reach alpha 1/255 at some pixel centre
+  // of their tiles (the others would change no pixel).
+  uint64_t splats_visible = 0;
+  // (splat, tile) pairs blended: the reference's tiles of each visible splat that the ellipse
+  // where its alpha can reach 1/255 touches (the pixel box of that ellipse).
   uint64_t tile_entries = 0;
-  double milliseconds = 0;  // the whole call; and its three stages:
-  double preprocess_ms = 0;  // project, covariance, colour, tile counts
-  double bin_ms = 0;         // the tile lists
-  double blend_ms = 0;       // per tile: sort by depth, blend, write the pixels
+  double milliseconds = 0;   // the whole call; and its three stages:
+  double preprocess_ms = 0;  // projection, 2D covariance, colour, tiles
+  double bin_ms = 0;         // the depth sort and the tile lists
+  double blend_ms = 0;       // the tiles blended and written out
 };
 
 // Renders `cloud` seen by `camera` into `out` (its buffers are reused when large enough).
@@ -78,9 +83,10 @@ Status RenderGaussians(const formats::GaussianCloud& cloud, const Camera& camera
                        const GaussianRenderOptions& options, GaussianImage* out,
                        GaussianRenderStats* stats = nullptr);
 
-// The same, keeping its working memory (~64 bytes a splat and 8 a tile entry) between renders:
+// The same, keeping its working memory (88 bytes a splat and 4 a tile entry) between renders:
 // a viewer's or a benchmark's next frame of a similar cloud maps and faults in no new pages.
-// Memory above 512 MiB is given back after each render. One Render at a time per object.
+// Buffers above 512 MiB are given back after each render. One Render at a time per object.
+// RenderGaussians is a GaussianRasterizer made for one call.
 class GaussianRasterizer {
  public:
   GaussianRasterizer();

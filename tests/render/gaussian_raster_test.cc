@@ -54,7 +54,7 @@ std::array<double, 3> ShColour(const GaussianCloud& g, size_t i, const double d[
   const double C0 = 0.28209479177387814, C1 = 0.4886025119029199;
   const double C2[] = {1.0925484305920792, -1.0925484305920792, 0.31539156525252005,
                        -1.0925484305920792, 0.5462742152960396};
-  const double C3[] = {-0.5900435899266435, 2.890611442640554, -0.4570457994644658,
+  const double C3[] = {-0.5900435899266435, 2.890611442640554,   -0.4570457994644658,
                        0.3731763325901154,  -0.4570457994644658, 1.445305721320277,
                        -0.5900435899266435};
   const int K = formats::ShRestPerChannel(g.sh_degree);
@@ -73,7 +73,8 @@ std::array<double, 3> ShColour(const GaussianCloud& g, size_t i, const double d[
            C2[3] * xz * sh(7) + C2[4] * (xx - yy) * sh(8);
       if (g.sh_degree > 2) {
         r += C3[0] * y * (3 * xx - yy) * sh(9) + C3[1] * xy * z * sh(10) +
-             C3[2] * y * (4 * zz - xx - yy) * sh(11) + C3[3] * z * (2 * zz - 3 * xx - 3 * yy) * sh(12) +
+             C3[2] * y * (4 * zz - xx - yy) * sh(11) +
+             C3[3] * z * (2 * zz - 3 * xx - 3 * yy) * sh(12) +
              C3[4] * x * (4 * zz - xx - yy) * sh(13) + C3[5] * z * (xx - yy) * sh(14) +
              C3[6] * x * (xx - 3 * yy) * sh(15);
       }
@@ -126,7 +127,8 @@ std::vector<RefSplat> RefPreprocess(const GaussianCloud& g, const Camera& cam) {
     const double xc = std::clamp(pc[0] / pc[2], -limx, limx) * pc[2];
     const double yc = std::clamp(pc[1] / pc[2], -limy, limy) * pc[2];
     const double zz = pc[2] * pc[2];
-    const M3 J = {{{cam.fx / pc[2], 0, -cam.fx * xc / zz}, {0, cam.fy / pc[2], -cam.fy * yc / zz},
+    const M3 J = {{{cam.fx / pc[2], 0, -cam.fx * xc / zz},
+                   {0, cam.fy / pc[2], -cam.fy * yc / zz},
                    {0, 0, 0}}};
     const M3 T = Mul(J, W);
     const M3 cov = Mul(Mul(T, Sigma), Transpose(T));
@@ -199,7 +201,7 @@ RefImage RefRender(const GaussianCloud& g, const Camera& cam, std::array<float, 
 int To8(double v) { return static_cast<int>(std::round(std::clamp(v, 0.0, 1.0) * 255)); }
 
 struct Agreement {
-  double psnr = 0;  // over RGB clamped to [0, 1]
+  double psnr = 0;    // over RGB clamped to [0, 1]
   int max_diff8 = 0;  // over RGBA in 8 bits
   double mean_alpha = 0;
 };
@@ -241,12 +243,13 @@ void ExpectMatchesReference(const GaussianCloud& g, const Camera& cam,
   // The scene must actually be seen, or the comparison says little.
   EXPECT_GE(a.mean_alpha, min_coverage);
   EXPECT_GT(stats.splats_visible, 0u);
-  std::printf("  %u x %u: PSNR %.1f dB, max 8-bit diff %d, mean alpha %.2f, %llu of %llu splats "
-              "visible, %llu tile entries\n",
-              cam.width, cam.height, a.psnr, a.max_diff8, a.mean_alpha,
-              static_cast<unsigned long long>(stats.splats_visible),
-              static_cast<unsigned long long>(stats.splats_in),
-              static_cast<unsigned long long>(stats.tile_entries));
+  std::printf(
+      "  %u x %u: PSNR %.1f dB, max 8-bit diff %d, mean alpha %.2f, %llu of %llu splats "
+      "visible, %llu tile entries\n",
+      cam.width, cam.height, a.psnr, a.max_diff8, a.mean_alpha,
+      static_cast<unsigned long long>(stats.splats_visible),
+      static_cast<unsigned long long>(stats.splats_in),
+      static_cast<unsigned long long>(stats.tile_entries));
 }
 
 // ----- Scenes -----
@@ -353,8 +356,8 @@ TEST(GaussianRaster, MatchesReferenceOnTheScannedBunny) {
     g.opacity[i] = 2.5f;
     g.sh_dc[3 * i] = (p.y - 0.1f) * 20;
   }
-  const Camera cam = Camera::LookAt({-0.02, -0.1, -0.3}, {-0.02, -0.1, 0}, {0, -1, 0}, 40, 160,
-                                    160);
+  const Camera cam =
+      Camera::LookAt({-0.02, -0.1, -0.3}, {-0.02, -0.1, 0}, {0, -1, 0}, 40, 160, 160);
   ExpectMatchesReference(g, cam, {0.1f, 0.1f, 0.1f}, 0.2);
 }
 
@@ -369,7 +372,7 @@ TEST(GaussianRaster, SingleSplatHasTheExpectedPixels) {
   GaussianCloud g;
   g.sh_degree = 1;
   g.Resize(1);
-  g.position = {0, 0, 2};  // u = 50, v = 40: the centre of pixel (50, 40)
+  g.position = {0, 0, 2};     // u = 50, v = 40: the centre of pixel (50, 40)
   const double sigma = 0.02;  // 1 pixel at z = 2: screen variance 1 + 0.3
   g.scale = {std::log(0.02f), std::log(0.02f), std::log(0.02f)};
   g.rotation = {1, 0, 0, 0};
@@ -459,6 +462,28 @@ TEST(GaussianRaster, SameImageWhateverTheThreadCount) {
   GaussianImage other;
   ASSERT_TRUE(rasterizer.Render(RandomCloud(500, 0, 1), TestCameras()[1], options, &other).ok());
   ASSERT_TRUE(rasterizer.Render(g, cam, options, &three).ok());
+  EXPECT_EQ(one.rgb, three.rgb);
+  EXPECT_EQ(one.alpha, three.alpha);
+}
+
+// Enough splats that every step splits its work (the depth sort into slices, the tile lists
+// into chunks): 1 and 3 threads must still give the same image bit for bit.
+TEST(GaussianRaster, LargeCloudSameImageWhateverTheThreadCount) {
+  GaussianCloud g = RandomCloud(300000, 1, 31);
+  for (size_t i = 0; i < g.size(); ++i) {
+    for (int k = 0; k < 3; ++k) g.scale[3 * i + k] -= 1.5f;  // smaller: ~1-3 pixels
+  }
+  const Camera cam = Camera::LookAt({0.2, -0.3, -2.6}, {0, 0, 0}, {0, -1, 0}, 60, 320, 240);
+  GaussianImage one, three;
+  GaussianRenderStats s1, s3;
+  GaussianRenderOptions options;
+  options.threads = 1;
+  ASSERT_TRUE(RenderGaussians(g, cam, options, &one, &s1).ok());
+  options.threads = 3;
+  ASSERT_TRUE(RenderGaussians(g, cam, options, &three, &s3).ok());
+  EXPECT_GT(s1.splats_visible, 200000u);
+  EXPECT_EQ(s1.splats_visible, s3.splats_visible);
+  EXPECT_EQ(s1.tile_entries, s3.tile_entries);
   EXPECT_EQ(one.rgb, three.rgb);
   EXPECT_EQ(one.alpha, three.alpha);
 }

@@ -1,0 +1,592 @@
+// The kernels of the CPU 3DGS rasteriser: steps 1 and 3 of gaussian_raster.cc (its only
+// includer; internal to render/): a group of 8 splats preprocessed into records, and a batch
+// of records blended into a 16x16 tile. Float arithmetic, 8 lanes a vector (simd.h); the hot
+// functions are built for AVX-512, AVX2 and the x86-64 baseline (HVDB_RENDER_CLONES). Sqrt
+// below becomes one vector instruction only with -fno-math-errno (render/CMakeLists.txt).
+#ifndef HVDB_RENDER_GAUSSIAN_RASTER_KERNELS_H_
+#define HVDB_RENDER_GAUSSIAN_RASTER_KERNELS_H_
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+
+#include "formats/gaussians.h"
+#include "render/renderer.h"
+// simd.h's helpers pass vectors by value and are always inlined (see cpu_renderer.cc).
+#pragma GCC diagnostic ignored "-Wpsabi"
+#include "render/simd.h"
+
+namespace hvdb::render::gaussian {
+
+using internal::Broadcast;
+using internal::F8;
+
+constexpr int kTile = 16;  // the reference's BLOCK_X = BLOCK_Y
+constexpr float kNearZ = 0.2f;
+constexpr float kDilation = 0.3f;  // pixels^2 added to the 2D covariance's diagonal
+constexpr float kMinAlpha = 1.0f / 255.0f;
+constexpr float kMaxAlpha = 0.99f;
+constexpr float kMinTransmittance = 0.0001f;
+constexpr size_t kBatch = 64;  // records a tile blends at a time (BlendBatch)
+
+// The reference's spherical-harmonic constants (auxiliary.h).
+constexpr float kC0 = 0.28209479177387814f;
+constexpr float kC1 = 0.4886025119029199f;
+constexpr float kC2[5] = {1.0925484305920792f, -1.0925484305920792f, 0.31539156525252005f,
+                          -1.0925484305920792f, 0.5462742152960396f};
+constexpr float kC3[7] = {-0.5900435899266435f, 2.890611442640554f,   -0.4570457994644658f,
+                          0.3731763325901154f,  -0.4570457994644658f, 1.445305721320277f,
+                          -0.5900435899266435f};
+
+// A visible splat, as blending needs it: one cache line.
+struct alignas(64) Record {
+  float u, v;     // pixel position of the centre
+  float a, b, c;  // conic: the inverse of the dilated 2D covariance (a b; b c)
+  float opacity;  // after the sigmoid (and the antialiasing compensation)
+  float rgb[3];
+  // The ellipse where alpha can reach 1/255, in pixel offsets (ox, oy) from the centre: in
+  // row oy it spans ox = slope oy -+ sqrt(half2 - half2_dy oy^2).
+  float slope, half2, half2_dy;
+  int16_t x0, x1, y0, y1;       // its pixel box, inclusive (within the image and the tiles)
+  uint16_t tx0, tx1, ty0, ty1;  // its tiles, [tx0, tx1) x [ty0, ty1)
+};
+static_assert(sizeof(Record) == 64);
+
+// The camera in float, as the reference holds it.
+struct ViewF {
+  float rot[9];     // camera-from-world rotation, row-major
+  float trans[3];   // camera-from-world translation
+  float centre[3];  // camera centre in the world
+  float fx, fy, cx, cy;
+  float lim_x, lim_y;  // 1.3 tan(half fov): the EWA Jacobian's clamp of x/z and y/z
+  int width, height, tiles_x, tiles_y;
+};
+
+inline ViewF MakeView(const Camera& cam) {
+  const auto& m = cam.world_from_camera;  // [R | t]: camera-from-world is [R^T | -R^T t]
+  ViewF v{};
+  for (int i = 0; i < 3; ++i) {
+    double t = 0;
+    for (int j = 0; j < 3; ++j) {
+      v.rot[3 * i + j] = static_cast<float>(m[4 * j + i]);
+      t -= m[4 * j + i] * m[4 * j + 3];
+    }
+    v.trans[i] = static_cast<float>(t);
+    v.centre[i] = static_cast<float>(m[4 * i + 3]);
+  }
+  v.fx = static_cast<float>(cam.fx);
+  v.fy = static_cast<float>(cam.fy);
+  v.cx = static_cast<float>(cam.cx);
+  v.cy = static_cast<float>(cam.cy);
+  const float tan_fovx = static_cast<float>(cam.width / (2.0 * cam.fx));
+  const float tan_fovy = static_cast<float>(cam.height / (2.0 * cam.fy));
+  v.lim_x = 1.3f * tan_fovx;
+  v.lim_y = 1.3f * tan_fovy;
+  v.width = static_cast<int>(cam.width);
+  v.height = static_cast<int>(cam.height);
+  v.tiles_x = (v.width + kTile - 1) / kTile;
+  v.tiles_y = (v.height + kTile - 1) / kTile;
+  return v;
+}
+
+// What step 2 sorts and bins: a visible splat's depth, record and tiles.
+struct Item {
+  uint32_t depth;                      // the float's bits: positive floats order as their bits
+  uint32_t index;                      // of its record
+  uint8_t tx0, ty0, tiles_w, tiles_h;  // tiles [tx0, tx0 + tiles_w] x [ty0, ty0 + tiles_h]
+};
+static_assert(sizeof(Item) == 12);
+
+// sqrt lane by lane: vsqrtps (this file is built with -fno-math-errno, so GCC vectorises it).
+HVDB_SIMD_INLINE F8 Sqrt(F8 v) {
+  F8 r;
+  for (int i = 0; i < 8; ++i) r[i] = std::sqrt(v[i]);
+  return r;
+}
+
+// Rounding of values within +-2^31 (callers clamp), by truncation to integers.
+HVDB_SIMD_INLINE F8 Trunc(F8 x) {
+  return __builtin_convertvector(__builtin_convertvector(x, internal::I8), F8);
+}
+HVDB_SIMD_INLINE F8 Ceil(F8 x) {
+  const F8 t = Trunc(x);
+  return t < x ? t + 1.0f : t;
+}
+HVDB_SIMD_INLINE F8 Floor(F8 x) {
+  const F8 t = Trunc(x);
+  return t > x ? t - 1.0f : t;
+}
+
+// ln x for finite x >= 1 (callers clamp): Cephes' logf (relative error ~1e-7).
+HVDB_SIMD_INLINE F8 Log(F8 x) {
+  using internal::I8;
+  I8 bits;
+  std::memcpy(&bits, &x, sizeof bits);
+  F8 e = __builtin_convertvector((bits >> 23) - 126, F8);
+  bits = (bits & 0x007fffff) | 0x3f000000;  // the mantissa in [0.5, 1)
+  F8 m;
+  std::memcpy(&m, &bits, sizeof m);
+  const F8 small = m < 0.707106781186547524f ? Broadcast<F8>(1.0f) : F8{};
+  e -= small;
+  m = m + m * small - 1.0f;
+  const F8 z = m * m;
+  F8 y = Broadcast<F8>(7.0376836292e-2f);
+  y = y * m - 1.1514610310e-1f;
+  y = y * m + 1.1676998740e-1f;
+  y = y * m - 1.2420140846e-1f;
+  y = y * m + 1.4249322787e-1f;
+  y = y * m - 1.6668057665e-1f;
+  y = y * m + 2.0000714765e-1f;
+  y = y * m - 2.4999993993e-1f;
+  y = y * m + 3.3333331174e-1f;
+  y = y * m * z;
+  y += -2.12194440e-4f * e;
+  y += -0.5f * z;
+  return m + y + 0.693359375f * e;
+}
+
+// Step 1 for the 8 splats from i0 (`count` of them real): the visible ones' records and items
+// appended at records[*k], items[*k]. The arithmetic up to the 2D conic, the radius's square
+// root and the SH basis runs on 8 splats at once (the cloud's arrays are structures of arrays);
+// the decisions, the tiles and the colour splat by splat.
+HVDB_RENDER_CLONES
+static void PrepareGroup(const formats::GaussianCloud& g, size_t i0, int count, const ViewF& v,
+                         Record* records, Item* items, uint32_t* k) {
+  using internal::Load;
+  using internal::Max;
+  using internal::Min;
+  using internal::Store;
+  // The inputs, transposed: in[field][lane].
+  alignas(32) float in[14][8];
+  for (int l = 0; l < 8; ++l) {
+    const size_t i = i0 + static_cast<size_t>(std::min(l, count - 1));
+    for (int c = 0; c < 3; ++c) in[c][l] = g.position[3 * i + c];
+    for (int c = 0; c < 3; ++c) in[3 + c][l] = g.scale[3 * i + c];
+    for (int c = 0; c < 4; ++c) in[6 + c][l] = g.rotation[4 * i + c];
+    in[10][l] = g.opacity[i];
+  }
+  const F8 px = Load<F8>(in[0]), py = Load<F8>(in[1]), pz = Load<F8>(in[2]);
+  const float* R = v.rot;
+  const F8 tx = R[0] * px + R[1] * py + R[2] * pz + v.trans[0];
+  const F8 ty = R[3] * px + R[4] * py + R[5] * pz + v.trans[1];
+  const F8 tz = R[6] * px + R[7] * py + R[8] * pz + v.trans[2];
+
+  // 3D covariance R S S^T R^T: R of the normalised quaternion (the identity for a zero one).
+  F8 qw = Load<F8>(in[6]), qx = Load<F8>(in[7]), qy = Load<F8>(in[8]), qz = Load<F8>(in[9]);
+  const F8 qn = Sqrt(qw * qw + qx * qx + qy * qy + qz * qz);
+  const F8 zero{}, one = Broadcast<F8>(1.0f);
+  const F8 inv_qn = qn > 0.0f ? one / qn : zero;
+  qw = qn > 0.0f ? qw * inv_qn : one;
+  qx *= inv_qn, qy *= inv_qn, qz *= inv_qn;
+  // e^(log scale), clamped below overflow (an infinite covariance is culled below anyway).
+  const F8 s0 = internal::Exp(Min(Load<F8>(in[3]), Broadcast<F8>(80.0f)));
+  const F8 s1 = internal::Exp(Min(Load<F8>(in[4]), Broadcast<F8>(80.0f)));
+  const F8 s2 = internal::Exp(Min(Load<F8>(in[5]), Broadcast<F8>(80.0f)));
+  const F8 M[9] = {(1.f - 2.f * (qy * qy + qz * qz)) * s0, 2.f * (qx * qy - qw * qz) * s1,
+                   2.f * (qx * qz + qw * qy) * s2,         2.f * (qx * qy + qw * qz) * s0,
+                   (1.f - 2.f * (qx * qx + qz * qz)) * s1, 2.f * (qy * qz - qw * qx) * s2,
+                   2.f * (qx * qz - qw * qy) * s0,         2.f * (qy * qz + qw * qx) * s1,
+                   (1.f - 2.f * (qx * qx + qy * qy)) * s2};  // R S
+  auto row_dot = [&](int r, int c) {
+    return M[3 * r] * M[3 * c] + M[3 * r + 1] * M[3 * c + 1] + M[3 * r + 2] * M[3 * c + 2];
+  };
+  const F8 S00 = row_dot(0, 0), S01 = row_dot(0, 1), S02 = row_dot(0, 2);
+  const F8 S11 = row_dot(1, 1), S12 = row_dot(1, 2), S22 = row_dot(2, 2);
+
+  // EWA: J W Sigma W^T J^T, the Jacobian at the centre clamped to 1.3 times the field of view.
+  const F8 inv_z = one / tz;
+  const F8 xc = Min(Broadcast<F8>(v.lim_x), Max(Broadcast<F8>(-v.lim_x), tx * inv_z)) * tz;
+  const F8 yc = Min(Broadcast<F8>(v.lim_y), Max(Broadcast<F8>(-v.lim_y), ty * inv_z)) * tz;
+  const F8 j00 = v.fx * inv_z, j02 = -(v.fx * xc) * (inv_z * inv_z);
+  const F8 j11 = v.fy * inv_z, j12 = -(v.fy * yc) * (inv_z * inv_z);
+  const F8 t0[3] = {j00 * R[0] + j02 * R[6], j00 * R[1] + j02 * R[7], j00 * R[2] + j02 * R[8]};
+  const F8 t1[3] = {j11 * R[3] + j12 * R[6], j11 * R[4] + j12 * R[7], j11 * R[5] + j12 * R[8]};
+  const F8 st0[3] = {S00 * t0[0] + S01 * t0[1] + S02 * t0[2],
+                     S01 * t0[0] + S11 * t0[1] + S12 * t0[2],
+                     S02 * t0[0] + S12 * t0[1] + S22 * t0[2]};
+  const F8 st1[3] = {S00 * t1[0] + S01 * t1[1] + S02 * t1[2],
+                     S01 * t1[0] + S11 * t1[1] + S12 * t1[2],
+                     S02 * t1[0] + S12 * t1[1] + S22 * t1[2]};
+  F8 cxx = t0[0] * st0[0] + t0[1] * st0[1] + t0[2] * st0[2];
+  const F8 cxy = t1[0] * st0[0] + t1[1] * st0[1] + t1[2] * st0[2];
+  F8 cyy = t1[0] * st1[0] + t1[1] * st1[1] + t1[2] * st1[2];
+  const F8 det0 = cxx * cyy - cxy * cxy;
+  cxx += kDilation;
+  cyy += kDilation;
+  const F8 det = cxx * cyy - cxy * cxy;
+  const F8 det_inv = one / det;
+  const F8 logit = Load<F8>(in[10]);
+  F8 opacity = one / (one + internal::Exp(Min(-logit, Broadcast<F8>(80.0f))));
+  if (g.antialiased) opacity *= Sqrt(Max(zero, det0 / det));
+  const F8 mid = 0.5f * (cxx + cyy);
+  const F8 root3 = 3.0f * Sqrt(mid + Sqrt(Max(Broadcast<F8>(0.1f), mid * mid - det)));
+
+  const F8 u = v.fx * tx * inv_z + v.cx, w = v.fy * ty * inv_z + v.cy;
+  const F8 ca = cyy * det_inv, cb = -cxy * det_inv, cc = cxx * det_inv;
+
+  // Which splats stay (as 1 or 0: lanes with infinities or NaNs, such as those behind the
+  // camera, are cleared by these tests and never converted to integers unclamped).
+  auto flag = [&](F8 keep, F8 test) { return test != 0.0f ? keep : zero; };
+  auto is_finite = [&](F8 x) { return x - x == 0.0f ? one : zero; };
+  F8 keep = tz > kNearZ ? one : zero;
+  keep = flag(keep, det != 0.0f ? one : zero);
+  keep = flag(keep, is_finite(u) * is_finite(w) * is_finite(root3) * is_finite(ca + cb + cc) *
+                        is_finite(cxx + cyy) * is_finite(opacity));
+  // getRect: tiles [rx0, rx1) x [ry0, ry1): (int) of the float clamped to [0, grid], by
+  // truncation. The radius ceil(3 sqrt(lambda)) is capped where it covers any image anyway.
+  const F8 radius = Ceil(Min(root3, Broadcast<F8>(1e9f)));
+  auto tile = [&](F8 t, int grid) {
+    return Trunc(Min(Max(t, zero), Broadcast<F8>(static_cast<float>(grid))));
+  };
+  const F8 rx0 = tile((u - radius) * (1.0f / kTile), v.tiles_x);
+  const F8 ry0 = tile((w - radius) * (1.0f / kTile), v.tiles_y);
+  const F8 rx1 = tile((u + radius + static_cast<float>(kTile - 1)) * (1.0f / kTile), v.tiles_x);
+  const F8 ry1 = tile((w + radius + static_cast<float>(kTile - 1)) * (1.0f / kTile), v.tiles_y);
+  keep = flag(keep, (rx1 - rx0) * (ry1 - ry0));
+  // alpha = min(0.99, opacity e^power) with power <= 0 never reaches 1/255: no pixel uses it.
+  keep = flag(keep, opacity >= kMinAlpha ? one : zero);
+  // The box of the ellipse d^T conic d <= 2 ln(255 opacity) (alpha >= 1/255 within), widened
+  // against rounding, in pixel centres; cut to the reference's rectangle and the image.
+  const F8 kq = 2.0f * Log(Max(255.0f * opacity, one)) * 1.001f + 0.01f;
+  const F8 ex = Sqrt(kq * Max(cxx, zero)) * 1.001f + 0.01f;
+  const F8 ey = Sqrt(kq * Max(cyy, zero)) * 1.001f + 0.01f;
+  const F8 width = Broadcast<F8>(static_cast<float>(v.width));
+  const F8 height = Broadcast<F8>(static_cast<float>(v.height));
+  auto clamp = [&](F8 x, F8 size) { return Min(Max(x, Broadcast<F8>(-1.0f)), size); };
+  const F8 x0 = Max(Ceil(clamp(u - ex, width)), rx0 * static_cast<float>(kTile));
+  const F8 x1 =
+      Min(Min(Floor(clamp(u + ex, width)), rx1 * static_cast<float>(kTile) - 1.0f), width - 1.0f);
+  const F8 y0 = Max(Ceil(clamp(w - ey, height)), ry0 * static_cast<float>(kTile));
+  const F8 y1 =
+      Min(Min(Floor(clamp(w + ey, height)), ry1 * static_cast<float>(kTile) - 1.0f), height - 1.0f);
+  keep = flag(keep, x0 <= x1 ? one : zero);
+  keep = flag(keep, y0 <= y1 ? one : zero);
+
+  alignas(32) float out[16][8];
+  Store(out[0], tz);
+  Store(out[1], keep);
+  Store(out[2], u);
+  Store(out[3], w);
+  Store(out[4], ca);
+  Store(out[5], cb);
+  Store(out[6], cc);
+  Store(out[7], opacity);
+  Store(out[8], -cb / ca);  // the spans: slope, half2, half2_dy
+  Store(out[9], kq / ca);
+  Store(out[10], det_inv / (ca * ca));  // det(conic) / a^2
+  Store(out[11], x0);
+  Store(out[12], x1);
+  Store(out[13], y0);
+  Store(out[14], y1);
+
+  // The SH basis for the directions from the camera centre (signs folded in).
+  const int deg = g.sh_degree;
+  alignas(32) float basis[15][8];
+  if (deg > 0) {
+    F8 dx = px - v.centre[0], dy = py - v.centre[1], dz = pz - v.centre[2];
+    const F8 inv_len = one / Sqrt(dx * dx + dy * dy + dz * dz);
+    dx *= inv_len, dy *= inv_len, dz *= inv_len;
+    Store(basis[0], -kC1 * dy);
+    Store(basis[1], kC1 * dz);
+    Store(basis[2], -kC1 * dx);
+    if (deg > 1) {
+      const F8 xx = dx * dx, yy = dy * dy, zz = dz * dz;
+      Store(basis[3], kC2[0] * dx * dy);
+      Store(basis[4], kC2[1] * dy * dz);
+      Store(basis[5], kC2[2] * (2.0f * zz - xx - yy));
+      Store(basis[6], kC2[3] * dx * dz);
+      Store(basis[7], kC2[4] * (xx - yy));
+      if (deg > 2) {
+        Store(basis[8], kC3[0] * dy * (3.0f * xx - yy));
+        Store(basis[9], kC3[1] * dx * dy * dz);
+        Store(basis[10], kC3[2] * dy * (4.0f * zz - xx - yy));
+        Store(basis[11], kC3[3] * dz * (2.0f * zz - 3.0f * xx - 3.0f * yy));
+        Store(basis[12], kC3[4] * dx * (4.0f * zz - xx - yy));
+        Store(basis[13], kC3[5] * dz * (xx - yy));
+        Store(basis[14], kC3[6] * dx * (xx - 3.0f * yy));
+      }
+    }
+  }
+  const int per_channel = formats::ShRestPerChannel(deg);
+
+  for (int l = 0; l < count; ++l) {
+    if (out[1][l] == 0.0f) continue;
+    const size_t i = i0 + static_cast<size_t>(l);
+    const int x0l = static_cast<int>(out[11][l]), x1l = static_cast<int>(out[12][l]);
+    const int y0l = static_cast<int>(out[13][l]), y1l = static_cast<int>(out[14][l]);
+    // Colour: the SH, + 0.5, clamped below at 0.
+    Record& r = records[*k];
+    const float* rest = g.sh_rest.data() + i * 3 * static_cast<size_t>(per_channel);
+    bool finite = true;
+    for (int ch = 0; ch < 3; ++ch) {
+      float c = kC0 * g.sh_dc[3 * i + ch];
+      for (int j = 0; j < per_channel; ++j) c += basis[j][l] * rest[ch * per_channel + j];
+      c += 0.5f;
+      finite = finite && std::isfinite(c);
+      r.rgb[ch] = std::max(c, 0.0f);
+    }
+    if (!finite) continue;
+    r.u = out[2][l];
+    r.v = out[3][l];
+    r.a = out[4][l];
+    r.b = out[5][l];
+    r.c = out[6][l];
+    r.opacity = out[7][l];
+    r.slope = out[8][l];
+    r.half2 = out[9][l];
+    r.half2_dy = out[10][l];
+    r.x0 = static_cast<int16_t>(x0l);
+    r.x1 = static_cast<int16_t>(x1l);
+    r.y0 = static_cast<int16_t>(y0l);
+    r.y1 = static_cast<int16_t>(y1l);
+    r.tx0 = static_cast<uint16_t>(x0l / kTile);
+    r.tx1 = static_cast<uint16_t>(x1l / kTile + 1);
+    r.ty0 = static_cast<uint16_t>(y0l / kTile);
+    r.ty1 = static_cast<uint16_t>(y1l / kTile + 1);
+    Item& item = items[*k];
+    std::memcpy(&item.depth, &out[0][l], 4);
+    item.tx0 = static_cast<uint8_t>(r.tx0);
+    item.ty0 = static_cast<uint8_t>(r.ty0);
+    item.tiles_w = static_cast<uint8_t>(r.tx1 - r.tx0 - 1);
+    item.tiles_h = static_cast<uint8_t>(r.ty1 - r.ty0 - 1);
+    ++*k;
+  }
+}
+
+// A tile's pixels, row-major: two vectors of 8 a row.
+struct alignas(64) TileState {
+  float T[kTile][kTile], r[kTile][kTile], g[kTile][kTile], b[kTile][kTile];
+  float live[kTile][kTile];  // 1: the pixel still blends; 0: it stopped, or is not one
+  uint32_t live_rows;        // bit y: row y has a live pixel
+};
+
+// Horizontal minimum or maximum.
+typedef float F4 __attribute__((vector_size(16)));
+HVDB_SIMD_INLINE float Fold(F8 v, bool max) {
+  const F4 a = __builtin_shufflevector(v, v, 0, 1, 2, 3);
+  const F4 b = __builtin_shufflevector(v, v, 4, 5, 6, 7);
+  const F4 m4 = max ? internal::Max(a, b) : internal::Min(a, b);
+  const F4 c = __builtin_shufflevector(m4, m4, 2, 3, 0, 1);
+  const F4 m2 = max ? internal::Max(m4, c) : internal::Min(m4, c);
+  const F4 d = __builtin_shufflevector(m2, m2, 1, 0, 3, 2);
+  return (max ? internal::Max(m2, d) : internal::Min(m2, d))[0];
+}
+
+// e^x for x in [-20, 0], two vectors at once, their operations interleaved (one exp is a chain
+// of ~15 dependent operations; two side by side keep the core busy where one leaves it
+// waiting). Cephes' expf, as simd.h's Exp (the same polynomial, within an ulp of std::exp),
+// with x log2(e) rounded to nearest by adding 1.5 2^23 instead of a floor.
+HVDB_SIMD_INLINE void Exp2(F8* p, F8* q) {
+  using internal::I8;
+  constexpr float kRound = 12582912.0f;  // 1.5 2^23: adding it rounds to an integer
+  const F8 x = *p, y = *q;
+  const F8 fx = x * 1.44269504088896341f + kRound, fy = y * 1.44269504088896341f + kRound;
+  const F8 gx = fx - kRound, gy = fy - kRound;  // round(x log2 e)
+  I8 nx, ny, kr;
+  std::memcpy(&nx, &fx, sizeof nx);
+  std::memcpy(&ny, &fy, sizeof ny);
+  const F8 round_v = Broadcast<F8>(kRound);
+  std::memcpy(&kr, &round_v, sizeof kr);
+  nx = (nx - kr) << 23;  // 2^n, as the exponent field
+  ny = (ny - kr) << 23;
+  F8 rx = x - gx * 0.693359375f, ry = y - gy * 0.693359375f;
+  rx = rx - gx * -2.12194440e-4f;
+  ry = ry - gy * -2.12194440e-4f;
+  const F8 zx = rx * rx, zy = ry * ry;
+  F8 px = Broadcast<F8>(1.9875691500e-4f), py = px;
+  px = px * rx + 1.3981999507e-3f;
+  py = py * ry + 1.3981999507e-3f;
+  px = px * rx + 8.3334519073e-3f;
+  py = py * ry + 8.3334519073e-3f;
+  px = px * rx + 4.1665795894e-2f;
+  py = py * ry + 4.1665795894e-2f;
+  px = px * rx + 1.6666665459e-1f;
+  py = py * ry + 1.6666665459e-1f;
+  px = px * rx + 5.0000001201e-1f;
+  py = py * ry + 5.0000001201e-1f;
+  px = px * zx + rx + 1.0f;
+  py = py * zy + ry + 1.0f;
+  I8 bx, by;
+  std::memcpy(&bx, &px, sizeof bx);
+  std::memcpy(&by, &py, sizeof by);
+  bx += nx;
+  by += ny;
+  std::memcpy(p, &bx, sizeof bx);
+  std::memcpy(q, &by, sizeof by);
+}
+
+// One piece of work of a row: 8 pixels of a splat from tile column `at` on.
+struct Piece {
+  uint8_t splat, job, at, unused;
+};
+
+// alpha of each piece's splat at its pixels, before the pixels' own state: 0 where the
+// reference skips the splat (power > 0, or alpha below 1/255), else min(0.99, opacity
+// e^power). Two pieces at once (see Exp2). Pixels of the tile that no piece covers lie outside
+// the splat's ellipse, where alpha < 1/255: the reference skips them too.
+HVDB_SIMD_INLINE void Alpha2(const Record* batch, const Piece& i0, const Piece& i1, int tx0,
+                             float py, F8* out0, F8* out1) {
+  const F8 lane = internal::VecTraits<F8>::kIota;
+  const F8 zero{};
+  const Record& s = batch[i0.splat];
+  const Record& t = batch[i1.splat];
+  // Offsets d = centre - pixel, tile-relative (exact: small integers and the centre's float).
+  const F8 dx0 = (s.u - static_cast<float>(tx0 + i0.at)) - lane;
+  const F8 dx1 = (t.u - static_cast<float>(tx0 + i1.at)) - lane;
+  const float dy0 = s.v - py, dy1 = t.v - py;
+  // The reference's -0.5 (a dx^2 + c dy^2) - b dx dy, as (-0.5 a dx - b dy) dx - 0.5 c dy^2.
+  const F8 power0 = (-0.5f * s.a * dx0 - s.b * dy0) * dx0 - 0.5f * (s.c * dy0 * dy0);
+  const F8 power1 = (-0.5f * t.a * dx1 - t.b * dy1) * dx1 - 0.5f * (t.c * dy1 * dy1);
+  // Below -20, alpha < 1e-8 is skipped anyway: the clamp keeps lanes far outside the ellipse
+  // from e^-87 and its subnormal products (a microcode assist each).
+  F8 e0 = internal::Max(power0, Broadcast<F8>(-20.0f)),
+     e1 = internal::Max(power1, Broadcast<F8>(-20.0f));
+  Exp2(&e0, &e1);
+  F8 a0 = internal::Min(Broadcast<F8>(kMaxAlpha), s.opacity * e0);
+  F8 a1 = internal::Min(Broadcast<F8>(kMaxAlpha), t.opacity * e1);
+  a0 = power0 > 0.0f ? zero : a0;
+  a1 = power1 > 0.0f ? zero : a1;
+  *out0 = a0 >= kMinAlpha ? a0 : zero;
+  *out1 = a1 >= kMinAlpha ? a1 : zero;
+}
+
+// For 8 rows from image row y0, the span of splat s's ellipse (widened by a hundredth of a
+// pixel against rounding) cut to tile columns [xa, xb] of the tile at column tx0: its first
+// column, and the pieces of 8 columns that cover it (0, 1 or 2; spans are 16 columns at most).
+HVDB_SIMD_INLINE void RowSpans(const Record& s, int tx0, int y0, int xa, int xb, float* first,
+                               float* pieces) {
+  const F8 lane = internal::VecTraits<F8>::kIota;
+  const F8 zero{}, one = Broadcast<F8>(1.0f);
+  const F8 oy = lane + (static_cast<float>(y0) - s.v);  // pixel row - centre
+  const F8 h2 = s.half2 - s.half2_dy * oy * oy;
+  const F8 h = Sqrt(internal::Max(h2, zero)) + 0.01f;
+  const F8 centre = (s.u - static_cast<float>(tx0)) + s.slope * oy;
+  // Clamped to the tile's columns before rounding, so the conversions are defined whatever the
+  // splat's size; ceil and floor by truncation (the values are then within [-1, 16]).
+  const F8 left = internal::Max(centre - h, Broadcast<F8>(-1.0f));
+  const F8 right = internal::Min(centre + h, Broadcast<F8>(16.0f));
+  const F8 tl = __builtin_convertvector(__builtin_convertvector(left, internal::I8), F8);
+  const F8 tr = __builtin_convertvector(__builtin_convertvector(right, internal::I8), F8);
+  const F8 lo = internal::Max(tl < left ? tl + 1.0f : tl, Broadcast<F8>(static_cast<float>(xa)));
+  const F8 hi = internal::Min(tr > right ? tr - 1.0f : tr, Broadcast<F8>(static_cast<float>(xb)));
+  F8 n = hi - lo >= 8.0f ? one + one : one;
+  n = h2 >= 0.0f ? n : zero;
+  n = lo <= hi ? n : zero;
+  internal::Store(first, lo);
+  internal::Store(pieces, n);
+}
+
+// Eight pixels of a row: what blending carries from splat to splat.
+struct Run {
+  F8 T, r, g, b, live;
+};
+
+// The reference's per-pixel step for 8 pixels given the splat's alpha there; returns the
+// smallest T (1 - alpha). Pixels that have stopped get alpha 0.
+//
+// Only selects (?:) of comparisons, no comparison results as integer vectors (GCC 12 makes
+// those a scalar compare per lane in the AVX-512 clone). So a lane that must not change gets
+// alpha 0: then T (1 - alpha) = T, never below the threshold (T only ever takes values at or
+// above it), and the update adds 0 and keeps T.
+HVDB_SIMD_INLINE F8 Step(const Record& s, F8 alpha, Run* run) {
+  const F8 zero{};
+  alpha = alpha * run->live;
+  const F8 test_t = run->T * (1.0f - alpha);
+  const F8 wt = test_t < kMinTransmittance ? zero : alpha * run->T;
+  run->r += s.rgb[0] * wt;
+  run->g += s.rgb[1] * wt;
+  run->b += s.rgb[2] * wt;
+  run->T = test_t < kMinTransmittance ? run->T : test_t;
+  return test_t;
+}
+
+// Blends `n` <= kBatch records (front to back) into the tile at pixel (tx0, ty0); true once
+// every pixel of the tile has stopped. First each row's jobs (the splats whose ellipse reaches
+// it, in order) and pieces (the runs of 8 pixels that cover a job's span); then row by row the
+// pieces' alphas, two at a time, and the blending in order with the row's pixels in registers.
+HVDB_RENDER_CLONES
+static bool BlendBatch(const Record* batch, size_t n, int tx0, int ty0, TileState* st) {
+  using internal::Load;
+  using internal::Store;
+  Piece pieces[kTile][2 * kBatch + 2];
+  uint8_t splat_of[kTile][kBatch + 1];  // each row's jobs' splats
+  int jobs[kTile] = {}, count[kTile] = {};
+  for (size_t j = 0; j < n; ++j) {
+    const Record& s = batch[j];
+    const int ya = std::max<int>(s.y0, ty0) - ty0, yb = std::min<int>(s.y1, ty0 + kTile - 1) - ty0;
+    const int xa = std::max<int>(s.x0, tx0) - tx0, xb = std::min<int>(s.x1, tx0 + kTile - 1) - tx0;
+    if (xa > xb || ya > yb) continue;
+    uint32_t rows = st->live_rows & ((2u << yb) - 1) & ~((1u << ya) - 1);
+    if (rows == 0) continue;
+    // The spans of rows ya .. ya + 7 (and ya + 8 .. ya + 15 for taller boxes), 8 rows a vector:
+    // the first column and how many runs of 8 (0: the ellipse misses the row).
+    alignas(32) float first[16], runs[16];
+    RowSpans(s, tx0, ty0 + ya, xa, xb, first, runs);
+    if (yb - ya >= 8) RowSpans(s, tx0, ty0 + ya + 8, xa, xb, first + 8, runs + 8);
+    // Without branches on the data: a job and two pieces are written for every row, and the
+    // counts advance only by what the row needs (mispredicted branches cost more than that).
+    while (rows != 0) {
+      const int y = __builtin_ctz(rows);
+      rows &= rows - 1;
+      const int lo = static_cast<int>(first[y - ya]), np = static_cast<int>(runs[y - ya]);
+      const int job = jobs[y];
+      splat_of[y][job] = static_cast<uint8_t>(j);
+      Piece* out = pieces[y] + count[y];
+      out[0] = {static_cast<uint8_t>(j), static_cast<uint8_t>(job), static_cast<uint8_t>(lo), 0};
+      out[1] = {static_cast<uint8_t>(j), static_cast<uint8_t>(job), static_cast<uint8_t>(lo + 8),
+                0};
+      jobs[y] = job + (np > 0);
+      count[y] += np;
+    }
+  }
+  // Each job's alpha over the tile row, and 8 more columns where a piece may spill over.
+  alignas(32) float alpha[kBatch][kTile + 8];
+  for (int y = 0; y < kTile; ++y) {
+    const int m = count[y];
+    if (m == 0) continue;
+    const float py = static_cast<float>(ty0 + y);
+    for (int k = 0; k < jobs[y]; ++k) {
+      for (int at = 0; at < kTile + 8; at += 8) Store(&alpha[k][at], F8{});
+    }
+    for (int k = 0; k < m; k += 2) {
+      const Piece& i0 = pieces[y][k];
+      const Piece& i1 = pieces[y][std::min(k + 1, m - 1)];
+      F8 a0, a1;
+      Alpha2(batch, i0, i1, tx0, py, &a0, &a1);
+      Store(&alpha[i0.job][i0.at], a0);
+      Store(&alpha[i1.job][i1.at], a1);
+    }
+    Run left{Load<F8>(&st->T[y][0]), Load<F8>(&st->r[y][0]), Load<F8>(&st->g[y][0]),
+             Load<F8>(&st->b[y][0]), Load<F8>(&st->live[y][0])};
+    Run right{Load<F8>(&st->T[y][8]), Load<F8>(&st->r[y][8]), Load<F8>(&st->g[y][8]),
+              Load<F8>(&st->b[y][8]), Load<F8>(&st->live[y][8])};
+    for (int k = 0; k < jobs[y]; ++k) {
+      const Record& s = batch[splat_of[y][k]];
+      const F8 t0 = Step(s, Load<F8>(&alpha[k][0]), &left);
+      const F8 t1 = Step(s, Load<F8>(&alpha[k][8]), &right);
+      if (Fold(internal::Min(t0, t1), false) < kMinTransmittance) {  // some pixel stops here
+        const F8 zero{};
+        left.live = t0 < kMinTransmittance ? zero : left.live;
+        right.live = t1 < kMinTransmittance ? zero : right.live;
+        if (Fold(internal::Max(left.live, right.live), true) == 0.0f) {
+          st->live_rows &= ~(1u << y);  // every pixel of the row has stopped
+          break;
+        }
+      }
+    }
+    const Run* halves[2] = {&left, &right};
+    for (int h = 0; h < 2; ++h) {
+      Store(&st->T[y][8 * h], halves[h]->T);
+      Store(&st->r[y][8 * h], halves[h]->r);
+      Store(&st->g[y][8 * h], halves[h]->g);
+      Store(&st->b[y][8 * h], halves[h]->b);
+      Store(&st->live[y][8 * h], halves[h]->live);
+    }
+  }
+  return st->live_rows == 0;
+}
+
+}  // namespace hvdb::render::gaussian
+
+#endif  // HVDB_RENDER_GAUSSIAN_RASTER_KERNELS_H_
