@@ -150,7 +150,8 @@ class RenderJob {
   GaussianRenderStats gaussian_stats_;
   int gaussian_threads_ = 0;
   double gaussian_ms_ = -1;
-  GaussianImage gimg_;  // the rasteriser's output, reused
+  GaussianRasterizer rasteriser_;  // its working memory kept from image to image
+  GaussianImage gimg_;             // its output, reused
   // Draws image_ with the 3DGS rasteriser from current_.cloud.
   Status DrawGaussians(const Camera& view, const RenderOptions& o);
   // Gaussian mode: out's points' records (highlighted when asked) as out->cloud.

@@ -42,7 +42,7 @@ Status RenderJob::DrawGaussians(const Camera& view, const RenderOptions& o) {
   const std::array<float, 4>& bg = o.background;
   GaussianRenderOptions go;
   for (size_t c = 0; c < 3; ++c) go.background[c] = LinearToSrgb(bg[c]) * bg[3];
-  HVDB_RETURN_IF_ERROR(RenderGaussians(current_.cloud, drawn, go, &gimg_, &gaussian_stats_));
+  HVDB_RETURN_IF_ERROR(rasteriser_.Render(current_.cloud, drawn, go, &gimg_, &gaussian_stats_));
   gaussian_ms_ = gaussian_stats_.milliseconds;
   const size_t px = size_t{w} * h;
   image_.width = w;
