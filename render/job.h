@@ -63,6 +63,10 @@ class RenderJob {
   // Gaussian records (DatasetInfo::gaussians; derived ones for points without).
   enum class Colour : uint8_t { kAuto, kPoints, kTexture, kBillboards, kGaussian };
   RendererKind renderer_kind() const { return kind_; }
+  // Gaussian mode (the request's, or auto's on a Gaussian-splat dataset): every image is drawn
+  // by the CPU 3DGS rasteriser, so the point Renderer that Render takes draws nothing (a caller
+  // that makes one for the job can make the cheap CPU one).
+  bool gaussian() const { return gaussian_; }
   ImageFormat format() const { return format_; }
 
   // Renders image i (0 <= i < size()) with `renderer`. The points of the previous image are

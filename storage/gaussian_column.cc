@@ -360,18 +360,33 @@ Status GaussianColumn::Rescan() {
 
 Status GaussianColumn::Read(std::span<const uint64_t> ids, GaussianColumns* out,
                             std::vector<bool>* found) {
-  // Resolve each id to its segment; rescan once if some are unknown (a follower's view).
-  std::vector<std::shared_ptr<const Segment>> seg_of(ids.size());
+  // Resolve each id to its segment (an index into `segs`, -1: none); rescan once if some are
+  // unknown (a follower's view).
+  std::vector<std::shared_ptr<const Segment>> segs;
+  std::vector<int32_t> seg_of(ids.size(), -1);
   auto resolve = [&]() {
     std::lock_guard<std::mutex> lk(mu_);
     bool missing = false;
+    std::map<uint64_t, int32_t> index;  // segment first id -> position in segs
+    for (size_t k = 0; k < segs.size(); ++k) index[segs[k]->first_id] = static_cast<int32_t>(k);
+    // The ids of a frame are mostly one segment's: try the last one found first.
+    const Segment* last = nullptr;
+    int32_t last_index = -1;
     for (size_t i = 0; i < ids.size(); ++i) {
-      if (seg_of[i]) continue;
+      if (seg_of[i] >= 0) continue;
+      if (last != nullptr && ids[i] - last->first_id < last->count) {
+        seg_of[i] = last_index;
+        continue;
+      }
       auto it = segments_.upper_bound(ids[i]);
       if (it != segments_.begin()) {
         --it;
         if (ids[i] - it->first < it->second->count) {
-          seg_of[i] = it->second;
+          auto [pos, added] = index.try_emplace(it->first, static_cast<int32_t>(segs.size()));
+          if (added) segs.push_back(it->second);
+          seg_of[i] = pos->second;
+          last = it->second.get();
+          last_index = pos->second;
           continue;
         }
       }
@@ -384,35 +399,39 @@ Status GaussianColumn::Read(std::span<const uint64_t> ids, GaussianColumns* out,
     resolve();
   }
   int degree = 0;
-  for (const auto& s : seg_of) {
-    if (s) {
-      degree = std::max(degree, s->degree);
-      out->antialiased = out->antialiased || s->antialiased;
-    }
+  out->antialiased = false;
+  for (const auto& s : segs) {
+    degree = std::max(degree, s->degree);
+    out->antialiased = out->antialiased || s->antialiased;
   }
   out->sh_degree = degree;
   const size_t stride = GaussianRecordFloats(degree);
-  out->values.assign(ids.size() * stride, 0.f);
+  out->values.resize(ids.size() * stride);
   found->assign(ids.size(), false);
 
-  // Read block by block: the ids of a query come in tree order, so sort them by (segment,
-  // index) and read each needed block once, checked.
-  std::vector<uint32_t> order(ids.size());
-  std::iota(order.begin(), order.end(), 0u);
-  order.erase(std::remove_if(order.begin(), order.end(), [&](uint32_t i) { return !seg_of[i]; }),
-              order.end());
-  std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) {
-    if (seg_of[a]->first_id != seg_of[b]->first_id) return seg_of[a]->first_id < seg_of[b]->first_id;
-    return ids[a] < ids[b];
-  });
+  // Each needed block is read once, checked, and its records copied out: the ids of a query
+  // come in tree order, so they are grouped by (segment, block) with a counting sort.
   std::vector<uint8_t> block;
-  const Segment* cur = nullptr;
-  uint64_t cur_block = UINT64_MAX;
-  for (uint32_t i : order) {
-    const Segment& s = *seg_of[i];
-    const uint64_t k = ids[i] - s.first_id, b = k / kBlockRecords;
-    const size_t rb = s.record_bytes();
-    if (&s != cur || b != cur_block) {
+  for (size_t si = 0; si < segs.size(); ++si) {
+    const Segment& s = *segs[si];
+    const size_t blocks = s.crcs.size();
+    std::vector<uint32_t> start(blocks + 1, 0);
+    for (size_t i = 0; i < ids.size(); ++i) {
+      if (seg_of[i] == static_cast<int32_t>(si)) ++start[(ids[i] - s.first_id) / kBlockRecords + 1];
+    }
+    for (size_t b = 0; b < blocks; ++b) start[b + 1] += start[b];
+    std::vector<uint32_t> order(start[blocks]);
+    std::vector<uint32_t> fill(start.begin(), start.end() - 1);
+    for (size_t i = 0; i < ids.size(); ++i) {
+      if (seg_of[i] == static_cast<int32_t>(si)) {
+        order[fill[(ids[i] - s.first_id) / kBlockRecords]++] = static_cast<uint32_t>(i);
+      }
+    }
+    const size_t rb = s.record_bytes(), nf = rb / 4;
+    const bool same = nf == stride && std::endian::native == std::endian::little;
+    const size_t rest_src = (nf - kGsRest) / 3, rest_dst = (stride - kGsRest) / 3;
+    for (size_t b = 0; b < blocks; ++b) {
+      if (start[b] == start[b + 1]) continue;
       const uint64_t lo = b * kBlockRecords, hi = std::min<uint64_t>(s.count, lo + kBlockRecords);
       block.resize((hi - lo) * rb);
       HVDB_RETURN_IF_ERROR(s.file->Read(kSegmentHeaderSize + lo * rb, block.size(), block.data()));
@@ -421,21 +440,30 @@ Status GaussianColumn::Read(std::span<const uint64_t> ids, GaussianColumns* out,
                                   " checksum mismatch (records of ids " +
                                   Hex(s.first_id + lo) + ".." + Hex(s.first_id + hi - 1) + ")");
       }
-      cur = &s;
-      cur_block = b;
-    }
-    const uint8_t* src = block.data() + (k % kBlockRecords) * rb;
-    float* dst = out->values.data() + i * stride;
-    const size_t nf = rb / 4;
-    // Degree padding: the rest coefficients are channel-major, so each channel's run moves.
-    const size_t rest_src = (nf - kGsRest) / 3, rest_dst = (stride - kGsRest) / 3;
-    for (size_t f = 0; f < kGsRest; ++f) dst[f] = DecodeLE<float>(src + 4 * f);
-    for (size_t ch = 0; ch < 3; ++ch) {
-      for (size_t j = 0; j < rest_src; ++j) {
-        dst[kGsRest + ch * rest_dst + j] = DecodeLE<float>(src + 4 * (kGsRest + ch * rest_src + j));
+      for (uint32_t j = start[b]; j < start[b + 1]; ++j) {
+        const uint32_t i = order[j];
+        const uint8_t* src = block.data() + (ids[i] - s.first_id - lo) * rb;
+        float* dst = out->values.data() + i * stride;
+        if (same) {
+          std::memcpy(dst, src, rb);
+        } else {
+          // A lower degree: each channel's rest coefficients move to their place.
+          std::fill(dst, dst + stride, 0.f);
+          for (size_t f = 0; f < kGsRest; ++f) dst[f] = DecodeLE<float>(src + 4 * f);
+          for (size_t ch = 0; ch < 3; ++ch) {
+            for (size_t k = 0; k < rest_src; ++k) {
+              dst[kGsRest + ch * rest_dst + k] =
+                  DecodeLE<float>(src + 4 * (kGsRest + ch * rest_src + k));
+            }
+          }
+        }
+        (*found)[i] = true;
       }
     }
-    (*found)[i] = true;
+  }
+  // Ids without a record read as zeros.
+  for (size_t i = 0; i < ids.size(); ++i) {
+    if (seg_of[i] < 0) std::fill_n(out->values.data() + i * stride, stride, 0.f);
   }
   return Status::OK();
 }
