@@ -651,44 +651,71 @@ class RemoteBackend final : public Backend {
 
 Result<GaussianColumns> Backend::ReadGaussians(const std::string& name,
                                                std::span<const Point> points, uint64_t* derived) {
-  GaussianColumns out;
-  std::vector<bool> found;
-  // Requests of kMaxGaussianReadIds ids; the records of all at the highest degree among them.
+  // Asked for in ascending id order, in requests of at most kMaxGaussianReadIds ids and 512
+  // groups of 1024 consecutive ids (so at most kMaxGaussianReadBlocks blocks read each), and
+  // put back in the points' order.
+  std::vector<uint32_t> order(points.size());
+  for (size_t i = 0; i < order.size(); ++i) order[i] = static_cast<uint32_t>(i);
+  std::sort(order.begin(), order.end(),
+            [&](uint32_t a, uint32_t b) { return points[a].id < points[b].id; });
   std::vector<GaussianColumns> parts;
+  std::vector<std::pair<size_t, size_t>> ranges;  // [begin, end) of `order` per part
+  std::vector<bool> found(points.size(), false);
   int degree = 0;
-  for (size_t at = 0; at < points.size(); at += service::kMaxGaussianReadIds) {
-    const size_t n = std::min(service::kMaxGaussianReadIds, points.size() - at);
-    std::vector<uint64_t> ids(n);
-    for (size_t i = 0; i < n; ++i) ids[i] = points[at + i].id;
-    HVDB_ASSIGN_OR_RETURN(service::GaussianRead r, ReadGaussianRecords(name, std::move(ids)));
+  GaussianColumns out;
+  // Many small segments (loads of a few splats each) can put more blocks in a group than two:
+  // a request the server refuses as too many blocks is asked again in halves.
+  size_t cap_ids = service::kMaxGaussianReadIds, cap_groups = service::kMaxGaussianReadBlocks / 2;
+  for (size_t at = 0; at < order.size();) {
+    std::vector<uint64_t> ids;
+    size_t groups = 0;
+    uint64_t last_group = UINT64_MAX;
+    size_t end = at;
+    for (; end < order.size() && ids.size() < cap_ids; ++end) {
+      const uint64_t id = points[order[end]].id;
+      if ((id >> 10) != last_group) {
+        if (groups == cap_groups) break;
+        ++groups;
+        last_group = id >> 10;
+      }
+      ids.push_back(id);
+    }
+    const size_t n = ids.size();
+    Result<service::GaussianRead> got = ReadGaussianRecords(name, std::move(ids));
+    if (!got.ok() && got.status().code() == StatusCode::kLimitExceeded && n > 1) {
+      cap_ids = n / 2;
+      cap_groups = std::max<size_t>(1, groups / 2);
+      continue;
+    }
+    HVDB_ASSIGN_OR_RETURN(service::GaussianRead r, std::move(got));
     if (r.found.size() != n || r.records.size() != n) {
       return Status::IOError("read_gaussians: " + std::to_string(r.records.size()) +
                              " records for " + std::to_string(n) + " ids");
     }
     degree = std::max(degree, r.records.sh_degree);
     out.antialiased = out.antialiased || r.records.antialiased;
-    found.insert(found.end(), r.found.begin(), r.found.end());
+    for (size_t k = 0; k < n; ++k) found[order[at + k]] = r.found[k];
     parts.push_back(std::move(r.records));
+    ranges.emplace_back(at, end);
+    at = end;
   }
   out.sh_degree = degree;
   const size_t stride = out.stride();
-  out.values.reserve(points.size() * stride);
-  for (const GaussianColumns& p : parts) {
-    if (p.sh_degree == degree) {
-      out.values.insert(out.values.end(), p.values.begin(), p.values.end());
-      continue;
-    }
+  out.values.assign(points.size() * stride, 0.f);
+  for (size_t p = 0; p < parts.size(); ++p) {
+    const GaussianColumns& part = parts[p];
     // A lower degree: each channel's rest coefficients move to their place, the others zero.
-    const size_t ps = p.stride(), rest_src = (ps - kGsRest) / 3, rest_dst = (stride - kGsRest) / 3;
-    for (size_t i = 0; i < p.size(); ++i) {
-      const float* src = p.record(i);
-      const size_t base = out.values.size();
-      out.values.resize(base + stride, 0.f);
-      std::copy(src, src + kGsRest, out.values.begin() + static_cast<std::ptrdiff_t>(base));
+    const size_t ps = part.stride(), rest_src = (ps - kGsRest) / 3, rest_dst = (stride - kGsRest) / 3;
+    for (size_t k = 0; k < part.size(); ++k) {
+      const float* src = part.record(k);
+      float* dst = out.record(order[ranges[p].first + k]);
+      if (ps == stride) {
+        std::copy(src, src + stride, dst);
+        continue;
+      }
+      std::copy(src, src + kGsRest, dst);
       for (size_t ch = 0; ch < 3; ++ch) {
-        for (size_t j = 0; j < rest_src; ++j) {
-          out.values[base + kGsRest + ch * rest_dst + j] = src[kGsRest + ch * rest_src + j];
-        }
+        for (size_t j = 0; j < rest_src; ++j) dst[kGsRest + ch * rest_dst + j] = src[kGsRest + ch * rest_src + j];
       }
     }
   }

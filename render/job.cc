@@ -374,8 +374,9 @@ Status RenderJob::Query(const Step& step, const std::atomic<bool>* cancelled,
       }
       out->points.reserve(cap);
     }
-    if (highlight_mask_ != 0) {
-      // The overlay: selected points' colours blended toward the highlight colour.
+    if (highlight_mask_ != 0 && !gaussian_) {
+      // The overlay: selected points' colours blended toward the highlight colour (gaussian
+      // mode blends the splats' records instead: MakeCloud).
       const float a = highlight_[3];
       for (Point& p : batch.points) {
         if ((p.label & highlight_mask_) == 0) continue;

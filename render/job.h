@@ -97,7 +97,8 @@ class RenderJob {
     // Gaussian mode: the points as a 3DGS cloud with their records (made once per region and
     // level, shared by the images that show them).
     formats::GaussianCloud cloud;
-    JobLease lease;  // the points' capacity (and the cloud's), reserved from RenderLimits::job
+    JobLease lease;        // the points' capacity, reserved from RenderLimits::job
+    JobLease cloud_lease;  // the cloud's and its records' (while they are read), likewise
     bool Holds(const Step& s) const { return region == s.region && lod == s.lod; }
   };
 

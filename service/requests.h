@@ -154,6 +154,9 @@ struct GaussianRead {
 // The most ids one read_gaussians request may name: its reply, 7.4 MiB at degree 3, stays
 // within a server's default frame limit (16 MiB).
 inline constexpr size_t kMaxGaussianReadIds = size_t{1} << 15;
+// And the most blocks of 1024 records its ids may touch (each is read whole: up to 236 MiB
+// read for one request). Ids in ascending runs touch few; Backend::ReadGaussians sends them so.
+inline constexpr size_t kMaxGaussianReadBlocks = 1024;
 
 namespace op {
 

@@ -73,7 +73,8 @@ Result<GaussianRead> Service::ReadGaussians(const std::string& name,
                                             std::span<const uint64_t> ids) {
   HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
   GaussianRead out;
-  HVDB_RETURN_IF_ERROR(ds->ReadGaussianRecords(ids, &out.records, &out.found));
+  HVDB_RETURN_IF_ERROR(
+      ds->ReadGaussianRecords(ids, &out.records, &out.found, kMaxGaussianReadBlocks));
   return out;
 }
 

@@ -324,8 +324,8 @@ Result<GaussianColumns> Dataset::ReadGaussians(std::span<const Point> points,
   return impl_->ReadGaussians(points, derived);
 }
 Status Dataset::ReadGaussianRecords(std::span<const uint64_t> ids, GaussianColumns* out,
-                                    std::vector<bool>* found) const {
-  return impl_->ReadGaussianRecords(ids, out, found);
+                                    std::vector<bool>* found, size_t max_blocks) const {
+  return impl_->ReadGaussianRecords(ids, out, found, max_blocks);
 }
 Result<CommitInfo> Dataset::Commit(const Transaction& txn) { return impl_->Commit(txn); }
 Result<CommitInfo> Dataset::Revert(uint64_t lsn) { return impl_->Revert(lsn); }

@@ -290,8 +290,10 @@ class Dataset {
                                         uint64_t* derived = nullptr) const;
   // The stored records of `ids` (GaussianColumn::Read): found[i] false where an id has none
   // (DeriveMissing fills those from their points).
+  // max_blocks: LimitExceeded rather than read more blocks of records than that (a remote
+  // request's bound; each block is 1024 records, read whole).
   Status ReadGaussianRecords(std::span<const uint64_t> ids, GaussianColumns* out,
-                             std::vector<bool>* found) const;
+                             std::vector<bool>* found, size_t max_blocks = SIZE_MAX) const;
   // Applies the transaction atomically and durably (when Options::sync).
   Result<CommitInfo> Commit(const Transaction& txn);
   // Commits the inverse of transaction `lsn`, derived from the log.

@@ -287,8 +287,12 @@ Status DatasetImpl::Start(Loaded l, bool writer) {
   }
   next_id_ = l.next_id;
   next_seq_ = l.next_seq;
-  if (info_.gaussians) {
+  // The column is opened once: queries may be reading it while a follower reloads (they hold
+  // no lock on it); later starts refresh it, and a promotion recovers it as a writer's open.
+  if (info_.gaussians && !gaussians_) {
     HVDB_ASSIGN_OR_RETURN(gaussians_, GaussianColumn::Open(env_, dir_, writer, l.next_id));
+  } else if (gaussians_) {
+    HVDB_RETURN_IF_ERROR(writer ? gaussians_->Recover(l.next_id) : gaussians_->Refresh());
   }
   if (!writer) {
     follow_start_ = l.wal_start;

@@ -29,11 +29,25 @@ Result<uint64_t> DatasetImpl::BulkLoadGaussians(uint32_t frame, std::vector<Poin
   const uint64_t first = next_id_.fetch_add(points.size());
   for (size_t i = 0; i < points.size(); ++i) points[i].id = first + i;
   Status written;
-  std::thread writer([&] { written = gaussians_->Write(first, attrs); });
-  bool joined = false;
+  std::thread writer([&] {
+    try {
+      written = gaussians_->Write(first, attrs);
+    } catch (const std::bad_alloc&) {
+      written = Status::LimitExceeded("Gaussian load: out of memory writing the records");
+    } catch (const std::exception& e) {
+      written = Status::Internal(std::string("Gaussian load: ") + e.what());
+    }
+  });
+  // Joined on every way out, an exception of the load's included (a joinable thread's
+  // destructor would end the process).
+  struct Joiner {
+    std::thread& t;
+    ~Joiner() {
+      if (t.joinable()) t.join();
+    }
+  } joiner{writer};
   auto join = [&] {
-    if (!joined) writer.join();
-    joined = true;
+    if (writer.joinable()) writer.join();
     return written;
   };
   Result<uint64_t> loaded = BulkLoadThen(frame, std::move(points), join);
@@ -43,8 +57,8 @@ Result<uint64_t> DatasetImpl::BulkLoadGaussians(uint32_t frame, std::vector<Poin
 }
 
 Status DatasetImpl::ReadGaussianRecords(std::span<const uint64_t> ids, GaussianColumns* out,
-                                        std::vector<bool>* found) const {
-  if (gaussians_) return gaussians_->Read(ids, out, found);
+                                        std::vector<bool>* found, size_t max_blocks) const {
+  if (gaussians_) return gaussians_->Read(ids, out, found, max_blocks);
   *out = GaussianColumns{};
   out->values.assign(ids.size() * out->stride(), 0.f);
   found->assign(ids.size(), false);

@@ -89,7 +89,7 @@ class DatasetImpl {
                                      const GaussianColumns& attrs);
   Result<GaussianColumns> ReadGaussians(std::span<const Point> points, uint64_t* derived) const;
   Status ReadGaussianRecords(std::span<const uint64_t> ids, GaussianColumns* out,
-                             std::vector<bool>* found) const;
+                             std::vector<bool>* found, size_t max_blocks = SIZE_MAX) const;
   // InvalidArgument when `txn` would rotate or scale points of a Gaussian dataset (their SH
   // and stored scales are not transformed yet).
   Status CheckGaussianTxn(const Transaction& txn) const;

@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <cstring>
 #include <numeric>
+#include <set>
 
 #include "storage/coding.h"
 #include "storage/crc32c.h"
@@ -206,23 +207,77 @@ Result<std::unique_ptr<GaussianColumn>> GaussianColumn::Open(Env* env,
                                                              const std::string& dataset_dir,
                                                              bool writer, uint64_t next_id) {
   const std::string dir = dataset_dir + "/gaussians";
-  if (writer) HVDB_RETURN_IF_ERROR(env->CreateDirs(dir));
+  if (writer && !env->Exists(dir)) {
+    // Its name made durable before any segment in it is relied on.
+    HVDB_RETURN_IF_ERROR(env->CreateDirs(dir));
+    HVDB_RETURN_IF_ERROR(env->SyncDir(dataset_dir));
+  }
   std::unique_ptr<GaussianColumn> col(new GaussianColumn(env, dir));
-  if (!env->Exists(dir)) return col;
-  HVDB_ASSIGN_OR_RETURN(auto names, env->ListDir(dir));
-  for (const std::string& name : names) {
-    uint64_t first = 0;
-    const bool seg = ParseSegmentName(name, &first);
-    if (writer && (!seg || first >= next_id)) {
-      // A temporary file, or the segment of a load cut short: its ids were never issued.
-      HVDB_RETURN_IF_ERROR(env->Remove(dir + "/" + name));
-      continue;
-    }
-    if (!seg) continue;
-    HVDB_ASSIGN_OR_RETURN(auto s, col->OpenSegment(name));
-    col->segments_[s->first_id] = std::move(s);
+  if (writer) {
+    HVDB_RETURN_IF_ERROR(col->Recover(next_id));
+  } else {
+    HVDB_RETURN_IF_ERROR(col->Refresh());
   }
   return col;
+}
+
+Status GaussianColumn::Recover(uint64_t next_id) {
+  writer_ = true;
+  if (!env_->Exists(dir_)) return Status::OK();
+  HVDB_ASSIGN_OR_RETURN(auto names, env_->ListDir(dir_));
+  for (const std::string& name : names) {
+    uint64_t first = 0;
+    if (!ParseSegmentName(name, &first) || first >= next_id) {
+      // A temporary file, or the segment of a load cut short: its ids were never issued.
+      {
+        std::lock_guard<std::mutex> lk(mu_);
+        segments_.erase(first);
+      }
+      HVDB_RETURN_IF_ERROR(env_->Remove(dir_ + "/" + name));
+    }
+  }
+  return Refresh();
+}
+
+Status GaussianColumn::Refresh() {
+  if (!env_->Exists(dir_)) return Status::OK();
+  HVDB_ASSIGN_OR_RETURN(auto names, env_->ListDir(dir_));
+  std::set<uint64_t> present;
+  std::vector<std::string> problems;
+  for (const std::string& name : names) {
+    uint64_t first = 0;
+    if (!ParseSegmentName(name, &first)) continue;
+    present.insert(first);
+    {
+      std::lock_guard<std::mutex> lk(mu_);
+      if (segments_.count(first)) continue;
+    }
+    auto s = OpenSegment(name);
+    if (!s.ok()) {
+      if (!env_->Exists(dir_ + "/" + name)) continue;  // removed meanwhile
+      // A damaged segment leaves the dataset open: its points read as derived Gaussians and
+      // Check() names it.
+      problems.push_back(s.status().ToString());
+      continue;
+    }
+    std::lock_guard<std::mutex> lk(mu_);
+    // Ranges may not overlap: a segment that does is reported, not used.
+    auto next = segments_.lower_bound(first);
+    const bool overlaps =
+        (next != segments_.end() && next->first - first < (*s)->count) ||
+        (next != segments_.begin() && first - std::prev(next)->first < std::prev(next)->second->count);
+    if (overlaps) {
+      problems.push_back(dir_ + "/" + name + ": its ids overlap another segment's; not used");
+      continue;
+    }
+    segments_[first] = std::move(s).value();
+  }
+  std::lock_guard<std::mutex> lk(mu_);
+  for (auto it = segments_.begin(); it != segments_.end();) {
+    it = present.count(it->first) ? std::next(it) : segments_.erase(it);  // deleted by the writer
+  }
+  problems_ = std::move(problems);
+  return Status::OK();
 }
 
 Result<std::shared_ptr<const GaussianColumn::Segment>> GaussianColumn::OpenSegment(
@@ -237,6 +292,10 @@ Result<std::shared_ptr<const GaussianColumn::Segment>> GaussianColumn::OpenSegme
   if (std::memcmp(h, kSegmentMagic, 8) != 0) return corrupt("bad magic");
   if (crc32c::Unmask(DecodeLE<uint32_t>(h + 60)) != crc32c::Value(h, 60)) {
     return corrupt("header checksum mismatch");
+  }
+  uint64_t named = 0;
+  if (!ParseSegmentName(name, &named) || named != DecodeLE<uint64_t>(h + 24)) {
+    return corrupt("its header's first id is not the one its name says");
   }
   if (DecodeLE<uint32_t>(h + 8) != kSegmentVersion) {
     return corrupt("unsupported version " + std::to_string(DecodeLE<uint32_t>(h + 8)));
@@ -330,36 +389,15 @@ Status GaussianColumn::Write(uint64_t first_id, const GaussianColumns& cols) {
 }
 
 Status GaussianColumn::Remove(uint64_t first_id) {
-  {
-    std::lock_guard<std::mutex> lk(mu_);
-    segments_.erase(first_id);
-  }
-  return env_->Remove(dir_ + "/" + SegmentName(first_id));
-}
-
-Status GaussianColumn::Rescan() {
-  if (!env_->Exists(dir_)) return Status::OK();
-  HVDB_ASSIGN_OR_RETURN(auto names, env_->ListDir(dir_));
-  for (const std::string& name : names) {
-    uint64_t first = 0;
-    if (!ParseSegmentName(name, &first)) continue;
-    {
-      std::lock_guard<std::mutex> lk(mu_);
-      if (segments_.count(first)) continue;
-    }
-    auto s = OpenSegment(name);
-    if (!s.ok()) {
-      if (!env_->Exists(dir_ + "/" + name)) continue;  // removed meanwhile
-      return s.status();
-    }
-    std::lock_guard<std::mutex> lk(mu_);
-    segments_[first] = std::move(s).value();
-  }
-  return Status::OK();
+  // The file first: a refresh meanwhile then finds nothing to bring back.
+  Status st = env_->Remove(dir_ + "/" + SegmentName(first_id));
+  std::lock_guard<std::mutex> lk(mu_);
+  segments_.erase(first_id);
+  return st;
 }
 
 Status GaussianColumn::Read(std::span<const uint64_t> ids, GaussianColumns* out,
-                            std::vector<bool>* found) {
+                            std::vector<bool>* found, size_t max_blocks) {
   // Resolve each id to its segment (an index into `segs`, -1: none); rescan once if some are
   // unknown (a follower's view).
   std::vector<std::shared_ptr<const Segment>> segs;
@@ -394,8 +432,9 @@ Status GaussianColumn::Read(std::span<const uint64_t> ids, GaussianColumns* out,
     }
     return missing;
   };
-  if (resolve()) {
-    HVDB_RETURN_IF_ERROR(Rescan());
+  // A writer knows every segment; a follower may not have seen the writer's newest.
+  if (resolve() && !writer_) {
+    HVDB_RETURN_IF_ERROR(Refresh());
     resolve();
   }
   int degree = 0;
@@ -411,22 +450,41 @@ Status GaussianColumn::Read(std::span<const uint64_t> ids, GaussianColumns* out,
 
   // Each needed block is read once, checked, and its records copied out: the ids of a query
   // come in tree order, so they are grouped by (segment, block) with a counting sort.
+  // The ids by segment, once (a counting sort on seg_of), then each segment's by block.
+  std::vector<uint32_t> seg_start(segs.size() + 1, 0);
+  for (int32_t si : seg_of) {
+    if (si >= 0) ++seg_start[static_cast<size_t>(si) + 1];
+  }
+  for (size_t si = 0; si < segs.size(); ++si) seg_start[si + 1] += seg_start[si];
+  std::vector<uint32_t> by_seg(seg_start[segs.size()]);
+  {
+    std::vector<uint32_t> fill(seg_start.begin(), seg_start.end() - 1);
+    for (size_t i = 0; i < ids.size(); ++i) {
+      if (seg_of[i] >= 0) by_seg[fill[static_cast<size_t>(seg_of[i])]++] = static_cast<uint32_t>(i);
+    }
+  }
+  // Reads are whole checked blocks (up to 236 KiB): ids spread over many blocks cost one each.
+  size_t blocks_read = 0;
   std::vector<uint8_t> block;
   for (size_t si = 0; si < segs.size(); ++si) {
     const Segment& s = *segs[si];
     const size_t blocks = s.crcs.size();
+    const std::span<const uint32_t> mine(by_seg.data() + seg_start[si],
+                                         seg_start[si + 1] - seg_start[si]);
     std::vector<uint32_t> start(blocks + 1, 0);
-    for (size_t i = 0; i < ids.size(); ++i) {
-      if (seg_of[i] == static_cast<int32_t>(si)) ++start[(ids[i] - s.first_id) / kBlockRecords + 1];
+    for (uint32_t i : mine) ++start[(ids[i] - s.first_id) / kBlockRecords + 1];
+    for (size_t b = 0; b < blocks; ++b) {
+      blocks_read += start[b + 1] > 0;
+      start[b + 1] += start[b];
     }
-    for (size_t b = 0; b < blocks; ++b) start[b + 1] += start[b];
+    if (blocks_read > max_blocks) {
+      return Status::LimitExceeded(
+          "Gaussian records: the ids touch more than " + std::to_string(max_blocks) +
+          " blocks of 1024 records; ask for fewer, or for ids in ascending runs");
+    }
     std::vector<uint32_t> order(start[blocks]);
     std::vector<uint32_t> fill(start.begin(), start.end() - 1);
-    for (size_t i = 0; i < ids.size(); ++i) {
-      if (seg_of[i] == static_cast<int32_t>(si)) {
-        order[fill[(ids[i] - s.first_id) / kBlockRecords]++] = static_cast<uint32_t>(i);
-      }
-    }
+    for (uint32_t i : mine) order[fill[(ids[i] - s.first_id) / kBlockRecords]++] = i;
     const size_t rb = s.record_bytes(), nf = rb / 4;
     const bool same = nf == stride && std::endian::native == std::endian::little;
     const size_t rest_src = (nf - kGsRest) / 3, rest_dst = (stride - kGsRest) / 3;
@@ -484,6 +542,7 @@ std::vector<std::string> GaussianColumn::Verify() const {
   std::vector<std::shared_ptr<const Segment>> segs;
   {
     std::lock_guard<std::mutex> lk(mu_);
+    problems = problems_;
     for (const auto& [first, s] : segments_) segs.push_back(s);
   }
   std::vector<uint8_t> block;

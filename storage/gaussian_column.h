@@ -12,11 +12,13 @@
 #ifndef HVDB_STORAGE_GAUSSIAN_COLUMN_H_
 #define HVDB_STORAGE_GAUSSIAN_COLUMN_H_
 
+#include <atomic>
 #include <cstdint>
 #include <map>
 #include <memory>
 #include <mutex>
 #include <span>
+#include <cstddef>
 #include <string>
 #include <vector>
 
@@ -71,9 +73,15 @@ Status ValidateGaussianColumns(const GaussianColumns& cols);
 class GaussianColumn {
  public:
   // Opens DIR/gaussians (created if absent, for a writer). A writer removes temporary files and
-  // segments whose first id is >= next_id (written for points whose load never committed).
+  // segments whose first id is >= next_id (written for points whose load never committed). A
+  // damaged segment does not fail the open: its ids read as without a record, and Verify names
+  // it.
   static Result<std::unique_ptr<GaussianColumn>> Open(Env* env, const std::string& dataset_dir,
                                                       bool writer, uint64_t next_id);
+  // A follower's reload: picks up segments the writer added, forgets those it removed.
+  Status Refresh();
+  // Becoming the writer (a promotion): as Open does for a writer.
+  Status Recover(uint64_t next_id);
 
   // Writes the segment of ids [first_id, first_id + cols.size()) durably (temporary file,
   // sync, rename, directory sync). The caller issued those ids and loads their points after.
@@ -83,8 +91,10 @@ class GaussianColumn {
 
   // The records of `ids` at the highest degree among them (lower ones padded with zeros),
   // in the order given; found[i] false where an id has no record (its values are zero).
-  // Corruption names the segment and block on a checksum mismatch.
-  Status Read(std::span<const uint64_t> ids, GaussianColumns* out, std::vector<bool>* found);
+  // Corruption names the segment and block on a checksum mismatch; LimitExceeded when the ids
+  // would need more than max_blocks blocks read (each is read whole, checked, once).
+  Status Read(std::span<const uint64_t> ids, GaussianColumns* out, std::vector<bool>* found,
+              size_t max_blocks = SIZE_MAX);
 
   struct Totals {
     uint64_t segments = 0, records = 0, bytes = 0;
@@ -97,12 +107,13 @@ class GaussianColumn {
   struct Segment;
   GaussianColumn(Env* env, std::string dir) : env_(env), dir_(std::move(dir)) {}
   Result<std::shared_ptr<const Segment>> OpenSegment(const std::string& name);
-  Status Rescan();  // picks up segments another process wrote (followers)
 
   Env* const env_;
   const std::string dir_;
   mutable std::mutex mu_;
   std::map<uint64_t, std::shared_ptr<const Segment>> segments_;  // by first id
+  std::vector<std::string> problems_;  // segments not used (damaged, overlapping)
+  std::atomic<bool> writer_{false};    // knows every segment: no refresh on an unknown id
 };
 
 }  // namespace hvdb

@@ -9,10 +9,14 @@
 namespace hvdb::render {
 
 Status RenderJob::MakeCloud(Points* out) const {
-  // The records and the cloud made of them, reserved at the highest degree before either is.
+  // The records and the cloud made of them, reserved at the highest degree before either is,
+  // with the reader's per-point bookkeeping (ids, order: ~32 bytes a point); the previous
+  // region's cloud is given back first.
   const uint64_t n = out->points.size();
-  HVDB_RETURN_IF_ERROR(out->lease.Reserve(2 * n * sizeof(float) * GaussianRecordFloats(3),
-                                          "render: the splats' Gaussian records"));
+  out->cloud = {};
+  out->cloud_lease = limits_.job.Lease();
+  HVDB_RETURN_IF_ERROR(out->cloud_lease.Reserve(
+      n * (2 * sizeof(float) * GaussianRecordFloats(3) + 32), "render: the splats' Gaussian records"));
   HVDB_ASSIGN_OR_RETURN(GaussianColumns records, dataset_->ReadGaussians(out->points));
   if (highlight_mask_ != 0) {
     // The overlay on the splats: the base colour blended toward the highlight, the

@@ -176,6 +176,36 @@ TEST_F(GaussianJobTest, BackgroundAndOverlay) {
   EXPECT_GT(sum[1], 20 * (sum[0] + sum[2]) + 1000);
 }
 
+// A sequence over frames reserves each frame's cloud in place of the last one's: within a
+// budget of a few clouds it renders every image.
+TEST_F(GaussianJobTest, ASequenceKeepsToItsMemoryBudget) {
+  std::vector<Point> pts;
+  GaussianColumns recs;
+  formats::CloudToPoints(cloud_, 0, &pts, &recs);
+  for (uint32_t f = 1; f < 6; ++f) ASSERT_TRUE(splats_->BulkLoadGaussians(f, pts, recs).ok());
+  RenderRequest r = Request("splats");
+  r.region.reset();
+  for (uint32_t f = 0; f < 6; ++f) {
+    r.path.push_back(*r.view);
+    r.frames.push_back(f);
+  }
+  r.view.reset();
+  JobBudget budget(12u << 20, "--memory-budget");
+  RenderLimits limits;
+  limits.job.memory = &budget;
+  auto job = RenderJob::Create(splats_, r, limits);
+  ASSERT_TRUE(job.ok()) << job.status().ToString();
+  std::string why;
+  auto renderer = MakeRenderer(RendererKind::kCpu, &why);
+  ASSERT_TRUE(renderer.ok());
+  for (size_t i = 0; i < (*job)->size(); ++i) {
+    auto reply = (*job)->Render(i, **renderer);
+    ASSERT_TRUE(reply.ok()) << "image " << i << ": " << reply.status().ToString();
+    EXPECT_EQ(reply->mode_used, "gaussian");
+  }
+  EXPECT_LE(budget.used(), 12u << 20);
+}
+
 TEST_F(GaussianJobTest, OptionsGaussianModeCannotHonourAreRefused) {
   RenderRequest r = Request("splats");
   r.mode = Mode::kGaussian;

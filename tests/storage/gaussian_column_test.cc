@@ -355,6 +355,93 @@ TEST(GaussianColumnTest, CrashAtEveryCallOfALoadLeavesItWholeOrAbsent) {
               static_cast<unsigned long long>(total), whole, absent);
 }
 
+// A follower reads the writer's records as they come (its reloads keep the column it reads
+// through), and becomes the writer of them.
+TEST(GaussianColumnTest, AFollowerReadsNewRecordsAndIsPromoted) {
+  TempDir dir;
+  std::vector<Point> p0, p1, p2;
+  GaussianColumns c0, c1, c2;
+  MakeSplats(11, 2000, 3, &p0, &c0);
+  MakeSplats(12, 1500, 1, &p1, &c1);
+  MakeSplats(13, 100, 0, &p2, &c2);
+  auto writer = Database::Open(dir.path());
+  ASSERT_TRUE(writer.ok());
+  auto wds = MakeGaussianDataset(**writer, "splats");
+  ASSERT_TRUE(wds->BulkLoadGaussians(0, p0, c0).ok());
+  Options fo;
+  fo.follow = true;
+  auto follower = Database::Open(dir.path(), fo);
+  ASSERT_TRUE(follower.ok()) << follower.status().ToString();
+  ASSERT_TRUE((*follower)->follower());
+  auto fds = (*follower)->GetDataset("splats");
+  ASSERT_TRUE(fds.ok());
+  EXPECT_TRUE(SameBits(ReadFrame(**fds, 0).cols.values, c0.values));
+  // The writer loads and checkpoints (a full reload for the follower) while it reads.
+  ASSERT_TRUE(wds->BulkLoadGaussians(1, p1, c1).ok());
+  ASSERT_TRUE(wds->Checkpoint().ok());
+  ASSERT_TRUE((*follower)->Refresh().ok());
+  Read r1 = ReadFrame(**fds, 1);
+  ASSERT_EQ(r1.points.size(), p1.size());
+  EXPECT_EQ(r1.derived, 0u);
+  EXPECT_TRUE(SameBits(r1.cols.values, c1.values));
+  EXPECT_TRUE(SameBits(ReadFrame(**fds, 0).cols.values, c0.values));
+  // The writer goes; the follower takes over and loads.
+  wds.reset();
+  writer->reset();
+  auto promoted = (*follower)->TryPromote();
+  ASSERT_TRUE(promoted.ok()) << promoted.status().ToString();
+  ASSERT_TRUE(*promoted);
+  ASSERT_TRUE((*fds)->BulkLoadGaussians(2, p2, c2).ok());
+  EXPECT_TRUE(SameBits(ReadFrame(**fds, 2).cols.values, c2.values));
+  EXPECT_EQ((*fds)->Stats().gaussian_segments, 3u);
+  EXPECT_TRUE((*fds)->Check().empty());
+}
+
+// A damaged segment leaves the dataset open: its points read as derived Gaussians and check
+// names it; reads that would need too many blocks are refused, not done.
+TEST(GaussianColumnTest, ADamagedSegmentIsReportedNotFatalAndReadsAreBounded) {
+  TempDir dir;
+  std::vector<Point> pts;
+  GaussianColumns cols;
+  MakeSplats(14, 5000, 2, &pts, &cols);
+  {
+    auto db = Database::Open(dir.path());
+    ASSERT_TRUE(db.ok());
+    auto ds = MakeGaussianDataset(**db, "splats");
+    ASSERT_TRUE(ds->BulkLoadGaussians(0, pts, cols).ok());
+    // 5000 records are 5 blocks: a read of one id in each needs 5.
+    Read r = ReadFrame(*ds, 0);
+    std::vector<uint64_t> ids;
+    for (size_t k = 0; k < 5; ++k) ids.push_back(r.points[k * 1024].id);
+    GaussianColumns out;
+    std::vector<bool> found;
+    EXPECT_TRUE(ds->ReadGaussianRecords(ids, &out, &found, 5).ok());
+    Status st = ds->ReadGaussianRecords(ids, &out, &found, 4);
+    EXPECT_EQ(st.code(), StatusCode::kLimitExceeded) << st.ToString();
+  }
+  std::string seg;
+  for (const auto& e : std::filesystem::directory_iterator(dir.path() + "/splats/gaussians")) {
+    seg = e.path();
+  }
+  {
+    std::fstream f(seg, std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(13);  // the degree, in the checksummed header
+    char c = 7;
+    f.write(&c, 1);
+  }
+  auto db = Database::Open(dir.path());
+  ASSERT_TRUE(db.ok()) << db.status().ToString();
+  auto ds = (*db)->GetDataset("splats");
+  ASSERT_TRUE(ds.ok()) << ds.status().ToString();
+  Read r = ReadFrame(**ds, 0);
+  EXPECT_EQ(r.points.size(), pts.size());
+  EXPECT_EQ(r.derived, pts.size());
+  auto problems = (*ds)->Check();
+  ASSERT_EQ(problems.size(), 1u);
+  EXPECT_NE(problems[0].find(seg), std::string::npos) << problems[0];
+  EXPECT_NE(problems[0].find("header checksum"), std::string::npos) << problems[0];
+}
+
 // A process killed (SIGKILL) at points through a large Gaussian load: on reopen the frame is
 // whole with every record or absent, no orphan segment or temporary file is left, twice stable.
 TEST(GaussianColumnTest, KillDuringALoadLeavesItWholeOrAbsent) {
