@@ -16,40 +16,27 @@ Usage: bench/gaussian_splats.py [--build build] [--reps 5] [--splats 1000000]
 import argparse
 import json
 import os
-import re
-import resource
 import shutil
 import statistics
-import subprocess
 import sys
 import tempfile
-import time
 
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-ROOT = os.path.dirname(HERE)
+import proc_clock
+from proc_clock import stats
 
 
 def run(cmd):
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    if r.returncode != 0:
-        sys.exit(f"gaussian_splats: {' '.join(cmd)} failed ({r.returncode}): {r.stderr}")
-    return r.stdout
+    return proc_clock.run(cmd, "gaussian_splats")
 
 
 def clocked(cmd):
-    """(wall seconds, CPU seconds of the child, its stdout)."""
-    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.perf_counter()
-    out = run(cmd)
-    wall = time.perf_counter() - t0
-    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime), out
+    return proc_clock.clocked(cmd, "gaussian_splats")
 
 
-def stats(xs):
-    return {"median": statistics.median(xs), "min": min(xs), "max": max(xs), "n": len(xs)}
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
 
 
 def write_ply(path, n, seed=1):

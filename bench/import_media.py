@@ -13,39 +13,29 @@ Usage: bench/import_media.py [--build build] [--reps 5] [--out bench/results/imp
 import argparse
 import json
 import os
-import resource
 import shutil
-import statistics
 import subprocess
+import statistics
 import sys
 import tempfile
 import time
+
+import proc_clock
+from proc_clock import stats
+
+
+def run(cmd):
+    return proc_clock.run(cmd, "import_media")
+
+
+def clocked(cmd):
+    return proc_clock.clocked(cmd, "import_media")
+
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 PHOTO = os.path.join(ROOT, "..", "shared", "data", "sjtu-fvv-multiview-rgbd", "frame_0",
                      "images", "0.png")
-
-
-def run(cmd):
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    if r.returncode != 0:
-        sys.exit(f"import_media: {' '.join(cmd)} failed ({r.returncode}): {r.stderr}")
-    return r.stdout
-
-
-def clocked(cmd):
-    """(wall seconds, CPU seconds of the child: user + sys, its stdout)."""
-    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.perf_counter()
-    out = run(cmd)
-    wall = time.perf_counter() - t0
-    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime), out
-
-
-def stats(xs):
-    return {"median": statistics.median(xs), "min": min(xs), "max": max(xs)}
 
 
 def timed(hvdb, where, reps):
