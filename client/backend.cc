@@ -704,19 +704,8 @@ Result<GaussianColumns> Backend::ReadGaussians(const std::string& name,
   out.values.assign(points.size() * stride, 0.f);
   for (size_t p = 0; p < parts.size(); ++p) {
     const GaussianColumns& part = parts[p];
-    // A lower degree: each channel's rest coefficients move to their place, the others zero.
-    const size_t ps = part.stride(), rest_src = (ps - kGsRest) / 3, rest_dst = (stride - kGsRest) / 3;
     for (size_t k = 0; k < part.size(); ++k) {
-      const float* src = part.record(k);
-      float* dst = out.record(order[ranges[p].first + k]);
-      if (ps == stride) {
-        std::copy(src, src + stride, dst);
-        continue;
-      }
-      std::copy(src, src + kGsRest, dst);
-      for (size_t ch = 0; ch < 3; ++ch) {
-        for (size_t j = 0; j < rest_src; ++j) dst[kGsRest + ch * rest_dst + j] = src[kGsRest + ch * rest_src + j];
-      }
+      WidenRecord(part.record(k), part.sh_degree, out.record(order[ranges[p].first + k]), degree);
     }
   }
   const uint64_t n = DeriveMissing(points, found, &out);

@@ -134,6 +134,16 @@ void DeriveGaussian(const Point& p, float* rec) {
   for (int c = 0; c < 3; ++c) rec[kGsDc + c] = static_cast<float>((rgb[c] / 255.0 - 0.5) / kC0);
 }
 
+void WidenRecord(const float* src, int from, float* dst, int to) {
+  const size_t rest_src = GaussianRecordFloats(from) - kGsRest;
+  const size_t rest_dst = GaussianRecordFloats(to) - kGsRest;
+  std::copy(src, src + kGsRest, dst);
+  std::fill(dst + kGsRest, dst + kGsRest + rest_dst, 0.f);
+  for (size_t ch = 0; ch < 3; ++ch) {
+    std::copy_n(src + kGsRest + ch * rest_src / 3, rest_src / 3, dst + kGsRest + ch * rest_dst / 3);
+  }
+}
+
 uint64_t DeriveMissing(std::span<const Point> points, const std::vector<bool>& found,
                        GaussianColumns* cols) {
   const size_t stride = cols->stride();
@@ -487,7 +497,7 @@ Status GaussianColumn::Read(std::span<const uint64_t> ids, GaussianColumns* out,
     for (uint32_t i : mine) order[fill[(ids[i] - s.first_id) / kBlockRecords]++] = i;
     const size_t rb = s.record_bytes(), nf = rb / 4;
     const bool same = nf == stride && std::endian::native == std::endian::little;
-    const size_t rest_src = (nf - kGsRest) / 3, rest_dst = (stride - kGsRest) / 3;
+    float decoded[GaussianRecordFloats(kMaxGaussianShDegree)];
     for (size_t b = 0; b < blocks; ++b) {
       if (start[b] == start[b + 1]) continue;
       const uint64_t lo = b * kBlockRecords, hi = std::min<uint64_t>(s.count, lo + kBlockRecords);
@@ -505,15 +515,8 @@ Status GaussianColumn::Read(std::span<const uint64_t> ids, GaussianColumns* out,
         if (same) {
           std::memcpy(dst, src, rb);
         } else {
-          // A lower degree: each channel's rest coefficients move to their place.
-          std::fill(dst, dst + stride, 0.f);
-          for (size_t f = 0; f < kGsRest; ++f) dst[f] = DecodeLE<float>(src + 4 * f);
-          for (size_t ch = 0; ch < 3; ++ch) {
-            for (size_t k = 0; k < rest_src; ++k) {
-              dst[kGsRest + ch * rest_dst + k] =
-                  DecodeLE<float>(src + 4 * (kGsRest + ch * rest_src + k));
-            }
-          }
+          for (size_t f = 0; f < nf; ++f) decoded[f] = DecodeLE<float>(src + 4 * f);
+          WidenRecord(decoded, s.degree, dst, degree);
         }
         (*found)[i] = true;
       }

@@ -52,6 +52,11 @@ struct GaussianColumns {
   const float* record(size_t i) const { return values.data() + i * stride(); }
 };
 
+// Copies a record of SH degree `from` into one of degree `to` >= from: the fields before the
+// rest coefficients as they are, each channel's rest run to its place (they are channel-major),
+// the higher-degree coefficients zero. The one rule for reading records at a higher degree.
+void WidenRecord(const float* src, int from, float* dst, int to);
+
 // A point's Gaussian when it has no stored record (inserted by an edit, or into a dataset made
 // without them): scales and rotation from the eigenvectors of its covariance, opacity
 // Logit(0.99), SH degree 0 from its colour. Writes GaussianRecordFloats(0) floats at rec.

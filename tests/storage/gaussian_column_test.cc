@@ -73,6 +73,24 @@ bool SameBits(const std::vector<float>& a, const std::vector<float>& b) {
   return a.size() == b.size() && std::memcmp(a.data(), b.data(), 4 * a.size()) == 0;
 }
 
+// The one segment file of dataset `name` in data directory `dir`.
+std::string OnlySegment(const std::string& dir, const std::string& name) {
+  std::string seg;
+  for (const auto& e : std::filesystem::directory_iterator(dir + "/" + name + "/gaussians")) {
+    EXPECT_TRUE(seg.empty()) << "more than one segment";
+    seg = e.path();
+  }
+  EXPECT_FALSE(seg.empty());
+  return seg;
+}
+
+// Overwrites one byte of a file in place (damage on disk).
+void PatchByte(const std::string& path, std::streamoff at, char value) {
+  std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
+  f.seekp(at);
+  f.write(&value, 1);
+}
+
 std::shared_ptr<Dataset> MakeGaussianDataset(Database& db, const std::string& name) {
   DatasetInfo info;
   info.name = name;
@@ -250,16 +268,9 @@ TEST(GaussianColumnTest, CorruptSegmentIsNamed) {
     auto ds = MakeGaussianDataset(**db, "splats");
     ASSERT_TRUE(ds->BulkLoadGaussians(0, pts, cols).ok());
   }
-  for (const auto& e : std::filesystem::directory_iterator(dir.path() + "/splats/gaussians")) {
-    seg = e.path();
-  }
+  seg = OnlySegment(dir.path(), "splats");
   ASSERT_FALSE(seg.empty());
-  {
-    std::fstream f(seg, std::ios::in | std::ios::out | std::ios::binary);
-    f.seekp(64 + 4 * 1500 * GaussianRecordFloats(1));  // in block 1
-    char c = 0x5a;
-    f.write(&c, 1);
-  }
+  PatchByte(seg, 64 + 4 * 1500 * GaussianRecordFloats(1), 0x5a);  // in block 1
   auto db = Database::Open(dir.path());
   ASSERT_TRUE(db.ok());
   auto ds = (*db)->GetDataset("splats");
@@ -419,16 +430,8 @@ TEST(GaussianColumnTest, ADamagedSegmentIsReportedNotFatalAndReadsAreBounded) {
     Status st = ds->ReadGaussianRecords(ids, &out, &found, 4);
     EXPECT_EQ(st.code(), StatusCode::kLimitExceeded) << st.ToString();
   }
-  std::string seg;
-  for (const auto& e : std::filesystem::directory_iterator(dir.path() + "/splats/gaussians")) {
-    seg = e.path();
-  }
-  {
-    std::fstream f(seg, std::ios::in | std::ios::out | std::ios::binary);
-    f.seekp(13);  // the degree, in the checksummed header
-    char c = 7;
-    f.write(&c, 1);
-  }
+  const std::string seg = OnlySegment(dir.path(), "splats");
+  PatchByte(seg, 13, 7);  // the degree, in the checksummed header
   auto db = Database::Open(dir.path());
   ASSERT_TRUE(db.ok()) << db.status().ToString();
   auto ds = (*db)->GetDataset("splats");
