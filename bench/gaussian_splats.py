@@ -6,7 +6,10 @@ Makes a seeded synthetic 3DGS PLY (degree 3, anisotropic splats, varied opacity;
   import   `hvdb import DS --frame F FILE.ply` into a Gaussian-splat dataset (target: <= 1 s)
   render   `hvdb render DS ... --size 1920 1080 --out x.png`, gaussian mode (the default for such
            a dataset); with the rasteriser's own time (render_ms) and splats/s from both
-  export   `hvdb export DS DIR --codec 3dgs|spz` of one frame, and the bytes written
+  export   `hvdb export DS DIR --codec C` of one frame for C = 3dgs, spz (versions 3 and 4), glb
+           and splat, the bytes written, and the `hvdb import` of each file back
+  peer     npm's splat-transform 2.7.1 converting the same PLY to SPZ (version 4) and GLB, where
+           scripts/setup.sh --all installed it (tests/splat_interop/node_modules)
 and `hvdb describe` alone beside them (what starting the process and opening the data directory
 cost at that moment). Checks that the exported 3DGS PLY is the imported file byte for byte.
 
@@ -91,18 +94,41 @@ def main():
             if j.get("mode") != "gaussian":
                 sys.exit(f"gaussian_splats: render drew mode {j.get('mode')}, not gaussian")
         exports = {}
-        for codec in ("3dgs", "spz"):
+        for codec, extra in (("3dgs", []), ("spz", ["--spz-version", "3"]),
+                             ("spz", ["--spz-version", "4"]), ("glb", []), ("splat", [])):
+            key = codec + (f"_v{extra[1]}" if extra else "")
             walls = []
             for i in range(a.reps):
-                d = os.path.join(work, f"out-{codec}-{i}")
+                d = os.path.join(work, f"out-{key}-{i}")
                 w, _, _ = clocked([hvdb] + data + ["export", "s", d, "--codec", codec,
-                                                   "--count", "1"])
+                                                   "--count", "1"] + extra)
                 walls.append(w)
-            f = os.listdir(d)[0]
-            exports[codec] = {"wall_s": stats(walls), "bytes": os.path.getsize(os.path.join(d, f))}
+            f = os.path.join(d, os.listdir(d)[0])
+            exports[key] = {"wall_s": stats(walls), "bytes": os.path.getsize(f)}
             if codec == "3dgs":
-                with open(os.path.join(d, f), "rb") as x, open(ply, "rb") as y:
-                    exports[codec]["identical_to_input"] = x.read() == y.read()
+                with open(f, "rb") as x, open(ply, "rb") as y:
+                    exports[key]["identical_to_input"] = x.read() == y.read()
+            # Reading it back: a whole `hvdb import` of the file into a fresh frame.
+            walls = []
+            for i in range(a.reps):
+                w, _, _ = clocked([hvdb] + data + ["import", "s", "--frame",
+                                                   str(100 + 10 * len(exports) + i), f])
+                walls.append(w)
+            exports[key]["import_wall_s"] = stats(walls)
+        # The ecosystem's converter on the same scene, where the interop tests' packages are
+        # installed (scripts/setup.sh --all): splat-transform writing SPZ (version 4) and GLB.
+        peer = {}
+        cli = os.path.join(ROOT, "tests", "splat_interop", "node_modules", "@playcanvas",
+                           "splat-transform", "bin", "cli.mjs")
+        if os.path.exists(cli) and shutil.which("node"):
+            for ext in ("spz", "glb"):
+                walls = []
+                for i in range(a.reps):
+                    out = os.path.join(work, f"peer.{ext}")
+                    w, _, _ = clocked(["node", cli, "-q", "-w", ply, out])
+                    walls.append(w)
+                peer[f"splat_transform_2.7.1_ply_to_{ext}"] = {
+                    "wall_s": stats(walls), "bytes": os.path.getsize(out)}
         n = a.splats
         result = {
             "schema": "hvdb-gaussian-splats/1",
@@ -119,6 +145,7 @@ def main():
                              "splats_per_s_rasteriser": n / (statistics.median(rend_ms) / 1e3),
                              "target_splats_per_s": 10e6},
             "export": exports,
+            "peer": peer or "not measured: tests/splat_interop/node_modules is not installed",
         }
         os.makedirs(os.path.dirname(a.out), exist_ok=True)
         with open(a.out, "w") as f:

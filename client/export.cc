@@ -13,20 +13,19 @@ namespace hvdb::client {
 
 using formats::FileCodec;
 
-namespace {
-
-// One frame's splats as a file of `format`, in load order (ids ascending), written whole or not
-// at all (temporary name, then rename).
 Status WriteSplatFile(Backend& db, const std::string& name, const std::string& path,
-                      formats::GaussianFormat format, std::vector<Point>* pts) {
+                      formats::GaussianFormat format, int spz_version, std::vector<Point>* pts) {
+  using formats::GaussianFormat;
   std::sort(pts->begin(), pts->end(), [](const Point& a, const Point& b) { return a.id < b.id; });
   HVDB_ASSIGN_OR_RETURN(GaussianColumns records, db.ReadGaussians(name, *pts));
   const formats::GaussianCloud cloud = formats::PointsToCloud(*pts, records);
-  Result<std::string> bytes = format == formats::GaussianFormat::kSpz
-                                  ? formats::WriteSpz(cloud, path)
-                              : format == formats::GaussianFormat::kSplat
-                                  ? formats::WriteSplat(cloud, path)
-                                  : formats::WriteGaussianPly(cloud, path);
+  formats::SpzWriteOptions spz;
+  spz.version = spz_version;
+  Result<std::string> bytes =
+      format == GaussianFormat::kSpz     ? formats::WriteSpz(cloud, path, spz)
+      : format == GaussianFormat::kSplat ? formats::WriteSplat(cloud, path)
+      : format == GaussianFormat::kGlb   ? formats::WriteGlb(cloud, path)
+                                         : formats::WriteGaussianPly(cloud, path);
   HVDB_RETURN_IF_ERROR(bytes.status());
   const std::string tmp = path + ".tmp";
   {
@@ -43,8 +42,6 @@ Status WriteSplatFile(Backend& db, const std::string& name, const std::string& p
   if (ec) return Status::IOError(path + ": " + ec.message());
   return Status::OK();
 }
-
-}  // namespace
 
 Result<std::vector<std::string>> ExportFrames(Backend& db, const std::string& name,
                                               const std::string& dir, const ExportOptions& o,
@@ -64,6 +61,7 @@ Result<std::vector<std::string>> ExportFrames(Backend& db, const std::string& na
   const bool splats = o.splats != GaussianFormat::kUnknown;
   const char* ext = splats ? (o.splats == GaussianFormat::kSpz     ? "spz"
                               : o.splats == GaussianFormat::kSplat ? "splat"
+                              : o.splats == GaussianFormat::kGlb   ? "glb"
                                                                    : "ply")
                     : o.codec == FileCodec::kHvdb7 ? "hv7"
                     : o.codec == FileCodec::kDraco ? "drc"
@@ -92,7 +90,7 @@ Result<std::vector<std::string>> ExportFrames(Backend& db, const std::string& na
     std::snprintf(file, sizeof file, "_%06u.%s", f, ext);
     const std::string path = dir + "/" + name + file;
     if (splats) {
-      HVDB_RETURN_IF_ERROR(WriteSplatFile(db, name, path, o.splats, &pts));
+      HVDB_RETURN_IF_ERROR(WriteSplatFile(db, name, path, o.splats, o.spz_version, &pts));
       files.push_back(path);
       if (progress) progress(f - o.first + 1, last - o.first);
       continue;

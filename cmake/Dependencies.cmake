@@ -22,6 +22,8 @@ find_package(glm REQUIRED)
 # FFmpeg's libraries: videos read by media/ (hvdb import-media) and written by
 # render/video_encoder.cc (hvdb render --video, the page's video export); meshes through assimp.
 pkg_check_modules(LIBAV REQUIRED IMPORTED_TARGET libavformat libavcodec libswscale libavutil)
+# SPZ version 4 (formats/gaussian_spz.cc): one zstd stream per attribute.
+pkg_check_modules(ZSTD REQUIRED IMPORTED_TARGET libzstd)
 find_package(assimp REQUIRED)
 find_package(OpenGL REQUIRED COMPONENTS EGL OpenGL)
 find_package(Protobuf REQUIRED)

@@ -1,10 +1,11 @@
-// Niantic's SPZ (formats/gaussians.h), the gzip-compressed versions 2 and 3, following the
-// reference implementation nianticlabs/spz (src/cc/load-spz.cc, splat-types.h, splat-utils.h):
-// its constants, attribute order, float arithmetic and coordinate conversion. SPZ stores x right,
-// y up, z back (RUB); hvdb's clouds are the PLY's x right, y down, z forward (RDF), so both
-// directions negate y and z of positions, y and z of quaternions, and the SH coefficients that
-// are odd in y or z (the reference's flipSh table for RDF <-> RUB).
+// Niantic's SPZ (formats/gaussians.h): the gzip-compressed versions 2 and 3 and version 4's zstd
+// streams, following the reference implementation nianticlabs/spz (src/cc/load-spz.cc,
+// splat-types.h, splat-utils.h): its constants, attribute order, float arithmetic and coordinate
+// conversion. SPZ stores x right, y up, z back (RUB); hvdb's clouds are the PLY's x right, y
+// down, z forward (RDF), so both directions negate y and z of positions, y and z of quaternions,
+// and the SH coefficients that are odd in y or z (the reference's flipSh table for RDF <-> RUB).
 #include <zlib.h>
+#include <zstd.h>
 
 #include <algorithm>
 #include <array>
@@ -12,6 +13,8 @@
 #include <cstdint>
 #include <cstring>
 #include <limits>
+#include <string>
+#include <vector>
 
 #include "formats/gaussians.h"
 
@@ -19,7 +22,8 @@ namespace hvdb::formats {
 namespace {
 
 constexpr uint32_t kMagic = 0x5053474e;  // "NGSP", little-endian
-constexpr size_t kHeaderBytes = 16;
+constexpr size_t kHeaderBytes = 16;    // versions 1-3, inside the gzip stream
+constexpr size_t kV4HeaderBytes = 32;  // version 4, plain, before the table of contents
 constexpr uint8_t kFlagAntialiased = 0x1;
 constexpr uint8_t kFlagHasExtensions = 0x2;
 constexpr float kColorScale = 0.15f;
@@ -27,6 +31,11 @@ constexpr float kSqrt1_2 = 0.707106781186547524401f;
 // Deflate cannot compress better than 1032:1 (a 258-byte match per ~2 bits): more declared
 // bytes than that is a lie, refused before inflating anything.
 constexpr uint64_t kMaxDeflateRatio = 1032;
+// Version 4: the reference's bound on points for a file's size (1024:1 over the 9 bytes of a
+// position), so that a hostile header allocates nothing; any file the reference reads passes.
+constexpr uint64_t kMaxZstdRatio = 1024;
+// Its zstd level (compressZstd in load-spz.cc).
+constexpr int kZstdLevel = 12;
 
 // RDF <-> RUB: flip x 1, y -1, z -1; the reference's flipP, flipQ (x y z of the quaternion) and
 // flipSh (coefficient k of each channel, degree 1 to 3).
@@ -41,6 +50,26 @@ size_t RotationBytes(uint32_t version) { return version >= 3 ? 4 : 3; }
 
 size_t BytesPerPoint(uint32_t version, int degree) {
   return 9 + 1 + 3 + 3 + RotationBytes(version) + 3 * static_cast<size_t>(ShRestPerChannel(degree));
+}
+
+// Version 4's attribute streams, in file order (positions, alphas, colours, scales, rotations,
+// SH: the order of the legacy payload, so both decode through Unpack), for n points; the
+// reference leaves out an empty stream (SH at degree 0).
+std::vector<uint64_t> StreamSizes(uint64_t n, uint32_t version, int degree) {
+  std::vector<uint64_t> sizes = {9 * n, n, 3 * n, 3 * n, RotationBytes(version) * n,
+                                 3 * static_cast<uint64_t>(ShRestPerChannel(degree)) * n};
+  std::erase(sizes, 0);
+  return sizes;
+}
+
+uint64_t Load64(const unsigned char* p) {
+  uint64_t v = 0;
+  for (int k = 7; k >= 0; --k) v = (v << 8) | p[k];
+  return v;
+}
+
+void Store64(uint64_t v, unsigned char* p) {
+  for (int k = 0; k < 8; ++k) p[k] = static_cast<unsigned char>(v >> (8 * k));
 }
 
 uint32_t Load32(const unsigned char* p) {
@@ -239,20 +268,158 @@ Status Deflate(std::string_view raw, std::string* out, const std::string& name) 
 
 }  // namespace
 
+namespace {
+
+// What the three header layouts share; version was checked by the caller.
+Status CheckHeader(int degree, int fractional_bits, uint8_t flags,
+                   const std::string& name) {
+  if (degree > kMaxShDegree) {
+    return Status::Unsupported(name + ": SH degree " + std::to_string(degree) +
+                               " (degrees 0 to 3 are supported)");
+  }
+  if (fractional_bits > 24) {
+    return Status::Corruption(name + ": " + std::to_string(fractional_bits) +
+                              " fractional bits for 24-bit positions (at most 24)");
+  }
+  if (flags & kFlagHasExtensions) {
+    return Status::Unsupported(name + ": SPZ extensions (flag 0x2), which may change the "
+                                      "coordinate system, are not supported");
+  }
+  return Status::OK();
+}
+
+// Version 4: header, table of contents (compressed and uncompressed size of each stream, u64
+// each), then the zstd frames back to back. Each stream inflates into its place in one payload
+// laid out as the legacy format's.
+Result<GaussianCloud> ReadSpzV4(std::string_view bytes, const std::string& name) {
+  const auto* b = reinterpret_cast<const unsigned char*>(bytes.data());
+  if (bytes.size() < kV4HeaderBytes) {
+    return Status::Corruption(name + ": truncated: " + std::to_string(bytes.size()) +
+                              " bytes, less than SPZ version 4's 32-byte header");
+  }
+  const uint32_t count = Load32(b + 8);
+  const int degree = b[12];
+  const int fractional_bits = b[13];
+  const uint8_t flags = b[14];
+  const size_t num_streams = b[15];
+  const uint64_t toc = Load32(b + 16);
+  HVDB_RETURN_IF_ERROR(CheckHeader(degree, fractional_bits, flags, name));
+  const std::vector<uint64_t> want = StreamSizes(count, 4, degree);
+  if (num_streams != want.size()) {
+    return Status::Corruption(name + ": " + std::to_string(num_streams) + " streams; SH degree " +
+                              std::to_string(degree) + " with " + std::to_string(count) +
+                              " points has " + std::to_string(want.size()));
+  }
+  if (toc != kV4HeaderBytes) {  // only extension records lie between, and flag 0x2 is refused
+    return Status::Corruption(name + ": the table of contents at byte " + std::to_string(toc) +
+                              ", not right after the 32-byte header (no extensions are flagged)");
+  }
+  if (uint64_t{count} * 9 > uint64_t{bytes.size()} * kMaxZstdRatio) {
+    return Status::Corruption(name + ": the SPZ header declares " + std::to_string(count) +
+                              " points, more than " + std::to_string(bytes.size()) +
+                              " bytes of zstd streams can hold: a damaged header");
+  }
+  const uint64_t data_start = toc + 16 * num_streams;
+  if (data_start > bytes.size()) {
+    return Status::Corruption(name + ": truncated within the table of contents");
+  }
+  uint64_t total = 0;
+  uint64_t at = data_start;
+  std::vector<uint64_t> compressed(num_streams);
+  for (size_t i = 0; i < num_streams; ++i) {
+    compressed[i] = Load64(b + toc + 16 * i);
+    const uint64_t raw = Load64(b + toc + 16 * i + 8);
+    if (raw != want[i]) {
+      return Status::Corruption(name + ": stream " + std::to_string(i) + " declares " +
+                                std::to_string(raw) + " bytes, its points need " +
+                                std::to_string(want[i]));
+    }
+    if (compressed[i] > bytes.size() - at) {
+      return Status::Corruption(name + ": truncated: stream " + std::to_string(i) +
+                                " needs " + std::to_string(compressed[i]) + " bytes at byte " +
+                                std::to_string(at) + ", the file has " +
+                                std::to_string(bytes.size()));
+    }
+    at += compressed[i];
+    total += raw;
+  }
+  if (at != bytes.size()) {
+    return Status::Corruption(name + ": " + std::to_string(bytes.size() - at) +
+                              " bytes follow the last zstd stream");
+  }
+  std::string payload(total, '\0');
+  at = data_start;
+  uint64_t out = 0;
+  for (size_t i = 0; i < num_streams; ++i) {
+    const size_t got = ZSTD_decompress(payload.data() + out, want[i], b + at, compressed[i]);
+    if (ZSTD_isError(got) || got != want[i]) {
+      return Status::Corruption(name + ": zstd stream " + std::to_string(i) + " is damaged (" +
+                                (ZSTD_isError(got) ? ZSTD_getErrorName(got)
+                                                   : "it inflates to another size") +
+                                ")");
+    }
+    at += compressed[i];
+    out += want[i];
+  }
+  GaussianCloud c;
+  c.sh_degree = degree;
+  c.antialiased = (flags & kFlagAntialiased) != 0;
+  c.Resize(count);
+  Unpack(reinterpret_cast<const unsigned char*>(payload.data()), count, 4, fractional_bits, &c);
+  return c;
+}
+
+// The legacy payload (16-byte header, then the streams back to back) as version 4's file.
+Result<std::string> CompressV4(std::string_view raw, uint32_t count, int degree,
+                               const std::string& name) {
+  const std::vector<uint64_t> sizes = StreamSizes(count, 4, degree);
+  std::string out(kV4HeaderBytes + 16 * sizes.size(), '\0');
+  auto* h = reinterpret_cast<unsigned char*>(out.data());
+  Store32(kMagic, h);
+  Store32(4, h + 4);
+  Store32(count, h + 8);
+  std::memcpy(h + 12, raw.data() + 12, 3);  // degree, fractional bits, flags
+  h[15] = static_cast<unsigned char>(sizes.size());
+  Store32(kV4HeaderBytes, h + 16);
+  ZSTD_CCtx* cctx = ZSTD_createCCtx();
+  if (cctx == nullptr) return Status::Internal(name + ": ZSTD_createCCtx failed");
+  ZSTD_CCtx_setParameter(cctx, ZSTD_c_compressionLevel, kZstdLevel);
+  size_t from = kHeaderBytes;
+  std::string frame;
+  for (size_t i = 0; i < sizes.size(); ++i) {
+    frame.resize(ZSTD_compressBound(sizes[i]));
+    const size_t n = ZSTD_compress2(cctx, frame.data(), frame.size(), raw.data() + from, sizes[i]);
+    if (ZSTD_isError(n)) {
+      ZSTD_freeCCtx(cctx);
+      return Status::Internal(name + ": zstd: " + ZSTD_getErrorName(n));
+    }
+    h = reinterpret_cast<unsigned char*>(out.data());  // appends below may move the string
+    Store64(n, h + kV4HeaderBytes + 16 * i);
+    Store64(sizes[i], h + kV4HeaderBytes + 16 * i + 8);
+    out.append(frame.data(), n);
+    from += sizes[i];
+  }
+  ZSTD_freeCCtx(cctx);
+  return out;
+}
+
+}  // namespace
+
 Result<GaussianCloud> ReadSpz(std::string_view bytes, const std::string& name) {
   const auto* b = reinterpret_cast<const unsigned char*>(bytes.data());
   if (bytes.size() >= 8 && Load32(b) == kMagic) {
     const uint32_t version = Load32(b + 4);
-    if (version >= 4) {
+    if (version == 4) return ReadSpzV4(bytes, name);
+    if (version > 4) {
       return Status::Unsupported(name + ": SPZ version " + std::to_string(version) +
-                                 " (zstd-compressed streams) is not supported; re-save it as "
-                                 "version 3 (gzip), e.g. with the spz library's PackOptions");
+                                 " (versions 2 to 4 are read)");
     }
-    return Status::Corruption(name + ": an uncompressed SPZ stream; SPZ versions 1 to 3 are "
-                                     "gzip-compressed");
+    return Status::Corruption(name + ": an uncompressed SPZ stream of version " +
+                              std::to_string(version) + "; versions 1 to 3 are gzip-compressed");
   }
   if (bytes.size() < 2 || b[0] != 0x1f || b[1] != 0x8b) {
-    return Status::InvalidArgument(name + ": not an SPZ file (no gzip magic 1f 8b)");
+    return Status::InvalidArgument(name + ": not an SPZ file (neither the magic NGSP of version "
+                                          "4 nor gzip's 1f 8b)");
   }
   Inflater in;
   if (inflateInit2(&in.z, 16 + MAX_WBITS) != Z_OK) {
@@ -294,20 +461,9 @@ Result<GaussianCloud> ReadSpz(std::string_view bytes, const std::string& name) {
   }
   if (version == 0 || version > 3) {
     return Status::Unsupported(name + ": SPZ version " + std::to_string(version) +
-                               " in a gzip stream (versions 2 and 3 are read)");
+                               " in a gzip stream (versions 2 and 3 are gzip-compressed)");
   }
-  if (degree > kMaxShDegree) {
-    return Status::Unsupported(name + ": SH degree " + std::to_string(degree) +
-                               " (degrees 0 to 3 are supported)");
-  }
-  if (fractional_bits > 24) {
-    return Status::Corruption(name + ": " + std::to_string(fractional_bits) +
-                              " fractional bits for 24-bit positions (at most 24)");
-  }
-  if (flags & kFlagHasExtensions) {
-    return Status::Unsupported(name + ": SPZ extensions (flag 0x2), which may change the "
-                                      "coordinate system, are not supported");
-  }
+  HVDB_RETURN_IF_ERROR(CheckHeader(degree, fractional_bits, flags, name));
   const uint64_t want = count * uint64_t{BytesPerPoint(version, degree)};
   if (want > uint64_t{bytes.size()} * kMaxDeflateRatio) {
     return Status::Corruption(name + ": the SPZ header declares " + std::to_string(count) +
@@ -328,9 +484,9 @@ Result<GaussianCloud> ReadSpz(std::string_view bytes, const std::string& name) {
 
 Result<std::string> WriteSpz(const GaussianCloud& c, const std::string& name,
                              const SpzWriteOptions& options) {
-  if (options.version != 2 && options.version != 3) {
+  if (options.version < 2 || options.version > 4) {
     return Status::InvalidArgument(name + ": SPZ version " + std::to_string(options.version) +
-                                   " cannot be written (2 or 3)");
+                                   " cannot be written (2, 3 or 4)");
   }
   if (options.fractional_bits < 0 || options.fractional_bits > 23) {
     return Status::InvalidArgument(name + ": " + std::to_string(options.fractional_bits) +
@@ -408,6 +564,7 @@ Result<std::string> WriteSpz(const GaussianCloud& c, const std::string& name,
       }
     }
   }
+  if (version == 4) return CompressV4(raw, static_cast<uint32_t>(n), degree, name);
   std::string out;
   HVDB_RETURN_IF_ERROR(Deflate(raw, &out, name));
   return out;

@@ -185,6 +185,8 @@ const char* GaussianFormatName(GaussianFormat format) {
       return "SPZ";
     case GaussianFormat::kSplat:
       return ".splat";
+    case GaussianFormat::kGlb:
+      return "GLB";
     case GaussianFormat::kUnknown:
       break;
   }
@@ -196,6 +198,7 @@ GaussianFormat DetectGaussianFormat(std::string_view bytes) {
     return LooksLikeGaussianPly(bytes) ? GaussianFormat::k3dgsPly : GaussianFormat::kUnknown;
   }
   if (bytes.starts_with("NGSP")) return GaussianFormat::kSpz;
+  if (bytes.starts_with("glTF")) return GaussianFormat::kGlb;
   if (bytes.size() >= 2 && static_cast<unsigned char>(bytes[0]) == 0x1f &&
       static_cast<unsigned char>(bytes[1]) == 0x8b) {
     unsigned char magic[4];
@@ -215,13 +218,16 @@ Result<GaussianCloud> ReadGaussians(std::string_view bytes, const std::string& n
       return ReadSpz(bytes, name);
     case GaussianFormat::kSplat:
       return ReadSplat(bytes, name);
+    case GaussianFormat::kGlb:
+      return ReadGlb(bytes, name);
     case GaussianFormat::kUnknown:
       break;
   }
   return Status::InvalidArgument(
       name + ": not a Gaussian-splat file: neither a 3DGS PLY (a PLY header with f_dc_0, "
-             "opacity and rot_0), an SPZ (gzip of an NGSP stream) nor a .splat (32-byte "
-             "splats with finite positions and scales)");
+             "opacity and rot_0), an SPZ (NGSP, or gzip of an NGSP stream), a GLB (glTF with "
+             "KHR_gaussian_splatting) nor a .splat (32-byte splats with finite positions and "
+             "scales)");
 }
 
 }  // namespace hvdb::formats

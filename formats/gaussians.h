@@ -1,16 +1,19 @@
-// Gaussian-splat files: the ecosystem's three formats for 3D Gaussian splatting (3DGS) scenes,
+// Gaussian-splat files: the ecosystem's four formats for 3D Gaussian splatting (3DGS) scenes,
 // read from and written to bytes in memory.
 //
 //   3DGS PLY   the Inria reference code's PLY (binary_little_endian; ascii and big-endian read
 //              too): every stored value as a float, bit for bit (gaussian_ply.cc)
 //   .splat     antimatter15/splat's 32 bytes a splat: degree 0, colour and rotation in 8 bits
 //              (gaussian_splat.cc)
-//   SPZ        Niantic's gzip-compressed, quantised layout, versions 2 and 3 (gaussian_spz.cc)
+//   SPZ        Niantic's quantised layout: versions 2 and 3 (gzip), 4 (zstd streams)
+//              (gaussian_spz.cc)
+//   GLB        binary glTF 2.0 with the KHR_gaussian_splatting extension (gaussian_glb.cc)
 //
 // A GaussianCloud keeps the values as 3DGS trainers store them, before activation: log scales,
 // logit opacity, an unnormalised quaternion, SH coefficients. Its coordinate system is that of
 // the PLY (x right, y down, z forward: what trainers write); the SPZ reader and writer convert to
-// and from SPZ's own (x right, y up, z back). docs/FORMAT.md ("Gaussian-splat files") gives each
+// and from SPZ's own (x right, y up, z back), the GLB's to and from glTF's (x left, y up, z
+// forward). docs/FORMAT.md ("Gaussian-splat files") gives each
 // format byte by byte.
 //
 // Nothing here throws. A reader returns a whole cloud or an error (Status, from storage/status.h)
@@ -77,14 +80,16 @@ float Logit(float p);
 // splat and the PLY property name, e.g. "splat 12: opacity is nan").
 Status ValidateGaussianCloud(const GaussianCloud& cloud, const std::string& name);
 
-enum class GaussianFormat { k3dgsPly, kSpz, kSplat, kUnknown };
-const char* GaussianFormatName(GaussianFormat format);  // "3DGS PLY", "SPZ", ".splat", "unknown"
+enum class GaussianFormat { k3dgsPly, kSpz, kSplat, kGlb, kUnknown };
+// "3DGS PLY", "SPZ", ".splat", "GLB", "unknown"
+const char* GaussianFormatName(GaussianFormat format);
 
 // The format of a file by its content:
 //   k3dgsPly  "ply" then a header (within its first 64 KiB) with the vertex properties f_dc_0,
 //             opacity and rot_0 (a PLY of plain points is kUnknown)
 //   kSpz      a gzip stream whose first four bytes inflate to "NGSP"; or "NGSP" itself (SPZ
-//             version 4, which ReadSpz refuses as unsupported)
+//             version 4)
+//   kGlb      the GLB magic "glTF" (whether it holds splats is ReadGlb's to say)
 //   kSplat    none of those, a non-zero multiple of 32 bytes, and the first 1024 splats hold
 //             finite positions and finite, non-negative scales (.splat has no magic)
 GaussianFormat DetectGaussianFormat(std::string_view bytes);
@@ -105,10 +110,13 @@ Result<std::string> WriteGaussianPly(const GaussianCloud& cloud, const std::stri
 Result<GaussianCloud> ReadSplat(std::string_view bytes, const std::string& name);
 Result<std::string> WriteSplat(const GaussianCloud& cloud, const std::string& name);
 
-// Niantic SPZ, gzip-compressed versions 2 and 3 (version 4's zstd streams and SPZ extensions
-// are refused as unsupported; so is SH degree 4).
+// Niantic SPZ: versions 2 and 3 (one gzip stream) and 4 (a 32-byte header, a table of contents
+// and one zstd stream per attribute). SPZ extensions (flag 0x2, which may change the coordinate
+// system) and SH degree 4 are refused as unsupported.
 struct SpzWriteOptions {
-  int version = 3;  // 2: rotation as x y z in 8 bits each; 3: "smallest three" in 32 bits
+  // 2: rotation as x y z in 8 bits each; 3: "smallest three" in 32 bits; 4: as 3, zstd streams.
+  // 3 is the default: every SPZ reader reads it (version 4 needs the 2025 reference or later).
+  int version = 3;
   // Fixed-point fraction bits of positions (0..23; 12: 1/4096 units, +-2048 reach). Lowered, for
   // the whole file, as far as the farthest position needs to fit the 24 bits.
   int fractional_bits = 12;
@@ -116,6 +124,16 @@ struct SpzWriteOptions {
 Result<GaussianCloud> ReadSpz(std::string_view bytes, const std::string& name);
 Result<std::string> WriteSpz(const GaussianCloud& cloud, const std::string& name,
                              const SpzWriteOptions& options = {});
+
+// GLB (binary glTF 2.0) with KHR_gaussian_splatting. Reading takes every triangle-free POINTS
+// primitive carrying the extension, in mesh order, and needs POSITION, the extension's ROTATION,
+// SCALE, OPACITY and SH_DEGREE_0_COEF_0 (float, or the normalised/integer component types the
+// extension allows) and whole SH degrees; a file without such a primitive, a node transform, an
+// external or data: URI buffer or sparse accessors are errors. Values are converted to the
+// cloud's conventions (log scale, logit opacity, w x y z, channel-major SH, x right y down z
+// forward). Writing gives one primitive, float accessors, COLOR_0 as the extension's fallback.
+Result<GaussianCloud> ReadGlb(std::string_view bytes, const std::string& name);
+Result<std::string> WriteGlb(const GaussianCloud& cloud, const std::string& name);
 
 // DetectGaussianFormat, then that format's reader; InvalidArgument for kUnknown.
 Result<GaussianCloud> ReadGaussians(std::string_view bytes, const std::string& name);

@@ -128,13 +128,14 @@ void WriteSplats(const std::string& path, const py::array& points, const py::dic
                  const std::string& format) {
   std::vector<Point> pts = FromArray(points);
   GaussianColumns records = GaussiansFromDict(gaussians, pts.size());
-  if (format != "3dgs" && format != "spz" && format != "splat") {
-    Throw(Status::InvalidArgument("format: '" + format + "' is not 3dgs, spz or splat"));
+  if (format != "3dgs" && format != "spz" && format != "splat" && format != "glb") {
+    Throw(Status::InvalidArgument("format: '" + format + "' is not 3dgs, spz, splat or glb"));
   }
   py::gil_scoped_release release;
   const formats::GaussianCloud cloud = formats::PointsToCloud(pts, records);
   Result<std::string> bytes = format == "spz"     ? formats::WriteSpz(cloud, path)
                               : format == "splat" ? formats::WriteSplat(cloud, path)
+                              : format == "glb"   ? formats::WriteGlb(cloud, path)
                                                   : formats::WriteGaussianPly(cloud, path);
   Status st = bytes.status();
   if (st.ok()) {

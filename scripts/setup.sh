@@ -24,7 +24,7 @@ esac
 PACKAGES=(
   build-essential cmake ninja-build pkg-config ca-certificates
   libboost-dev libopencv-dev libdraco-dev libopenexr-dev libglm-dev libnanoflann-dev
-  libpng-dev libjpeg-dev zlib1g-dev
+  libpng-dev libjpeg-dev zlib1g-dev libzstd-dev
   libegl-dev libgl-dev libopengl-dev libegl-mesa0 libgl1-mesa-dri
   libprotobuf-dev protobuf-compiler nlohmann-json3-dev libcli11-dev liburing-dev librados-dev
   libavformat-dev libavcodec-dev libswscale-dev libavutil-dev libassimp-dev
@@ -42,7 +42,7 @@ TEST_PACKAGES=(
   libspatialindex-dev libpcl-dev python3-matplotlib
   clang libclang-rt-14-dev
   python3-pytest python3-open3d
-  chromium chromium-driver python3-selenium
+  chromium chromium-driver python3-selenium nodejs
   ceph-mon ceph-osd ceph-mgr ceph-common uuid-runtime
   slurmctld slurmd slurm-client munge
 )
@@ -65,11 +65,16 @@ fi
 
 # The web viewer's pinned dependencies, installed into web/node_modules (served by hvdb-server
 # --http; nothing is fetched from a CDN at run time), checked against web/package-lock.json.
-# Again only when the lockfile changed.
-if [ ! -f web/node_modules/.package-lock.json ] || [ web/package-lock.json -nt web/node_modules/.package-lock.json ]; then
-  echo "setup: installing the web viewer's pinned dependencies (web/package-lock.json)"
-  /usr/bin/python3 scripts/web_deps.py web
-fi
+# Again only when the lockfile changed. With --all also the splat ecosystem's converters that
+# the interop tests run with Debian's Node.js (tests/splat_interop/package-lock.json).
+NPM_DIRS=(web)
+if ((ALL)); then NPM_DIRS+=(tests/splat_interop); fi
+for dir in "${NPM_DIRS[@]}"; do
+  if [ ! -f "$dir/node_modules/.package-lock.json" ] || [ "$dir/package-lock.json" -nt "$dir/node_modules/.package-lock.json" ]; then
+    echo "setup: installing the pinned npm packages of $dir ($dir/package-lock.json)"
+    /usr/bin/python3 scripts/web_deps.py "$dir"
+  fi
+done
 
 BUILD_DIR=${HVDB_BUILD_DIR:-build}
 if ((ALL)); then

@@ -1,13 +1,14 @@
 #!/usr/bin/python3
-"""Installs the web viewer's pinned npm dependencies into web/node_modules, as `npm ci` would.
+"""Installs a folder's pinned npm dependencies into DIR/node_modules, as `npm ci` would: the
+web viewer's (web/) and the splat converters the interop tests run (tests/splat_interop/).
 
 Written here rather than run through npm: the viewer has one dependency (gl-matrix), and
-Debian's npm brings Node.js and ~300 packages onto a fresh machine for it. This reads
-web/package-lock.json (lockfile v3), downloads each package's tarball from the npm registry,
-checks it against the lockfile's `integrity` (SRI sha512, as npm does), and unpacks it. Nothing
-is fetched at run time: hvdb-server serves the files from web/node_modules.
+Debian's npm brings ~300 packages onto a fresh machine for it. This reads DIR/package-lock.json
+(lockfile v3), downloads each package's tarball from the npm registry, checks it against the
+lockfile's `integrity` (SRI sha512, as npm does), and unpacks it. No install scripts are run.
+Nothing is fetched at run time: hvdb-server serves the viewer's files from web/node_modules.
 
-    /usr/bin/python3 scripts/web_deps.py [WEB_DIR]   (default: web/ beside this script)
+    /usr/bin/python3 scripts/web_deps.py [DIR]   (default: web/ beside this script)
 
 Exit status 1, with the reason, on a network error or a tarball that does not match.
 """

@@ -5,6 +5,7 @@
 #include <map>
 #include <memory>
 #include <optional>
+#include <set>
 #include <string>
 #include <utility>
 #include <vector>
@@ -12,7 +13,6 @@
 #include "client/cli/commands.h"
 #include "client/cli/splat_files.h"
 #include "client/cli/common.h"
-#include "client/cli/splat_files.h"
 #include "client/export.h"
 #include "codec/codec.h"
 #include "formats/ply.h"
@@ -36,6 +36,7 @@ struct ImportArgs {
   uint32_t frame = 0;
   std::vector<std::string> files;
   double units_scale = 1.0;
+  std::vector<double> rotate;  // splat files: Euler degrees about x, y, z
   double sigma = 0.005;
   bool keep_ids = false;
   bool skip_invalid = false;
@@ -47,6 +48,7 @@ struct ExportArgs {
   std::string codec = "hvdb7";
   int qp = 16, qc = 8, qn = 12;
   bool temporal = false;
+  int spz_version = 3;
   uint32_t first = 0, count = 0;
 };
 
@@ -234,10 +236,12 @@ Result<std::vector<Point>> ReadDracoFrame(const std::string& path, const formats
 
 int CmdExport(Context& ctx, const ExportArgs& a) {
   client::ExportOptions o;
-  if (a.codec == "3dgs" || a.codec == "spz" || a.codec == "splat") {
+  if (a.codec == "3dgs" || a.codec == "spz" || a.codec == "splat" || a.codec == "glb") {
     o.splats = a.codec == "spz"     ? formats::GaussianFormat::kSpz
                : a.codec == "splat" ? formats::GaussianFormat::kSplat
+               : a.codec == "glb"   ? formats::GaussianFormat::kGlb
                                     : formats::GaussianFormat::k3dgsPly;
+    o.spz_version = a.spz_version;
   } else {
     Status st = formats::ParseFileCodec(a.codec, &o.codec);
     if (!st.ok()) return Usage("export", st.message());
@@ -282,10 +286,15 @@ int CmdImport(Context& ctx, const ImportArgs& args) {
   // An unknown dataset is reported before any file is read.
   Result<DatasetInfo> info = ctx.db().Describe(a.name);
   if (!info.ok()) return Fail(info.status());
-  if (info->gaussians && a.units_scale != 1.0) {
-    return Usage("import", "--units-scale is for point files; a Gaussian-splat dataset keeps "
-                           "the splats' own coordinates");
+  if (!a.rotate.empty() && !info->gaussians) {
+    return Usage("import", "--rotate is for splat files (a dataset made with --gaussians)");
   }
+  // Splat files are moved before loading, their covariances and SH with them.
+  formats::Similarity move;
+  if (!a.rotate.empty()) {
+    move = formats::Similarity::FromEulerDegrees(a.rotate[0], a.rotate[1], a.rotate[2]);
+  }
+  move.scale = a.units_scale;
   Clock::time_point start = Clock::now();
   ProgressBar bar(a.files.size());
   uint64_t total = 0, skipped_total = 0;
@@ -321,7 +330,7 @@ int CmdImport(Context& ctx, const ImportArgs& args) {
           "--gaussians` (" + done(i) + ")"));
     }
     Result<std::vector<Point>> pts =
-        info->gaussians ? ReadSplatFrame(a.files[i], ro.frame, &records, &ignored)
+        info->gaussians ? ReadSplatFrame(a.files[i], ro.frame, move, &records, &ignored)
         : formats::IsHvdb7File(a.files[i]) ? ReadStreamFrame(a.files[i], ro, &reference)
         : formats::IsDracoFile(a.files[i]) ? ReadDracoFrame(a.files[i], ro)
                                            : ReadPlyNoting(a.files[i], ro, &skipped, &bar);
@@ -379,11 +388,33 @@ int CmdImport(Context& ctx, const ImportArgs& args) {
   return kExitOk;
 }
 
+// --codec 3dgs|spz|glb|splat: the format of a crop of a Gaussian-splat dataset, else kUnknown.
+formats::GaussianFormat SplatCodec(const std::string& codec) {
+  return codec == "3dgs"    ? formats::GaussianFormat::k3dgsPly
+         : codec == "spz"   ? formats::GaussianFormat::kSpz
+         : codec == "glb"   ? formats::GaussianFormat::kGlb
+         : codec == "splat" ? formats::GaussianFormat::kSplat
+                            : formats::GaussianFormat::kUnknown;
+}
+
 int RunQuery(Context& ctx, const Region& region, const QueryArgs& q, const std::string& command) {
   Clock::time_point start = Clock::now();
   std::unique_ptr<formats::PointWriter> writer;
   if (q.codec != "raw" && q.out.empty()) return Usage(command, "--codec needs --out FILE");
-  if (!q.out.empty()) {
+  // A crop of a Gaussian-splat scene as a splat file: the points are collected (one frame's),
+  // then written with their records.
+  const formats::GaussianFormat splats = SplatCodec(q.codec);
+  std::vector<Point> crop;
+  if (splats != formats::GaussianFormat::kUnknown) {
+    if (command != "window") return Usage(command, "--codec " + q.codec + " is for window");
+    Result<DatasetInfo> info = ctx.db().Describe(q.name);
+    if (!info.ok()) return Fail(info.status());
+    if (!info->gaussians) {
+      return Fail(Status::InvalidArgument(
+          "--codec " + q.codec + ": '" + q.name + "' is not a Gaussian-splat dataset (made with "
+          "hvdb create --gaussians); --codec raw writes its points as PLY"));
+    }
+  } else if (!q.out.empty()) {
     formats::FileCodec fc = formats::FileCodec::kRaw;
     codec::EncodeOptions eo;
     eo.qp = q.qp;
@@ -424,11 +455,26 @@ int RunQuery(Context& ctx, const Region& region, const QueryArgs& q, const std::
         Status s = writer->Append(batch.points);
         if (!s.ok()) return Fail(s);
       }
+      if (splats != formats::GaussianFormat::kUnknown) {
+        crop.insert(crop.end(), batch.points.begin(), batch.points.end());
+      }
     }
     if (!*more) break;
   }
   if (writer) {
     Status s = writer->Finish();
+    if (!s.ok()) return Fail(s);
+  }
+  if (splats != formats::GaussianFormat::kUnknown) {
+    std::set<uint32_t> held;
+    for (const Point& p : crop) held.insert(p.frame);
+    if (held.size() > 1) {
+      return Fail(Status::InvalidArgument(
+          "--codec " + q.codec + ": the window holds points of several frames, and a splat file "
+          "is one scene: narrow the time range of --box to one frame (hvdb export writes a file "
+          "a frame)"));
+    }
+    Status s = client::WriteSplatFile(ctx.db(), q.name, q.out, splats, 3, &crop);
     if (!s.ok()) return Fail(s);
   }
   double ms = MsSince(start);
@@ -483,9 +529,10 @@ void AddQueryOptions(CLI::App* cmd, QueryArgs* q) {
   cmd->add_flag("--ascii", q->ascii, "With --out FILE.ply: ascii instead of binary");
   cmd->add_option("--codec", q->codec,
                   "With --out: raw (PLY/CSV), hvdb7 (docs/CODEC.md, every attribute) or draco "
-                  "(positions, colours, ids, frames)")
+                  "(positions, colours, ids, frames); window of a Gaussian-splat dataset: 3dgs, "
+                  "spz, glb or splat (the crop as one splat file, with opacity and SH)")
       ->capture_default_str()
-      ->check(CLI::IsMember({"raw", "hvdb7", "draco"}));
+      ->check(CLI::IsMember({"raw", "hvdb7", "draco", "3dgs", "spz", "glb", "splat"}));
   cmd->add_option("--qp", q->qp, "With --codec hvdb7|draco: position bits over the extent")
       ->capture_default_str()
       ->check(CLI::Range(1, 30));
@@ -513,7 +560,7 @@ void AddDataCommands(CLI::App& app, Context& ctx) {
   create_cmd->add_option("--frames", create.frames, "Declared number of frames");
   create_cmd->add_flag("--gaussians", create.gaussians,
                        "A Gaussian-splat dataset: its points also keep 3DGS attributes (opacity, "
-                       "spherical harmonics), loaded from 3DGS PLY, SPZ or .splat files");
+                       "spherical harmonics), loaded from 3DGS PLY, SPZ, GLB or .splat files");
   ctx.Add(create_cmd, [](Context& c) { return CmdCreate(c, data_args.create); });
 
   NameArgs& describe = data_args.describe;
@@ -533,9 +580,16 @@ void AddDataCommands(CLI::App& app, Context& ctx) {
   import_cmd->add_option("--frame", imports.frame, "Frame of the first file")->required();
   import_cmd
       ->add_option("--units-scale", imports.units_scale,
-                   "Multiply positions by this (0.01: the files are in centimetres)")
+                   "Multiply positions by this (0.01: the files are in centimetres); splats' "
+                   "scales follow")
       ->capture_default_str()
       ->check(Positive());
+  import_cmd
+      ->add_option("--rotate", imports.rotate,
+                   "Splat files: rotate by X Y Z degrees about the x, then y, then z axis "
+                   "(e.g. 180 0 0 turns a y-down trainer's scene y-up); covariances and "
+                   "spherical harmonics turn with the splats")
+      ->expected(3);
   import_cmd
       ->add_option("--sigma", imports.sigma,
                    "Standard deviation in metres for points without a covariance")
@@ -549,21 +603,28 @@ void AddDataCommands(CLI::App& app, Context& ctx) {
       "Files may be PLY, hvdb7 streams (hvdb export, hvdb-codec) or Draco files "
       "(hvdb export --codec draco); temporal hvdb7 streams must follow the frame "
       "they were coded against. A Gaussian-splat dataset (hvdb create --gaussians) takes "
-      "3DGS PLY, SPZ (v2, v3) and .splat files, told apart by their content.");
+      "3DGS PLY, SPZ (versions 2-4), GLB (glTF KHR_gaussian_splatting) and .splat files, told "
+      "apart by their content; a directory is a sequence, one file a frame in name order.");
   ctx.Add(import_cmd, [](Context& c) { return CmdImport(c, data_args.imports); });
 
   ExportArgs& exports = data_args.exports;
   CLI::App* export_cmd = app.add_subcommand(
-      "export", "Write frames as files DIR/NAME_FFFFFF.hv7 (or .drc, .ply, .spz, .splat), one "
-                "per frame");
+      "export", "Write frames as files DIR/NAME_FFFFFF.hv7 (or .drc, .ply, .spz, .splat, .glb), "
+                "one per frame");
   export_cmd->add_option("name", exports.name, "Dataset")->required();
   export_cmd->add_option("dir", exports.dir, "Output directory (created if missing)")->required();
   export_cmd
       ->add_option("--codec", exports.codec,
                    "hvdb7 (docs/CODEC.md), draco or raw (PLY); Gaussian splats: 3dgs (the "
-                   "3DGS PLY), spz or splat")
+                   "3DGS PLY), spz, splat or glb (glTF KHR_gaussian_splatting)")
       ->capture_default_str()
-      ->check(CLI::IsMember({"raw", "hvdb7", "draco", "3dgs", "spz", "splat"}));
+      ->check(CLI::IsMember({"raw", "hvdb7", "draco", "3dgs", "spz", "splat", "glb"}));
+  export_cmd
+      ->add_option("--spz-version", exports.spz_version,
+                   "--codec spz: 2, 3 (gzip; every SPZ reader reads them) or 4 (zstd streams, "
+                   "the 2025 reference library and later)")
+      ->capture_default_str()
+      ->check(CLI::Range(2, 4));
   export_cmd->add_option("--qp", exports.qp, "Position bits over each frame's extent")
       ->capture_default_str()
       ->check(CLI::Range(1, 30));

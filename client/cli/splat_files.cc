@@ -68,7 +68,13 @@ formats::GaussianFormat SniffSplatFile(const std::string& path) {
   if (!head.ok() || head->empty()) return formats::GaussianFormat::kUnknown;
   const formats::GaussianFormat f = formats::DetectGaussianFormat(*head);
   // A prefix that happens to be whole 32-byte records says nothing: .splat needs the file.
-  return f == formats::GaussianFormat::kSplat ? formats::GaussianFormat::kUnknown : f;
+  if (f == formats::GaussianFormat::kSplat) return formats::GaussianFormat::kUnknown;
+  // A GLB is splats only if its JSON chunk (at the front) names the extension: a mesh is not.
+  if (f == formats::GaussianFormat::kGlb &&
+      head->find("KHR_gaussian_splatting") == std::string::npos) {
+    return formats::GaussianFormat::kUnknown;
+  }
+  return f;
 }
 
 // A file mapped read-only: a splat file is read once, front to back, so mapping it spares the
@@ -105,6 +111,7 @@ class MappedFile {
 };
 
 Result<std::vector<Point>> ReadSplatFrame(const std::string& path, uint32_t frame,
+                                          const formats::Similarity& move,
                                           GaussianColumns* records,
                                           std::vector<std::string>* ignored) {
   formats::GaussianCloud cloud;
@@ -113,6 +120,7 @@ Result<std::vector<Point>> ReadSplatFrame(const std::string& path, uint32_t fram
     HVDB_RETURN_IF_ERROR(file.Open(path));
     HVDB_ASSIGN_OR_RETURN(cloud, formats::ReadGaussians(file.view(), path));
   }
+  if (!move.IsIdentity()) HVDB_RETURN_IF_ERROR(formats::TransformCloud(&cloud, move, path));
   *ignored = cloud.ignored;
   std::vector<Point> points;
   formats::CloudToPoints(cloud, frame, &points, records);

@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "formats/gaussian_transform.h"
 #include "formats/gaussians.h"
 #include "storage/gaussian_column.h"
 #include "storage/point.h"
@@ -13,14 +14,15 @@
 
 namespace hvdb::cli {
 
-// The splat format a file's first 64 KiB show (a 3DGS PLY header, SPZ's gzip stream), else
-// kUnknown (.splat files have no signature: a Gaussian dataset reads every file as splats).
+// The splat format a file's first 64 KiB show (a 3DGS PLY header, SPZ's magic, a GLB naming
+// KHR_gaussian_splatting), else kUnknown (.splat files have no signature: a Gaussian dataset reads every file as splats).
 formats::GaussianFormat SniffSplatFile(const std::string& path);
 
-// The splats of a file in any of the three formats, as points of `frame` with their records;
-// *ignored: the file's properties that were read over (GaussianCloud::ignored). Errors name the
-// file.
+// The splats of a file in any of the four formats, moved by `move` (their SH rotated with them),
+// as points of `frame` with their records; *ignored: the file's properties that were read over
+// (GaussianCloud::ignored). Errors name the file.
 Result<std::vector<Point>> ReadSplatFrame(const std::string& path, uint32_t frame,
+                                          const formats::Similarity& move,
                                           GaussianColumns* records,
                                           std::vector<std::string>* ignored);
 

@@ -296,7 +296,7 @@ def read_ply(path, scale=1.0, skip_invalid=False):
 
 
 def read_splats(path):
-    """Reads a Gaussian-splat file (3DGS PLY, SPZ or .splat, told apart by content) as
+    """Reads a Gaussian-splat file (3DGS PLY, SPZ, GLB or .splat, told apart by content) as
     (points, gaussians): a POINT_DTYPE array (position, the covariance of each splat's scales
     and rotation, the colour of its DC term) and the dict of Database.gaussians. Extra vertex
     properties of a PLY are read over (gaussians["ignored"] names them)."""
@@ -307,7 +307,7 @@ def read_splats(path):
 
 def write_splats(path, pts, gaussians, format="3dgs"):
     """Writes points and their gaussians dict as a splat file: format "3dgs" (the Inria
-    PLY; what read_splats read comes back byte for byte), "spz" or "splat"."""
+    PLY; what read_splats read comes back byte for byte), "spz", "splat" or "glb"."""
     _hvdb.write_splats(str(path), _check_points("points", pts), gaussians, str(format))
 
 

@@ -1,5 +1,6 @@
 // Gaussian-splat datasets through the real binaries: `hvdb create --gaussians`, `hvdb import`
-// of a directory of 3DGS PLY, SPZ and .splat files, `hvdb export --codec 3dgs|spz|splat`,
+// of a directory of 3DGS PLY, SPZ and .splat files, `hvdb export --codec 3dgs|spz|splat|glb`,
+// crops with `hvdb window --codec`,
 // embedded and through hvdb-server; a 3DGS PLY comes back byte for byte, the others within their
 // quantisation; bad files are errors that name the file and load nothing of it.
 #include <gtest/gtest.h>
@@ -14,6 +15,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "formats/gaussian_transform.h"
 #include "formats/gaussians.h"
 #include "tests/run_command.h"
 #include "tests/server/server_process.h"
@@ -143,6 +145,86 @@ TEST_F(SplatCliTest, ImportAndExportEmbeddedAndServed) {
   ExpectRoundTrips(remote, "srv");
 }
 
+// GLB and SPZ version 4 exports, and crops: `hvdb window --codec 3dgs|spz|glb|splat` writes the
+// splats of a box of one frame as one file, records and all.
+TEST_F(SplatCliTest, GlbSpzV4AndCropsOfAFrame) {
+  WriteSequence();
+  ASSERT_EQ(Run("--data d create s --fps 30 --gaussians").code, 0);
+  ASSERT_EQ(Run("--data d import s --frame 0 seq").code, 0);
+  ASSERT_EQ(Run("--data d export s glb --codec glb --count 1").code, 0);
+  auto in = formats::ReadGaussianPly(ply_, "in");
+  auto glb = formats::ReadGlb(ReadAll(dir_ + "/glb/s_000000.glb"), "s_000000.glb");
+  ASSERT_TRUE(in.ok() && glb.ok()) << glb.status().ToString();
+  EXPECT_EQ(glb->sh_degree, 3);
+  EXPECT_EQ(glb->position, in->position);  // exact: a half turn negates
+  EXPECT_EQ(glb->sh_rest, in->sh_rest);
+  ASSERT_EQ(Run("--data d export s v4 --codec spz --spz-version 4 --first 1 --count 1").code, 0);
+  const std::string v4 = ReadAll(dir_ + "/v4/s_000001.spz");
+  EXPECT_EQ(v4.substr(0, 5), std::string("NGSP\x04", 5));
+  auto a = formats::ReadSpz(spz_, "in");
+  auto b = formats::ReadSpz(v4, "out");
+  ASSERT_TRUE(a.ok() && b.ok());
+  EXPECT_EQ(a->position, b->position);  // the same grid: SPZ's quantisation is idempotent
+  EXPECT_TRUE(Run("--data d export s x --codec spz --spz-version 5").code != 0);
+
+  // The splats of frame 0 with x >= 0, as SPZ and as a 3DGS PLY: the same splats as the file's.
+  size_t want = 0;
+  for (size_t i = 0; i < in->size(); ++i) want += in->position[3 * i] >= 0;
+  json j = Json("--data d window s --box 0 1e9 -1e9 1e9 -1e9 1e9 0 0.001 --codec 3dgs "
+                "--out crop.ply");
+  EXPECT_EQ(j["points"], want);
+  auto crop = formats::ReadGaussianPly(ReadAll(dir_ + "/crop.ply"), "crop.ply");
+  ASSERT_TRUE(crop.ok()) << crop.status().ToString();
+  ASSERT_EQ(crop->size(), want);
+  EXPECT_EQ(crop->sh_degree, 3);
+  for (size_t i = 0, k = 0; i < in->size(); ++i) {  // in load order: the ids ascend
+    if (in->position[3 * i] < 0) continue;
+    EXPECT_EQ(crop->opacity[k], in->opacity[i]);
+    EXPECT_EQ(crop->sh_rest[k * 45 + 44], in->sh_rest[i * 45 + 44]);
+    ++k;
+  }
+  ASSERT_EQ(Run("--data d window s --box 0 1e9 -1e9 1e9 -1e9 1e9 0 0.001 --codec spz "
+                "--out crop.spz").code, 0);
+  auto crop_spz = formats::ReadSpz(ReadAll(dir_ + "/crop.spz"), "crop.spz");
+  ASSERT_TRUE(crop_spz.ok());
+  EXPECT_EQ(crop_spz->size(), want);
+  // Several frames, a plain dataset, a slice: clear refusals, nothing written.
+  testing::SplitRun r = Run("--data d window s --box -1e9 1e9 -1e9 1e9 -1e9 1e9 0 1 --codec glb "
+                            "--out all.glb");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.err.find("several frames"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(dir_ + "/all.glb"));
+  ASSERT_EQ(Run("--data d create plain --fps 30").code, 0);
+  r = Run("--data d window plain --box 0 1 0 1 0 1 0 1 --codec spz --out p.spz");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.err.find("not a Gaussian-splat dataset"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(dir_ + "/p.spz"));
+}
+
+// `hvdb import --rotate X Y Z --units-scale S` moves splat files as they load: what comes back is
+// the file moved by formats::TransformCloud (the SH turned with the splats), to the bit.
+TEST_F(SplatCliTest, ImportRotatesAndScalesSplats) {
+  WriteSequence();
+  ASSERT_EQ(Run("--data d create s --fps 30 --gaussians").code, 0);
+  ASSERT_EQ(Run("--data d import s --frame 0 --rotate 180 0 90 --units-scale 0.5 "
+                "seq/frame_1.ply").code, 0);
+  ASSERT_EQ(Run("--data d export s out --codec 3dgs").code, 0);
+  auto got = formats::ReadGaussianPly(ReadAll(dir_ + "/out/s_000000.ply"), "got");
+  auto want = formats::ReadGaussianPly(ply_, "want");
+  ASSERT_TRUE(got.ok() && want.ok());
+  formats::Similarity m = formats::Similarity::FromEulerDegrees(180, 0, 90);
+  m.scale = 0.5;
+  ASSERT_TRUE(formats::TransformCloud(&*want, m, "want").ok());
+  EXPECT_EQ(got->position, want->position);
+  EXPECT_EQ(got->scale, want->scale);
+  EXPECT_EQ(got->rotation, want->rotation);
+  EXPECT_EQ(got->sh_rest, want->sh_rest);
+  ASSERT_EQ(Run("--data d create plain --fps 30").code, 0);
+  testing::SplitRun r = Run("--data d import plain --frame 0 --rotate 0 0 90 x.ply");
+  EXPECT_EQ(r.code, 2);
+  EXPECT_NE(r.err.find("--rotate is for splat files"), std::string::npos) << r.err;
+}
+
 TEST_F(SplatCliTest, BadFilesNameTheFileAndLoadNothingOfIt) {
   WriteSequence();
   ASSERT_EQ(Run("--data d create s --fps 30 --gaussians").code, 0);
@@ -207,8 +289,8 @@ TEST_F(SplatCliTest, BadFilesNameTheFileAndLoadNothingOfIt) {
   json mj = Json("--data d import s --frame 21 mip.ply");
   EXPECT_EQ(mj["frames"][0]["ignored_properties"], json::array({"filter_3D"}));
 
-  // Options that make no sense for splats.
-  r = Run("--data d import s --frame 0 seq --units-scale 0.01");
+  // Options that make no sense for splats, or are malformed.
+  r = Run("--data d import s --frame 0 seq --rotate 90 0");
   EXPECT_EQ(r.code, 2) << r.err;
   r = Run("--data d export s out --codec spz --temporal");
   EXPECT_EQ(r.code, 2) << r.err;
