@@ -6,7 +6,9 @@
 // across on screen; opacities mostly high with a tail of faint ones; SH of degree 3 with small
 // view-dependent terms. Rendered --reps times per size after one warm-up render (which grows
 // the rasteriser's buffers); medians of wall time, of the process's CPU time, and of the
-// rasteriser's three stages. JSON to --out (bench/results/gaussian_render.json).
+// rasteriser's three stages. JSON to --out (bench/results/gaussian_render.json). With --egl the
+// GPU's rasteriser through EGL (render/egl_gaussian.h) instead, its image compared with the
+// CPU's (PSNR); --require-gpu fails when EGL gives a software rasteriser.
 #include <time.h>
 
 #include <CLI/CLI.hpp>
@@ -25,6 +27,7 @@
 
 #include "formats/gaussians.h"
 #include "formats/image_io.h"
+#include "render/egl_gaussian.h"
 #include "render/gaussian_raster.h"
 
 namespace render = hvdb::render;
@@ -168,8 +171,10 @@ int main(int argc, char** argv) {
   int reps = 7;
   int threads = 0;
   uint32_t width = 1920, height = 1080;
-  bool quick = false;
+  bool quick = false, egl = false, require_gpu = false;
   app.add_option("--out", out, "JSON file")->capture_default_str();
+  app.add_flag("--egl", egl, "The GPU's rasteriser through EGL (its image checked against the CPU's)");
+  app.add_flag("--require-gpu", require_gpu, "With --egl: fail on a software rasteriser");
   app.add_option("--millions", millions, "Scene sizes, millions of splats, comma-separated")
       ->capture_default_str();
   app.add_option("--reps", reps, "Timed renders per scene (median)")->capture_default_str();
@@ -190,13 +195,35 @@ int main(int argc, char** argv) {
   render::GaussianRasterizer rasterizer;
   render::GaussianRenderOptions options;
   options.threads = threads;
+  std::unique_ptr<render::EglGaussianRasterizer> gpu;
+  std::string renderer = "cpu: 3DGS rasteriser";
+  if (egl) {
+    auto made = render::EglGaussianRasterizer::Create();
+    if (!made.ok()) {
+      std::fprintf(stderr, "gaussian-render-bench: %s\n", made.status().ToString().c_str());
+      return 1;
+    }
+    gpu = std::move(made).value();
+    renderer = gpu->name();
+    std::printf("renderer: %s (%s)\n", renderer.c_str(), gpu->hardware() ? "hardware" : "software");
+    if (require_gpu && !gpu->hardware()) {
+      std::fprintf(stderr, "gaussian-render-bench: --require-gpu, and EGL gave a software "
+                           "rasteriser: %s\n", renderer.c_str());
+      return 1;
+    }
+  }
+  auto draw = [&](const GaussianCloud& c, render::GaussianImage* img,
+                  render::GaussianRenderStats* st) {
+    return gpu ? gpu->Render(c, camera, options, img, st)
+               : rasterizer.Render(c, camera, options, img, st);
+  };
   json scenes = json::array();
   for (size_t s = 0; s < sizes.size(); ++s) {
     const size_t n = static_cast<size_t>(sizes[s] * 1e6);
     const GaussianCloud cloud = Scene(n, 42);
     render::GaussianImage image;
     render::GaussianRenderStats stats;
-    hvdb::Status st = rasterizer.Render(cloud, camera, options, &image, &stats);  // warm-up
+    hvdb::Status st = draw(cloud, &image, &stats);  // warm-up
     if (!st.ok()) {
       std::fprintf(stderr, "gaussian-render-bench: %s\n", st.ToString().c_str());
       return 1;
@@ -205,7 +232,7 @@ int main(int argc, char** argv) {
     for (int r = 0; r < reps; ++r) {
       const double c0 = CpuSeconds();
       const auto t0 = std::chrono::steady_clock::now();
-      st = rasterizer.Render(cloud, camera, options, &image, &stats);
+      st = draw(cloud, &image, &stats);
       const double ms =
           std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
       if (!st.ok()) {
@@ -217,6 +244,21 @@ int main(int argc, char** argv) {
       pre.push_back(stats.preprocess_ms);
       bin.push_back(stats.bin_ms);
       blend.push_back(stats.blend_ms);
+    }
+    // The GPU's picture against the CPU's (8-bit RGB, PSNR).
+    double psnr_vs_cpu = -1;
+    if (gpu) {
+      render::GaussianImage ref;
+      if (rasterizer.Render(cloud, camera, options, &ref).ok()) {
+        const std::vector<uint8_t> a = image.ToRgba8(), b = ref.ToRgba8();
+        double se = 0;
+        for (size_t i = 0; i < a.size(); ++i) {
+          if (i % 4 == 3) continue;
+          se += (a[i] - b[i]) * (a[i] - b[i]);
+        }
+        const double mse = se / (0.75 * static_cast<double>(a.size()));
+        psnr_vs_cpu = mse == 0 ? 200 : 10 * std::log10(255.0 * 255.0 / mse);
+      }
     }
     double mean_alpha = 0;
     for (float a : image.alpha) mean_alpha += a;
@@ -246,6 +288,7 @@ int main(int argc, char** argv) {
          {"median_preprocess_ms", Median(pre)},
          {"median_bin_ms", Median(bin)},
          {"median_blend_ms", Median(blend)},
+         {"psnr_vs_cpu_db", psnr_vs_cpu},
          {"target",
           {{"name", "splats/s at 1080p, 2 cores"}, {"limit", 10e6}, {"met", rate >= 10e6}}}});
     if (s == 0 && !png.empty()) {
@@ -263,6 +306,7 @@ int main(int argc, char** argv) {
                "synthetic 3DGS-like: flat splats on a floor, a wall and 12 spheres, SH "
                "degree 3, seed 42"},
               {"size", std::to_string(width) + "x" + std::to_string(height)},
+              {"renderer", renderer},
               {"threads", used_threads},
               {"hardware_threads", std::thread::hardware_concurrency()},
               {"reps", reps},

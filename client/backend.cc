@@ -241,11 +241,9 @@ class EmbeddedBackend final : public Backend {
         std::unique_ptr<render::RenderJob> job,
         Do(request.dataset, [&](service::Service& x) { return x.Render(request); }));
     std::string why;
-    // Gaussian mode draws with the 3DGS rasteriser: no EGL context to make for it.
-    HVDB_ASSIGN_OR_RETURN(
-        std::unique_ptr<render::Renderer> renderer,
-        render::MakeRenderer(job->gaussian() ? render::RendererKind::kCpu : job->renderer_kind(),
-                             &why));
+    // Gaussian mode draws with the 3DGS rasteriser of the renderer's kind: the GPU's with EGL.
+    HVDB_ASSIGN_OR_RETURN(std::unique_ptr<render::Renderer> renderer,
+                          render::MakeRenderer(job->renderer_kind(), &why));
     // "fallback" keeps its meaning: auto found no EGL context (not: auto chose the CPU).
     const bool fallback = job->renderer_kind() == render::RendererKind::kAuto &&
                           why.rfind("no EGL context", 0) == 0;

@@ -1,8 +1,5 @@
-// The GPU renderer: OpenGL 4.3+ core through headless EGL (no window system).
-//
-// Display: the EGL device platform first (the vendor's driver on a GPU machine; hardware
-// devices before software ones), then Mesa's surfaceless platform (llvmpipe), then the default
-// display. Render targets are framebuffer objects; nothing is ever shown.
+// The GPU renderer: OpenGL 4.3+ core through headless EGL (no window system; the display and
+// context: egl_context.h). Render targets are framebuffer objects; nothing is ever shown.
 //
 // Splats are drawn as one instanced quad each; the vertex shader pulls the 64-byte Point
 // records straight from a shader storage buffer and does the EWA set-up of splat.cc's
@@ -16,8 +13,6 @@
 //   probabilistic  splats presorted front to back on the CPU, blended with
 //                  GL_SRC_ALPHA_SATURATE into a 16-bit normalised target, whose clamping at
 //                  one makes accumulation stop at saturation (5.4.1).
-#include <EGL/egl.h>
-#include <EGL/eglext.h>
 #define GL_GLEXT_PROTOTYPES 1
 #include <GL/glcorearb.h>
 
@@ -31,6 +26,7 @@
 #include <mutex>
 #include <optional>
 
+#include "render/egl_context.h"
 #include "render/egl_shaders.h"
 #include "render/renderer.h"
 #include "render/splat.h"
@@ -40,104 +36,6 @@ namespace hvdb::render {
 namespace {
 
 using internal::View;
-
-// ---- EGL ----
-
-bool HasExtension(const char* list, const char* name) {
-  if (list == nullptr) return false;
-  size_t n = std::strlen(name);
-  for (const char* p = list; (p = std::strstr(p, name)) != nullptr; p += n) {
-    if ((p == list || p[-1] == ' ') && (p[n] == ' ' || p[n] == '\0')) return true;
-  }
-  return false;
-}
-
-std::string EglErrorName(EGLint e) {
-  switch (e) {
-    case EGL_SUCCESS:
-      return "EGL_SUCCESS";
-    case EGL_NOT_INITIALIZED:
-      return "EGL_NOT_INITIALIZED";
-    case EGL_BAD_ACCESS:
-      return "EGL_BAD_ACCESS";
-    case EGL_BAD_ALLOC:
-      return "EGL_BAD_ALLOC";
-    case EGL_BAD_ATTRIBUTE:
-      return "EGL_BAD_ATTRIBUTE";
-    case EGL_BAD_CONFIG:
-      return "EGL_BAD_CONFIG";
-    case EGL_BAD_CONTEXT:
-      return "EGL_BAD_CONTEXT";
-    case EGL_BAD_DISPLAY:
-      return "EGL_BAD_DISPLAY";
-    case EGL_BAD_MATCH:
-      return "EGL_BAD_MATCH";
-    case EGL_BAD_PARAMETER:
-      return "EGL_BAD_PARAMETER";
-    default: {
-      char buf[32];
-      std::snprintf(buf, sizeof(buf), "EGL error 0x%04x", static_cast<unsigned>(e));
-      return buf;
-    }
-  }
-}
-
-// EGL displays are per-process singletons and eglTerminate ends them for every user, so
-// renderers share each initialised display and the last one out terminates it.
-std::mutex g_display_mu;
-std::map<EGLDisplay, int> g_display_refs;
-
-void ReleaseDisplay(EGLDisplay d) {
-  std::lock_guard<std::mutex> l(g_display_mu);
-  if (--g_display_refs[d] == 0) {
-    g_display_refs.erase(d);
-    eglTerminate(d);
-  }
-}
-
-struct Candidate {
-  EGLDisplay display;
-  std::string label;
-};
-
-std::vector<Candidate> CandidateDisplays(std::string* notes) {
-  std::vector<Candidate> out;
-  const char* client_ext = eglQueryString(EGL_NO_DISPLAY, EGL_EXTENSIONS);
-  auto get_platform_display = reinterpret_cast<PFNEGLGETPLATFORMDISPLAYEXTPROC>(
-      eglGetProcAddress("eglGetPlatformDisplayEXT"));
-  if (get_platform_display != nullptr && HasExtension(client_ext, "EGL_EXT_platform_device")) {
-    auto query_devices =
-        reinterpret_cast<PFNEGLQUERYDEVICESEXTPROC>(eglGetProcAddress("eglQueryDevicesEXT"));
-    auto query_device_string = reinterpret_cast<PFNEGLQUERYDEVICESTRINGEXTPROC>(
-        eglGetProcAddress("eglQueryDeviceStringEXT"));
-    EGLDeviceEXT devices[16];
-    EGLint n = 0;
-    if (query_devices != nullptr && query_devices(16, devices, &n)) {
-      std::vector<Candidate> software;
-      for (EGLint i = 0; i < n; ++i) {
-        const char* ext =
-            query_device_string ? query_device_string(devices[i], EGL_EXTENSIONS) : nullptr;
-        bool sw = HasExtension(ext, "EGL_MESA_device_software");
-        EGLDisplay d = get_platform_display(EGL_PLATFORM_DEVICE_EXT, devices[i], nullptr);
-        if (d == EGL_NO_DISPLAY) continue;
-        Candidate c{d, "device " + std::to_string(i) + (sw ? " (software)" : "")};
-        (sw ? software : out).push_back(c);
-      }
-      out.insert(out.end(), software.begin(), software.end());
-    }
-  } else {
-    *notes += "no EGL_EXT_platform_device; ";
-  }
-  if (get_platform_display != nullptr &&
-      HasExtension(client_ext, "EGL_MESA_platform_surfaceless")) {
-    EGLDisplay d =
-        get_platform_display(EGL_PLATFORM_SURFACELESS_MESA, EGL_DEFAULT_DISPLAY, nullptr);
-    if (d != EGL_NO_DISPLAY) out.push_back({d, "surfaceless"});
-  }
-  EGLDisplay d = eglGetDisplay(EGL_DEFAULT_DISPLAY);
-  if (d != EGL_NO_DISPLAY) out.push_back({d, "default display"});
-  return out;
-}
 
 // ---- GL helpers ----
 
@@ -200,23 +98,18 @@ class EglRenderer final : public Renderer {
   }
 
   ~EglRenderer() override {
-    if (display_ == EGL_NO_DISPLAY) return;
-    if (context_ != EGL_NO_CONTEXT) {
-      if (MakeCurrent()) {
-        FreeTargets();
-        if (!point_buffers_.empty()) {
-          glDeleteBuffers(static_cast<GLsizei>(point_buffers_.size()), point_buffers_.data());
-        }
-        if (table_buffer_) glDeleteBuffers(1, &table_buffer_);
-        if (vao_) glDeleteVertexArrays(1, &vao_);
-        if (splat_program_) glDeleteProgram(splat_program_);
-        if (resolve_program_) glDeleteProgram(resolve_program_);
-        ReleaseCurrent();
+    if (ctx_ == nullptr) return;
+    if (MakeCurrent()) {
+      FreeTargets();
+      if (!point_buffers_.empty()) {
+        glDeleteBuffers(static_cast<GLsizei>(point_buffers_.size()), point_buffers_.data());
       }
-      eglDestroyContext(display_, context_);
+      if (table_buffer_) glDeleteBuffers(1, &table_buffer_);
+      if (vao_) glDeleteVertexArrays(1, &vao_);
+      if (splat_program_) glDeleteProgram(splat_program_);
+      if (resolve_program_) glDeleteProgram(resolve_program_);
+      ReleaseCurrent();
     }
-    if (surface_ != EGL_NO_SURFACE) eglDestroySurface(display_, surface_);
-    ReleaseDisplay(display_);
   }
 
   RendererKind kind() const override { return RendererKind::kEgl; }
@@ -236,7 +129,7 @@ class EglRenderer final : public Renderer {
     std::vector<float> weights = internal::ViewWeightTable(cam, options);
     if (!MakeCurrent()) {
       return Status::Internal("EGL renderer: eglMakeCurrent failed: " +
-                              EglErrorName(eglGetError()));
+                              internal::EglContext::LastError());
     }
     Result<Image> img = RenderCurrent(points, view, weights, options);
     glFinish();
@@ -253,90 +146,14 @@ class EglRenderer final : public Renderer {
  private:
   EglRenderer() = default;
 
-  bool MakeCurrent() {
-    eglBindAPI(EGL_OPENGL_API);  // per-thread state: renders may come from any thread
-    return eglMakeCurrent(display_, surface_, surface_, context_) == EGL_TRUE;
-  }
-  void ReleaseCurrent() {
-    eglMakeCurrent(display_, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT);
-  }
+  bool MakeCurrent() { return ctx_->MakeCurrent(); }
+  void ReleaseCurrent() { ctx_->ReleaseCurrent(); }
 
   Status Init() {
-    std::string notes;
-    std::vector<Candidate> candidates = CandidateDisplays(&notes);
-    if (candidates.empty()) {
-      return Status::Unsupported("EGL renderer: no EGL display (" + notes +
-                                 "is libEGL with Mesa or a GPU vendor's EGL installed?)");
-    }
-    for (const Candidate& c : candidates) {
-      std::string why;
-      if (TryDisplay(c, &why)) return Status::OK();
-      notes += c.label + ": " + why + "; ";
-    }
-    return Status::Unsupported("EGL renderer: no OpenGL 4.3 core context could be made (" +
-                               notes.substr(0, notes.size() - 2) + ")");
-  }
-
-  bool TryDisplay(const Candidate& c, std::string* why) {
-    EGLint major = 0, minor = 0;
-    if (!eglInitialize(c.display, &major, &minor)) {
-      *why = "eglInitialize: " + EglErrorName(eglGetError());
-      return false;
-    }
-    {
-      std::lock_guard<std::mutex> l(g_display_mu);
-      ++g_display_refs[c.display];
-    }
-    display_ = c.display;
-    auto fail = [&](const std::string& msg) {
-      *why = msg;
-      if (context_ != EGL_NO_CONTEXT) eglDestroyContext(display_, context_);
-      if (surface_ != EGL_NO_SURFACE) eglDestroySurface(display_, surface_);
-      context_ = EGL_NO_CONTEXT;
-      surface_ = EGL_NO_SURFACE;
-      ReleaseDisplay(display_);
-      display_ = EGL_NO_DISPLAY;
-      return false;
-    };
-    if (!eglBindAPI(EGL_OPENGL_API)) return fail("desktop OpenGL is not supported");
-    const char* ext = eglQueryString(display_, EGL_EXTENSIONS);
-    bool surfaceless = HasExtension(ext, "EGL_KHR_surfaceless_context");
-    EGLConfig config = nullptr;
-    EGLint n = 0;
-    const EGLint config_attribs[] = {EGL_RENDERABLE_TYPE, EGL_OPENGL_BIT, EGL_SURFACE_TYPE,
-                                     EGL_PBUFFER_BIT, EGL_NONE};
-    if (!eglChooseConfig(display_, config_attribs, &config, 1, &n) || n == 0) {
-      if (!HasExtension(ext, "EGL_KHR_no_config_context") || !surfaceless) {
-        return fail("no OpenGL-renderable config");
-      }
-      config = EGL_NO_CONFIG_KHR;
-    }
-    for (EGLint minor_version : {5, 3}) {
-      const EGLint ctx_attribs[] = {EGL_CONTEXT_MAJOR_VERSION,
-                                    4,
-                                    EGL_CONTEXT_MINOR_VERSION,
-                                    minor_version,
-                                    EGL_CONTEXT_OPENGL_PROFILE_MASK,
-                                    EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT,
-                                    EGL_NONE};
-      context_ = eglCreateContext(display_, config, EGL_NO_CONTEXT, ctx_attribs);
-      if (context_ != EGL_NO_CONTEXT) break;
-    }
-    if (context_ == EGL_NO_CONTEXT) {
-      return fail("eglCreateContext (OpenGL 4.3 core): " + EglErrorName(eglGetError()));
-    }
-    if (!surfaceless) {
-      const EGLint pb[] = {EGL_WIDTH, 1, EGL_HEIGHT, 1, EGL_NONE};
-      surface_ = eglCreatePbufferSurface(display_, config, pb);
-      if (surface_ == EGL_NO_SURFACE) return fail("no surfaceless contexts and no pbuffer");
-    }
-    if (!MakeCurrent()) return fail("eglMakeCurrent: " + EglErrorName(eglGetError()));
-    Status st = InitGl();
-    ReleaseCurrent();
-    if (!st.ok()) return fail(st.message());
-    name_ = "egl: " + gl_renderer_ + ", OpenGL " + gl_version_ + " (" + c.label + ")";
-    hardware_ = c.label.find("(software)") == std::string::npos && !IsSoftwareRasteriser(gl_renderer_);
-    return true;
+    HVDB_ASSIGN_OR_RETURN(ctx_, internal::EglContext::Create([this] { return InitGl(); }));
+    name_ = "egl: " + gl_renderer_ + ", OpenGL " + gl_version_ + " (" + ctx_->label() + ")";
+    hardware_ = ctx_->Hardware(gl_renderer_);
+    return Status::OK();
   }
 
   Status InitGl() {
@@ -600,9 +417,7 @@ class EglRenderer final : public Renderer {
 
   mutable std::mutex mu_;
   RenderStats stats_;
-  EGLDisplay display_ = EGL_NO_DISPLAY;
-  EGLContext context_ = EGL_NO_CONTEXT;
-  EGLSurface surface_ = EGL_NO_SURFACE;
+  std::unique_ptr<internal::EglContext> ctx_;
   std::string name_, gl_renderer_, gl_version_;
   bool hardware_ = false;
   size_t chunk_points_ = 0;

@@ -132,8 +132,10 @@ class Mapped {
   size_t bytes_ = 0;
 };
 
-Status CheckArguments(const formats::GaussianCloud& g, const Camera& camera,
-                      const GaussianRenderOptions& options) {
+}  // namespace
+
+Status CheckGaussianRender(const formats::GaussianCloud& g, const Camera& camera,
+                           const GaussianRenderOptions& options) {
   for (double d : camera.distortion) {
     if (d != 0) {
       return Status::InvalidArgument(
@@ -170,8 +172,6 @@ Status CheckArguments(const formats::GaussianCloud& g, const Camera& camera,
   return Status::OK();
 }
 
-}  // namespace
-
 std::vector<uint8_t> GaussianImage::ToRgba8() const {
   const size_t pixels = static_cast<size_t>(width) * height;
   std::vector<uint8_t> out(pixels * 4);
@@ -201,7 +201,7 @@ Status GaussianRasterizer::Render(const formats::GaussianCloud& cloud, const Cam
                                   const GaussianRenderOptions& options, GaussianImage* out,
                                   GaussianRenderStats* stats) {
   const auto start = std::chrono::steady_clock::now();
-  HVDB_RETURN_IF_ERROR(CheckArguments(cloud, camera, options));
+  HVDB_RETURN_IF_ERROR(CheckGaussianRender(cloud, camera, options));
   const ViewF view = MakeView(camera);
   const unsigned threads = options.threads > 0 ? static_cast<unsigned>(options.threads)
                                                : std::max(1u, std::thread::hardware_concurrency());

@@ -73,6 +73,10 @@ struct GaussianRenderStats {
   double blend_ms = 0;       // the tiles blended and written out
 };
 
+// RenderGaussians' checks of its arguments (the GPU rasteriser, egl_gaussian.h, makes the same).
+Status CheckGaussianRender(const formats::GaussianCloud& cloud, const Camera& camera,
+                           const GaussianRenderOptions& options);
+
 // Renders `cloud` seen by `camera` into `out` (its buffers are reused when large enough).
 // InvalidArgument for a camera with lens distortion (3DGS renders pinhole cameras), a bad
 // camera (size 0 or over kMaxImageSize a side, intrinsics, pose: Camera::Validate), a cloud

@@ -57,7 +57,6 @@ Status InField(const std::string& field, const Status& st) {
 // renderer's accumulators about as much again; the encoded image), for the job's budget.
 constexpr uint64_t kImageBytesPerPixel = 64;
 
-int HardwareThreads() { return std::max(1, static_cast<int>(std::thread::hardware_concurrency())); }
 // Replies must fit the client's frame limit (256 MiB) with room to spare.
 constexpr size_t kMaxEncodedImage = 200u << 20;
 
@@ -440,7 +439,7 @@ Status RenderJob::Draw(size_t i, Renderer& renderer, const std::atomic<bool>* ca
   gaussian_ms_ = -1;
   if (colour == Colour::kGaussian) {
     billboards_ms_ = -1;
-    return DrawGaussians(view, o);
+    return DrawGaussians(view, o, renderer);
   }
   if (colour == Colour::kBillboards) {
     const auto t0 = std::chrono::steady_clock::now();
@@ -636,10 +635,8 @@ Result<RenderReply> RenderJob::Render(size_t i, Renderer& renderer,
   reply.points = current_.points.size();
   reply.render_ms = billboards_ms_ >= 0 ? billboards_ms_ : renderer.last_stats().milliseconds;
   if (gaussian_ms_ >= 0) {
-    reply.renderer_used = "cpu: 3DGS rasteriser (" + std::to_string(HardwareThreads()) +
-                          " threads)";
-    reply.renderer_choice = "gaussian mode draws with the CPU 3DGS rasteriser (" +
-                            renderer.name() + " draws the point modes)";
+    reply.renderer_used = gaussian_used_;
+    reply.renderer_choice = gaussian_choice_;
     reply.render_ms = gaussian_ms_;
   }
   reply.index = static_cast<uint32_t>(steps_[i].view);

@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "render/billboard_render.h"
+#include "render/egl_gaussian.h"
 #include "render/gaussian_raster.h"
 #include "render/renderer.h"
 #include "render/request.h"
@@ -157,8 +158,15 @@ class RenderJob {
   double gaussian_ms_ = -1;
   GaussianRasterizer rasteriser_;  // its working memory kept from image to image
   GaussianImage gimg_;             // its output, reused
-  // Draws image_ with the 3DGS rasteriser from current_.cloud.
-  Status DrawGaussians(const Camera& view, const RenderOptions& o);
+  // The GPU's 3DGS rasteriser, made at the first gaussian image when the job's point renderer
+  // is the EGL one (asked for, or auto's choice on a GPU); what drew the last image, and why.
+  std::unique_ptr<EglGaussianRasterizer> egl_;
+  bool egl_tried_ = false;
+  std::string egl_error_;  // why it could not be made
+  std::string gaussian_used_, gaussian_choice_;
+  // Draws image_ with a 3DGS rasteriser from current_.cloud: the GPU's where `renderer` is the
+  // EGL renderer, else (or where the GPU's refuses the cloud) the CPU's.
+  Status DrawGaussians(const Camera& view, const RenderOptions& o, const Renderer& renderer);
   // Gaussian mode: out's points' records (highlighted when asked) as out->cloud.
   Status MakeCloud(Points* out) const;
   // kMp4 / kWebm: the path's images go into video_ (made at the first image).

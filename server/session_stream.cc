@@ -301,15 +301,9 @@ void Session::HandleRender(std::shared_ptr<Op> op, const wire::Render& message) 
   render::RenderRequest request = std::move(decoded).value();
   // A bounded number of renders run at once, server-wide; the rest are refused at once
   // (OVERLOADED) rather than queued on the workers behind seconds of rendering.
-  // Gaussian mode draws with the CPU 3DGS rasteriser (render/job.h): it takes a render slot
-  // but no EGL context, as the embedded mode does.
-  bool gaussian = request.mode == render::Mode::kGaussian;
-  if (!request.mode && !request.texture && !request.billboards) {
-    auto ds = server_->service().Find(request.dataset);
-    gaussian = ds.ok() && (*ds)->Info().gaussians;
-  }
-  auto lease =
-      server_->renders().TryAcquire(gaussian ? render::RendererKind::kCpu : request.renderer);
+  // Gaussian mode draws with the 3DGS rasteriser of the leased renderer's kind (render/job.h):
+  // the GPU's where the pool's renderers are EGL ones, else the CPU's.
+  auto lease = server_->renders().TryAcquire(request.renderer);
   if (!lease.ok()) {
     ops_.erase(op->id);
     return SendError(op->id, lease.status());

@@ -471,24 +471,28 @@ class Database:
                           bool(temporal_lod), _uint32("label_mask", label_mask))
 
     def window(self, dataset, x=None, y=None, z=None, t=None, level=0, label_mask=0,
-               temporal_lod=True):
+               temporal_lod=True, gaussians=False):
         """The points in a 4D box: x, y, z in metres, t in seconds, each (low, high),
         inclusive, or None for all. level: the finest level of detail returned (0: all
         points; each level up about half). label_mask: only points with (label & mask) != 0.
-        Returns a POINT_DTYPE array."""
+        Returns a POINT_DTYPE array; with gaussians=True, (points, their 3DGS records as
+        gaussians() gives them: opacity, sh, ...)."""
         q = self._query(dataset, _window(x, y, z, t), level, temporal_lod=temporal_lod,
                         label_mask=label_mask)
-        return self._drain(q)
+        pts = self._drain(q)
+        return (pts, self.gaussians(dataset, pts)) if gaussians else pts
 
-    def frame(self, dataset, t=None, frame=None, level=0, label_mask=0):
-        """The points of one frame: at time t (seconds) or by index `frame`."""
+    def frame(self, dataset, t=None, frame=None, level=0, label_mask=0, gaussians=False):
+        """The points of one frame: at time t (seconds) or by index `frame` (with
+        gaussians=True, and their 3DGS records, as window())."""
         if (t is None) == (frame is None):
             raise InvalidArgument("frame: give t (seconds) or frame (an index), not both")
         if frame is not None:
             fps = self.info(dataset)["fps"]
             t = _uint32("frame", frame) / fps
         t = _number("t", t)
-        return self.window(dataset, t=(t, t), level=level, label_mask=label_mask)
+        return self.window(dataset, t=(t, t), level=level, label_mask=label_mask,
+                           gaussians=gaussians)
 
     def hyperslice(self, dataset, normal, offset, thickness=0.0, level=0, clip=None,
                    max_frames=0, label_mask=0):

@@ -2,6 +2,7 @@
 // Gaussian records as a 3DGS cloud, drawn by the CPU rasteriser (gaussian_raster.h).
 #include <algorithm>
 #include <limits>
+#include <thread>
 
 #include "formats/gaussian_points.h"
 #include "render/job.h"
@@ -37,7 +38,8 @@ Status RenderJob::MakeCloud(Points* out) const {
   return Status::OK();
 }
 
-Status RenderJob::DrawGaussians(const Camera& view, const RenderOptions& o) {
+Status RenderJob::DrawGaussians(const Camera& view, const RenderOptions& o,
+                                const Renderer& renderer) {
   const uint32_t w = o.width != 0 ? o.width : view.width, h = o.height != 0 ? o.height : view.height;
   const Camera drawn = w == view.width && h == view.height ? view : view.Resized(w, h);
   // The rasteriser composites in the cloud's own (display) values, as 3DGS does; the job's
@@ -46,7 +48,36 @@ Status RenderJob::DrawGaussians(const Camera& view, const RenderOptions& o) {
   const std::array<float, 4>& bg = o.background;
   GaussianRenderOptions go;
   for (size_t c = 0; c < 3; ++c) go.background[c] = LinearToSrgb(bg[c]) * bg[3];
-  HVDB_RETURN_IF_ERROR(rasteriser_.Render(current_.cloud, drawn, go, &gimg_, &gaussian_stats_));
+  // The GPU's rasteriser where the job draws points with EGL; the CPU's otherwise, and where
+  // the GPU's cannot take the cloud (a driver's storage-buffer bound).
+  if (renderer.kind() == RendererKind::kEgl && !egl_tried_) {
+    egl_tried_ = true;
+    auto made = EglGaussianRasterizer::Create();
+    if (made.ok()) {
+      egl_ = std::move(made).value();
+    } else {
+      egl_error_ = made.status().message();
+    }
+  }
+  Status by_gpu = Status::Unsupported(egl_error_);
+  if (egl_ != nullptr) {
+    by_gpu = egl_->Render(current_.cloud, drawn, go, &gimg_, &gaussian_stats_);
+    if (!by_gpu.ok() && by_gpu.code() != StatusCode::kLimitExceeded) return by_gpu;
+  }
+  if (by_gpu.ok()) {
+    gaussian_used_ = egl_->name() + ": 3DGS rasteriser";
+    gaussian_choice_ = "gaussian mode draws with the GPU's 3DGS rasteriser, as " +
+                       renderer.name() + " draws the point modes";
+  } else {
+    HVDB_RETURN_IF_ERROR(rasteriser_.Render(current_.cloud, drawn, go, &gimg_, &gaussian_stats_));
+    gaussian_used_ = "cpu: 3DGS rasteriser (" +
+                     std::to_string(std::max(1u, std::thread::hardware_concurrency())) +
+                     " threads)";
+    gaussian_choice_ = renderer.kind() != RendererKind::kEgl
+                           ? "gaussian mode draws with the CPU 3DGS rasteriser, as " +
+                                 renderer.name() + " draws the point modes"
+                           : "the CPU 3DGS rasteriser, the GPU's refusing: " + by_gpu.message();
+  }
   gaussian_ms_ = gaussian_stats_.milliseconds;
   const size_t px = size_t{w} * h;
   image_.width = w;

@@ -77,9 +77,14 @@ def test_load_and_read_back_embedded_and_served(tmp_path):
                         np.testing.assert_array_equal(gg[k], g[k])
                     np.testing.assert_array_equal(got["position"], pts["position"])
                 # Both frames at once: degree 1 padded to 3 with zeros.
-                both = db.window("s")
-                g2 = db.gaussians("s", both)
-                assert g2["sh"].shape == (700, 3, 16)
+                both, g2 = db.window("s", gaussians=True)
+                assert g2["sh"].shape == (700, 3, 16) and g2["opacity"].shape == (700,)
+                # A crop of a frame as GLB, read back: positions exact (glTF's axes undone).
+                crop, gc = db.frame("s", frame=0, gaussians=True)
+                hvdb.write_splats(tmp_path / "crop.glb", crop, gc, format="glb")
+                back, gb = hvdb.read_splats(tmp_path / "crop.glb")
+                np.testing.assert_array_equal(back["position"], crop["position"])
+                np.testing.assert_array_equal(gb["sh"], gc["sh"])
                 # A plain dataset refuses records; a Gaussian one refuses points without them.
                 db.create("plain", fps=10)
                 with pytest.raises(hvdb.InvalidArgument, match="--gaussians"):

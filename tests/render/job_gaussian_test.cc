@@ -88,10 +88,11 @@ class GaussianJobTest : public ::testing::Test {
     r.view = ci;
     return r;
   }
-  Result<RenderReply> Run(std::shared_ptr<Dataset> ds, const RenderRequest& r) {
+  Result<RenderReply> Run(std::shared_ptr<Dataset> ds, const RenderRequest& r,
+                          RendererKind kind = RendererKind::kCpu) {
     HVDB_ASSIGN_OR_RETURN(auto job, RenderJob::Create(std::move(ds), r));
     std::string why;
-    HVDB_ASSIGN_OR_RETURN(auto renderer, MakeRenderer(RendererKind::kCpu, &why));
+    HVDB_ASSIGN_OR_RETURN(auto renderer, MakeRenderer(kind, &why));
     return job->Render(0, *renderer);
   }
   static cv::Mat Png(const RenderReply& reply) {
@@ -130,6 +131,28 @@ TEST_F(GaussianJobTest, AGaussianDatasetRendersAsTheRasteriserDraws) {
   }
   EXPECT_LE(worst, 1);  // the rounding of a value linearised and encoded back
   EXPECT_GT(lit, 2000);
+}
+
+// With the EGL renderer (asked for here; auto's choice on a GPU) gaussian mode draws with the
+// GPU's 3DGS rasteriser (llvmpipe here): the picture of the CPU's within a few 8-bit steps.
+TEST_F(GaussianJobTest, TheEglRendererDrawsGaussianModeOnTheGpu) {
+  auto reply = Run(splats_, Request("splats"), RendererKind::kEgl);
+  ASSERT_TRUE(reply.ok()) << reply.status().ToString();
+  EXPECT_EQ(reply->mode_used, "gaussian");
+  EXPECT_EQ(reply->renderer_used.rfind("egl: ", 0), 0u) << reply->renderer_used;
+  EXPECT_NE(reply->renderer_choice.find("GPU's 3DGS rasteriser"), std::string::npos)
+      << reply->renderer_choice;
+  auto cpu = Run(splats_, Request("splats"));
+  ASSERT_TRUE(cpu.ok());
+  EXPECT_EQ(cpu->renderer_used.rfind("cpu: 3DGS", 0), 0u) << cpu->renderer_used;
+  cv::Mat a = Png(*reply), b = Png(*cpu);
+  ASSERT_EQ(a.size(), b.size());
+  cv::Mat diff;
+  cv::absdiff(a, b, diff);
+  double worst = 0;
+  cv::minMaxLoc(diff.reshape(1), nullptr, &worst);
+  EXPECT_LE(worst, 4);
+  EXPECT_GE(cv::PSNR(a, b), 50);
 }
 
 TEST_F(GaussianJobTest, APlainDatasetDrawsDerivedGaussiansWhenAsked) {
