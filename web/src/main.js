@@ -1,7 +1,7 @@
 // The hvdb viewer: wires the connection, renderer, frame store, player, editor and UI
 // together, reads the URL parameters and exposes window.hvdbApp (the test hooks).
 //   /?dataset=NAME&t=SECONDS&look_at=EX,EY,EZ,TX,TY,TZ&fov=DEG&size=WxH&lod=N&token=T
-//     &renderer=points&splats=sprites|quads&bit=N&live=1
+//     &renderer=points&splats=sprites|quads&bit=N&live=1&mode=gaussian|visibility
 // The token may also be given as #token=T (a fragment is not sent to servers nor logged).
 import { Connection, frameWindow, allTimeWindow, sliceRegion } from './connection.js';
 import { ViewCamera, NavigationController, wireCamera, DEFAULT_UP } from './camera.js';
@@ -17,6 +17,7 @@ import { editingHooks } from './transform.js';
 import { MediaImport } from './media_import.js';
 import { RenderExport } from './render_export.js';
 import { Hvdb7Decoder } from './hvdb7.js';
+import { GaussianMode } from './gaussian_mode.js';
 
 function parseParams() {
   const q = new URLSearchParams(location.search);
@@ -41,7 +42,10 @@ function parseParams() {
     // (a fifth of the bytes, decoded in workers). Columns by default: on loopback and two
     // shared cores hvdb7's coding costs more time than its bytes save (bench/README.md).
     encoding: (q.get('encoding') || 'columns').toLowerCase(),
+    // gaussian: 3DGS splats (gaussian_mode.js); default: gaussian on a Gaussian-splat dataset.
+    mode: (q.get('mode') || '').toLowerCase(),
   };
+  if (!['', 'gaussian', 'visibility'].includes(p.mode)) throw new Error(`URL parameter mode: gaussian or visibility, got "${q.get('mode')}"`);
   if (!['hvdb7', 'columns'].includes(p.encoding)) throw new Error(`URL parameter encoding: hvdb7 or columns, got "${q.get('encoding')}"`);
   if (q.has('size')) {
     const m = /^(\d+)x(\d+)$/.exec(q.get('size'));
@@ -94,6 +98,7 @@ class App {
   async start() {
     this.setupCanvas();
     this.renderer = new SplatRenderer(this.canvas, { mode: this.params.renderer, primitive: this.params.splats });
+    this.gaussian = new GaussianMode(this);  // the "gaussian" render mode
     const scheme = location.protocol === 'https:' ? 'wss' : 'ws';
     const hvdb7 = this.params.encoding === 'hvdb7';
     this.conn = new Connection(`${scheme}://${location.host}/ws`, {
@@ -105,10 +110,13 @@ class App {
       capacity: 24,
       onBatch: (d) => this.onBatch(d),
       onError: (err, d) => { if (err.code !== 'CANCELLED' && err.code !== 'CLOSED') this.showError(err, `query of ${d.key}`); },
-      inUse: (d) => d === this.shown || d === this.target,
+      inUse: (d) => d === this.shown || d === this.target || this.gaussian.holds(d),
       onReplace: (old, fresh) => this.onReplace(old, fresh),
       encoding: hvdb7 ? 'HVDB7' : 'COLUMNS',
       decoder: hvdb7 ? new Hvdb7Decoder() : null,
+      onColumns: (d, cols, n) => this.gaussian.collect(d, cols, n),
+      onLoaded: (d) => this.gaussian.loaded(d),
+      onDispose: (d) => this.gaussian.release(d),
     });
     this.watchContext();
     this.player = new Player(this);
@@ -202,6 +210,7 @@ class App {
     this.dataset = name;
     this.shown = this.target = null;
     this.store.reset();
+    this.gaussian.chooseFor(this.info);
     this.viewMode = 'frames';
     this.ui.setFrameRange(this.info.frame_count);
     // The slider's range is the dataset's (its coarsest level, learned from the first batch).
@@ -278,6 +287,15 @@ class App {
       throw e;
     }
     if (this.target !== d) return d;  // superseded by a later request
+    if (this.gaussian.active) {  // drawn once its records are in
+      try {
+        await this.gaussian.prepare(d);
+      } catch (e) {
+        if (this.target !== d) return d;
+        throw e;
+      }
+      if (this.target !== d) return d;
+    }
     // Following a live capture on a software rasteriser: drawn at playback's resolution, as
     // playing is (the page keeps up with the frames; a pause draws the still at full size).
     const following = this.live.on && this.live.following;
@@ -429,18 +447,20 @@ class App {
     const cam = this.cam.camera(this.canvas.width, this.canvas.height);
     const d = this.shown;
     const layers = d && !d.disposed ? [d.layer] : [];
-    const n = this.renderer.draw(layers, cam, { selMask: (1 << this.bit) >>> 0, overlay: this.overlay, zFar: this.zFar(d), resolution, preview: this.preview });
+    const opts = { selMask: (1 << this.bit) >>> 0, overlay: this.overlay, zFar: this.zFar(d), resolution, preview: this.preview };
+    const n = this.gaussian.active ? this.gaussian.draw(d, cam, opts) : this.renderer.draw(layers, cam, opts);
     if (this.editor?.tool === 'transform' && (!this.editor.drag || this.editor.drag.gizmo)) this.editor.clearOverlay();  // the gizmo follows
     // A frame's first picture (its coarsest level, when it comes progressively): live mode's
     // "on screen" (window.hvdbLive.onScreen[].firstDrawnWall).
-    if (n > 0 && d && d.firstDrawnWall === undefined) {
+    // (In gaussian mode the frame before stays on screen until this one's records are in.)
+    if (n > 0 && d && d.firstDrawnWall === undefined && (!this.gaussian.active || this.gaussian.drawn === d)) {
       d.firstDrawnWall = Date.now();
       d.firstDrawnMs = performance.now();
     }
     if (n > 0 && this.metrics.firstPictureMs === null && this.firstQueryAt !== null) {
       this.metrics.firstPictureMs = performance.now() - this.firstQueryAt;
     }
-    this.setStatus('points', `${n.toLocaleString()} points${d && !d.done ? ' (loading)' : ''}`);
+    this.setStatus('points', `${n.toLocaleString()} ${this.gaussian.active ? 'splats' : 'points'}${d && !d.done ? ' (loading)' : ''}`);
     if (this.info) this.setStatus('frame', this.viewMode === 'slice' ? 'slice' : `frame ${this.frame}`);
     if (d?.done) this.setStatus('query', `query ${d.loadMs.toFixed(0)} ms`);
     if (this.player?.playing) this.setStatus('fps', `${this.metrics.playFps.toFixed(1)} fps`);
@@ -470,7 +490,7 @@ class App {
   async renderStill() {
     this.setStatus('edit', 'server render…');
     const reply = await this.conn.request({
-      render: { dataset: this.dataset, region: this.currentRegion(), lod: this.lod, view: this.renderView(), renderer: 'RENDERER_CPU', ...this.exporter.shadowFields() },
+      render: { dataset: this.dataset, region: this.currentRegion(), lod: this.lod, view: this.renderView(), renderer: 'RENDERER_CPU', ...this.exporter.shadowFields(), ...this.gaussian.renderFields() },
     });
     const png = reply.sections.png;
     if (!png) throw new Error('render reply without a png section');
@@ -489,7 +509,7 @@ class App {
     const n = this.info ? this.info.frame_count : 0;
     if (!(n > 0)) throw new Error('render sequence: the dataset has no frames');
     const view = this.renderView();
-    const req = { render: { dataset: this.dataset, lod: this.lod, path: Array.from({ length: n }, () => view), frames: Array.from({ length: n }, (_, i) => i), renderer: 'RENDERER_CPU' } };
+    const req = { render: { dataset: this.dataset, lod: this.lod, path: Array.from({ length: n }, () => view), frames: Array.from({ length: n }, (_, i) => i), renderer: 'RENDERER_CPU', ...this.gaussian.renderFields() } };
     if (this.box) req.render.region = allTimeWindow(this.box);
     const seq = { images: new Array(n), frames: [], timer: 0, requestId: 0, done: false, stopped: false };
     this.sequence = seq;
@@ -593,6 +613,7 @@ function exposeHooks(app, ready) {
           if (app.target === d) throw e;  // a superseded load's failure is not this view's
         }
       }
+      await app.gaussian.settle();  // gaussian mode: the order for this view is in
       app.drawNow();
       await nextFrame();
       return true;
@@ -612,7 +633,9 @@ function exposeHooks(app, ready) {
     marquee: (u0, v0, u1, v1, mode = 'SELECT_REPLACE') => app.editor.marquee(u0, v0, u1, v1, mode),
     selectedCount: () => (app.shown ? app.shown.countBit((1 << app.bit) >>> 0) : 0),
     pointsShown: () => (app.shown ? app.shown.points : 0),
-    rendererInfo: () => ({ name: app.renderer.rendererName, software: app.renderer.software, mode: app.renderer.mode, splats: app.renderer.sprites ? 'sprites' : 'quads' }),
+    rendererInfo: () => ({ name: app.renderer.rendererName, software: app.renderer.software, mode: app.renderer.mode, splats: app.renderer.sprites ? 'sprites' : 'quads', renderMode: app.gaussian.mode }),
+    gaussianInfo: () => app.gaussian.info(),
+    setRenderMode: (m) => app.gaussian.setMode(m).then(() => true),
     // The time one full-resolution draw takes, to the GPU's completion (gl.finish).
     timeDraw() {
       const t = performance.now();

@@ -62,7 +62,9 @@ export class FrameStore {
   // not disposed until replaced); onReplace(old, fresh): a reload replaced `old` in the cache.
   // encoding: how batches travel, 'COLUMNS' or 'HVDB7' (then `decoder`, an Hvdb7Decoder,
   // decodes them in workers; batches are drawn in the order they came, once decoded).
-  constructor(conn, renderer, { capacity = 24, onBatch = () => {}, onError = () => {}, inUse = () => false, onReplace = () => {}, encoding = 'COLUMNS', decoder = null } = {}) {
+  // onColumns(frameData, columns, n): each batch's columns (gaussian_mode.js keeps what the
+  // records need); onLoaded(frameData): its query is done; onDispose(frameData): it is freed.
+  constructor(conn, renderer, { capacity = 24, onBatch = () => {}, onError = () => {}, inUse = () => false, onReplace = () => {}, encoding = 'COLUMNS', decoder = null, onColumns = () => {}, onLoaded = () => {}, onDispose = () => {} } = {}) {
     if (encoding === 'HVDB7' && !decoder) throw new Error('FrameStore: HVDB7 batches need a decoder');
     this.conn = conn;
     this.renderer = renderer;
@@ -73,6 +75,9 @@ export class FrameStore {
     this.onError = onError;
     this.inUse = inUse;
     this.onReplace = onReplace;
+    this.onColumns = onColumns;
+    this.onLoaded = onLoaded;
+    this.onDispose = onDispose;
     this.map = new Map();
     this.pinned = new Set();  // keys that must not be evicted (what is on screen)
     this.maxLevel = null;
@@ -185,6 +190,7 @@ export class FrameStore {
         d.reply = reply.done;
         // The last level's splat scale (2^(lod/2)) applies to every point once all are in.
         if (d.levelsDone.length) d.scale = Math.pow(2, d.lod / 2);
+        if (!d.disposed) this.onLoaded(d);
         return d;
       }, (err) => {
         if (d.decodeError) err = d.decodeError;  // not the CANCELLED its cancel caused
@@ -210,6 +216,7 @@ export class FrameStore {
       d.chunks.push(this.renderer.createChunk(cols, n));
       d.labels.push(cols.label ? new Uint32Array(cols.label) : new Uint32Array(n));
       d.positions.push(new Float32Array(cols.position.subarray(0, 3 * n)));  // the selection's centre (gizmo.js)
+      this.onColumns(d, cols, n);
       d.points += n;
       const p = cols.position;
       const lo = d.bboxLo, hi = d.bboxHi;
@@ -237,6 +244,7 @@ export class FrameStore {
     if (d.disposed) return;
     d.disposed = true;
     this.retired.delete(d);
+    this.onDispose(d);
     for (const c of d.chunks) this.renderer.deleteChunk(c);
     d.chunks = [];
     d.labels = [];
@@ -376,7 +384,8 @@ export class Player {
       const key = a.frameKey(want);
       let d = a.store.get(key);
       if (!d) d = a.store.load(key, { dataset: a.dataset, frame: want, region: this.frameRegion(want), lod: a.lod });
-      if (want !== a.frame && d.done) {
+      // In gaussian mode a frame is shown once its records are in (gaussian_mode.js).
+      if (want !== a.frame && d.done && (!a.gaussian || a.gaussian.drawable(d))) {
         a.showFrameData(d, want, true, a.playResolution);  // drawn now, not on the next animation frame
         const s = this.stats;
         s.framesShown++;

@@ -103,7 +103,7 @@ export class RenderExport {
       render: {
         dataset: a.dataset, lod: a.lod, renderer: 'RENDERER_CPU', format: 'IMAGE_MP4',
         video_fps: fps, path, frames: path.map((_, i) => shown[i % shown.length]),
-        ...this.shadowFields(),
+        ...this.shadowFields(), ...a.gaussian.renderFields(),
       },
     };
     if (a.box) req.render.region = allTimeWindow(a.box);
