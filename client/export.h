@@ -30,9 +30,6 @@ struct ExportOptions {
   int spz_version = 3;  // kSpz: 2, 3 or 4 (formats::SpzWriteOptions)
 };
 
-// Writes frames first.. of a dataset as DIR/NAME_FFFFFF.{hv7,drc,ply} (splats:
-// .{ply,spz,splat,glb}), one file per frame, each whole or absent;
-// progress(done, total) after each. Returns the files written.
 // Points of a Gaussian-splat dataset `name` as one splat file of `format` (k3dgsPly, kSpz with
 // `spz_version`, kSplat, kGlb), with their Gaussian records (read by id; derived for points that
 // have none), in id order (*pts is sorted), written whole or not at all (temporary name, then
@@ -40,6 +37,9 @@ struct ExportOptions {
 Status WriteSplatFile(Backend& db, const std::string& name, const std::string& path,
                       formats::GaussianFormat format, int spz_version, std::vector<Point>* pts);
 
+// Writes frames first.. of a dataset as DIR/NAME_FFFFFF.{hv7,drc,ply} (splats:
+// .{ply,spz,splat,glb}), one file per frame, each whole or absent;
+// progress(done, total) after each. Returns the files written.
 Result<std::vector<std::string>> ExportFrames(Backend& db, const std::string& name,
                                               const std::string& dir, const ExportOptions& o,
                                               const std::function<void(size_t, size_t)>& progress);

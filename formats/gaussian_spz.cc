@@ -32,8 +32,13 @@ constexpr float kSqrt1_2 = 0.707106781186547524401f;
 // bytes than that is a lie, refused before inflating anything.
 constexpr uint64_t kMaxDeflateRatio = 1032;
 // Version 4: the reference's bound on points for a file's size (1024:1 over the 9 bytes of a
-// position), so that a hostile header allocates nothing; any file the reference reads passes.
+// position); any file the reference reads passes it.
 constexpr uint64_t kMaxZstdRatio = 1024;
+// And what all streams may inflate to before anything is allocated for them: 256 times the
+// file plus 64 MiB. Real files inflate 3-10 times; zstd could go to ~32 000:1 (RLE blocks), so
+// a few hostile kilobytes would otherwise claim gigabytes.
+constexpr uint64_t kMaxInflateRatio = 256;
+constexpr uint64_t kInflateSlack = uint64_t{64} << 20;
 // Its zstd level (compressZstd in load-spz.cc).
 constexpr int kZstdLevel = 12;
 
@@ -346,6 +351,25 @@ Result<GaussianCloud> ReadSpzV4(std::string_view bytes, const std::string& name)
   if (at != bytes.size()) {
     return Status::Corruption(name + ": " + std::to_string(bytes.size() - at) +
                               " bytes follow the last zstd stream");
+  }
+  if (total > uint64_t{bytes.size()} * kMaxInflateRatio + kInflateSlack) {
+    return Status::Corruption(name + ": " + std::to_string(bytes.size()) + " bytes of zstd "
+                              "streams declare " + std::to_string(total) + " bytes of points, "
+                              "more than 256 times their size: refused before inflating");
+  }
+  // Each frame's own header, where it gives its size, must agree with the table.
+  at = data_start;
+  for (size_t i = 0; i < num_streams; ++i) {
+    const unsigned long long size = ZSTD_getFrameContentSize(b + at, compressed[i]);
+    if (size == ZSTD_CONTENTSIZE_ERROR || (size != ZSTD_CONTENTSIZE_UNKNOWN && size != want[i])) {
+      return Status::Corruption(name + ": zstd stream " + std::to_string(i) + " is damaged (" +
+                                (size == ZSTD_CONTENTSIZE_ERROR
+                                     ? std::string("not a zstd frame")
+                                     : "its frame holds " + std::to_string(size) +
+                                           " bytes, the table says " + std::to_string(want[i])) +
+                                ")");
+    }
+    at += compressed[i];
   }
   std::string payload(total, '\0');
   at = data_start;

@@ -1,6 +1,6 @@
 // The 3DGS rasteriser through EGL (render/egl_gaussian.h). The shaders follow
-// gaussian_raster_kernels.h's PrepareGroup (the set-up) and BlendBatch (the per-pixel step)
-// line by line, in float as the reference.
+// gaussian_raster_kernels.h's PrepareGroup (the set-up) and BlendBatch (the per-pixel step),
+// in float as the reference, but for the early stop (see the header).
 #define GL_GLEXT_PROTOTYPES 1
 #include "render/egl_gaussian.h"
 
@@ -12,6 +12,7 @@
 #include <cstdint>
 #include <cstdlib>
 #include <cstring>
+#include <mutex>
 #include <vector>
 
 #include "render/egl_context.h"
@@ -247,8 +248,9 @@ struct EglGaussianRasterizer::Impl {
   }
   std::string hardware_renderer;
 
-  void EnsureTarget(uint32_t width, uint32_t height) {
-    if (width == w && height == h) return;
+  Status EnsureTarget(uint32_t width, uint32_t height) {
+    if (width == w && height == h) return Status::OK();
+    w = h = 0;  // known good only once complete
     if (fbo) glDeleteFramebuffers(1, &fbo);
     if (target) glDeleteTextures(1, &target);
     glGenTextures(1, &target);
@@ -259,8 +261,17 @@ struct EglGaussianRasterizer::Impl {
     glGenFramebuffers(1, &fbo);
     glBindFramebuffer(GL_FRAMEBUFFER, fbo);
     glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, target, 0);
+    const GLenum complete = glCheckFramebufferStatus(GL_FRAMEBUFFER);
+    const GLenum err = glGetError();
+    if (complete != GL_FRAMEBUFFER_COMPLETE || err != GL_NO_ERROR) {
+      return Status::LimitExceeded("EGL gaussian: no " + std::to_string(width) + "x" +
+                                   std::to_string(height) + " float target (framebuffer status " +
+                                   std::to_string(complete) + ", GL error " +
+                                   std::to_string(err) + ")");
+    }
     w = width;
     h = height;
+    return Status::OK();
   }
 
   void Free() {
@@ -289,6 +300,29 @@ Result<std::unique_ptr<EglGaussianRasterizer>> EglGaussianRasterizer::Create() {
   impl->name += " (" + impl->ctx->label() + ")";
   impl->hardware = impl->ctx->Hardware(impl->hardware_renderer);
   return r;
+}
+
+namespace {
+std::mutex g_idle_mu;
+std::vector<std::unique_ptr<EglGaussianRasterizer>> g_idle;
+}  // namespace
+
+Result<std::unique_ptr<EglGaussianRasterizer>> EglGaussianRasterizer::Take() {
+  {
+    std::lock_guard<std::mutex> l(g_idle_mu);
+    if (!g_idle.empty()) {
+      std::unique_ptr<EglGaussianRasterizer> r = std::move(g_idle.back());
+      g_idle.pop_back();
+      return r;
+    }
+  }
+  return Create();
+}
+
+void EglGaussianRasterizer::Recycle(std::unique_ptr<EglGaussianRasterizer> r) {
+  if (r == nullptr) return;
+  std::lock_guard<std::mutex> l(g_idle_mu);
+  if (g_idle.size() < 4) g_idle.push_back(std::move(r));
 }
 
 const std::string& EglGaussianRasterizer::name() const { return impl_->name; }
@@ -334,7 +368,11 @@ Status EglGaussianRasterizer::Render(const formats::GaussianCloud& cloud, const 
                             internal::EglContext::LastError());
   }
   const uint32_t width = camera.width, height = camera.height;
-  m.EnsureTarget(width, height);
+  Status target = m.EnsureTarget(width, height);
+  if (!target.ok()) {
+    m.ctx->ReleaseCurrent();
+    return target;
+  }
   auto upload = [&](int binding, const void* data, size_t bytes) {
     glBindBuffer(GL_SHADER_STORAGE_BUFFER, m.buffers[binding]);
     // At least 4 bytes: a buffer of none cannot be bound.
@@ -381,6 +419,10 @@ Status EglGaussianRasterizer::Render(const formats::GaussianCloud& cloud, const 
                m.pixels.data());
   const GLenum err = glGetError();
   m.ctx->ReleaseCurrent();
+  if (err == GL_OUT_OF_MEMORY) {
+    return Status::LimitExceeded("EGL gaussian: the GPU ran out of memory for " +
+                                 std::to_string(n) + " splats");
+  }
   if (err != GL_NO_ERROR) {
     return Status::Internal("EGL gaussian: OpenGL error " + std::to_string(err));
   }

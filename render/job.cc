@@ -337,6 +337,7 @@ Result<std::unique_ptr<RenderJob>> RenderJob::Create(std::shared_ptr<Dataset> da
 RenderJob::~RenderJob() {
   stop_ = true;  // a query in flight stops at its next batch
   if (prefetch_.valid()) prefetch_.wait();
+  EglGaussianRasterizer::Recycle(std::move(egl_));  // its context serves the next job
 }
 
 Status RenderJob::Query(const Step& step, const std::atomic<bool>* cancelled,

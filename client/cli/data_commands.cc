@@ -488,7 +488,7 @@ int RunQuery(Context& ctx, const Region& region, const QueryArgs& q, const std::
               {"levels", levels},
               {"elapsed_ms", ms}};
     if (command == "slice") j["clipped"] = (*cursor)->clipped();
-    if (writer) j["out"] = q.out;
+    if (writer || splats != formats::GaussianFormat::kUnknown) j["out"] = q.out;
     PrintJson(j);
     return kExitOk;
   }
@@ -498,7 +498,9 @@ int RunQuery(Context& ctx, const Region& region, const QueryArgs& q, const std::
   for (const auto& [level, n] : per_level) {
     std::printf("  level %d: %llu\n", level, static_cast<unsigned long long>(n));
   }
-  if (writer) std::printf("written to %s\n", q.out.c_str());
+  if (writer || splats != formats::GaussianFormat::kUnknown) {
+    std::printf("written to %s\n", q.out.c_str());
+  }
   return kExitOk;
 }
 

@@ -52,7 +52,7 @@ Status RenderJob::DrawGaussians(const Camera& view, const RenderOptions& o,
   // the GPU's cannot take the cloud (a driver's storage-buffer bound).
   if (renderer.kind() == RendererKind::kEgl && !egl_tried_) {
     egl_tried_ = true;
-    auto made = EglGaussianRasterizer::Create();
+    auto made = EglGaussianRasterizer::Take();
     if (made.ok()) {
       egl_ = std::move(made).value();
     } else {
@@ -62,7 +62,9 @@ Status RenderJob::DrawGaussians(const Camera& view, const RenderOptions& o,
   Status by_gpu = Status::Unsupported(egl_error_);
   if (egl_ != nullptr) {
     by_gpu = egl_->Render(current_.cloud, drawn, go, &gimg_, &gaussian_stats_);
-    if (!by_gpu.ok() && by_gpu.code() != StatusCode::kLimitExceeded) return by_gpu;
+    // A bad camera or cloud is the request's error; anything the GPU could not do, the CPU
+    // draws instead.
+    if (by_gpu.code() == StatusCode::kInvalidArgument) return by_gpu;
   }
   if (by_gpu.ok()) {
     gaussian_used_ = egl_->name() + ": 3DGS rasteriser";

@@ -683,6 +683,20 @@ TEST(Spz, MalformedVersion4FilesAreClearErrors) {
   std::string count = good;
   count[8] = count[9] = count[10] = static_cast<char>(0xff), count[11] = 0x7f;
   expect_error(count, StatusCode::kCorruption, "damaged header");
+  // 2 M degree-3 points (130 MB of streams) declared in 20 kB of junk frames: refused before
+  // anything is allocated or inflated.
+  {
+    const uint64_t n = 2000000;
+    const uint64_t sizes[6] = {9 * n, n, 3 * n, 3 * n, 4 * n, 45 * n};
+    std::string bomb = "NGSP" + Le32(4) + Le32(static_cast<uint32_t>(n)) + Bytes({3, 12, 0, 6}) +
+                       Le32(32) + std::string(12, '\0');
+    for (uint64_t bytes : sizes) {
+      bomb += Le32(3000) + Le32(0) + Le32(static_cast<uint32_t>(bytes)) +
+              Le32(static_cast<uint32_t>(bytes >> 32));
+    }
+    bomb += std::string(6 * 3000, 'z');
+    expect_error(bomb, StatusCode::kCorruption, "refused before inflating");
+  }
   std::string toc = good;
   toc[16] = 40;
   expect_error(toc, StatusCode::kCorruption, "table of contents at byte 40");

@@ -139,6 +139,9 @@ export class GaussianMode {
     // A frame queried before the mode was on lacks the ids: setMode queries it anew.
     if (!this.active || d.gauss || (d.points > 0 && !d.gcols)) return;
     this.prepare(d).catch((e) => {
+      // A failed read (a transient error, OVERLOADED) is tried again when the frame is next
+      // wanted: its columns are kept until the records are in.
+      if (d.gauss && !d.gauss.ready) d.gauss = null;
       if (!d.disposed && (d === this.app.target || d === this.app.shown)) this.app.showError(e, `gaussian records of ${d.key}`);
     });
   }
@@ -189,7 +192,6 @@ export class GaussianMode {
         flags: concat(c.flags, Uint8Array),
         labels: concat(d.labels, Uint32Array),
       };
-      d.gcols = null;
       const t0 = performance.now();
       const parts = gaussians && n ? await readGaussians(a.conn, dataset, cols.ids, n, () => !g.disposed) : [];
       if (g.disposed) return d;
@@ -197,6 +199,7 @@ export class GaussianMode {
       const r = this.ensureRenderer();
       const packed = packSplats(cols, parts, n, r.texWidth);
       g.frame = r.createFrame(packed);
+      d.gcols = null;  // the records are in: the columns are not needed again
       g.stored = packed.stored;
       this.stats.lastRecordsMs = t1 - t0;
       this.stats.lastPackMs = performance.now() - t1;
