@@ -20,8 +20,8 @@ py::dict GaussiansToDict(const GaussianColumns& g);
 // The dict's records for n points (opacity_logit, log_scale, rotation, sh; the degree from
 // sh's shape); InvalidArgument naming a key that is missing or of the wrong shape.
 GaussianColumns GaussiansFromDict(const py::dict& d, size_t n);
-// hvdb.read_splats: (points of frame 0, gaussians dict, ignored properties) of a 3DGS PLY, SPZ
-// or .splat file.
+// hvdb.read_splats: (points of frame 0, gaussians dict, ignored properties) of a 3DGS PLY, SPZ,
+// GLB or .splat file.
 py::tuple ReadSplats(const std::string& path);
 // hvdb.write_splats: format "3dgs", "spz" or "splat".
 void WriteSplats(const std::string& path, const py::array& points, const py::dict& gaussians,

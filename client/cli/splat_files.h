@@ -15,7 +15,8 @@
 namespace hvdb::cli {
 
 // The splat format a file's first 64 KiB show (a 3DGS PLY header, SPZ's magic, a GLB naming
-// KHR_gaussian_splatting), else kUnknown (.splat files have no signature: a Gaussian dataset reads every file as splats).
+// KHR_gaussian_splatting), else kUnknown (.splat files have no signature: a Gaussian dataset
+// reads every file as splats).
 formats::GaussianFormat SniffSplatFile(const std::string& path);
 
 // The splats of a file in any of the four formats, moved by `move` (their SH rotated with them),
