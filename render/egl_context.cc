@@ -3,6 +3,8 @@
 
 #include <EGL/egl.h>
 #include <EGL/eglext.h>
+#define GL_GLEXT_PROTOTYPES 1
+#include <GL/glcorearb.h>
 
 #include <cstdio>
 #include <cstring>
@@ -219,6 +221,49 @@ Result<std::unique_ptr<EglContext>> EglContext::Create(const std::function<Statu
   }
   return Status::Unsupported("EGL renderer: no OpenGL 4.3 core context could be made (" +
                              notes.substr(0, notes.size() - 2) + ")");
+}
+
+namespace {
+
+Result<GLuint> Compile(GLenum type, const char* src, const std::string& who) {
+  GLuint s = glCreateShader(type);
+  glShaderSource(s, 1, &src, nullptr);
+  glCompileShader(s);
+  GLint ok = 0;
+  glGetShaderiv(s, GL_COMPILE_STATUS, &ok);
+  if (!ok) {
+    char log[4096];
+    glGetShaderInfoLog(s, sizeof(log), nullptr, log);
+    glDeleteShader(s);
+    return Status::Internal(who + ": shader does not compile: " + log);
+  }
+  return s;
+}
+
+}  // namespace
+
+Result<unsigned> LinkProgram(const char* vs_src, const char* fs_src, const std::string& who) {
+  HVDB_ASSIGN_OR_RETURN(GLuint vs, Compile(GL_VERTEX_SHADER, vs_src, who));
+  auto fs = Compile(GL_FRAGMENT_SHADER, fs_src, who);
+  if (!fs.ok()) {
+    glDeleteShader(vs);
+    return fs.status();
+  }
+  GLuint p = glCreateProgram();
+  glAttachShader(p, vs);
+  glAttachShader(p, *fs);
+  glLinkProgram(p);
+  glDeleteShader(vs);
+  glDeleteShader(*fs);
+  GLint ok = 0;
+  glGetProgramiv(p, GL_LINK_STATUS, &ok);
+  if (!ok) {
+    char log[4096];
+    glGetProgramInfoLog(p, sizeof(log), nullptr, log);
+    glDeleteProgram(p);
+    return Status::Internal(who + ": program does not link: " + log);
+  }
+  return p;
 }
 
 }  // namespace hvdb::render::internal

@@ -41,6 +41,10 @@ class EglContext {
   std::string label_;
 };
 
+// Compiles and links a vertex and a fragment shader in the current context: the program's name,
+// or Internal with the driver's log (`who` opens the message).
+Result<unsigned> LinkProgram(const char* vs_src, const char* fs_src, const std::string& who);
+
 }  // namespace hvdb::render::internal
 
 #endif  // HVDB_RENDER_EGL_CONTEXT_H_

@@ -173,22 +173,6 @@ void main() {
 }
 )";
 
-GLuint CompileStage(GLenum type, const char* src, std::string* log) {
-  GLuint s = glCreateShader(type);
-  glShaderSource(s, 1, &src, nullptr);
-  glCompileShader(s);
-  GLint ok = 0;
-  glGetShaderiv(s, GL_COMPILE_STATUS, &ok);
-  if (!ok) {
-    char buf[4096];
-    glGetShaderInfoLog(s, sizeof buf, nullptr, buf);
-    *log = buf;
-    glDeleteShader(s);
-    return 0;
-  }
-  return s;
-}
-
 bool EglDisabled() {
   const char* off = std::getenv("HVDB_RENDER_NO_EGL");
   return off != nullptr && *off != '\0' && std::strcmp(off, "0") != 0;
@@ -218,27 +202,8 @@ struct EglGaussianRasterizer::Impl {
       return Status::Unsupported(std::string("OpenGL ") + (v ? v : "?") + " is older than 4.3");
     }
     glGetIntegerv(GL_MAX_SHADER_STORAGE_BLOCK_SIZE, &max_block);
-    std::string log;
-    GLuint vs = CompileStage(GL_VERTEX_SHADER, kVertexShader, &log);
-    if (vs == 0) return Status::Internal("EGL gaussian: vertex shader: " + log);
-    GLuint fs = CompileStage(GL_FRAGMENT_SHADER, kFragmentShader, &log);
-    if (fs == 0) {
-      glDeleteShader(vs);
-      return Status::Internal("EGL gaussian: fragment shader: " + log);
-    }
-    program = glCreateProgram();
-    glAttachShader(program, vs);
-    glAttachShader(program, fs);
-    glLinkProgram(program);
-    glDeleteShader(vs);
-    glDeleteShader(fs);
-    GLint ok = 0;
-    glGetProgramiv(program, GL_LINK_STATUS, &ok);
-    if (!ok) {
-      char buf[4096];
-      glGetProgramInfoLog(program, sizeof buf, nullptr, buf);
-      return Status::Internal(std::string("EGL gaussian: program does not link: ") + buf);
-    }
+    HVDB_ASSIGN_OR_RETURN(program, internal::LinkProgram(kVertexShader, kFragmentShader,
+                                                         "EGL gaussian"));
     glGenVertexArrays(1, &vao);
     glGenBuffers(7, buffers);
     name = std::string("egl: ") + (r ? r : "?") + ", OpenGL " + (v ? v : "?");

@@ -39,43 +39,9 @@ using internal::View;
 
 // ---- GL helpers ----
 
-Result<GLuint> Compile(GLenum type, const char* src) {
-  GLuint s = glCreateShader(type);
-  glShaderSource(s, 1, &src, nullptr);
-  glCompileShader(s);
-  GLint ok = 0;
-  glGetShaderiv(s, GL_COMPILE_STATUS, &ok);
-  if (!ok) {
-    char log[4096];
-    glGetShaderInfoLog(s, sizeof(log), nullptr, log);
-    glDeleteShader(s);
-    return Status::Internal(std::string("EGL renderer: shader does not compile: ") + log);
-  }
-  return s;
-}
-
+// Programs: egl_context.h's LinkProgram.
 Result<GLuint> Link(const char* vs_src, const char* fs_src) {
-  HVDB_ASSIGN_OR_RETURN(GLuint vs, Compile(GL_VERTEX_SHADER, vs_src));
-  auto fs = Compile(GL_FRAGMENT_SHADER, fs_src);
-  if (!fs.ok()) {
-    glDeleteShader(vs);
-    return fs.status();
-  }
-  GLuint p = glCreateProgram();
-  glAttachShader(p, vs);
-  glAttachShader(p, *fs);
-  glLinkProgram(p);
-  glDeleteShader(vs);
-  glDeleteShader(*fs);
-  GLint ok = 0;
-  glGetProgramiv(p, GL_LINK_STATUS, &ok);
-  if (!ok) {
-    char log[4096];
-    glGetProgramInfoLog(p, sizeof(log), nullptr, log);
-    glDeleteProgram(p);
-    return Status::Internal(std::string("EGL renderer: program does not link: ") + log);
-  }
-  return p;
+  return internal::LinkProgram(vs_src, fs_src, "EGL renderer");
 }
 
 GLuint MakeTexture(GLenum format, uint32_t w, uint32_t h) {

@@ -13,6 +13,8 @@
 // an RGBA32F (or RGBA16F) target when EXT_color_buffer_float exists (8-bit blending of
 // hundreds of layers loses several levels), then a resolve pass adds the background.
 import { viewTransform } from './camera.js';
+// The background is linear, the splats are not: linearToSrgb brings it to their values.
+import { linearToSrgb, program } from './renderer.js';
 
 const kVS = `#version 300 es
 precision highp float;
@@ -194,34 +196,6 @@ function vertexShader(degree, sprites) {
   return src;
 }
 
-function compile(gl, type, src, what) {
-  const s = gl.createShader(type);
-  gl.shaderSource(s, src);
-  gl.compileShader(s);
-  if (!gl.getShaderParameter(s, gl.COMPILE_STATUS)) throw new Error(`WebGL: ${what} shader does not compile: ${gl.getShaderInfoLog(s)}`);
-  return s;
-}
-
-function program(gl, vs, fs, what) {
-  const p = gl.createProgram();
-  gl.attachShader(p, compile(gl, gl.VERTEX_SHADER, vs, what));
-  gl.attachShader(p, compile(gl, gl.FRAGMENT_SHADER, fs, what));
-  gl.linkProgram(p);
-  if (!gl.getProgramParameter(p, gl.LINK_STATUS)) throw new Error(`WebGL: ${what} program does not link: ${gl.getProgramInfoLog(p)}`);
-  const u = {};
-  const n = gl.getProgramParameter(p, gl.ACTIVE_UNIFORMS);
-  for (let i = 0; i < n; ++i) {
-    const info = gl.getActiveUniform(p, i);
-    u[info.name.replace(/\[0\]$/, '')] = gl.getUniformLocation(p, info.name);
-  }
-  return { p, u };
-}
-
-// The exact sRGB curve of render::LinearToSrgb (the background is linear; splats are not).
-function linearToSrgb(v) {
-  const c = Math.min(1, Math.max(0, v));
-  return c <= 0.0031308 ? 12.92 * c : 1.055 * Math.pow(c, 1 / 2.4) - 0.055;
-}
 
 export const kHighlight = [1, 0.45, 0, 0.5];  // hvdb render's default --highlight-color
 

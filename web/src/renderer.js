@@ -175,7 +175,9 @@ function compile(gl, type, src, what) {
   return s;
 }
 
-function program(gl, vs, fs, what) {
+// A linked program and its uniforms' locations by name (an array's also without its "[0]");
+// shared with gaussian_renderer.js.
+export function program(gl, vs, fs, what) {
   const p = gl.createProgram();
   gl.attachShader(p, compile(gl, gl.VERTEX_SHADER, vs, what));
   gl.attachShader(p, compile(gl, gl.FRAGMENT_SHADER, fs, what));
@@ -185,13 +187,15 @@ function program(gl, vs, fs, what) {
   const n = gl.getProgramParameter(p, gl.ACTIVE_UNIFORMS);
   for (let i = 0; i < n; ++i) {
     const info = gl.getActiveUniform(p, i);
-    uniforms[info.name] = gl.getUniformLocation(p, info.name);
+    const loc = gl.getUniformLocation(p, info.name);
+    uniforms[info.name] = loc;
+    uniforms[info.name.replace(/\[0\]$/, '')] = loc;
   }
   return { p, u: uniforms };
 }
 
 // The exact sRGB curve of render::LinearToSrgb.
-function linearToSrgb(v) {
+export function linearToSrgb(v) {
   const c = Math.min(1, Math.max(0, v));
   return c <= 0.0031308 ? 12.92 * c : 1.055 * Math.pow(c, 1 / 2.4) - 0.055;
 }
