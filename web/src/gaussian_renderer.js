@@ -14,7 +14,7 @@
 // hundreds of layers loses several levels), then a resolve pass adds the background.
 import { viewTransform } from './camera.js';
 // The background is linear, the splats are not: linearToSrgb brings it to their values.
-import { linearToSrgb, program } from './renderer.js';
+import { kResolveVS, linearToSrgb, program } from './renderer.js';
 
 const kVS = `#version 300 es
 precision highp float;
@@ -148,12 +148,6 @@ void main() {
   float alpha = min(0.99, vOpacity * exp(max(power, -20.0)));
   if (alpha < 1.0 / 255.0) discard;
   o = vec4(vColor * alpha, alpha);
-}`;
-
-const kResolveVS = `#version 300 es
-void main() {
-  vec2 p = vec2(float((gl_VertexID & 1) * 4 - 1), float((gl_VertexID >> 1) * 4 - 1));
-  gl_Position = vec4(p, 0.0, 1.0);
 }`;
 
 // C + T background (display values, as DrawGaussians in render/job/gaussian.cc), alpha 1 - T

@@ -136,7 +136,8 @@ void main() {
   o = vec4(linearToSrgb(vColor.r), linearToSrgb(vColor.g), linearToSrgb(vColor.b), 1.0);
 }`;
 
-const kResolveVS = `#version 300 es
+// A triangle over the whole target (the resolve passes of both renderers).
+export const kResolveVS = `#version 300 es
 void main() {
   vec2 p = vec2(float((gl_VertexID & 1) * 4 - 1), float((gl_VertexID >> 1) * 4 - 1));
   gl_Position = vec4(p, 0.0, 1.0);
