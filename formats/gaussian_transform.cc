@@ -23,12 +23,9 @@ using Mat3 = std::array<double, 9>;
 
 // The 3DGS basis (SH_C1, SH_C2, SH_C3 of the reference, signs included) of degree l at d.
 void Basis(int l, double x, double y, double z, double* out) {
-  constexpr double kC1 = 0.4886025119029199;
-  constexpr double kC2[5] = {1.0925484305920792, -1.0925484305920792, 0.31539156525252005,
-                             -1.0925484305920792, 0.5462742152960396};
-  constexpr double kC3[7] = {-0.5900435899266435, 2.890611442640554, -0.4570457994644658,
-                             0.3731763325901154,  -0.4570457994644658, 1.445305721320277,
-                             -0.5900435899266435};
+  constexpr double kC1 = kShC1;
+  constexpr const double* kC2 = kShC2;
+  constexpr const double* kC3 = kShC3;
   const double xx = x * x, yy = y * y, zz = z * z;
   switch (l) {
     case 1:

@@ -30,14 +30,25 @@ constexpr float kMaxAlpha = 0.99f;
 constexpr float kMinTransmittance = 0.0001f;
 constexpr size_t kBatch = 64;  // records a tile blends at a time (BlendBatch)
 
-// The reference's spherical-harmonic constants (auxiliary.h).
-constexpr float kC0 = 0.28209479177387814f;
-constexpr float kC1 = 0.4886025119029199f;
-constexpr float kC2[5] = {1.0925484305920792f, -1.0925484305920792f, 0.31539156525252005f,
-                          -1.0925484305920792f, 0.5462742152960396f};
-constexpr float kC3[7] = {-0.5900435899266435f, 2.890611442640554f,   -0.4570457994644658f,
-                          0.3731763325901154f,  -0.4570457994644658f, 1.445305721320277f,
-                          -0.5900435899266435f};
+// The reference's spherical-harmonic constants (formats/gaussians.h), in float.
+constexpr float kC0 = static_cast<float>(formats::kShC0);
+constexpr float kC1 = static_cast<float>(formats::kShC1);
+constexpr float kC2[5] = {
+    static_cast<float>(formats::kShC2[0]),
+    static_cast<float>(formats::kShC2[1]),
+    static_cast<float>(formats::kShC2[2]),
+    static_cast<float>(formats::kShC2[3]),
+    static_cast<float>(formats::kShC2[4]),
+};
+constexpr float kC3[7] = {
+    static_cast<float>(formats::kShC3[0]),
+    static_cast<float>(formats::kShC3[1]),
+    static_cast<float>(formats::kShC3[2]),
+    static_cast<float>(formats::kShC3[3]),
+    static_cast<float>(formats::kShC3[4]),
+    static_cast<float>(formats::kShC3[5]),
+    static_cast<float>(formats::kShC3[6]),
+};
 
 // A visible splat, as blending needs it: one cache line.
 struct alignas(64) Record {
