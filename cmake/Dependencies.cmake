@@ -12,8 +12,11 @@ if(HVDB_BUILD_INGEST)
 else()
   find_package(OpenCV REQUIRED COMPONENTS core imgproc imgcodecs calib3d)
 endif()
-# libpng and libjpeg for formats/image_decode.cc: `hvdb-ingest stereo` reads its pair without
-# OpenCV's imgcodecs and the ~120 shared libraries it loads (GDAL's formats).
+# What hvdb, hvdb-server, the Python module and the render benchmark link of OpenCV: not
+# imgcodecs, whose ~120 shared libraries (GDAL's formats) were most of every command's start;
+# formats/image_codec.cc reads and writes pictures with libpng and libjpeg instead (the test
+# command checks that those binaries load no GDAL). Ingest, tests and benchmarks use all.
+set(HVDB_OPENCV_CORE opencv_core opencv_imgproc opencv_calib3d)
 find_package(PNG REQUIRED)
 find_package(JPEG REQUIRED)
 find_package(draco REQUIRED)

@@ -1,5 +1,6 @@
-// PNG (8-bit sRGB, through OpenCV's imgcodecs) and OpenEXR (float) images.
+// PNG (8-bit sRGB, through image_codec.h's libpng writer) and OpenEXR (float) images.
 #include "formats/image_io.h"
+#include "formats/image_codec.h"
 
 #include <ImfChannelList.h>
 #include <ImfFrameBuffer.h>
@@ -16,7 +17,6 @@
 #include <limits>
 #include <stdexcept>
 #include <opencv2/core.hpp>
-#include <opencv2/imgcodecs.hpp>
 
 namespace hvdb::formats {
 
@@ -166,17 +166,9 @@ Srgb8Image ToSrgb8(const Image& img) {
 Result<std::string> EncodePng(const Image& img) {
   HVDB_RETURN_IF_ERROR(CheckImage(img));
   Srgb8Image s = ToSrgb8(img);
-  cv::Mat m(static_cast<int>(s.height), static_cast<int>(s.width),
-            s.channels == 4 ? CV_8UC4 : CV_8UC3, s.data.data());
-  // OpenCV stores blue first.
-  for (size_t i = 0; i < s.data.size(); i += s.channels) std::swap(s.data[i], s.data[i + 2]);
-  std::vector<uchar> buf;
-  try {
-    if (!cv::imencode(".png", m, buf)) return Status::Internal("PNG encoding failed");
-  } catch (const cv::Exception& e) {
-    return Status::Internal(std::string("PNG encoding failed: ") + e.what());
-  }
-  return std::string(buf.begin(), buf.end());
+  const cv::Mat m(static_cast<int>(s.height), static_cast<int>(s.width),
+                  CV_8UC(static_cast<int>(s.channels)), s.data.data());
+  return EncodePngImage(m, /*rgb_order=*/true);
 }
 
 Status WritePng(const Image& img, const std::string& path) {
@@ -270,28 +262,14 @@ Status WriteSrgb8Png(const Srgb8Image& s, const std::string& path) {
       (s.channels != 1 && s.channels != 3 && s.channels != 4)) {
     return Status::InvalidArgument("image: size and data do not agree");
   }
-  std::vector<uint8_t> bgr = s.data;
-  if (s.channels >= 3) {
-    for (size_t i = 0; i < bgr.size(); i += s.channels) std::swap(bgr[i], bgr[i + 2]);
-  }
-  cv::Mat m(static_cast<int>(s.height), static_cast<int>(s.width),
-            CV_8UC(static_cast<int>(s.channels)), bgr.data());
-  try {
-    if (!cv::imwrite(path, m)) return Status::IOError(path + ": cannot write PNG");
-  } catch (const cv::Exception& e) {
-    return Status::IOError(path + ": " + e.what());
-  }
-  return Status::OK();
+  const cv::Mat m(static_cast<int>(s.height), static_cast<int>(s.width),
+                  CV_8UC(static_cast<int>(s.channels)), const_cast<uint8_t*>(s.data.data()));
+  HVDB_ASSIGN_OR_RETURN(std::string bytes, EncodePngImage(m, /*rgb_order=*/true));
+  return WriteFile(path, bytes);
 }
 
 Result<Srgb8Image> ReadSrgb8(const std::string& path) {
-  cv::Mat m;
-  try {
-    m = cv::imread(path, cv::IMREAD_UNCHANGED);
-  } catch (const cv::Exception& e) {
-    return Status::IOError(path + ": " + e.what());
-  }
-  if (m.empty()) return Status::NotFound(path + ": missing or not a readable image");
+  HVDB_ASSIGN_OR_RETURN(cv::Mat m, ReadImageFile(path, ImageMode::kAsStored));
   if (m.depth() != CV_8U) return Status::InvalidArgument(path + ": not an 8-bit image");
   Srgb8Image s;
   s.width = static_cast<uint32_t>(m.cols);

@@ -1,5 +1,5 @@
-// Image files: 8-bit sRGB PNG (and JPEG input) through OpenCV's imgcodecs, and OpenEXR with
-// float colour, alpha and depth. The image types are what render/ draws into and its metrics
+// Image files: 8-bit sRGB PNG (and JPEG input) through image_codec.h (libpng, libjpeg), and
+// OpenEXR with float colour, alpha and depth. The image types are what render/ draws into and its metrics
 // compare (render/renderer.h and render/metrics.h use them under their own names); they live
 // here, below render/, so that reading and writing images needs no renderer.
 //

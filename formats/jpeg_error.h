@@ -1,4 +1,4 @@
-// libjpeg's error handling as hvdb reads JPEGs (formats/image_decode.cc, media/image.cc): an
+// libjpeg's error handling as hvdb reads JPEGs (formats/image_codec.cc, media/image.cc): an
 // error longjmps back to the caller's setjmp with libjpeg's message, and a warning is an error
 // too, since libjpeg only warns about corrupt data (a truncated file decodes with grey at the
 // end). Trace messages are dropped.

@@ -9,7 +9,7 @@
 #include <string>
 #include <thread>
 
-#include "formats/image_decode.h"
+#include "formats/image_codec.h"
 #include "formats/pfm.h"
 #include "ingest/commands.h"
 #include "ingest/stereo.h"
@@ -33,7 +33,7 @@ int RunStereo(const StereoOptions& o) {
   };
   // libpng/libjpeg directly, not imgcodecs: this command's start is part of its time.
   auto load = [](const std::string& path, cv::Mat* img) -> bool {
-    auto read = formats::ReadImageFile(path, /*colour=*/true);
+    auto read = formats::ReadImageFile(path, formats::ImageMode::kColour);
     if (!read.ok()) {
       std::fprintf(stderr, "hvdb-ingest stereo: %s\n", read.status().message().c_str());
       return false;

@@ -18,8 +18,8 @@ extern "C" {
 }
 
 #include <opencv2/core.hpp>
-#include <opencv2/imgcodecs.hpp>
 
+#include "formats/image_codec.h"
 #include "media/media.h"
 #include "storage/photo_video.h"
 
@@ -367,12 +367,10 @@ class AvPhotoVideoCodec : public PhotoVideoCodec {
     Quiet();
     std::vector<cv::Mat> originals, padded;
     for (size_t i = 0; i < images.size(); ++i) {
-      cv::Mat raw(1, int(images[i].size()), CV_8U, const_cast<char*>(images[i].data()));
-      cv::Mat bgr = cv::imdecode(raw, cv::IMREAD_COLOR);
-      if (bgr.empty()) {
-        return Status::InvalidArgument("photo video: picture " + std::to_string(i) +
-                                       " is not an image OpenCV decodes (PNG or JPEG)");
-      }
+      auto decoded = formats::DecodeImage(images[i], "photo video: picture " + std::to_string(i),
+                                          formats::ImageMode::kColour);
+      if (!decoded.ok()) return decoded.status();
+      cv::Mat bgr = *decoded;
       if (!originals.empty() && bgr.size() != originals[0].size()) {
         return Status::InvalidArgument("photo video: picture " + std::to_string(i) + " is " +
                                        std::to_string(bgr.cols) + "x" + std::to_string(bgr.rows) +
@@ -441,12 +439,13 @@ class AvPhotoVideoCodec : public PhotoVideoCodec {
                                   std::to_string(d->next()) + " pictures)");
       }
     }
-    std::vector<uint8_t> buf;
-    // Fast zlib: the caller decodes it at once.
-    if (!cv::imencode(".png", pic, buf, {cv::IMWRITE_PNG_COMPRESSION, 1})) {
-      return Status::Internal(what + ": cannot write picture " + std::to_string(index) + " as PNG");
+    // Fast zlib (the default): the caller decodes it at once.
+    auto encoded = formats::EncodePngImage(pic);
+    if (!encoded.ok()) {
+      return Status::Internal(what + ": cannot write picture " + std::to_string(index) + " as PNG (" +
+                              encoded.status().message() + ")");
     }
-    std::string png(buf.begin(), buf.end());
+    std::string png = std::move(*encoded);
     cache_.Give(std::move(d), w, h);
     return png;
   }

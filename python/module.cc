@@ -17,10 +17,10 @@
 #include <cstddef>
 #include <cstdlib>
 #include <mutex>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "client/backend.h"
+#include "formats/image_codec.h"
 #include "formats/image_io.h"
 #include "formats/ply.h"
 #include "protocol/wire.h"
@@ -610,9 +610,9 @@ class Database {
       d["depth"] = depth;
       return d;
     }
-    std::vector<uchar> bytes(reply.png.begin(), reply.png.end());
-    cv::Mat m = cv::imdecode(bytes, cv::IMREAD_UNCHANGED);
-    if (m.empty()) Throw(Status::Internal("render: the PNG does not decode"));
+    auto decoded = formats::DecodeImage(reply.png, "render: the PNG", formats::ImageMode::kAsStored);
+    if (!decoded.ok()) Throw(Status::Internal(decoded.status().message()));
+    cv::Mat m = *decoded;
     int ch = m.channels();
     cv::cvtColor(m, m, ch == 4 ? cv::COLOR_BGRA2RGBA : cv::COLOR_BGR2RGB);
     py::array_t<uint8_t> img({m.rows, m.cols, ch});

@@ -6,9 +6,9 @@
 #include <thread>
 
 #include <opencv2/calib3d.hpp>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "formats/image_codec.h"
 #include "render/camera_pose.h"
 #include "render/splat.h"
 
@@ -23,12 +23,8 @@ namespace {
 // A map of a photo's billboard decoded from its PNG bytes; empty on failure.
 cv::Mat DecodeMap(const std::string& bytes) {
   if (bytes.empty()) return {};
-  const cv::Mat raw(1, static_cast<int>(bytes.size()), CV_8U, const_cast<char*>(bytes.data()));
-  try {
-    return cv::imdecode(raw, cv::IMREAD_UNCHANGED);
-  } catch (const cv::Exception&) {
-    return {};
-  }
+  auto m = formats::DecodeImage(bytes, "billboard map", formats::ImageMode::kAsStored);
+  return m.ok() ? *m : cv::Mat();
 }
 
 }  // namespace

@@ -1,7 +1,6 @@
 #include "render/job.h"
 
-#include <opencv2/imgcodecs.hpp>
-
+#include "formats/image_codec.h"
 #include "render/projective_texture.h"
 
 #include <algorithm>
@@ -19,14 +18,10 @@ namespace {
 // A stored photo's bytes (PNG or JPEG) as 8-bit RGB of the expected size.
 Result<std::vector<uint8_t>> DecodeRgb8(const std::string& bytes, uint32_t width, uint32_t height,
                                         const std::string& what) {
-  const cv::Mat raw(1, static_cast<int>(bytes.size()), CV_8U, const_cast<char*>(bytes.data()));
-  cv::Mat bgr;
-  try {
-    bgr = cv::imdecode(raw, cv::IMREAD_COLOR);
-  } catch (const cv::Exception& e) {
-    return Status::Corruption(what + ": cannot be decoded (" + e.what() + ")");
-  }
-  if (bgr.empty()) return Status::Corruption(what + ": not a PNG or JPEG image");
+  auto decoded = formats::DecodeImage(bytes, what, formats::ImageMode::kColour);
+  // Stored photos were checked when they were ingested: one that does not decode now is damage.
+  if (!decoded.ok()) return Status::Corruption(decoded.status().message());
+  const cv::Mat& bgr = *decoded;
   if (static_cast<uint32_t>(bgr.cols) != width || static_cast<uint32_t>(bgr.rows) != height) {
     return Status::Corruption(what + ": the image is " + std::to_string(bgr.cols) + "x" +
                               std::to_string(bgr.rows) + ", its camera " + std::to_string(width) +

@@ -39,13 +39,13 @@ ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
 CC=clang CXX=clang++ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DHVDB_FUZZ=ON -DHVDB_BUILD_BENCH=OFF >/dev/null
 cmake --build build-fuzz --target frame_decoder_fuzz ws_message_fuzz http_request_fuzz \
-  hvdb7_decoder_fuzz octree_fuzz photo_decoder_fuzz wal_record_fuzz image_decode_fuzz \
+  hvdb7_decoder_fuzz octree_fuzz photo_decoder_fuzz wal_record_fuzz image_codec_fuzz \
   record_block_fuzz media_import_fuzz gaussian_files_fuzz gaussian_segment_fuzz
 for target in frame_decoder_fuzz:server/fuzz_corpus ws_message_fuzz:server/ws_fuzz_corpus \
   http_request_fuzz:server/http_fuzz_corpus \
   hvdb7_decoder_fuzz:codec/fuzz_corpus octree_fuzz:codec/octree_fuzz_corpus \
   photo_decoder_fuzz:storage/photo_fuzz_corpus \
-  wal_record_fuzz:storage/wal_fuzz_corpus image_decode_fuzz:formats/image_fuzz_corpus \
+  wal_record_fuzz:storage/wal_fuzz_corpus image_codec_fuzz:formats/image_fuzz_corpus \
   gaussian_segment_fuzz:storage/gaussian_segment_fuzz_corpus \
   gaussian_files_fuzz:formats/gaussian_fuzz_corpus \
   record_block_fuzz:blockcode/record_block_fuzz_corpus \

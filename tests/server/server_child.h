@@ -64,13 +64,15 @@ class ServerChild {
     }
     return "no port file after 20 s";
   }
-  void Kill(int sig) {
+  // Sends `sig` and reaps the child; its wait status (-1 if none was running).
+  int Kill(int sig) {
+    int st = -1;
     if (pid_ > 0) {
       kill(pid_, sig);
-      int st;
       waitpid(pid_, &st, 0);
       pid_ = -1;
     }
+    return st;
   }
   void Signal(int sig) { kill(pid_, sig); }
   std::string Address() const { return "127.0.0.1:" + std::to_string(port_); }
