@@ -69,8 +69,8 @@ struct Renderers {
   render::GaussianRasterizer cpu_gaussians;
 };
 
-// What one render of a mode draws and returns as 8-bit sRGB (for the comparison).
-using Draw = std::function<hvdb::Status(render::Srgb8Image* image)>;
+// One render of a mode (into images the case keeps, as a render job reuses its buffers).
+using Draw = std::function<hvdb::Status()>;
 
 struct Timing {
   double median_ms = 0;
@@ -80,10 +80,10 @@ struct Timing {
 
 hvdb::Result<Timing> Time(const Draw& draw, int reps) {
   Timing t;
-  HVDB_RETURN_IF_ERROR(draw(nullptr));  // warm-up: buffers grown, programs compiled
+  HVDB_RETURN_IF_ERROR(draw());  // warm-up: buffers grown, programs compiled
   for (int r = 0; r < reps; ++r) {
     const auto t0 = std::chrono::steady_clock::now();
-    HVDB_RETURN_IF_ERROR(draw(r + 1 == reps ? &t.image : nullptr));
+    HVDB_RETURN_IF_ERROR(draw());
     t.runs_ms.push_back(
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
   }
@@ -183,19 +183,19 @@ int main(int argc, char** argv) {
       render::GaussianImage gimage;
       render::RenderOptions o;
       o.mode = mode == "probabilistic" ? render::Mode::kProbabilistic : render::Mode::kVisibility;
-      Draw draw = [&](render::Srgb8Image* keep) -> hvdb::Status {
+      Draw draw = [&]() -> hvdb::Status {
         if (gaussian) {
-          HVDB_RETURN_IF_ERROR(
-              r.egl_gaussians ? r.egl_gaussians->Render(cloud, scene_camera, {}, &gimage)
-                              : r.cpu_gaussians.Render(cloud, scene_camera, {}, &gimage));
-          if (keep) *keep = FromRgba8(gimage.ToRgba8(), gimage.width, gimage.height);
-          return hvdb::Status::OK();
+          return r.egl_gaussians ? r.egl_gaussians->Render(cloud, scene_camera, {}, &gimage)
+                                 : r.cpu_gaussians.Render(cloud, scene_camera, {}, &gimage);
         }
-        HVDB_RETURN_IF_ERROR(r.points->RenderInto(points, sphere_camera, o, &image));
-        if (keep) *keep = hvdb::formats::ToSrgb8(image);
-        return hvdb::Status::OK();
+        return r.points->RenderInto(points, sphere_camera, o, &image);
       };
       auto t = Time(draw, reps);
+      // The last render as 8-bit sRGB, for the comparison (not timed).
+      if (t.ok()) {
+        t->image = gaussian ? FromRgba8(gimage.ToRgba8(), gimage.width, gimage.height)
+                            : hvdb::formats::ToSrgb8(image);
+      }
       if (!t.ok()) {
         std::fprintf(stderr, "render-bench-gpu: %s %s: %s\n", r.name.c_str(), mode.c_str(),
                      t.status().ToString().c_str());
