@@ -176,11 +176,7 @@ int main(int argc, char** argv) {
          {"target",
           {{"name", "splats/s at 1080p, 2 cores"}, {"limit", 10e6}, {"met", rate >= 10e6}}}});
     if (s == 0 && !png.empty()) {
-      hvdb::formats::Srgb8Image img;
-      img.width = image.width, img.height = image.height, img.channels = 3;
-      const std::vector<uint8_t> rgba = image.ToRgba8();
-      for (size_t i = 0; i < rgba.size(); i += 4)
-        img.data.insert(img.data.end(), &rgba[i], &rgba[i + 3]);
+      const hvdb::formats::Srgb8Image img = hvdb::bench::ToSrgb8(image);
       if (!hvdb::formats::WriteSrgb8Png(img, png).ok())
         std::fprintf(stderr, "cannot write %s\n", png.c_str());
     }

@@ -123,4 +123,15 @@ render::Camera GaussianSceneCamera(uint32_t width, uint32_t height) {
   return render::Camera::LookAt({0.4, -1.1, -4.5}, {0, 0.2, 1.5}, {0, -1, 0}, 50, width, height);
 }
 
+formats::Srgb8Image ToSrgb8(const render::GaussianImage& image) {
+  formats::Srgb8Image img;
+  img.width = image.width, img.height = image.height, img.channels = 3;
+  const std::vector<uint8_t> rgba = image.ToRgba8();
+  img.data.reserve(rgba.size() / 4 * 3);
+  for (size_t i = 0; i < rgba.size(); i += 4) {
+    img.data.insert(img.data.end(), &rgba[i], &rgba[i + 3]);
+  }
+  return img;
+}
+
 }  // namespace hvdb::bench

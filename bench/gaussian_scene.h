@@ -10,6 +10,7 @@
 #include <cstdint>
 
 #include "formats/gaussians.h"
+#include "render/gaussian_raster.h"
 #include "render/renderer.h"
 
 namespace hvdb::bench {
@@ -18,6 +19,8 @@ namespace hvdb::bench {
 formats::GaussianCloud GaussianScene(size_t n, uint32_t seed);
 // The camera that sees GaussianScene whole.
 render::Camera GaussianSceneCamera(uint32_t width, uint32_t height);
+// The rasteriser's picture as 8-bit RGB (ToRgba8 without alpha), for PSNR and PNG files.
+formats::Srgb8Image ToSrgb8(const render::GaussianImage& image);
 
 }  // namespace hvdb::bench
 

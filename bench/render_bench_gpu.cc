@@ -50,16 +50,6 @@ std::vector<std::string> Split(const std::string& s) {
   return out;
 }
 
-render::Srgb8Image FromRgba8(const std::vector<uint8_t>& rgba, uint32_t w, uint32_t h) {
-  render::Srgb8Image img;
-  img.width = w, img.height = h, img.channels = 3;
-  img.data.reserve(size_t{w} * h * 3);
-  for (size_t i = 0; i < rgba.size(); i += 4) {
-    img.data.insert(img.data.end(), &rgba[i], &rgba[i + 3]);
-  }
-  return img;
-}
-
 // One renderer of every mode: the point renderer (visibility, probabilistic) and the 3DGS
 // rasteriser of the same kind.
 struct Renderers {
@@ -193,7 +183,7 @@ int main(int argc, char** argv) {
       auto t = Time(draw, reps);
       // The last render as 8-bit sRGB, for the comparison (not timed).
       if (t.ok()) {
-        t->image = gaussian ? FromRgba8(gimage.ToRgba8(), gimage.width, gimage.height)
+        t->image = gaussian ? hvdb::bench::ToSrgb8(gimage)
                             : hvdb::formats::ToSrgb8(image);
       }
       if (!t.ok()) {
