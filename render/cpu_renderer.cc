@@ -141,6 +141,20 @@ HVDB_SIMD_INLINE void ForEachRun(const Splat& s, int tx0, int ty0, float cutoff2
   }
 }
 
+// The nearest fragment depth at each pixel of the tile, into t->zmin (which starts at +inf).
+HVDB_RENDER_CLONES void DepthPass(const Splat* list, size_t n, const View& view, int tx0,
+                                  int ty0, TileBuffers* t) {
+  using internal::Load;
+  using internal::Store;
+  for (size_t k = 0; k < n; ++k) {
+    ForEachRun(list[k], tx0, ty0, view.cutoff2, [&](int at, const auto& l) HVDB_SIMD_LAMBDA {
+      using F = decltype(l.q);
+      F zmin = Load<F>(t->zmin + at);
+      Store(t->zmin + at, internal::Select(l.mask, internal::Min(zmin, l.z), zmin));
+    });
+  }
+}
+
 // Fig. 5.2 as the two-pass GPU method: pass 1 finds the nearest depth at each pixel, pass 2
 // blends every fragment within dz of it (the fuzzy depth test) additively; the resolve
 // normalises by the accumulated weight. Coverage is the sum of all kernels at the pixel
@@ -150,13 +164,7 @@ HVDB_RENDER_CLONES void RasteriseVisibility(const Splat* list, size_t n, const V
   using internal::Load;
   using internal::Store;
   const float c2 = view.cutoff2, dz = view.depth_threshold;
-  for (size_t k = 0; k < n; ++k) {
-    ForEachRun(list[k], tx0, ty0, c2, [&](int at, const auto& l) HVDB_SIMD_LAMBDA {
-      using F = decltype(l.q);
-      F zmin = Load<F>(t->zmin + at);
-      Store(t->zmin + at, internal::Select(l.mask, internal::Min(zmin, l.z), zmin));
-    });
-  }
+  DepthPass(list, n, view, tx0, ty0, t);
   for (size_t k = 0; k < n; ++k) {
     const Splat& s = list[k];
     ForEachRun(s, tx0, ty0, c2, [&](int at, const auto& l) HVDB_SIMD_LAMBDA {
@@ -273,8 +281,8 @@ class CpuRenderer final : public Renderer {
     // Every pixel is written below: buffers of the right size are kept as they are.
     img->width = view.width;
     img->height = view.height;
-    img->rgba.resize(img->pixels() * 4);
-    img->coverage.resize(img->pixels());
+    img->rgba.resize(options.depth_only ? 0 : img->pixels() * 4);
+    img->coverage.resize(options.depth_only ? 0 : img->pixels());
     img->depth.resize(img->pixels());
     const bool probabilistic = options.mode == Mode::kProbabilistic;
     ParallelFor(size_t{tiles_x_} * tiles_y_, threads_, [&](size_t tile) {
@@ -381,9 +389,10 @@ class CpuRenderer final : public Renderer {
       for (int x = 0; x < kTile; ++x) std::memcpy(pattern + 4 * x, empty.rgba, 16);
       for (int y = 0; y < rows; ++y) {
         size_t at = (static_cast<size_t>(ty0 + y)) * view.width + static_cast<size_t>(tx0);
+        std::fill_n(&img->depth[at], cols, std::numeric_limits<float>::infinity());
+        if (o.depth_only) continue;
         std::memcpy(&img->rgba[at * 4], pattern, sizeof(float) * 4 * static_cast<size_t>(cols));
         std::memset(&img->coverage[at], 0, sizeof(float) * static_cast<size_t>(cols));
-        std::fill_n(&img->depth[at], cols, std::numeric_limits<float>::infinity());
       }
       return;
     }
@@ -391,6 +400,14 @@ class CpuRenderer final : public Renderer {
     if (!buffers) buffers = std::make_unique<TileBuffers>();
     TileBuffers* t = buffers.get();
     std::fill_n(t->zmin, kTileFloats, std::numeric_limits<float>::infinity());
+    if (o.depth_only) {  // the nearest depth: either mode's first pass alone
+      DepthPass(list, n, view, tx0, ty0, t);
+      for (int y = 0; y < rows; ++y) {
+        size_t at = (static_cast<size_t>(ty0 + y)) * view.width + static_cast<size_t>(tx0);
+        std::memcpy(&img->depth[at], t->zmin + y * kStride, sizeof(float) * static_cast<size_t>(cols));
+      }
+      return;
+    }
     for (float* f : {t->r, t->g, t->b, t->w, t->a}) std::fill_n(f, kTileFloats, 0.0f);
     if (probabilistic) {
       SortByDepth(list, n, t);

@@ -274,7 +274,8 @@ class EglRenderer final : public Renderer {
                  table.data(), GL_STREAM_DRAW);
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, table_buffer_);
 
-    const bool probabilistic = o.mode == Mode::kProbabilistic;
+    // Depth only: either mode's nearest depth is pass 1's (no sort, no blending pass).
+    const bool probabilistic = o.mode == Mode::kProbabilistic && !o.depth_only;
     std::vector<size_t> counts;
     if (probabilistic) {
       // 5.4.1: "the Gaussians have to be presorted by the CPU according to their depths".
@@ -318,6 +319,7 @@ class EglRenderer final : public Renderer {
       glBlendEquation(GL_MIN);
       glUniform1i(pass_loc, 0);
       DrawChunks(counts);
+      if (o.depth_only) return ReadDepth(view, points.size());
       // Pass 2: additive blending of the fragments that pass the fuzzy depth test.
       glBindFramebuffer(GL_FRAMEBUFFER, fbo_vis_);
       glClearBufferfv(GL_COLOR, 0, zero);
@@ -377,6 +379,24 @@ class EglRenderer final : public Renderer {
     if (e != GL_NO_ERROR) {
       return Status::Internal("EGL renderer: OpenGL error 0x" + std::to_string(e) +
                               " while rendering " + std::to_string(points.size()) + " points");
+    }
+    return img;
+  }
+
+  // Pass 1's nearest depth (fbo_depth_, bound) as the image's depth, nothing else.
+  Result<Image> ReadDepth(const View& view, size_t points) {
+    Image img;
+    img.width = view.width;
+    img.height = view.height;
+    img.depth.resize(img.pixels());
+    glPixelStorei(GL_PACK_ALIGNMENT, 4);
+    glReadBuffer(GL_COLOR_ATTACHMENT0);
+    glReadPixels(0, 0, static_cast<GLsizei>(view.width), static_cast<GLsizei>(view.height), GL_RED,
+                 GL_FLOAT, img.depth.data());
+    GLenum e = glGetError();
+    if (e != GL_NO_ERROR) {
+      return Status::Internal("EGL renderer: OpenGL error 0x" + std::to_string(e) +
+                              " while rendering the depth of " + std::to_string(points) + " points");
     }
     return img;
   }

@@ -2,6 +2,7 @@
 
 #include "formats/image_codec.h"
 #include "render/projective_texture.h"
+#include "render/splat.h"
 
 #include <algorithm>
 #include <chrono>
@@ -15,7 +16,34 @@ namespace hvdb::render {
 
 namespace {
 
-// A stored photo's bytes (PNG or JPEG) as 8-bit RGB of the expected size.
+
+Status Invalid(const std::string& field, const std::string& why) {
+  return Status::InvalidArgument(field + ": " + why);
+}
+
+
+// What an image holds per pixel while a job draws it (float RGBA + depth: 20 bytes; the
+// renderer's accumulators about as much again; the encoded image), for the job's budget.
+constexpr uint64_t kImageBytesPerPixel = 64;
+
+// Replies must fit the client's frame limit (256 MiB) with room to spare.
+constexpr size_t kMaxEncodedImage = 200u << 20;
+
+Status CheckReplySize(const std::string& bytes) {
+  if (bytes.size() <= kMaxEncodedImage) return Status::OK();
+  return Status::LimitExceeded("render: the encoded image has " +
+                               std::to_string(bytes.size() >> 20) +
+                               " MiB, more than a reply may carry; ask for PNG or a smaller size");
+}
+
+}  // namespace
+
+// Prefixes a check's message with the request field it concerns.
+Status InField(const std::string& field, const Status& st) {
+  if (st.ok()) return st;
+  return Status(st.code(), field + ": " + st.message());
+}
+
 Result<std::vector<uint8_t>> DecodeRgb8(const std::string& bytes, uint32_t width, uint32_t height,
                                         const std::string& what) {
   auto decoded = formats::DecodeImage(bytes, what, formats::ImageMode::kColour);
@@ -37,32 +65,6 @@ Result<std::vector<uint8_t>> DecodeRgb8(const std::string& bytes, uint32_t width
   }
   return rgb;
 }
-
-Status Invalid(const std::string& field, const std::string& why) {
-  return Status::InvalidArgument(field + ": " + why);
-}
-
-// Prefixes a check's message with the request field it concerns.
-Status InField(const std::string& field, const Status& st) {
-  if (st.ok()) return st;
-  return Status(st.code(), field + ": " + st.message());
-}
-
-// What an image holds per pixel while a job draws it (float RGBA + depth: 20 bytes; the
-// renderer's accumulators about as much again; the encoded image), for the job's budget.
-constexpr uint64_t kImageBytesPerPixel = 64;
-
-// Replies must fit the client's frame limit (256 MiB) with room to spare.
-constexpr size_t kMaxEncodedImage = 200u << 20;
-
-Status CheckReplySize(const std::string& bytes) {
-  if (bytes.size() <= kMaxEncodedImage) return Status::OK();
-  return Status::LimitExceeded("render: the encoded image has " +
-                               std::to_string(bytes.size() >> 20) +
-                               " MiB, more than a reply may carry; ask for PNG or a smaller size");
-}
-
-}  // namespace
 
 Status CheckPhoto(const Photo& photo) {
   const std::string what = "photo of camera " + std::to_string(photo.camera.id);
@@ -343,45 +345,52 @@ Status RenderJob::Query(const Step& step, const std::atomic<bool>* cancelled,
   QueryOptions q = query_;
   q.lod = step.lod;
   HVDB_ASSIGN_OR_RETURN(auto cursor, dataset_->Query(regions_[step.region], q));
-  Batch batch;
+  // The cursor writes straight into the points' buffer (render/point_buffer.h says why), a
+  // read of up to kRead points at a time (more than a bucket, which a read never splits).
+  constexpr size_t kRead = size_t{1} << 15;  // 2 MiB
+  Batch info;
   for (;;) {
     if ((cancelled != nullptr && *cancelled) || stop_) {
       return Status::Cancelled("render cancelled");
     }
-    HVDB_ASSIGN_OR_RETURN(bool more, cursor->Next(&batch));
-    if (!more) break;
-    if (out->points.size() + batch.points.size() > limits_.max_points) {
-      out->points.clear();
+    HVDB_RETURN_IF_ERROR(limits_.job.CheckTime("render"));
+    PointBuffer& pts = out->points;
+    // The mapping grows ahead by doubling (untouched pages cost nothing); what the points
+    // take is reserved from the job's budget as they arrive, a read at a time.
+    const size_t room = kRead;
+    if (pts.capacity() - pts.size() < room) pts.Reserve(std::max(pts.size() + room, 2 * pts.capacity()));
+    Point* at = pts.Append(room);
+    size_t n = 0;
+    Result<bool> more = cursor->NextInto(at, room, &n, &info);
+    pts.Shrink(room - n);
+    if (!more.ok()) return more.status();
+    if (pts.size() > limits_.max_points) {
+      pts.clear();
       return Status::LimitExceeded("render: the region holds more than " +
                                    std::to_string(limits_.max_points) +
                                    " points, the limit per image; use a coarser lod "
                                    "or a smaller region");
     }
-    HVDB_RETURN_IF_ERROR(limits_.job.CheckTime("render"));
-    // The points' capacity is reserved before the vector grows to it.
-    const size_t need = out->points.size() + batch.points.size();
-    if (need > out->points.capacity()) {
-      const size_t cap = std::max(need, 2 * out->points.capacity());
-      const uint64_t reserved = out->lease.held() / sizeof(Point);
-      if (cap > reserved) {
-        HVDB_RETURN_IF_ERROR(out->lease.Reserve((cap - reserved) * sizeof(Point),
-                                                "render: the region's points"));
+    if (const uint64_t need = pts.size() * sizeof(Point); need > out->lease.held()) {
+      Status st = out->lease.Reserve(need - out->lease.held(), "render: the region's points");
+      if (!st.ok()) {
+        pts.clear();
+        return st;
       }
-      out->points.reserve(cap);
     }
     if (highlight_mask_ != 0 && !gaussian_) {
       // The overlay: selected points' colours blended toward the highlight colour (gaussian
       // mode blends the splats' records instead: MakeCloud).
       const float a = highlight_[3];
-      for (Point& p : batch.points) {
-        if ((p.label & highlight_mask_) == 0) continue;
-        uint8_t* c[3] = {&p.r, &p.g, &p.b};
+      for (Point* p = at; p != at + n; ++p) {
+        if ((p->label & highlight_mask_) == 0) continue;
+        uint8_t* c[3] = {&p->r, &p->g, &p->b};
         for (int k = 0; k < 3; ++k) {
           *c[k] = static_cast<uint8_t>(std::lround((1 - a) * *c[k] + a * 255.f * highlight_[static_cast<size_t>(k)]));
         }
       }
     }
-    out->points.insert(out->points.end(), batch.points.begin(), batch.points.end());
+    if (!more.value()) break;
   }
   if (gaussian_) HVDB_RETURN_IF_ERROR(MakeCloud(out));
   out->region = step.region;
@@ -559,50 +568,6 @@ Status RenderJob::Billboards(const Camera& view, const RenderOptions& o) {
   for (const BillboardSource& b : boards_) tv.push_back({b.camera, b.rgb, b.depth, 0, 0});
   TextureOptions to;
   to.background = o.background;
-  return ProjectiveTexture(drawn, tv, to, &image_);
-}
-
-Status RenderJob::Texture(const Camera& view, const RenderOptions& o, Renderer& renderer) {
-  if (current_.points.empty()) return Status::OK();  // nothing drawn, nothing to colour
-  HVDB_ASSIGN_OR_RETURN(const uint32_t frame, SingleFrame("render.texture"));
-  if (frame != textured_frame_ || current_.lod != textured_lod_) {
-    sources_.clear();
-    HVDB_ASSIGN_OR_RETURN(const std::vector<Photo>* photos, FramePhotos(frame));
-    if (photos->empty()) {
-      return Status::NotFound("render.texture: dataset '" + dataset_->Info().name +
-                              "' has no photos of frame " + std::to_string(frame) +
-                              " (hvdb-ingest stores the colour cameras' images; render without "
-                              "texture to see the points)");
-    }
-    for (const Photo& photo : *photos) {
-      Source src;
-      src.camera = CameraFromInfo(photo.camera);
-      const std::string what = "render.texture: the photo of camera " +
-                               std::to_string(photo.camera.id) + " of frame " + std::to_string(frame);
-      HVDB_RETURN_IF_ERROR(InField(what, src.camera.Validate()));
-      HVDB_ASSIGN_OR_RETURN(src.rgb, DecodeRgb8(photo.image, src.camera.width, src.camera.height, what));
-      // What this camera sees: the same points from its pose, at its size (at half its size
-      // visibility fails more often at silhouettes and on surfaces seen at grazing angles:
-      // 26.2 dB instead of 29.6 dB on the generated recording of the ingest tests).
-      RenderOptions so = o;
-      so.view_dependent = false;
-      so.width = src.camera.width;
-      so.height = src.camera.height;
-      HVDB_RETURN_IF_ERROR(renderer.RenderInto(current_.points, src.camera, so, &src.seen));
-      sources_.push_back(std::move(src));
-    }
-    textured_frame_ = frame;
-    textured_lod_ = current_.lod;
-  }
-  std::vector<TextureView> tv;
-  for (const Source& src : sources_) {
-    tv.push_back({src.camera, src.rgb, src.seen.depth, src.seen.width, src.seen.height});
-  }
-  TextureOptions to;
-  to.background = o.background;
-  const Camera drawn = image_.width == view.width && image_.height == view.height
-                           ? view
-                           : view.Resized(image_.width, image_.height);
   return ProjectiveTexture(drawn, tv, to, &image_);
 }
 

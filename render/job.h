@@ -27,6 +27,7 @@
 #include "render/billboard_render.h"
 #include "render/egl_gaussian.h"
 #include "render/gaussian_raster.h"
+#include "render/point_buffer.h"
 #include "render/renderer.h"
 #include "render/request.h"
 #include "render/shadow.h"
@@ -94,7 +95,7 @@ class RenderJob {
   struct Points {
     size_t region = SIZE_MAX;
     int lod = -1;
-    std::vector<Point> points;
+    PointBuffer points;
     // Gaussian mode: the points as a 3DGS cloud with their records (made once per region and
     // level, shared by the images that show them).
     formats::GaussianCloud cloud;
@@ -191,6 +192,13 @@ class RenderJob {
 
 // A camera of the dataset (storage's CameraInfo) as a render camera: the same fields.
 Camera CameraFromInfo(const CameraInfo& info);
+
+// A stored photo's bytes (PNG or JPEG) as 8-bit RGB of its camera's size; Corruption saying
+// `what` otherwise (stored photos were checked when they were stored).
+Result<std::vector<uint8_t>> DecodeRgb8(const std::string& bytes, uint32_t width, uint32_t height,
+                                        const std::string& what);
+// Prefixes a check's message with the request field it concerns.
+Status InField(const std::string& field, const Status& st);
 
 // Checks a photo before it is stored (hvdb-server's PutPhoto, the embedded backend's): its
 // camera is valid and its image decodes (PNG or JPEG) to the camera's size. InvalidArgument

@@ -95,6 +95,10 @@ struct RenderOptions {
   std::array<float, 4> background{0, 0, 0, 1};
   // 0: the camera's size; else the camera is Resized() to this size first.
   uint32_t width = 0, height = 0;
+  // Only Image::depth: the nearest fragment's depth at each pixel (the depth either mode
+  // reports), rgba and coverage left empty. What projective texturing needs of its source
+  // cameras; it skips the blending pass and the colour resolve and readback.
+  bool depth_only = false;
 };
 
 enum class RendererKind : uint8_t { kAuto, kEgl, kCpu };

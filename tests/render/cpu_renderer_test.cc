@@ -197,6 +197,39 @@ TEST(CpuRendererTest, ThreadCountDoesNotChangeTheImage) {
   }
 }
 
+TEST(CpuRendererTest, DepthOnlyIsTheFullRendersDepth) {
+  // Both modes report the nearest fragment's depth; depth_only computes just that, bit for bit,
+  // and leaves the colour buffers empty (texturing's source views take nothing else).
+  auto pts = Concat(testing::SphereScene(3000), Layer(4.0f, 10, 200, 30, 0, 0.15f));
+  Camera cam = testing::ViewFrom(0.3, 0.4, 1, 6, 171, 97);
+  for (Mode m : {Mode::kVisibility, Mode::kProbabilistic}) {
+    RenderOptions o;
+    o.mode = m;
+    Image full = RenderCpu(pts, cam, o);
+    o.depth_only = true;
+    Image depth = RenderCpu(pts, cam, o);
+    EXPECT_EQ(depth.width, full.width);
+    EXPECT_EQ(depth.height, full.height);
+    EXPECT_EQ(depth.depth, full.depth);
+    EXPECT_TRUE(depth.rgba.empty());
+    EXPECT_TRUE(depth.coverage.empty());
+    size_t finite = 0;
+    for (float z : depth.depth) finite += std::isfinite(z);
+    EXPECT_GT(finite, depth.pixels() / 40);
+    EXPECT_LT(finite, depth.pixels());  // the background stays +inf
+  }
+  // The same renderer alternating: the colour buffers come back for a full render.
+  auto r = MakeCpuRenderer(2);
+  Image img;
+  RenderOptions o;
+  o.depth_only = true;
+  ASSERT_TRUE(r->RenderInto(pts, cam, o, &img).ok());
+  o.depth_only = false;
+  ASSERT_TRUE(r->RenderInto(pts, cam, o, &img).ok());
+  EXPECT_EQ(img.rgba.size(), 4 * img.pixels());
+  EXPECT_EQ(img.coverage.size(), img.pixels());
+}
+
 TEST(CpuRendererTest, SizeOptionScalesTheCamera) {
   RenderOptions o;
   o.width = 100;

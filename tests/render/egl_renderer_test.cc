@@ -111,6 +111,35 @@ TEST_F(EglRendererTest, AgreesWithDistortionLodAndBackground) {
   ExpectAgreement(sphere, cam, o, "probabilistic, resized, transparent");
 }
 
+TEST_F(EglRendererTest, DepthOnlyAgreesWithItsFullRenderAndTheCpu) {
+  auto sphere = testing::SphereScene(6000);
+  Camera cam = testing::ViewFrom(0.3, 0.4, 1, 3.5, 240, 180);
+  auto cpu = MakeCpuRenderer();
+  for (Mode mode : {Mode::kVisibility, Mode::kProbabilistic}) {
+    RenderOptions o;
+    o.mode = mode;
+    auto full = egl_->Render(sphere, cam, o);
+    o.depth_only = true;
+    auto depth = egl_->Render(sphere, cam, o);
+    auto reference = cpu->Render(sphere, cam, o);
+    ASSERT_TRUE(full.ok() && depth.ok() && reference.ok());
+    EXPECT_TRUE(depth->rgba.empty());
+    EXPECT_TRUE(depth->coverage.empty());
+    ASSERT_EQ(depth->depth.size(), full->depth.size());
+    size_t off_full = 0, off_cpu = 0, finite = 0;
+    for (size_t i = 0; i < depth->pixels(); ++i) {
+      const float z = depth->depth[i];
+      finite += std::isfinite(z);
+      off_full += !(z == full->depth[i]);  // (inf == inf)
+      off_cpu += std::isfinite(z) != std::isfinite(reference->depth[i]) ||
+                 (std::isfinite(z) && std::abs(z - reference->depth[i]) > 1e-3f);
+    }
+    EXPECT_GT(finite, depth->pixels() / 10);
+    EXPECT_EQ(off_full, 0u);
+    EXPECT_LE(off_cpu, depth->pixels() / 500 + 2);
+  }
+}
+
 TEST_F(EglRendererTest, RendersLargeAndRepeatedly) {
   // Different sizes one after the other reuse the context; more points than one upload chunk
   // would need a big scene, so check many small renders and a big image instead.

@@ -180,7 +180,7 @@ TEST_F(RenderJobTest, RejectsBadRequestsNamingTheField) {
   auto job = CreateJob(ds_, base, few);
   ASSERT_TRUE(job.ok());
   auto cpu = render::MakeCpuRenderer();
-  EXPECT_EQ((*job)->RenderImage(0, *cpu).status().code(), StatusCode::kLimitExceeded);
+  { auto st = (*job)->RenderImage(0, *cpu).status(); EXPECT_EQ(st.code(), StatusCode::kLimitExceeded) << st.ToString(); }
   std::atomic<bool> cancelled{true};
   auto job2 = CreateJob(ds_, base);
   EXPECT_EQ((*job2)->RenderImage(0, *cpu, &cancelled).status().code(), StatusCode::kCancelled);
