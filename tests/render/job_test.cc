@@ -180,7 +180,8 @@ TEST_F(RenderJobTest, RejectsBadRequestsNamingTheField) {
   auto job = CreateJob(ds_, base, few);
   ASSERT_TRUE(job.ok());
   auto cpu = render::MakeCpuRenderer();
-  { auto st = (*job)->RenderImage(0, *cpu).status(); EXPECT_EQ(st.code(), StatusCode::kLimitExceeded) << st.ToString(); }
+  const Status over = (*job)->RenderImage(0, *cpu).status();
+  EXPECT_EQ(over.code(), StatusCode::kLimitExceeded) << over.ToString();
   std::atomic<bool> cancelled{true};
   auto job2 = CreateJob(ds_, base);
   EXPECT_EQ((*job2)->RenderImage(0, *cpu, &cancelled).status().code(), StatusCode::kCancelled);
