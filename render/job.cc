@@ -346,8 +346,10 @@ Status RenderJob::Query(const Step& step, const std::atomic<bool>* cancelled,
   q.lod = step.lod;
   HVDB_ASSIGN_OR_RETURN(auto cursor, dataset_->Query(regions_[step.region], q));
   // The cursor writes straight into the points' buffer (render/point_buffer.h says why), a
-  // read of up to kRead points at a time (more than a bucket, which a read never splits).
+  // read of up to kRead points at a time: at least a bucket level, which a read never splits
+  // (2 * block / 64 points; blocks are at most 1 MiB).
   constexpr size_t kRead = size_t{1} << 15;  // 2 MiB
+  static_assert(kRead >= 2 * (size_t{1} << 20) / sizeof(Point));
   Batch info;
   for (;;) {
     if ((cancelled != nullptr && *cancelled) || stop_) {

@@ -3,6 +3,7 @@
 // its camera sees the surface, which the depth of the points drawn from that camera decides.
 #include <algorithm>
 #include <cmath>
+#include <exception>
 #include <thread>
 
 #include "render/job.h"
@@ -11,7 +12,7 @@
 
 namespace hvdb::render {
 
-namespace {
+namespace internal {
 
 // A source's depth only decides visibility, within a tolerance, over a 3x3 neighbourhood
 // (projective_texture.cc), so it needs pixels no finer than the splats that make the surface.
@@ -27,7 +28,9 @@ constexpr float kMinSigma = 1.0f;
 constexpr size_t kSample = 4096;  // points looked at (evenly spaced through the frame)
 
 uint32_t SourceDepthScale(std::span<const Point> points, const Camera& camera,
-                          const RenderOptions& o) {
+                          const RenderOptions& options) {
+  RenderOptions o = options;
+  o.width = o.height = 0;  // the camera's own pixels, whatever size the view is drawn at
   auto view = internal::PrepareView(camera, o);
   if (!view.ok() || points.empty()) return 1;
   const std::vector<float> weights;
@@ -54,13 +57,14 @@ uint32_t SourceDepthScale(std::span<const Point> points, const Camera& camera,
   return k;
 }
 
-}  // namespace
+}  // namespace internal
 
 Status RenderJob::Texture(const Camera& view, const RenderOptions& o, Renderer& renderer) {
   if (current_.points.empty()) return Status::OK();  // nothing drawn, nothing to colour
   HVDB_ASSIGN_OR_RETURN(const uint32_t frame, SingleFrame("render.texture"));
   if (frame != textured_frame_ || current_.lod != textured_lod_) {
     sources_.clear();
+    textured_frame_ = UINT32_MAX;  // until every source is ready
     HVDB_ASSIGN_OR_RETURN(const std::vector<Photo>* photos, FramePhotos(frame));
     if (photos->empty()) {
       return Status::NotFound("render.texture: dataset '" + dataset_->Info().name +
@@ -81,11 +85,16 @@ Status RenderJob::Texture(const Camera& view, const RenderOptions& o, Renderer& 
                                std::to_string(photo.camera.id) + " of frame " + std::to_string(frame);
       decoded[i] = InField(what, src.camera.Validate());
       if (!decoded[i].ok()) return;
-      auto rgb = DecodeRgb8(photo.image, src.camera.width, src.camera.height, what);
-      if (rgb.ok()) {
-        src.rgb = std::move(rgb).value();
-      } else {
-        decoded[i] = rgb.status();
+      // Nothing may leave a pool thread (it would end the server): failures become statuses.
+      try {
+        auto rgb = DecodeRgb8(photo.image, src.camera.width, src.camera.height, what);
+        if (rgb.ok()) {
+          src.rgb = std::move(rgb).value();
+        } else {
+          decoded[i] = rgb.status();
+        }
+      } catch (const std::exception& e) {
+        decoded[i] = Status::Internal(what + ": " + e.what());
       }
     });
     for (size_t i = 0; i < sources_.size(); ++i) {
@@ -99,7 +108,7 @@ Status RenderJob::Texture(const Camera& view, const RenderOptions& o, Renderer& 
       RenderOptions so = o;
       so.view_dependent = false;
       so.depth_only = true;  // visibility is all the texturing takes from this render
-      const uint32_t k = SourceDepthScale(current_.points, src.camera, so);
+      const uint32_t k = internal::SourceDepthScale(current_.points, src.camera, so);
       so.width = std::max(1u, src.camera.width / k);
       so.height = std::max(1u, src.camera.height / k);
       Status st = renderer.RenderInto(current_.points, src.camera, so, &src.seen);

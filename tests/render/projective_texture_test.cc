@@ -9,6 +9,7 @@
 
 #include <cmath>
 
+#include "render/job.h"
 #include "render/metrics.h"
 #include "tests/render/test_scenes.h"
 
@@ -152,6 +153,27 @@ TEST(ProjectiveTextureTest, RejectsMismatchedBuffers) {
   TextureOptions bad;
   bad.max_views = 0;
   EXPECT_TRUE(ProjectiveTexture(c, {}, bad, &*ok).IsInvalidArgument());
+}
+
+TEST(ProjectiveTextureTest, SourceDepthIsDrawnSmallerOnlyWhereSplatsSpanPixels) {
+  // The same points seen by a small camera (splats about a pixel) and a 1080p one (several):
+  // only the second's depth is drawn smaller, and the size the view is drawn at does not
+  // change which (it is measured in the source camera's own pixels).
+  const auto sphere = testing::SphereScene(6000);
+  const Camera small = testing::ViewFrom(0.3, 0.4, 1, 3.5, 160, 120);
+  const Camera large = testing::ViewFrom(0.3, 0.4, 1, 3.5, 1920, 1080);
+  RenderOptions o;
+  EXPECT_EQ(internal::SourceDepthScale(sphere, small, o), 1u);
+  const uint32_t k = internal::SourceDepthScale(sphere, large, o);
+  EXPECT_GE(k, 2u);
+  EXPECT_LE(k, 4u);
+  for (uint32_t w : {96u, 3840u}) {
+    o.width = w;
+    o.height = w * 9 / 16;
+    EXPECT_EQ(internal::SourceDepthScale(sphere, large, o), k) << w;
+    EXPECT_EQ(internal::SourceDepthScale(sphere, small, o), 1u) << w;
+  }
+  EXPECT_EQ(internal::SourceDepthScale({}, large, {}), 1u);
 }
 
 }  // namespace
