@@ -404,7 +404,8 @@ class CpuRenderer final : public Renderer {
       DepthPass(list, n, view, tx0, ty0, t);
       for (int y = 0; y < rows; ++y) {
         size_t at = (static_cast<size_t>(ty0 + y)) * view.width + static_cast<size_t>(tx0);
-        std::memcpy(&img->depth[at], t->zmin + y * kStride, sizeof(float) * static_cast<size_t>(cols));
+        std::memcpy(&img->depth[at], t->zmin + y * kStride,
+                    sizeof(float) * static_cast<size_t>(cols));
       }
       return;
     }

@@ -396,7 +396,8 @@ class EglRenderer final : public Renderer {
     GLenum e = glGetError();
     if (e != GL_NO_ERROR) {
       return Status::Internal("EGL renderer: OpenGL error 0x" + std::to_string(e) +
-                              " while rendering the depth of " + std::to_string(points) + " points");
+                              " while rendering the depth of " + std::to_string(points) +
+                              " points");
     }
     return img;
   }

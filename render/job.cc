@@ -2,7 +2,7 @@
 
 #include "formats/image_codec.h"
 #include "render/projective_texture.h"
-#include "render/splat.h"
+#include "render/job/internal.h"
 
 #include <algorithm>
 #include <chrono>
@@ -16,11 +16,9 @@ namespace hvdb::render {
 
 namespace {
 
-
 Status Invalid(const std::string& field, const std::string& why) {
   return Status::InvalidArgument(field + ": " + why);
 }
-
 
 // What an image holds per pixel while a job draws it (float RGBA + depth: 20 bytes; the
 // renderer's accumulators about as much again; the encoded image), for the job's budget.
@@ -38,7 +36,8 @@ Status CheckReplySize(const std::string& bytes) {
 
 }  // namespace
 
-// Prefixes a check's message with the request field it concerns.
+namespace internal {
+
 Status InField(const std::string& field, const Status& st) {
   if (st.ok()) return st;
   return Status(st.code(), field + ": " + st.message());
@@ -65,6 +64,11 @@ Result<std::vector<uint8_t>> DecodeRgb8(const std::string& bytes, uint32_t width
   }
   return rgb;
 }
+
+}  // namespace internal
+
+using internal::DecodeRgb8;
+using internal::InField;
 
 Status CheckPhoto(const Photo& photo) {
   const std::string what = "photo of camera " + std::to_string(photo.camera.id);
@@ -359,12 +363,13 @@ Status RenderJob::Query(const Step& step, const std::atomic<bool>* cancelled,
     PointBuffer& pts = out->points;
     // The mapping grows ahead by doubling (untouched pages cost nothing); what the points
     // take is reserved from the job's budget as they arrive, a read at a time.
-    const size_t room = kRead;
-    if (pts.capacity() - pts.size() < room) pts.Reserve(std::max(pts.size() + room, 2 * pts.capacity()));
-    Point* at = pts.Append(room);
+    if (pts.capacity() - pts.size() < kRead) {
+      pts.Reserve(std::max(pts.size() + kRead, 2 * pts.capacity()));
+    }
+    Point* at = pts.Append(kRead);
     size_t n = 0;
-    Result<bool> more = cursor->NextInto(at, room, &n, &info);
-    pts.Shrink(room - n);
+    Result<bool> more = cursor->NextInto(at, kRead, &n, &info);
+    pts.Shrink(kRead - n);
     if (!more.ok()) return more.status();
     if (pts.size() > limits_.max_points) {
       pts.clear();

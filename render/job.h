@@ -21,7 +21,6 @@
 #include <atomic>
 #include <future>
 #include <memory>
-#include <span>
 #include <string>
 #include <vector>
 
@@ -193,20 +192,6 @@ class RenderJob {
 
 // A camera of the dataset (storage's CameraInfo) as a render camera: the same fields.
 Camera CameraFromInfo(const CameraInfo& info);
-
-// A stored photo's bytes (PNG or JPEG) as 8-bit RGB of its camera's size; Corruption saying
-// `what` otherwise (stored photos were checked when they were stored).
-Result<std::vector<uint8_t>> DecodeRgb8(const std::string& bytes, uint32_t width, uint32_t height,
-                                        const std::string& what);
-// Prefixes a check's message with the request field it concerns.
-Status InField(const std::string& field, const Status& st);
-
-namespace internal {
-// The factor (1, 2 or 4) by which a source camera's depth is drawn smaller for texturing,
-// from the size of the points' splats in that camera's own pixels (job/texture.cc says why).
-uint32_t SourceDepthScale(std::span<const Point> points, const Camera& camera,
-                          const RenderOptions& options);
-}  // namespace internal
 
 // Checks a photo before it is stored (hvdb-server's PutPhoto, the embedded backend's): its
 // camera is valid and its image decodes (PNG or JPEG) to the camera's size. InvalidArgument

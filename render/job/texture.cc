@@ -7,6 +7,7 @@
 #include <thread>
 
 #include "render/job.h"
+#include "render/job/internal.h"
 #include "render/projective_texture.h"
 #include "render/splat.h"
 
@@ -31,14 +32,14 @@ uint32_t SourceDepthScale(std::span<const Point> points, const Camera& camera,
                           const RenderOptions& options) {
   RenderOptions o = options;
   o.width = o.height = 0;  // the camera's own pixels, whatever size the view is drawn at
-  auto view = internal::PrepareView(camera, o);
+  auto view = PrepareView(camera, o);
   if (!view.ok() || points.empty()) return 1;
   const std::vector<float> weights;
   std::vector<float> sigma;
   const size_t step = std::max<size_t>(1, points.size() / kSample);
   for (size_t i = 0; i < points.size(); i += step) {
-    internal::Splat s;
-    if (!internal::ProjectSplat(points[i], *view, weights, &s)) continue;
+    Splat s;
+    if (!ProjectSplat(points[i], *view, weights, &s)) continue;
     // The conic is the screen covariance's inverse: its larger eigenvalue is 1 / the narrower
     // variance, which includes the filter.
     const float mean = 0.5f * (s.ca + s.cc), d = 0.5f * (s.ca - s.cc);
@@ -47,8 +48,9 @@ uint32_t SourceDepthScale(std::span<const Point> points, const Camera& camera,
     sigma.push_back(std::sqrt(std::max(0.0f, 1.0f / largest - view->filter)));
   }
   if (sigma.empty()) return 1;
-  std::nth_element(sigma.begin(), sigma.begin() + static_cast<std::ptrdiff_t>(sigma.size() / 2), sigma.end());
-  const float median = sigma[sigma.size() / 2];
+  const auto mid = sigma.begin() + static_cast<std::ptrdiff_t>(sigma.size() / 2);
+  std::nth_element(sigma.begin(), mid, sigma.end());
+  const float median = *mid;
   uint32_t k = 1;
   while (2 * k <= kMaxScale && median / static_cast<float>(2 * k) >= kMinSigma &&
          camera.width / (2 * k) >= 1 && camera.height / (2 * k) >= 1) {
@@ -59,12 +61,15 @@ uint32_t SourceDepthScale(std::span<const Point> points, const Camera& camera,
 
 }  // namespace internal
 
+using internal::DecodeRgb8;
+using internal::InField;
+
 Status RenderJob::Texture(const Camera& view, const RenderOptions& o, Renderer& renderer) {
   if (current_.points.empty()) return Status::OK();  // nothing drawn, nothing to colour
   HVDB_ASSIGN_OR_RETURN(const uint32_t frame, SingleFrame("render.texture"));
   if (frame != textured_frame_ || current_.lod != textured_lod_) {
     sources_.clear();
-    textured_frame_ = UINT32_MAX;  // until every source is ready
+    textured_frame_ = UINT32_MAX;  // until every source is ready: a failure is not cached
     HVDB_ASSIGN_OR_RETURN(const std::vector<Photo>* photos, FramePhotos(frame));
     if (photos->empty()) {
       return Status::NotFound("render.texture: dataset '" + dataset_->Info().name +
@@ -82,7 +87,8 @@ Status RenderJob::Texture(const Camera& view, const RenderOptions& o, Renderer& 
       Source& src = sources_[i];
       src.camera = CameraFromInfo(photo.camera);
       const std::string what = "render.texture: the photo of camera " +
-                               std::to_string(photo.camera.id) + " of frame " + std::to_string(frame);
+                               std::to_string(photo.camera.id) + " of frame " +
+                               std::to_string(frame);
       decoded[i] = InField(what, src.camera.Validate());
       if (!decoded[i].ok()) return;
       // Nothing may leave a pool thread (it would end the server): failures become statuses.
@@ -98,10 +104,7 @@ Status RenderJob::Texture(const Camera& view, const RenderOptions& o, Renderer& 
       }
     });
     for (size_t i = 0; i < sources_.size(); ++i) {
-      if (!decoded[i].ok()) {
-        sources_.clear();
-        return decoded[i];
-      }
+      HVDB_RETURN_IF_ERROR(decoded[i]);
       Source& src = sources_[i];
       // What this camera sees: the depth of the same points from its pose, at a size that
       // resolves their splats (SourceDepthScale).
@@ -111,11 +114,7 @@ Status RenderJob::Texture(const Camera& view, const RenderOptions& o, Renderer& 
       const uint32_t k = internal::SourceDepthScale(current_.points, src.camera, so);
       so.width = std::max(1u, src.camera.width / k);
       so.height = std::max(1u, src.camera.height / k);
-      Status st = renderer.RenderInto(current_.points, src.camera, so, &src.seen);
-      if (!st.ok()) {
-        sources_.clear();
-        return st;
-      }
+      HVDB_RETURN_IF_ERROR(renderer.RenderInto(current_.points, src.camera, so, &src.seen));
     }
     textured_frame_ = frame;
     textured_lod_ = current_.lod;

@@ -9,7 +9,7 @@
 
 #include <cmath>
 
-#include "render/job.h"
+#include "render/job/internal.h"
 #include "render/metrics.h"
 #include "tests/render/test_scenes.h"
 
