@@ -169,5 +169,31 @@ TEST_F(RenderColourTest, AutoDrawsThePointsWhereTextureCannotHelp) {
   EXPECT_EQ(bad.status().message().rfind("render.texture:", 0), 0u) << bad.status().message();
 }
 
+TEST_F(RenderColourTest, ADamagedStoredPhotoFailsTheTexturedRenderEveryTimeNamingIt) {
+  // Storage takes any bytes (hvdb-server's PutPhoto checks them first): a photo damaged on
+  // disk fails the textured render with Corruption naming the camera and frame, on every try
+  // of the same job (no half-made texture is kept), and the points still draw.
+  const CameraInfo camera = Info("scene", true).cameras[1];
+  Photo damaged;
+  damaged.camera = camera;
+  damaged.image = "\x89PNG\r\n\x1a\n but not a picture";
+  ASSERT_TRUE(ds_->PutPhoto(0, damaged).ok());
+  wire::Render req = Request(0);
+  req.set_texture(true);
+  auto job = CreateJob(ds_, req);
+  ASSERT_TRUE(job.ok());
+  const std::string named = "render.texture: the photo of camera " + std::to_string(camera.id) +
+                            " of frame 0";
+  for (int attempt = 0; attempt < 2; ++attempt) {
+    auto bad = (*job)->Render(0, *cpu_);
+    ASSERT_FALSE(bad.ok()) << attempt;
+    EXPECT_TRUE(bad.status().IsCorruption()) << bad.status().ToString();
+    EXPECT_NE(bad.status().message().find(named), std::string::npos) << bad.status().message();
+  }
+  wire::Render points = Request(0);
+  points.set_mode(wire::RENDER_VISIBILITY);
+  EXPECT_EQ(Draw(points).second.mode_used, "visibility");
+}
+
 }  // namespace
 }  // namespace hvdb
