@@ -171,6 +171,24 @@ void RegisterRun(CLI::App& app, int* rc) {
       ->check(CLI::Range(0, 16))->capture_default_str();
   cmd->add_flag("--no-photos", a->no_photos,
                 "do not store the colour images with the points (textured renders need them)");
+  cmd->add_flag("--gaussians", a->o.gaussians,
+                "fit 3D Gaussian splats (opacity, covariance, SH colour) to each frame's colour "
+                "photos, starting from its points, and store them in a Gaussian-splat dataset; "
+                "frames in order, each warm-started from the one before and re-fitted where its "
+                "photos changed (docs/RECORDING.md, \"Gaussian video\")");
+  cmd->add_option("--fit-iterations", a->o.gaussian.fit.iterations,
+                  "--gaussians: optimisation steps of a frame fitted from its points")
+      ->check(CLI::Range(1, 1000000))->capture_default_str();
+  cmd->add_option("--fit-warm-iterations", a->o.gaussian.warm_iterations,
+                  "--gaussians: steps of a frame warm-started from the one before (0: a third of "
+                  "--fit-iterations)")
+      ->check(CLI::Range(0, 1000000))->capture_default_str();
+  cmd->add_option("--fit-sh-degree", a->o.gaussian.fit.sh_degree,
+                  "--gaussians: spherical-harmonic degree of the colours (0-3)")
+      ->check(CLI::Range(0, 3))->capture_default_str();
+  cmd->add_option("--fit-resolution", a->o.gaussian.resolution_scale,
+                  "--gaussians: photos fitted at 1/N of their size")
+      ->check(CLI::Range(1, 64))->capture_default_str();
   cmd->add_option("--y-threshold", a->y, "photo-consistency: max luminance deviation (0..1)")->capture_default_str();
   cmd->add_option("--uv-threshold", a->uv, "photo-consistency: max chrominance deviation (0..1)")->capture_default_str();
   cmd->add_option("--cache-mb", a->cache_mb, "--data: block cache in MiB")->capture_default_str();
@@ -247,6 +265,12 @@ void RegisterRun(CLI::App& app, int* rc) {
     o.photo.max_dy = a->y;
     o.photo.max_du = o.photo.max_dv = a->uv;
     o.progress = !a->quiet && ::isatty(2);
+    if (a->follow && o.gaussians) {
+      *rc = Fail(Status(StatusCode::kUnsupported,
+          "--gaussians with --follow is not supported yet: ingest the recording once it is "
+          "written (hvdb-ingest run REC --gaussians)"));
+      return;
+    }
     if (a->follow) {
       *rc = RunFollow(a->rec, *backend, o, a->f, a->quiet, a->report);
       return;

@@ -161,25 +161,40 @@ nlohmann::json IngestReport::ToJson() const {
                         {"skipped_invalid", f.skipped_invalid},
                         {"stage_ms", f.stage_ms}};
     if (!f.error.empty()) e["error"] = f.error;
+    if (f.fit) {
+      e["fit"] = {{"iterations", f.fit->iterations}, {"loss", f.fit->loss},
+                  {"psnr_training_views", f.fit->psnr}, {"seconds", f.fit->seconds},
+                  {"splats_in", f.fit->splats_in}, {"splats", f.fit->splats_out}};
+    }
     fr.push_back(e);
   }
   j["frames"] = fr;
   return j;
 }
 
-Status EnsureDataset(client::Backend& backend, const Recording& rec, const std::string& dataset) {
+Status EnsureDataset(client::Backend& backend, const Recording& rec, const std::string& dataset,
+                     bool gaussians) {
   auto info = backend.Describe(dataset);
   if (info.ok()) {
     if (std::abs(info->fps - rec.fps) > 1e-9)
       return Status::InvalidArgument("dataset '" + dataset + "' has " + std::to_string(info->fps) +
                                      " fps but the recording " + std::to_string(rec.fps) +
                                      "; ingest into a new dataset or one of the same rate");
+    if (info->gaussians != gaussians) {
+      return Status::InvalidArgument(
+          "dataset '" + dataset + "' " +
+          (gaussians ? "holds points without Gaussian attributes; --gaussians ingests into a new "
+                       "dataset or a Gaussian-splat one"
+                     : "is a Gaussian-splat dataset; ingest with --gaussians, or into another "
+                       "dataset"));
+    }
     return Status::OK();
   }
   if (!info.status().IsNotFound()) return info.status();
   DatasetInfo d;
   d.name = dataset;
   d.fps = rec.fps;
+  d.gaussians = gaussians;
   // The colour cameras, with the calibration's index as id (Point::camera).
   Status bad;
   auto add = [&](int idx) {
@@ -662,6 +677,16 @@ PreparedFrame PrepareFrame(const Recording& rec, const FrameProcessor& proc,
     }
     d.photos = std::move(photos).value();
   }
+  if (opt.gaussians) {
+    auto views = FrameFitViews(rec, *window[centre], opt.gaussian.resolution_scale);
+    if (!views.ok()) {
+      d.status = views.status();
+      d.points.clear();
+      d.photos.clear();
+      return d;
+    }
+    d.fit_views = std::move(views).value();
+  }
   return d;
 }
 
@@ -675,7 +700,8 @@ Result<uint64_t> CommitFrame(client::Backend& backend, const IngestOptions& opt,
   if (!d.photos.empty()) fr->stage_ms["photos"] = MsSince(t0);
   t0 = Clock::now();
   const uint64_t n = d.points.size();
-  auto loaded = n ? backend.BulkLoad(opt.dataset, fr->dataset_frame, std::move(d.points))
+  auto loaded = n ? backend.BulkLoad(opt.dataset, fr->dataset_frame, std::move(d.points),
+                                     d.gaussians ? &*d.gaussians : nullptr)
                   : Result<uint64_t>(uint64_t{0});
   fr->stage_ms["commit"] = MsSince(t0);
   return loaded;

@@ -20,6 +20,7 @@
 #include <chrono>
 #include <map>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -27,6 +28,7 @@
 
 #include "client/backend.h"
 #include "ingest/billboard.h"
+#include "ingest/gaussian_frames.h"
 #include "ingest/geometric_consistency.h"
 #include "ingest/photo_consistency.h"
 #include "ingest/points.h"
@@ -90,6 +92,11 @@ struct IngestOptions {
   bool skip_invalid = false;
   std::string depth_out;       // if set: DIR/NNNNNN/<camera>.depth.exr of every depth map made
   bool progress = false;       // a progress bar on stderr
+  // Fit Gaussians to each frame's colour photos and store them instead of the points (the
+  // dataset is a Gaussian-splat one): frames in order on one worker, each fit on every core,
+  // each frame warm-started from the one before (ingest/gaussian_frames.h).
+  bool gaussians = false;
+  GaussianFrameOptions gaussian;
 };
 
 struct FrameReport {
@@ -100,7 +107,8 @@ struct FrameReport {
   double valid_depth_pct = 0;  // stereo/depth: pixels with depth / pixels
   uint64_t points = 0, outliers_removed = 0;
   uint64_t skipped_invalid = 0;            // ply: points left out for a NaN or infinite coordinate
-  std::map<std::string, double> stage_ms;  // load, rectify, stereo, points, photo, commit
+  std::map<std::string, double> stage_ms;  // load, rectify, stereo, points, photo, fit, commit
+  std::optional<FitReport> fit;            // --gaussians: the frame's fit
 };
 
 struct IngestReport {
@@ -116,9 +124,11 @@ struct IngestReport {
 // in the calibration, the Point::camera of the points it took.
 CameraInfo ToCameraInfo(const CameraModel& camera, uint16_t id);
 
-// Creates the dataset when it does not exist (fps and colour cameras from the recording).
+// Creates the dataset when it does not exist (fps and colour cameras from the recording; a
+// Gaussian-splat dataset when `gaussians`). An existing one must have the recording's rate and
+// be a Gaussian-splat dataset exactly when `gaussians`.
 Status EnsureDataset(client::Backend& backend, const Recording& recording,
-                     const std::string& dataset);
+                     const std::string& dataset, bool gaussians = false);
 
 // One frame's points, without committing them (tests and benchmarks use it directly).
 class FrameProcessor {
@@ -162,6 +172,8 @@ struct PreparedFrame {
   Status status;               // not ok: a bad frame (nothing to commit)
   std::vector<Point> points;
   std::vector<Photo> photos;
+  std::vector<FitView> fit_views;  // --gaussians: the photos as training views
+  std::optional<GaussianColumns> gaussians;  // --gaussians: the points' Gaussian records
   uint64_t bytes = 0;          // read from the recording for it (its window's frames too)
 };
 

@@ -9,6 +9,7 @@
 #include <mutex>
 #include <thread>
 
+#include "formats/gaussian_points.h"
 #include "ingest/pipeline.h"
 
 namespace hvdb::ingest {
@@ -43,11 +44,24 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
   // By default no more workers than frames: a single frame's stages (stereo, photo-consistency)
   // then get the cores an idle worker would hold (the 8-camera SJTU frame: 2x on two cores).
   if (opt.workers <= 0) opt.workers = std::clamp(last - opt.first, 1, HardwareThreads());
+  // Gaussians: frames in order, each warm-started from the one before; the fit takes every
+  // core, so one worker.
+  if (opt.gaussians) opt.workers = 1;
   if (opt.max_in_flight <= 0) opt.max_in_flight = opt.workers + 1;
   if (opt.stereo.threads <= 0) opt.stereo.threads = std::max(1, HardwareThreads() / opt.workers);
   // Options are checked (and strokes read) before anything is created.
   HVDB_ASSIGN_OR_RETURN(FrameProcessor proc, FrameProcessor::Make(rec, opt));
-  HVDB_RETURN_IF_ERROR(EnsureDataset(backend, rec, opt.dataset));
+  HVDB_RETURN_IF_ERROR(EnsureDataset(backend, rec, opt.dataset, opt.gaussians));
+  GaussianFrameOptions fit_options = opt.gaussian;
+  if (opt.progress && !fit_options.fit.progress) {
+    fit_options.fit.progress = [](int done, int total) {
+      if (done % 10 == 0 || done == total) {
+        std::fprintf(stderr, "\r  fitting Gaussians: iteration %d/%d   ", done, total);
+        std::fflush(stderr);
+      }
+    };
+  }
+  GaussianVideoFitter fitter(fit_options);
 
   const auto t_start = Clock::now();
   IngestReport report;
@@ -99,6 +113,21 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
       const int st = proc.window_radius();
       PreparedFrame d = PrepareFrame(rec, proc, opt, i, std::max(0, i - st),
                                      std::min(rec.frames - 1, i + st), load, &fr);
+      if (opt.gaussians && d.status.ok() && !stop) {
+        const auto t0 = Clock::now();
+        FitReport fit;
+        auto cloud = fitter.Fit(i, std::move(d.fit_views), d.points, &fit);
+        if (cloud.ok()) {
+          d.points.clear();
+          d.gaussians.emplace();
+          formats::CloudToPoints(*cloud, fr.dataset_frame, &d.points, &*d.gaussians);
+          fr.fit = fit;
+          fr.points = d.points.size();
+        } else {
+          d.status = cloud.status();
+        }
+        fr.stage_ms["fit"] = MsSince(t0);
+      }
       Done r;
       r.index = i;
       r.prepared = d.status;

@@ -184,8 +184,12 @@ std::string SbatchScript(const SubmitOptions& o, const std::string& job_dir, int
 Result<SubmitResult> SubmitIngest(const SubmitOptions& o, client::Backend& backend) {
   HVDB_RETURN_IF_ERROR(CheckOptions(o));
   HVDB_ASSIGN_OR_RETURN(Recording rec, OpenRecording(o.recording));
-  // Created here, once, so that the tasks do not race to create it.
-  HVDB_RETURN_IF_ERROR(EnsureDataset(backend, rec, o.dataset));
+  // Created here, once, so that the tasks do not race to create it; a Gaussian-splat dataset
+  // when the tasks fit Gaussians (each chunk's first frame from its points, the rest of the
+  // chunk warm-started, as a local run of the same frames).
+  const bool gaussians = std::find(o.run_options.begin(), o.run_options.end(), "--gaussians") !=
+                         o.run_options.end();
+  HVDB_RETURN_IF_ERROR(EnsureDataset(backend, rec, o.dataset, gaussians));
   if (!o.run_options.empty()) {
     // The run options checked once here (no frames: --count 0) rather than failing every task.
     std::string cmd = ShellQuote(o.ingest_path) + " run " + ShellQuote(o.recording) +

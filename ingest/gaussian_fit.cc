@@ -1,0 +1,426 @@
+// Fitting Gaussians to photos (gaussian_fit.h): 3DGS's training loop on the CPU.
+#include "ingest/gaussian_fit.h"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <numeric>
+#include <random>
+#include <string>
+#include <thread>
+
+#include "ingest/gaussian_loss.h"
+#include "render/gaussian_grad.h"
+
+namespace hvdb::ingest {
+
+namespace {
+
+using formats::GaussianCloud;
+
+// A cloud's arrays as parameter groups: each with its values per splat and learning rate.
+struct Group {
+  std::vector<float> GaussianCloud::*array;
+  float lr;
+};
+
+// Adam (Kingma and Ba 2015) as torch.optim.Adam with 3DGS's eps of 1e-15: first and second
+// moments shaped as the cloud.
+struct Adam {
+  GaussianCloud m, v;
+  int step = 0;
+};
+
+void Resize(GaussianCloud* c, const GaussianCloud& like) {
+  c->sh_degree = like.sh_degree;
+  c->Resize(like.size());
+}
+
+// Rebuilds every per-splat array of `c` from `from` (the new splats' source indices). Where
+// `zero` is true, the new arrays start at 0 (Adam's moments of cloned or split splats).
+void Gather(GaussianCloud* c, const std::vector<uint32_t>& from, bool zero,
+            const std::vector<uint8_t>& fresh) {
+  auto gather = [&](std::vector<float>& a, size_t width) {
+    std::vector<float> out(from.size() * width);
+    for (size_t k = 0; k < from.size(); ++k) {
+      if (zero && fresh[k]) continue;
+      std::copy_n(a.begin() + static_cast<ptrdiff_t>(from[k] * width), width,
+                  out.begin() + static_cast<ptrdiff_t>(k * width));
+    }
+    a.swap(out);
+  };
+  gather(c->position, 3);
+  gather(c->scale, 3);
+  gather(c->rotation, 4);
+  gather(c->opacity, 1);
+  gather(c->sh_dc, 3);
+  gather(c->sh_rest, c->sh_rest_per_splat());
+}
+
+// Raises a cloud's SH degree to `degree`, its new coefficients 0 (the layout is channel-major
+// per splat, so every splat's coefficients move).
+void RaiseDegree(GaussianCloud* c, int degree) {
+  const int from = formats::ShRestPerChannel(c->sh_degree);
+  const int to = formats::ShRestPerChannel(degree);
+  std::vector<float> rest(c->size() * 3 * static_cast<size_t>(to), 0.0f);
+  for (size_t i = 0; i < c->size(); ++i) {
+    for (int ch = 0; ch < 3; ++ch) {
+      for (int j = 0; j < from; ++j) {
+        rest[(i * 3 + ch) * to + j] = c->sh_rest[(i * 3 + ch) * from + j];
+      }
+    }
+  }
+  c->sh_rest.swap(rest);
+  c->sh_degree = degree;
+}
+
+// The radius of the cameras' centres about their mean, times 1.1 (3DGS's getNerfppNorm); 1
+// for a single camera.
+float SceneExtent(const std::vector<FitView>& views) {
+  double mean[3] = {0, 0, 0};
+  for (const FitView& v : views) {
+    for (int k = 0; k < 3; ++k) mean[k] += v.camera.world_from_camera[4 * k + 3] / views.size();
+  }
+  double radius = 0;
+  for (const FitView& v : views) {
+    double d2 = 0;
+    for (int k = 0; k < 3; ++k) {
+      const double d = v.camera.world_from_camera[4 * k + 3] - mean[k];
+      d2 += d * d;
+    }
+    radius = std::max(radius, std::sqrt(d2));
+  }
+  return radius > 0 ? static_cast<float>(radius * 1.1) : 1.0f;
+}
+
+// Which splats some view sees, centre on a set pixel of its mask (a warm start's changed
+// pixels).
+std::vector<uint8_t> SeenOnMasks(const GaussianCloud& cloud, const std::vector<FitView>& views) {
+  std::vector<uint8_t> seen(cloud.size(), 0);
+  for (const FitView& v : views) {
+    const auto& m = v.camera.world_from_camera;  // columns: the camera's axes and centre
+    for (size_t i = 0; i < cloud.size(); ++i) {
+      if (seen[i]) continue;
+      double d[3], c[3] = {0, 0, 0};
+      for (int k = 0; k < 3; ++k) d[k] = cloud.position[3 * i + k] - m[4 * k + 3];
+      for (int r = 0; r < 3; ++r) {
+        for (int k = 0; k < 3; ++k) c[r] += m[4 * k + r] * d[k];  // R^T d
+      }
+      if (c[2] <= 0) continue;
+      const long x = std::lround(v.camera.fx * c[0] / c[2] + v.camera.cx);
+      const long y = std::lround(v.camera.fy * c[1] / c[2] + v.camera.cy);
+      if (x < 0 || y < 0 || x >= static_cast<long>(v.camera.width) ||
+          y >= static_cast<long>(v.camera.height)) {
+        continue;
+      }
+      seen[i] = v.mask[static_cast<size_t>(y) * v.camera.width + static_cast<size_t>(x)] != 0;
+    }
+  }
+  return seen;
+}
+
+// Zeroes the gradient (and the densification statistic) of splats not `active`: Adam then
+// leaves them exactly as they are.
+void Freeze(const std::vector<uint8_t>& active, GaussianCloud* grad, std::vector<float>* screen) {
+  const size_t rest = grad->sh_rest_per_splat();
+  for (size_t i = 0; i < active.size(); ++i) {
+    if (active[i]) continue;
+    std::fill_n(&grad->position[3 * i], 3, 0.0f);
+    std::fill_n(&grad->scale[3 * i], 3, 0.0f);
+    std::fill_n(&grad->rotation[4 * i], 4, 0.0f);
+    grad->opacity[i] = 0.0f;
+    std::fill_n(&grad->sh_dc[3 * i], 3, 0.0f);
+    if (rest > 0) std::fill_n(&grad->sh_rest[rest * i], rest, 0.0f);
+    (*screen)[i] = 0.0f;
+  }
+}
+
+}  // namespace
+
+std::vector<uint8_t> ChangedPixels(const std::vector<float>& before, const std::vector<float>& now,
+                                   int width, int height, float threshold, int grow) {
+  const size_t pixels = static_cast<size_t>(width) * height;
+  std::vector<uint8_t> changed(pixels, 0), out(pixels, 0);
+  for (size_t i = 0; i < pixels; ++i) {
+    for (int ch = 0; ch < 3; ++ch) {
+      if (std::fabs(before[3 * i + ch] - now[3 * i + ch]) > threshold) changed[i] = 1;
+    }
+  }
+  // Grown by a square of radius `grow`, separably: a pixel is set when a window of 2 grow + 1
+  // along the row, then along the column, holds a set pixel (prefix counts).
+  std::vector<uint8_t> rows(pixels, 0);
+  std::vector<int> count(static_cast<size_t>(std::max(width, height)) + 1);
+  auto window = [&](auto at, int n, auto set) {
+    count[0] = 0;
+    for (int k = 0; k < n; ++k) count[k + 1] = count[k] + (at(k) ? 1 : 0);
+    for (int k = 0; k < n; ++k) {
+      if (count[std::min(n, k + grow + 1)] - count[std::max(0, k - grow)] > 0) set(k);
+    }
+  };
+  for (int y = 0; y < height; ++y) {
+    const size_t row = static_cast<size_t>(y) * width;
+    window([&](int x) { return changed[row + x] != 0; }, width, [&](int x) { rows[row + x] = 1; });
+  }
+  for (int x = 0; x < width; ++x) {
+    window([&](int y) { return rows[static_cast<size_t>(y) * width + x] != 0; }, height,
+           [&](int y) { out[static_cast<size_t>(y) * width + x] = 1; });
+  }
+  return out;
+}
+
+double Psnr(std::span<const float> render, std::span<const float> target) {
+  double se = 0;
+  for (size_t i = 0; i < render.size(); ++i) {
+    const double a = std::clamp(render[i], 0.0f, 1.0f), b = std::clamp(target[i], 0.0f, 1.0f);
+    se += (a - b) * (a - b);
+  }
+  const double mse = se / std::max<size_t>(1, render.size());
+  return mse > 0 ? 10.0 * std::log10(1.0 / mse) : 200.0;
+}
+
+GaussianCloud CloudFromPoints(std::span<const Point> points, int sh_degree) {
+  GaussianCloud c;
+  c.sh_degree = sh_degree;
+  c.Resize(points.size());
+  for (size_t i = 0; i < points.size(); ++i) {
+    const Point& p = points[i];
+    c.position[3 * i] = p.x, c.position[3 * i + 1] = p.y, c.position[3 * i + 2] = p.z;
+    Eigen::Matrix3d cov;
+    cov << p.cov[0], p.cov[1], p.cov[2], p.cov[1], p.cov[3], p.cov[4], p.cov[2], p.cov[4],
+        p.cov[5];
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
+    Eigen::Matrix3d R = eig.eigenvectors();
+    if (R.determinant() < 0) R.col(2) = -R.col(2);
+    const Eigen::Quaterniond q(R);
+    for (int k = 0; k < 3; ++k) {
+      const double var = std::max(eig.eigenvalues()[k], 1e-14);
+      c.scale[3 * i + k] = static_cast<float>(0.5 * std::log(var));
+    }
+    c.rotation[4 * i] = static_cast<float>(q.w());
+    c.rotation[4 * i + 1] = static_cast<float>(q.x());
+    c.rotation[4 * i + 2] = static_cast<float>(q.y());
+    c.rotation[4 * i + 3] = static_cast<float>(q.z());
+    c.opacity[i] = formats::Logit(0.1f);
+    const uint8_t rgb[3] = {p.r, p.g, p.b};
+    for (int ch = 0; ch < 3; ++ch) {
+      c.sh_dc[3 * i + ch] = static_cast<float>((rgb[ch] / 255.0 - 0.5) / formats::kShC0);
+    }
+  }
+  return c;
+}
+
+Status FitGaussians(const std::vector<FitView>& views, const FitOptions& o, GaussianCloud* cloud,
+                    FitReport* report) {
+  const auto start = std::chrono::steady_clock::now();
+  if (views.empty()) return Status::InvalidArgument("fit: no training views");
+  for (size_t k = 0; k < views.size(); ++k) {
+    const auto& cam = views[k].camera;
+    if (views[k].rgb.size() != 3ull * cam.width * cam.height) {
+      return Status::InvalidArgument("fit: view " + std::to_string(k) + " holds " +
+                                     std::to_string(views[k].rgb.size()) + " values, its " +
+                                     std::to_string(cam.width) + "x" + std::to_string(cam.height) +
+                                     " camera needs 3 a pixel");
+    }
+  }
+  if (o.iterations < 0 || o.sh_degree < 0 || o.sh_degree > formats::kMaxShDegree ||
+      o.sh_degree_interval < 1 || o.lambda_dssim < 0 || o.lambda_dssim > 1 ||
+      o.densify_interval < 1 || o.threads < 0) {
+    return Status::InvalidArgument(
+        "fit: options out of range (iterations >= 0, sh_degree 0..3, intervals >= 1, "
+        "lambda_dssim 0..1, threads >= 0)");
+  }
+  HVDB_RETURN_IF_ERROR(formats::ValidateGaussianCloud(*cloud, "the starting cloud"));
+  if (cloud->size() == 0) return Status::InvalidArgument("fit: the starting cloud is empty");
+  cloud->antialiased = false;
+  const unsigned threads =
+      o.threads > 0 ? static_cast<unsigned>(o.threads) : std::max(1u, std::thread::hardware_concurrency());
+  const float extent = SceneExtent(views);
+  FitReport rep;
+  rep.splats_in = cloud->size();
+
+  Adam adam;
+  Resize(&adam.m, *cloud);
+  Resize(&adam.v, *cloud);
+  std::mt19937_64 rng(o.seed);
+  // The views that can drive the fit: those with a pixel in their mask (or without a mask).
+  std::vector<uint32_t> order;
+  for (size_t k = 0; k < views.size(); ++k) {
+    const auto& mask = views[k].mask;
+    if (!mask.empty() && mask.size() != views[k].rgb.size() / 3) {
+      return Status::InvalidArgument("fit: view " + std::to_string(k) +
+                                     "'s mask is not one byte a pixel");
+    }
+    if (mask.empty() != views.front().mask.empty()) {
+      return Status::InvalidArgument("fit: masks are given for some views and not others");
+    }
+    if (mask.empty() || std::find(mask.begin(), mask.end(), 1) != mask.end()) {
+      order.push_back(static_cast<uint32_t>(k));
+    }
+  }
+  const int iterations = order.empty() ? 0 : o.iterations;
+  // With masks: the splats that may change.
+  std::vector<uint8_t> active;
+  if (!views.front().mask.empty()) active = SeenOnMasks(*cloud, views);
+  size_t next_view = order.size();
+  std::vector<double> grad_accum(cloud->size(), 0.0);
+  std::vector<uint32_t> grad_count(cloud->size(), 0);
+  render::GaussianGradRasterizer raster;
+  render::GaussianGradient grad;
+  std::vector<float> image, dL, screen;
+  double epoch_loss = 0;
+  int epoch_views = 0;
+
+  for (int it = 1; it <= iterations; ++it) {
+    // The SH degree grows as 3DGS's oneupSHdegree.
+    if (cloud->sh_degree < o.sh_degree && it % o.sh_degree_interval == 0) {
+      const int d = cloud->sh_degree + 1;
+      RaiseDegree(cloud, d);
+      RaiseDegree(&adam.m, d);
+      RaiseDegree(&adam.v, d);
+    }
+    if (next_view == order.size()) {
+      std::shuffle(order.begin(), order.end(), rng);
+      next_view = 0;
+      if (epoch_views > 0) rep.loss = epoch_loss / epoch_views;
+      epoch_loss = 0;
+      epoch_views = 0;
+    }
+    const FitView& view = views[order[next_view++]];
+    HVDB_RETURN_IF_ERROR(raster.Forward(*cloud, view.camera, o.background, static_cast<int>(threads), &image));
+    const PhotoLoss loss = L1DssimLoss(image, view.rgb, static_cast<int>(view.camera.width),
+                                       static_cast<int>(view.camera.height), o.lambda_dssim,
+                                       threads, &dL);
+    epoch_loss += loss.loss;
+    ++epoch_views;
+    raster.Backward(dL, &grad, &screen);
+    if (!active.empty()) Freeze(active, &grad, &screen);
+    if (o.densify && it < o.densify_until) {
+      for (size_t i = 0; i < cloud->size(); ++i) {
+        if (screen[i] > 0) grad_accum[i] += screen[i], ++grad_count[i];
+      }
+    }
+
+    // Adam, with 3DGS's learning rates; the position's decays exponentially.
+    ++adam.step;
+    const float t = static_cast<float>(it - 1) / std::max(1, o.iterations - 1);
+    const float lr_position =
+        std::exp(std::log(o.lr_position) * (1 - t) + std::log(o.lr_position_final) * t) * extent;
+    const Group groups[] = {{&GaussianCloud::position, lr_position},
+                            {&GaussianCloud::scale, o.lr_scale},
+                            {&GaussianCloud::rotation, o.lr_rotation},
+                            {&GaussianCloud::opacity, o.lr_opacity},
+                            {&GaussianCloud::sh_dc, o.lr_sh_dc},
+                            {&GaussianCloud::sh_rest, o.lr_sh_rest}};
+    const double b1 = 0.9, b2 = 0.999, eps = 1e-15;
+    const double c1 = 1 - std::pow(b1, adam.step), c2 = 1 - std::pow(b2, adam.step);
+    for (const Group& g : groups) {
+      std::vector<float>& p = cloud->*g.array;
+      std::vector<float>& m = adam.m.*g.array;
+      std::vector<float>& v = adam.v.*g.array;
+      const std::vector<float>& d = grad.*g.array;
+      const double step = g.lr / c1;
+      const double root_c2 = std::sqrt(c2);
+      for (size_t k = 0; k < p.size(); ++k) {
+        m[k] = static_cast<float>(b1 * m[k] + (1 - b1) * d[k]);
+        v[k] = static_cast<float>(b2 * v[k] + (1 - b2) * d[k] * d[k]);
+        p[k] -= static_cast<float>(step * m[k] / (std::sqrt(v[k]) / root_c2 + eps));
+      }
+    }
+
+    // Densify and prune (3DGS's densify_and_prune).
+    if (o.densify && it >= o.densify_from && it < o.densify_until && it % o.densify_interval == 0) {
+      const size_t n = cloud->size();
+      std::vector<uint32_t> from;
+      std::vector<uint8_t> fresh;
+      std::vector<std::array<float, 3>> offset;  // split: the new centre's offset
+      std::normal_distribution<float> normal(0.0f, 1.0f);
+      const float big = o.percent_dense * extent;
+      size_t added = 0;  // splats the cloud grows by
+      std::vector<uint8_t> next_active;
+      for (size_t i = 0; i < n; ++i) {
+        if (!active.empty() && !active[i]) {  // frozen: kept as it is
+          from.push_back(static_cast<uint32_t>(i));
+          fresh.push_back(0);
+          offset.push_back({0, 0, 0});
+          next_active.push_back(0);
+          continue;
+        }
+        const bool drop = formats::Sigmoid(cloud->opacity[i]) < o.prune_opacity;
+        const double mean_grad = grad_count[i] > 0 ? grad_accum[i] / grad_count[i] : 0.0;
+        const bool grow = mean_grad >= o.densify_gradient && n + added + 1 < o.max_splats;
+        const float smax = std::exp(std::max({cloud->scale[3 * i], cloud->scale[3 * i + 1],
+                                              cloud->scale[3 * i + 2]}));
+        if (grow && smax > big) {  // split in two, each sampled from the splat
+          for (int k = 0; k < 2; ++k) {
+            from.push_back(static_cast<uint32_t>(i));
+            fresh.push_back(1);
+            offset.push_back({normal(rng), normal(rng), normal(rng)});
+          }
+          ++added;
+          next_active.resize(from.size(), 1);
+          continue;  // the original goes
+        }
+        if (drop) continue;
+        from.push_back(static_cast<uint32_t>(i));
+        fresh.push_back(0);
+        offset.push_back({0, 0, 0});
+        if (grow) {  // clone
+          from.push_back(static_cast<uint32_t>(i));
+          fresh.push_back(1);
+          offset.push_back({0, 0, 0});
+          ++added;
+        }
+        next_active.resize(from.size(), 1);
+      }
+      if (from.empty()) {
+        return Status::InvalidArgument("fit: every splat fell below the pruning opacity " +
+                                       std::to_string(o.prune_opacity));
+      }
+      std::vector<uint8_t> split(from.size(), 0);
+      for (size_t k = 0; k < from.size(); ++k) {
+        split[k] = fresh[k] && (offset[k][0] != 0 || offset[k][1] != 0 || offset[k][2] != 0);
+      }
+      Gather(cloud, from, false, fresh);
+      Gather(&adam.m, from, true, fresh);
+      Gather(&adam.v, from, true, fresh);
+      for (size_t k = 0; k < from.size(); ++k) {
+        if (!split[k]) continue;
+        // The new centre: the splat's own Gaussian sampled (R S z), its scale / (0.8 * 2).
+        float* s = &cloud->scale[3 * k];
+        const float* q = &cloud->rotation[4 * k];
+        const float qn = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+        const float w = qn > 0 ? q[0] / qn : 1, x = qn > 0 ? q[1] / qn : 0;
+        const float y = qn > 0 ? q[2] / qn : 0, z = qn > 0 ? q[3] / qn : 0;
+        const float R[9] = {1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+                            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)};
+        const float sz[3] = {std::exp(s[0]) * offset[k][0], std::exp(s[1]) * offset[k][1],
+                             std::exp(s[2]) * offset[k][2]};
+        for (int r = 0; r < 3; ++r) {
+          cloud->position[3 * k + r] += R[3 * r] * sz[0] + R[3 * r + 1] * sz[1] + R[3 * r + 2] * sz[2];
+        }
+        for (int c = 0; c < 3; ++c) s[c] -= std::log(1.6f);
+      }
+      grad_accum.assign(cloud->size(), 0.0);
+      grad_count.assign(cloud->size(), 0);
+      if (!active.empty()) active.swap(next_active);
+    }
+    if (o.progress) o.progress(it, iterations);
+  }
+  if (epoch_views > 0) rep.loss = epoch_loss / epoch_views;
+
+  double psnr = 0;
+  for (const FitView& view : views) {
+    HVDB_RETURN_IF_ERROR(raster.Forward(*cloud, view.camera, o.background, static_cast<int>(threads), &image));
+    psnr += Psnr(image, view.rgb) / views.size();
+  }
+  rep.psnr = psnr;
+  rep.iterations = iterations;
+  rep.splats_out = cloud->size();
+  rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  if (report != nullptr) *report = rep;
+  return Status::OK();
+}
+
+}  // namespace hvdb::ingest
