@@ -179,12 +179,14 @@ double Psnr(std::span<const float> render, std::span<const float> target) {
   return mse > 0 ? 10.0 * std::log10(1.0 / mse) : 200.0;
 }
 
-GaussianCloud CloudFromPoints(std::span<const Point> points, int sh_degree) {
+GaussianCloud CloudFromPoints(std::span<const Point> points, int sh_degree, size_t max_splats) {
+  const size_t step = max_splats == 0 ? 1 : std::max<size_t>(1, (points.size() + max_splats - 1) / max_splats);
   GaussianCloud c;
   c.sh_degree = sh_degree;
-  c.Resize(points.size());
-  for (size_t i = 0; i < points.size(); ++i) {
-    const Point& p = points[i];
+  c.Resize((points.size() + step - 1) / step);
+  for (size_t i = 0; i < c.size(); ++i) {
+    Point p = points[i * step];
+    for (float& v : p.cov) v *= static_cast<float>(step);
     c.position[3 * i] = p.x, c.position[3 * i + 1] = p.y, c.position[3 * i + 2] = p.z;
     Eigen::Matrix3d cov;
     cov << p.cov[0], p.cov[1], p.cov[2], p.cov[1], p.cov[3], p.cov[4], p.cov[2], p.cov[4],

@@ -17,6 +17,7 @@
 
 #include <array>
 #include <cstdint>
+#include <cstddef>
 #include <functional>
 #include <span>
 #include <vector>
@@ -82,8 +83,11 @@ struct FitReport {
 // The initial cloud of `points` (3DGS initialises from SfM points; these are the frame's
 // probabilistic points, whose covariances are Gaussians already): each point's covariance
 // eigen-decomposed into log scales (floored at 1e-7 m) and a rotation, its colour as the SH
-// DC term, opacity 0.1, SH of degree `sh_degree` with zero higher coefficients.
-formats::GaussianCloud CloudFromPoints(std::span<const Point> points, int sh_degree);
+// DC term, opacity 0.1, SH of degree `sh_degree` with zero higher coefficients. More points than
+// `max_splats`: every k-th is taken (k = ceil(points / max_splats)) and its covariance scaled by
+// k, as the samples of a surface k times sparser are sqrt(k) times further apart.
+formats::GaussianCloud CloudFromPoints(std::span<const Point> points, int sh_degree,
+                                       size_t max_splats = SIZE_MAX);
 
 // Fits `cloud` (in: the start, from CloudFromPoints or a previous frame's fit; out: the result)
 // to `views`. When every view's mask is set and empty (a warm start where nothing moved) the

@@ -25,10 +25,14 @@ Result<FitView> MakeView(const CameraModel& model, const cv::Mat& bgr, const std
         ", camera " + model.name + " is calibrated for " + std::to_string(model.size.width) +
         "x" + std::to_string(model.size.height));
   }
-  cv::Mat pinhole = bgr;
   bool distorted = false;
   for (double d : model.dist) distorted = distorted || d != 0;
-  if (distorted) cv::undistort(bgr, pinhole, cv::Mat(model.K), model.dist);
+  cv::Mat pinhole;
+  if (distorted) {
+    cv::undistort(bgr, pinhole, cv::Mat(model.K), model.dist);
+  } else {
+    pinhole = bgr;
+  }
   const int w = std::max(1, bgr.cols / scale), h = std::max(1, bgr.rows / scale);
   cv::Mat small = pinhole;
   if (w != bgr.cols || h != bgr.rows) cv::resize(pinhole, small, cv::Size(w, h), 0, 0, cv::INTER_AREA);
@@ -111,7 +115,7 @@ Result<formats::GaussianCloud> GaussianVideoFitter::Fit(int index, std::vector<F
       return Status::InvalidArgument("frame " + std::to_string(index) +
                                      " has no points to start its Gaussians from");
     }
-    cloud = CloudFromPoints(points, 0);
+    cloud = CloudFromPoints(points, 0, options_.max_start_splats);
   }
   previous_.reset();
   HVDB_RETURN_IF_ERROR(FitGaussians(views, o, &cloud, report));

@@ -22,6 +22,8 @@ struct GaussianFrameOptions {
   int resolution_scale = 4;
   float change_threshold = 0.06f;  // ChangedPixels' threshold for warm starts
   float warm_position_lr = 5.0f;   // a warm start's initial position rate, times fit's
+  // A frame fitted from its points starts from at most this many (CloudFromPoints).
+  size_t max_start_splats = 200'000;
 };
 
 // The frame's colour photos as training views: undistorted with their calibration (the

@@ -251,6 +251,8 @@ Status GaussianGradRasterizer::Forward(const formats::GaussianCloud& cloud, cons
       const int tx0 = std::max(rx0, x0 / kTile), tx1 = std::min(rx1, x1 / kTile + 1);
       const int ty0 = std::max(ry0, y0 / kTile), ty1 = std::min(ry1, y1 / kTile + 1);
       if (x0 > x1 || y0 > y1 || tx0 >= tx1 || ty0 >= ty1) continue;
+      s.x0 = static_cast<int16_t>(x0), s.x1 = static_cast<int16_t>(x1);
+      s.y0 = static_cast<int16_t>(y0), s.y1 = static_cast<int16_t>(y1);
       rect[i] = {static_cast<uint16_t>(tx0), static_cast<uint16_t>(tx1),
                  static_cast<uint16_t>(ty0), static_cast<uint16_t>(ty1)};
       depth[i] = g.t[2];
@@ -302,6 +304,7 @@ Status GaussianGradRasterizer::Forward(const formats::GaussianCloud& cloud, cons
         uint32_t last = 0;
         for (uint32_t k = begin; k < end; ++k) {
           const Splat& s = splats_[list_[k]];
+          if (x < s.x0 || x > s.x1 || y < s.y0 || y > s.y1) continue;  // alpha < 1/255 there
           const float dx = s.u - static_cast<float>(x), dy = s.v - static_cast<float>(y);
           const float power = -0.5f * (s.A * dx * dx + s.C * dy * dy) - s.B * dx * dy;
           if (power > 0.0f) continue;
@@ -346,6 +349,7 @@ void GaussianGradRasterizer::Backward(const std::vector<float>& dL_drgb, Gaussia
                              background_[2] * dpix[2];
         for (uint32_t k = begin + last_[p]; k-- > begin;) {
           const Splat& s = splats_[list_[k]];
+          if (x < s.x0 || x > s.x1 || y < s.y0 || y > s.y1) continue;
           const float dx = s.u - static_cast<float>(x), dy = s.v - static_cast<float>(y);
           const float power = -0.5f * (s.A * dx * dx + s.C * dy * dy) - s.B * dx * dy;
           if (power > 0.0f) continue;

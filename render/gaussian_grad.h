@@ -62,6 +62,7 @@ class GaussianGradRasterizer {
     float opacity;      // after the sigmoid
     float rgb[3];       // after + 0.5 and the clamp at 0
     uint8_t clamped;    // bit c: channel c was clamped
+    int16_t x0, x1, y0, y1;  // the pixel box where alpha can reach 1/255 (inclusive)
   };
   const formats::GaussianCloud* cloud_ = nullptr;
   Camera camera_;
