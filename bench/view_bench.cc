@@ -267,7 +267,7 @@ int main(int argc, char** argv) {
       return FromMat(bgr);
     };
     const hvdb::render::Srgb8Image ours = render(false), tex = render(true);
-    const std::string textured_mode = default_mode;
+    const std::string textured_mode = default_mode, textured_choice = default_choice;
     // The seven photos' Gaussians, as hvdb-ingest run --gaussians makes and stores them.
     hvdb::render::Srgb8Image fitted;
     double fit_s = 0, fitted_render_s = 0;
@@ -352,6 +352,7 @@ int main(int argc, char** argv) {
       figures.push_back({{"name", "view_fit"}, {"unit", "s"}, {"median", fit_s}, {"params", fp}});
       fit_gains.push_back(psnr_fit - psnr_ours);
       default_mode = textured_mode;
+      default_choice = textured_choice;
     }
     gains.push_back(psnr_ours - psnr_warp);
     std::printf("%s: %zu points from 7 cameras (ingest %.1f s, render %.2f s, default %.2f s): PSNR "

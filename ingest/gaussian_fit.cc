@@ -2,6 +2,7 @@
 #include "ingest/gaussian_fit.h"
 
 #include <Eigen/Dense>
+#include <nanoflann.hpp>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -136,6 +137,21 @@ void Freeze(const std::vector<uint8_t>& active, GaussianCloud* grad, std::vector
   }
 }
 
+// Every step-th point, as nanoflann's dataset adaptor.
+struct KeptPoints {
+  std::span<const Point> pts;
+  size_t step;
+  size_t kdtree_get_point_count() const { return (pts.size() + step - 1) / step; }
+  float kdtree_get_pt(uint32_t i, size_t d) const {
+    const Point& p = pts[i * step];
+    return d == 0 ? p.x : d == 1 ? p.y : p.z;
+  }
+  template <class B>
+  bool kdtree_get_bbox(B&) const {
+    return false;
+  }
+};
+
 }  // namespace
 
 std::vector<uint8_t> ChangedPixels(const std::vector<float>& before, const std::vector<float>& now,
@@ -180,29 +196,47 @@ double Psnr(std::span<const float> render, std::span<const float> target) {
 }
 
 GaussianCloud CloudFromPoints(std::span<const Point> points, int sh_degree, size_t max_splats) {
-  const size_t step = max_splats == 0 ? 1 : std::max<size_t>(1, (points.size() + max_splats - 1) / max_splats);
+  const size_t step =
+      max_splats == 0 ? 1 : std::max<size_t>(1, (points.size() + max_splats - 1) / max_splats);
   GaussianCloud c;
   c.sh_degree = sh_degree;
   c.Resize((points.size() + step - 1) / step);
+  // The kept points' mean squared distance to their 3 nearest kept neighbours (3DGS sizes its
+  // starting splats by it): nanoflann's kd-tree.
+  const KeptPoints kept{points, step};
+  using Tree = nanoflann::KDTreeSingleIndexAdaptor<
+      nanoflann::L2_Simple_Adaptor<float, KeptPoints>, KeptPoints, 3, uint32_t>;
+  Tree tree(3, kept, nanoflann::KDTreeSingleIndexAdaptorParams(10));
   for (size_t i = 0; i < c.size(); ++i) {
     Point p = points[i * step];
-    for (float& v : p.cov) v *= static_cast<float>(step);
-    c.position[3 * i] = p.x, c.position[3 * i + 1] = p.y, c.position[3 * i + 2] = p.z;
     Eigen::Matrix3d cov;
     cov << p.cov[0], p.cov[1], p.cov[2], p.cov[1], p.cov[3], p.cov[4], p.cov[2], p.cov[4],
         p.cov[5];
     Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
+    // Grown (shape and orientation kept) until its widest standard deviation reaches the
+    // neighbours' distance, so that a sparser sample still covers the surface; never shrunk.
+    uint32_t idx[4];
+    float d2[4];
+    nanoflann::KNNResultSet<float, uint32_t> found(4);
+    found.init(idx, d2);
+    const float q[3] = {p.x, p.y, p.z};
+    tree.findNeighbors(found, q, nanoflann::SearchParams());
+    double mean = 0;
+    for (size_t k = 1; k < found.size(); ++k) mean += d2[k] / static_cast<double>(found.size() - 1);
+    const double widest = std::max(eig.eigenvalues()[2], 1e-14);
+    const double grow = found.size() > 1 ? std::max(1.0, mean / widest) : 1.0;
     Eigen::Matrix3d R = eig.eigenvectors();
     if (R.determinant() < 0) R.col(2) = -R.col(2);
-    const Eigen::Quaterniond q(R);
+    const Eigen::Quaterniond qr(R);
     for (int k = 0; k < 3; ++k) {
-      const double var = std::max(eig.eigenvalues()[k], 1e-14);
+      const double var = std::max(eig.eigenvalues()[k] * grow, 1e-14);
       c.scale[3 * i + k] = static_cast<float>(0.5 * std::log(var));
     }
-    c.rotation[4 * i] = static_cast<float>(q.w());
-    c.rotation[4 * i + 1] = static_cast<float>(q.x());
-    c.rotation[4 * i + 2] = static_cast<float>(q.y());
-    c.rotation[4 * i + 3] = static_cast<float>(q.z());
+    c.position[3 * i] = p.x, c.position[3 * i + 1] = p.y, c.position[3 * i + 2] = p.z;
+    c.rotation[4 * i] = static_cast<float>(qr.w());
+    c.rotation[4 * i + 1] = static_cast<float>(qr.x());
+    c.rotation[4 * i + 2] = static_cast<float>(qr.y());
+    c.rotation[4 * i + 3] = static_cast<float>(qr.z());
     c.opacity[i] = formats::Logit(0.1f);
     const uint8_t rgb[3] = {p.r, p.g, p.b};
     for (int ch = 0; ch < 3; ++ch) {

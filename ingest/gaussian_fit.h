@@ -82,10 +82,12 @@ struct FitReport {
 
 // The initial cloud of `points` (3DGS initialises from SfM points; these are the frame's
 // probabilistic points, whose covariances are Gaussians already): each point's covariance
-// eigen-decomposed into log scales (floored at 1e-7 m) and a rotation, its colour as the SH
-// DC term, opacity 0.1, SH of degree `sh_degree` with zero higher coefficients. More points than
-// `max_splats`: every k-th is taken (k = ceil(points / max_splats)) and its covariance scaled by
-// k, as the samples of a surface k times sparser are sqrt(k) times further apart.
+// eigen-decomposed into log scales and a rotation, its colour as the SH DC term, opacity 0.1,
+// SH of degree `sh_degree` with zero higher coefficients. More points than `max_splats`: every
+// k-th is taken (k = ceil(points / max_splats)). A covariance whose widest standard deviation
+// is shorter than the root mean square distance to the point's 3 nearest (kept) neighbours is
+// scaled up to it, shape and orientation kept (3DGS sizes its splats by that distance), so
+// that sparse samples still cover their surface.
 formats::GaussianCloud CloudFromPoints(std::span<const Point> points, int sh_degree,
                                        size_t max_splats = SIZE_MAX);
 

@@ -290,36 +290,56 @@ Status GaussianGradRasterizer::Forward(const formats::GaussianCloud& cloud, cons
     }
   }
 
-  // Blend, per pixel front to back (3DGS eq. 3; forward.cu's renderCUDA).
+  // Blend, per pixel front to back (3DGS eq. 3; forward.cu's renderCUDA). Splat-major within a
+  // tile: each splat in depth order visits only the pixels of its box, each pixel keeping its
+  // own state, which gives every pixel the reference's sequence without testing every splat of
+  // the tile at every pixel.
   const size_t pixels = static_cast<size_t>(v.width) * v.height;
   rgb->assign(3 * pixels, 0.0f);
   final_T_.assign(pixels, 1.0f);
   last_.assign(pixels, 0);
   internal::ParallelFor(tiles, threads_, [&](size_t t) {
-    const int tx = static_cast<int>(t % v.tiles_x), ty = static_cast<int>(t / v.tiles_x);
+    const int x0 = static_cast<int>(t % v.tiles_x) * kTile, y0 = static_cast<int>(t / v.tiles_x) * kTile;
+    const int x1 = std::min(v.width, x0 + kTile) - 1, y1 = std::min(v.height, y0 + kTile) - 1;
+    float T[kTile * kTile], C[kTile * kTile][3] = {};
+    uint32_t last[kTile * kTile] = {};
+    bool done[kTile * kTile] = {};
+    std::fill_n(T, kTile * kTile, 1.0f);
+    int live = (x1 - x0 + 1) * (y1 - y0 + 1);
     const uint32_t begin = tile_start_[t], end = tile_start_[t + 1];
-    for (int y = ty * kTile; y < std::min(v.height, (ty + 1) * kTile); ++y) {
-      for (int x = tx * kTile; x < std::min(v.width, (tx + 1) * kTile); ++x) {
-        float T = 1.0f, C[3] = {0, 0, 0};
-        uint32_t last = 0;
-        for (uint32_t k = begin; k < end; ++k) {
-          const Splat& s = splats_[list_[k]];
-          if (x < s.x0 || x > s.x1 || y < s.y0 || y > s.y1) continue;  // alpha < 1/255 there
-          const float dx = s.u - static_cast<float>(x), dy = s.v - static_cast<float>(y);
+    for (uint32_t k = begin; k < end && live > 0; ++k) {
+      const Splat& s = splats_[list_[k]];
+      const int xa = std::max<int>(s.x0, x0), xb = std::min<int>(s.x1, x1);
+      const int ya = std::max<int>(s.y0, y0), yb = std::min<int>(s.y1, y1);
+      for (int y = ya; y <= yb; ++y) {
+        const float dy = s.v - static_cast<float>(y);
+        for (int x = xa; x <= xb; ++x) {
+          const int p = (y - y0) * kTile + (x - x0);
+          if (done[p]) continue;
+          const float dx = s.u - static_cast<float>(x);
           const float power = -0.5f * (s.A * dx * dx + s.C * dy * dy) - s.B * dx * dy;
           if (power > 0.0f) continue;
           const float alpha = std::min(kMaxAlpha, s.opacity * std::exp(power));
           if (alpha < kMinAlpha) continue;
-          const float test_T = T * (1.0f - alpha);
-          if (test_T < kMinTransmittance) break;
-          for (int ch = 0; ch < 3; ++ch) C[ch] += s.rgb[ch] * alpha * T;
-          T = test_T;
-          last = k - begin + 1;
+          const float test_T = T[p] * (1.0f - alpha);
+          if (test_T < kMinTransmittance) {
+            done[p] = true;
+            --live;
+            continue;
+          }
+          for (int ch = 0; ch < 3; ++ch) C[p][ch] += s.rgb[ch] * alpha * T[p];
+          T[p] = test_T;
+          last[p] = k - begin + 1;
         }
-        const size_t p = static_cast<size_t>(y) * v.width + x;
-        final_T_[p] = T;
-        last_[p] = last;
-        for (int ch = 0; ch < 3; ++ch) (*rgb)[3 * p + ch] = C[ch] + T * background_[ch];
+      }
+    }
+    for (int y = y0; y <= y1; ++y) {
+      for (int x = x0; x <= x1; ++x) {
+        const int p = (y - y0) * kTile + (x - x0);
+        const size_t q = static_cast<size_t>(y) * v.width + x;
+        final_T_[q] = T[p];
+        last_[q] = last[p];
+        for (int ch = 0; ch < 3; ++ch) (*rgb)[3 * q + ch] = C[p][ch] + T[p] * background_[ch];
       }
     }
   });
@@ -333,53 +353,70 @@ void GaussianGradRasterizer::Backward(const std::vector<float>& dL_drgb, Gaussia
   const size_t n = cloud.size();
   const size_t tiles = tile_start_.size() - 1;
 
-  // 1. Per pixel, back to front: each entry's screen-space gradient (backward.cu's renderCUDA).
+  // 1. Per pixel, back to front: each entry's screen-space gradient (backward.cu's renderCUDA),
+  // splat-major within the tile as the forward pass, each pixel from its last contributor.
   std::vector<float> slots(list_.size() * kSlot, 0.0f);
   internal::ParallelFor(tiles, threads_, [&](size_t t) {
-    const int tx = static_cast<int>(t % v.tiles_x), ty = static_cast<int>(t / v.tiles_x);
+    constexpr int kPixels = kTile * kTile;
+    const int x0 = static_cast<int>(t % v.tiles_x) * kTile, y0 = static_cast<int>(t / v.tiles_x) * kTile;
+    const int x1 = std::min(v.width, x0 + kTile) - 1, y1 = std::min(v.height, y0 + kTile) - 1;
     const uint32_t begin = tile_start_[t];
-    for (int y = ty * kTile; y < std::min(v.height, (ty + 1) * kTile); ++y) {
-      for (int x = tx * kTile; x < std::min(v.width, (tx + 1) * kTile); ++x) {
-        const size_t p = static_cast<size_t>(y) * v.width + x;
-        const float* dpix = &dL_drgb[3 * p];
-        const float final_T = final_T_[p];
-        float T = final_T;
-        float accum[3] = {0, 0, 0}, last_colour[3] = {0, 0, 0}, last_alpha = 0.0f;
-        const float bg_dot = background_[0] * dpix[0] + background_[1] * dpix[1] +
-                             background_[2] * dpix[2];
-        for (uint32_t k = begin + last_[p]; k-- > begin;) {
-          const Splat& s = splats_[list_[k]];
-          if (x < s.x0 || x > s.x1 || y < s.y0 || y > s.y1) continue;
-          const float dx = s.u - static_cast<float>(x), dy = s.v - static_cast<float>(y);
+    float T[kPixels], final_T[kPixels], bg_dot[kPixels], last_alpha[kPixels] = {};
+    float dpix[kPixels][3] = {}, accum[kPixels][3] = {}, last_colour[kPixels][3] = {};
+    uint32_t last[kPixels] = {}, most = 0;
+    for (int y = y0; y <= y1; ++y) {
+      for (int x = x0; x <= x1; ++x) {
+        const int p = (y - y0) * kTile + (x - x0);
+        const size_t q = static_cast<size_t>(y) * v.width + x;
+        T[p] = final_T[p] = final_T_[q];
+        last[p] = last_[q];
+        most = std::max(most, last[p]);
+        for (int ch = 0; ch < 3; ++ch) dpix[p][ch] = dL_drgb[3 * q + ch];
+        bg_dot[p] = background_[0] * dpix[p][0] + background_[1] * dpix[p][1] +
+                    background_[2] * dpix[p][2];
+      }
+    }
+    for (uint32_t k = begin + most; k-- > begin;) {
+      const Splat& s = splats_[list_[k]];
+      const int xa = std::max<int>(s.x0, x0), xb = std::min<int>(s.x1, x1);
+      const int ya = std::max<int>(s.y0, y0), yb = std::min<int>(s.y1, y1);
+      float g[kSlot] = {};
+      const uint32_t rank = k - begin;
+      for (int y = ya; y <= yb; ++y) {
+        const float dy = s.v - static_cast<float>(y);
+        for (int x = xa; x <= xb; ++x) {
+          const int p = (y - y0) * kTile + (x - x0);
+          if (rank >= last[p]) continue;  // behind the pixel's last contributor
+          const float dx = s.u - static_cast<float>(x);
           const float power = -0.5f * (s.A * dx * dx + s.C * dy * dy) - s.B * dx * dy;
           if (power > 0.0f) continue;
           const float G = std::exp(power);
           const float raw = s.opacity * G;
           const float alpha = std::min(kMaxAlpha, raw);
           if (alpha < kMinAlpha) continue;
-          T = T / (1.0f - alpha);
-          float* slot = &slots[static_cast<size_t>(k) * kSlot];
+          T[p] = T[p] / (1.0f - alpha);
           // dC/dalpha = T (c - what lies behind, relative to T after this splat).
           float dL_dalpha = 0.0f;
           for (int ch = 0; ch < 3; ++ch) {
-            accum[ch] = last_alpha * last_colour[ch] + (1.0f - last_alpha) * accum[ch];
-            last_colour[ch] = s.rgb[ch];
-            dL_dalpha += (s.rgb[ch] - accum[ch]) * dpix[ch];
-            slot[6 + ch] += alpha * T * dpix[ch];
+            accum[p][ch] = last_alpha[p] * last_colour[p][ch] + (1.0f - last_alpha[p]) * accum[p][ch];
+            last_colour[p][ch] = s.rgb[ch];
+            dL_dalpha += (s.rgb[ch] - accum[p][ch]) * dpix[p][ch];
+            g[6 + ch] += alpha * T[p] * dpix[p][ch];
           }
-          dL_dalpha *= T;
-          last_alpha = alpha;
-          dL_dalpha += (-final_T / (1.0f - alpha)) * bg_dot;  // the background behind
+          dL_dalpha *= T[p];
+          last_alpha[p] = alpha;
+          dL_dalpha += (-final_T[p] / (1.0f - alpha)) * bg_dot[p];  // the background behind
           if (raw >= kMaxAlpha) continue;  // clamped: alpha does not move with G or opacity
-          slot[5] += G * dL_dalpha;
+          g[5] += G * dL_dalpha;
           const float dL_dpower = raw * dL_dalpha;
-          slot[0] += dL_dpower * (-s.A * dx - s.B * dy);
-          slot[1] += dL_dpower * (-s.C * dy - s.B * dx);
-          slot[2] += dL_dpower * (-0.5f * dx * dx);
-          slot[3] += dL_dpower * (-dx * dy);
-          slot[4] += dL_dpower * (-0.5f * dy * dy);
+          g[0] += dL_dpower * (-s.A * dx - s.B * dy);
+          g[1] += dL_dpower * (-s.C * dy - s.B * dx);
+          g[2] += dL_dpower * (-0.5f * dx * dx);
+          g[3] += dL_dpower * (-dx * dy);
+          g[4] += dL_dpower * (-0.5f * dy * dy);
         }
       }
+      std::copy_n(g, kSlot, &slots[static_cast<size_t>(k) * kSlot]);
     }
   });
 
