@@ -599,7 +599,7 @@ int main(int argc, char** argv) {
   std::string write_recordings;
   app.add_option("--write-recordings", write_recordings,
                  "only write the recording.yml/calibration.yml of the real sequences (rec-7scenes, "
-                 "rec-shelf, rec-sjtu, rec-panoptic) into this folder, for timing whole "
+                 "rec-shelf, rec-sjtu, rec-panoptic, rec-panoptic-photos) into this folder, for timing whole "
                  "hvdb-ingest commands (bench/ingest_targets.py), and exit");
   std::vector<std::string> parts = {"generated", "billboard", "real"};
   app.add_option("--parts", parts, "which parts to run")
@@ -607,6 +607,13 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
   if (!write_recordings.empty()) {
     for (const RealSet& s : DescribeRealSets(write_recordings, quick)) std::printf("%s\n", s.dir.c_str());
+    // The Panoptic clouds with their colour cameras (photos and --gaussians).
+    const std::string photos = write_recordings + "/rec-panoptic-photos";
+    if (auto st = hvdb::bench::WritePanopticRecording(kData, photos, quick ? 3 : 16); !st.ok()) {
+      std::fprintf(stderr, "ingest-bench: %s\n", st.ToString().c_str());
+      return 1;
+    }
+    std::printf("%s\n", photos.c_str());
     return 0;
   }
   if (scratch.empty()) {

@@ -1,5 +1,7 @@
 #include "bench/real_recordings.h"
 
+#include <nlohmann/json.hpp>
+
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -24,12 +26,47 @@ std::string Matrix(int rows, int cols, const std::vector<double>& v) {
 }  // namespace
 
 std::string CameraYaml(const std::string& name, int w, int h, double fx, double fy, double cx,
-                       double cy, const std::vector<double>& R, const std::vector<double>& T) {
+                       double cy, const std::vector<double>& R, const std::vector<double>& T,
+                       const std::vector<double>& dist) {
   std::ostringstream o;
   o << "   - name: " << name << "\n     width: " << w << "\n     height: " << h
-    << "\n     K: " << Matrix(3, 3, {fx, 0, cx, 0, fy, cy, 0, 0, 1}) << "     R: " << Matrix(3, 3, R)
-    << "     T: " << Matrix(3, 1, T) << "     reprojection_error: 0.5\n";
+    << "\n     K: " << Matrix(3, 3, {fx, 0, cx, 0, fy, cy, 0, 0, 1});
+  if (!dist.empty()) o << "     dist: " << Matrix(1, static_cast<int>(dist.size()), dist);
+  o << "     R: " << Matrix(3, 3, R) << "     T: " << Matrix(3, 1, T)
+    << "     reprojection_error: 0.5\n";
   return o.str();
+}
+
+Status WritePanopticRecording(const std::string& data, const std::string& dir, int frames) {
+  namespace fs = std::filesystem;
+  const std::string src = data + "/cmu-panoptic-kinoptic-171026-pose3/";
+  std::ifstream in(src + "calibration_171026_pose3.json");
+  if (!in) return Status::NotFound("Panoptic data missing: " + src + "calibration_171026_pose3.json");
+  const nlohmann::json doc = nlohmann::json::parse(in, nullptr, false);
+  if (doc.is_discarded()) return Status::Corruption(src + "calibration_171026_pose3.json: not JSON");
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  std::string cams = "cameras:\n", files = "cameras:\n";
+  for (const auto& c : doc["cameras"]) {
+    if (c.value("type", "") != "kinect-color") continue;
+    const std::string name = c["name"].get<std::string>();
+    std::vector<double> R(9), T(3), dist(5);
+    for (int i = 0; i < 3; ++i) {
+      for (int j = 0; j < 3; ++j) R[3 * i + j] = c["R"][i][j].get<double>();
+      T[i] = c["t"][i][0].get<double>() / 100.0;  // centimetres, as the clouds
+    }
+    for (int i = 0; i < 5; ++i) dist[i] = c["distCoef"][i].get<double>();
+    cams += CameraYaml("\"" + name + "\"", c["resolution"][0].get<int>(), c["resolution"][1].get<int>(),
+                       c["K"][0][0].get<double>(), c["K"][1][1].get<double>(),
+                       c["K"][0][2].get<double>(), c["K"][1][2].get<double>(), R, T, dist);
+    files += "   - { name: \"" + name + "\", colour: \"" + src + "kinectImgs/{camera}/{camera}_{frame:08d}.jpg\" }\n";
+  }
+  WriteYaml(dir + "/calibration.yml", cams);
+  WriteYaml(dir + "/recording.yml",
+            "format: \"hvdb-recording\"\nversion: 1\nkind: \"ply\"\nframes: " +
+                std::to_string(frames) + "\nfps: 29.97\nfirst_frame: 380\nply: \"" + src +
+                "kinoptic_ptclouds/ptcloud_hd{frame:08d}.ply\"\nply_scale: 0.01\n" + files);
+  return Status::OK();
 }
 
 Status WriteSjtuRecording(const std::string& data, const std::string& dir) {

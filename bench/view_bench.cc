@@ -107,7 +107,9 @@ int main(int argc, char** argv) {
   hvdb::ingest::GaussianFrameOptions fit;
   app.add_flag("--gaussians", gaussians, "also fit Gaussians to the seven photos (hvdb-ingest run "
                                          "--gaussians) and render them");
-  app.add_option("--fit-iterations", fit.fit.iterations, "--gaussians: optimisation steps")
+  int fit_iterations = fit.fit.iterations;
+  app.add_option("--fit-iterations", fit_iterations, "--gaussians: optimisation steps (the "
+                                                     "schedule scales with them)")
       ->capture_default_str();
   app.add_option("--fit-resolution", fit.resolution_scale, "--gaussians: photos fitted at 1/N size")
       ->capture_default_str();
@@ -135,6 +137,7 @@ int main(int argc, char** argv) {
   const bool sjtu = std::find(parts.begin(), parts.end(), "sjtu") != parts.end();
   const bool generated = std::find(parts.begin(), parts.end(), "generated") != parts.end();
   if (quick) held = {4}, stride = 4;
+  fit.fit = hvdb::ingest::Scheduled(fit.fit, fit_iterations);
   const bool own_scratch = scratch.empty();
   if (own_scratch) scratch = (fs::temp_directory_path() / ("view-bench-" + std::to_string(getpid()))).string();
   nlohmann::json figures = nlohmann::json::array();

@@ -185,13 +185,26 @@ std::vector<uint8_t> ChangedPixels(const std::vector<float>& before, const std::
   return out;
 }
 
-double Psnr(std::span<const float> render, std::span<const float> target) {
+FitOptions Scheduled(FitOptions o, int iterations) {
+  o.iterations = iterations;
+  o.densify_from = iterations / 15;
+  o.densify_until = iterations * 2 / 3;
+  o.densify_interval = std::max(1, iterations / 15);
+  o.sh_degree_interval = std::max(1, iterations / 4);
+  return o;
+}
+
+double Psnr(std::span<const float> render, std::span<const float> target,
+            std::span<const uint8_t> valid) {
   double se = 0;
+  size_t n = 0;
   for (size_t i = 0; i < render.size(); ++i) {
+    if (!valid.empty() && !valid[i / 3]) continue;
     const double a = std::clamp(render[i], 0.0f, 1.0f), b = std::clamp(target[i], 0.0f, 1.0f);
     se += (a - b) * (a - b);
+    ++n;
   }
-  const double mse = se / std::max<size_t>(1, render.size());
+  const double mse = se / std::max<size_t>(1, n);
   return mse > 0 ? 10.0 * std::log10(1.0 / mse) : 200.0;
 }
 
@@ -223,15 +236,20 @@ GaussianCloud CloudFromPoints(std::span<const Point> points, int sh_degree, size
     tree.findNeighbors(found, q, nanoflann::SearchParams());
     double mean = 0;
     for (size_t k = 1; k < found.size(); ++k) mean += d2[k] / static_cast<double>(found.size() - 1);
-    const double widest = std::max(eig.eigenvalues()[2], 1e-14);
-    const double grow = found.size() > 1 ? std::max(1.0, mean / widest) : 1.0;
+    const double widest = eig.eigenvalues()[2];
     Eigen::Matrix3d R = eig.eigenvectors();
+    double var[3];
+    if (!(widest > 1e-14)) {  // a point without a covariance: round, the neighbours' size
+      R.setIdentity();
+      for (double& v : var) v = found.size() > 1 ? mean : 1e-6;
+    } else {
+      const double grow = found.size() > 1 ? std::max(1.0, mean / widest) : 1.0;
+      // Flat ones keep a hundredth of their width across (3DGS's splats may be thin, not 0).
+      for (int k = 0; k < 3; ++k) var[k] = std::max(eig.eigenvalues()[k] * grow, 1e-4 * widest * grow);
+    }
     if (R.determinant() < 0) R.col(2) = -R.col(2);
     const Eigen::Quaterniond qr(R);
-    for (int k = 0; k < 3; ++k) {
-      const double var = std::max(eig.eigenvalues()[k] * grow, 1e-14);
-      c.scale[3 * i + k] = static_cast<float>(0.5 * std::log(var));
-    }
+    for (int k = 0; k < 3; ++k) c.scale[3 * i + k] = static_cast<float>(0.5 * std::log(var[k]));
     c.position[3 * i] = p.x, c.position[3 * i + 1] = p.y, c.position[3 * i + 2] = p.z;
     c.rotation[4 * i] = static_cast<float>(qr.w());
     c.rotation[4 * i + 1] = static_cast<float>(qr.x());
@@ -283,6 +301,10 @@ Status FitGaussians(const std::vector<FitView>& views, const FitOptions& o, Gaus
   std::vector<uint32_t> order;
   for (size_t k = 0; k < views.size(); ++k) {
     const auto& mask = views[k].mask;
+    if (!views[k].valid.empty() && views[k].valid.size() != views[k].rgb.size() / 3) {
+      return Status::InvalidArgument("fit: view " + std::to_string(k) +
+                                     "'s valid pixels are not one byte a pixel");
+    }
     if (!mask.empty() && mask.size() != views[k].rgb.size() / 3) {
       return Status::InvalidArgument("fit: view " + std::to_string(k) +
                                      "'s mask is not one byte a pixel");
@@ -303,7 +325,7 @@ Status FitGaussians(const std::vector<FitView>& views, const FitOptions& o, Gaus
   std::vector<uint32_t> grad_count(cloud->size(), 0);
   render::GaussianGradRasterizer raster;
   render::GaussianGradient grad;
-  std::vector<float> image, dL, screen;
+  std::vector<float> image, dL, screen, masked;
   double epoch_loss = 0;
   int epoch_views = 0;
 
@@ -324,9 +346,22 @@ Status FitGaussians(const std::vector<FitView>& views, const FitOptions& o, Gaus
     }
     const FitView& view = views[order[next_view++]];
     HVDB_RETURN_IF_ERROR(raster.Forward(*cloud, view.camera, o.background, static_cast<int>(threads), &image));
-    const PhotoLoss loss = L1DssimLoss(image, view.rgb, static_cast<int>(view.camera.width),
+    // Outside the view's valid pixels the target is the render itself: no loss, and the
+    // gradient there is cut below.
+    const std::vector<float>* target = &view.rgb;
+    if (!view.valid.empty()) {
+      masked = view.rgb;
+      for (size_t p = 0; p < view.valid.size(); ++p) {
+        if (!view.valid[p]) std::copy_n(&image[3 * p], 3, &masked[3 * p]);
+      }
+      target = &masked;
+    }
+    const PhotoLoss loss = L1DssimLoss(image, *target, static_cast<int>(view.camera.width),
                                        static_cast<int>(view.camera.height), o.lambda_dssim,
                                        threads, &dL);
+    for (size_t p = 0; p < view.valid.size(); ++p) {
+      if (!view.valid[p]) dL[3 * p] = dL[3 * p + 1] = dL[3 * p + 2] = 0.0f;
+    }
     epoch_loss += loss.loss;
     ++epoch_views;
     raster.Backward(dL, &grad, &screen);
@@ -449,7 +484,7 @@ Status FitGaussians(const std::vector<FitView>& views, const FitOptions& o, Gaus
   double psnr = 0;
   for (const FitView& view : views) {
     HVDB_RETURN_IF_ERROR(raster.Forward(*cloud, view.camera, o.background, static_cast<int>(threads), &image));
-    psnr += Psnr(image, view.rgb) / views.size();
+    psnr += Psnr(image, view.rgb, view.valid) / views.size();
   }
   rep.psnr = psnr;
   rep.iterations = iterations;

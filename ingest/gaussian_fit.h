@@ -39,6 +39,9 @@ struct FitView {
   // densified, and pruned), the others keep their values bit for bit; views with no pixel set
   // are not drawn.
   std::vector<uint8_t> mask;
+  // Empty: every pixel is fitted. Else one byte a pixel: only pixels with a non-zero byte count
+  // in the loss (the frame's geometry covers them: gaussian_frames.h).
+  std::vector<uint8_t> valid;
 };
 
 // The pixels of `now` that differ from `before` (the same camera's photo of the previous frame):
@@ -48,9 +51,11 @@ std::vector<uint8_t> ChangedPixels(const std::vector<float>& before, const std::
                                    int width, int height, float threshold = 0.06f, int grow = 6);
 
 struct FitOptions {
-  int iterations = 1500;
+  // The defaults fit an 8-camera 1080p frame at 1/4 size in a few minutes on 2 cores
+  // (bench/README.md); Scheduled() scales the schedule below to other iteration counts.
+  int iterations = 600;
   int sh_degree = 3;
-  int sh_degree_interval = 500;  // 3DGS: 1000 of 30000
+  int sh_degree_interval = 150;  // 3DGS: 1000 of 30000
   float lambda_dssim = 0.2f;
   // Learning rates (train.py's defaults). The position's is relative to the scene's extent
   // (the radius of the cameras' centres around their mean, times 1.1, as 3DGS's
@@ -60,11 +65,11 @@ struct FitOptions {
   float lr_opacity = 0.025f, lr_scale = 5e-3f, lr_rotation = 1e-3f;
   // Densification and pruning.
   bool densify = true;
-  int densify_from = 100, densify_until = 1000, densify_interval = 100;
+  int densify_from = 40, densify_until = 400, densify_interval = 40;
   float densify_gradient = 2e-4f;
   float percent_dense = 0.01f;  // clone below, split above this fraction of the extent
   float prune_opacity = 0.005f;
-  size_t max_splats = 4'000'000;  // densification stops growing the cloud past this
+  size_t max_splats = 300'000;  // densification stops growing the cloud past this
   std::array<float, 3> background{0, 0, 0};
   uint64_t seed = 1;
   int threads = 0;  // 0: every core
@@ -72,10 +77,14 @@ struct FitOptions {
   std::function<void(int, int)> progress;
 };
 
+// `o` with `iterations` steps and its schedule scaled to them as the defaults are to 600:
+// densification from 1/15 to 2/3 of the steps every 1/15, the SH degree raised every 1/4.
+FitOptions Scheduled(FitOptions o, int iterations);
+
 struct FitReport {
   int iterations = 0;
   double loss = 0;           // the mean loss of the last epoch's views
-  double psnr = 0;           // over every training view at the end (dB)
+  double psnr = 0;           // over every training view's valid pixels at the end (dB)
   double seconds = 0;
   size_t splats_in = 0, splats_out = 0;
 };
@@ -87,7 +96,8 @@ struct FitReport {
 // k-th is taken (k = ceil(points / max_splats)). A covariance whose widest standard deviation
 // is shorter than the root mean square distance to the point's 3 nearest (kept) neighbours is
 // scaled up to it, shape and orientation kept (3DGS sizes its splats by that distance), so
-// that sparse samples still cover their surface.
+// that sparse samples still cover their surface; a point without a covariance (all 0) becomes
+// a round splat of that size, and no axis is left under 1/100 of the widest.
 formats::GaussianCloud CloudFromPoints(std::span<const Point> points, int sh_degree,
                                        size_t max_splats = SIZE_MAX);
 
@@ -98,8 +108,10 @@ formats::GaussianCloud CloudFromPoints(std::span<const Point> points, int sh_deg
 Status FitGaussians(const std::vector<FitView>& views, const FitOptions& options,
                     formats::GaussianCloud* cloud, FitReport* report = nullptr);
 
-// PSNR (dB) of `render` against `target`, both 3 floats a pixel, values clamped to [0, 1].
-double Psnr(std::span<const float> render, std::span<const float> target);
+// PSNR (dB) of `render` against `target`, both 3 floats a pixel, values clamped to [0, 1]; over
+// the pixels `valid` sets (one byte a pixel) when it is not empty.
+double Psnr(std::span<const float> render, std::span<const float> target,
+            std::span<const uint8_t> valid = {});
 
 }  // namespace hvdb::ingest
 

@@ -51,6 +51,29 @@ Result<FitView> MakeView(const CameraModel& model, const cv::Mat& bgr, const std
   return v;
 }
 
+// The pixels of `view` within `radius` pixels of a projected point: where the frame's geometry
+// is (a point cloud clipped to a person leaves the studio around it out of the fit).
+std::vector<uint8_t> Coverage(const FitView& view, const std::vector<Point>& points, int radius) {
+  const auto& cam = view.camera;
+  const int w = static_cast<int>(cam.width), h = static_cast<int>(cam.height);
+  std::vector<uint8_t> hit(static_cast<size_t>(w) * h, 0);
+  const auto& m = cam.world_from_camera;
+  for (const Point& p : points) {
+    const double d[3] = {p.x - m[3], p.y - m[7], p.z - m[11]};
+    double c[3] = {0, 0, 0};
+    for (int r = 0; r < 3; ++r) {
+      for (int k = 0; k < 3; ++k) c[r] += m[4 * k + r] * d[k];
+    }
+    if (c[2] <= 0) continue;
+    const long x = std::lround(cam.fx * c[0] / c[2] + cam.cx);
+    const long y = std::lround(cam.fy * c[1] / c[2] + cam.cy);
+    if (x >= 0 && y >= 0 && x < w && y < h) hit[static_cast<size_t>(y) * w + x] = 1;
+  }
+  cv::Mat in(h, w, CV_8U, hit.data()), out;
+  cv::dilate(in, out, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * radius + 1, 2 * radius + 1)));
+  return std::vector<uint8_t>(out.data, out.data + hit.size());
+}
+
 }  // namespace
 
 Result<std::vector<FitView>> FrameFitViews(const Recording& rec, const FrameInput& frame,
@@ -117,6 +140,7 @@ Result<formats::GaussianCloud> GaussianVideoFitter::Fit(int index, std::vector<F
     }
     cloud = CloudFromPoints(points, 0, options_.max_start_splats);
   }
+  for (FitView& v : views) v.valid = Coverage(v, points, options_.coverage_radius);
   previous_.reset();
   HVDB_RETURN_IF_ERROR(FitGaussians(views, o, &cloud, report));
   for (FitView& v : views) v.mask.clear();

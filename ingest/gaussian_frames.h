@@ -24,6 +24,9 @@ struct GaussianFrameOptions {
   float warm_position_lr = 5.0f;   // a warm start's initial position rate, times fit's
   // A frame fitted from its points starts from at most this many (CloudFromPoints).
   size_t max_start_splats = 200'000;
+  // Each view is fitted where the frame's points are: within this many pixels (at the fitted
+  // size) of a projected point. A cloud clipped to its subject leaves the rest of the photo out.
+  int coverage_radius = 6;
 };
 
 // The frame's colour photos as training views: undistorted with their calibration (the

@@ -89,7 +89,11 @@ std::optional<FileCheck> PlyComplete(int fd, int64_t size) {
 
 std::vector<std::string> FrameFiles(const Recording& r, int i) {
   std::vector<std::string> out;
-  if (r.kind == RecordingKind::kPly) return {r.Path(r.ply, i)};
+  if (r.kind == RecordingKind::kPly) {
+    out.push_back(r.Path(r.ply, i));
+    for (const CameraFiles& cf : r.files) out.push_back(r.Path(cf.colour, i, cf.camera));
+    return out;
+  }
   for (const CameraFiles& cf : r.files) {
     if (r.kind == RecordingKind::kStereo) {
       for (const std::string* p : {&cf.left, &cf.right, &cf.colour}) out.push_back(r.Path(*p, i));
@@ -220,6 +224,8 @@ Result<ReplayReport> ReplayRecording(const std::string& src_dir, const std::stri
       cf.left = fd + src.calibration.cameras[static_cast<size_t>(b.left)].name + ext(sf.left, "");
       cf.right = fd + src.calibration.cameras[static_cast<size_t>(b.right)].name + ext(sf.right, "");
       cf.colour = fd + src.calibration.cameras[static_cast<size_t>(b.colour)].name + ext(sf.colour, "");
+    } else if (src.kind == RecordingKind::kPly) {
+      cf.colour = fd + sf.camera + ".colour" + ext(sf.colour, sf.camera);
     } else {
       cf.colour = fd + sf.camera + ".colour" + ext(sf.colour, sf.camera);
       cf.depth = fd + sf.camera + ".depth" + ext(sf.depth, sf.camera);
@@ -227,7 +233,7 @@ Result<ReplayReport> ReplayRecording(const std::string& src_dir, const std::stri
     }
   }
   // The description first, each renamed into place whole.
-  if (src.kind != RecordingKind::kPly) {
+  if (src.kind != RecordingKind::kPly || !src.files.empty()) {
     const std::string cal = (fs::path(out) / "calibration.yml").string();
     const std::string tmp = (fs::path(out) / ".calibration.tmp.yml").string();
     HVDB_RETURN_IF_ERROR(SaveCalibration(src.calibration, tmp));

@@ -98,6 +98,7 @@ void RegisterRun(CLI::App& app, int* rc) {
     bool no_photo = false, quiet = false, no_geometric = false, no_photos = false;
     std::string subpixel = "auto", filter = "none";
     bool follow = false;
+    int fit_iterations = FitOptions{}.iterations;
     FollowOptions f;
   };
   auto a = std::make_shared<Args>();
@@ -176,8 +177,9 @@ void RegisterRun(CLI::App& app, int* rc) {
                 "photos, starting from its points, and store them in a Gaussian-splat dataset; "
                 "frames in order, each warm-started from the one before and re-fitted where its "
                 "photos changed (docs/RECORDING.md, \"Gaussian video\")");
-  cmd->add_option("--fit-iterations", a->o.gaussian.fit.iterations,
-                  "--gaussians: optimisation steps of a frame fitted from its points")
+  cmd->add_option("--fit-iterations", a->fit_iterations,
+                  "--gaussians: optimisation steps of a frame fitted from its points (the "
+                  "densification and SH schedule scale with them)")
       ->check(CLI::Range(1, 1000000))->capture_default_str();
   cmd->add_option("--fit-warm-iterations", a->o.gaussian.warm_iterations,
                   "--gaussians: steps of a frame warm-started from the one before (0: a third of "
@@ -259,6 +261,7 @@ void RegisterRun(CLI::App& app, int* rc) {
       // which no smoothing undoes (bench/README.md, "Billboards").
       if (subpixel_opt->count() == 0) o.stereo.subpixel = Subpixel::kParabola;
     }
+    o.gaussian.fit = Scheduled(o.gaussian.fit, a->fit_iterations);
     o.photo_consistency = !a->no_photo;
     o.geometric_consistency = !a->no_geometric;
     o.photos = !a->no_photos;

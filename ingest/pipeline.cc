@@ -207,7 +207,7 @@ Status EnsureDataset(client::Backend& backend, const Recording& rec, const std::
   };
   if (rec.kind == RecordingKind::kStereo) {
     for (const auto& b : rec.calibration.bricks) add(b.colour);
-  } else if (rec.kind == RecordingKind::kDepth) {
+  } else {  // depth; ply with colour cameras
     for (const auto& f : rec.files) add(rec.calibration.Find(f.camera));
   }
   HVDB_RETURN_IF_ERROR(bad);

@@ -194,6 +194,19 @@ Result<Recording> OpenRecording(const std::string& dir) {
     return Status::InvalidArgument(yml + ": fps and frame_step must be positive, first_frame >= 0");
   if (r.kind == RecordingKind::kPly) {
     if (!(r.ply_scale > 0)) return Status::InvalidArgument(yml + ": ply_scale must be positive");
+    if (r.files.empty()) return r;
+    // Colour cameras beside the point clouds (photos for textured renders and --gaussians):
+    // calibrated in calibration.yml, in the clouds' units after ply_scale.
+    const std::string cal_path = (fs::path(dir) / "calibration.yml").string();
+    HVDB_ASSIGN_OR_RETURN(r.calibration, LoadCalibration(cal_path));
+    for (auto& cf : r.files) {
+      if (r.calibration.Find(cf.camera) < 0)
+        return Status::InvalidArgument(yml + ": camera '" + cf.camera + "' is not in calibration.yml");
+      if (!cf.depth.empty() || !cf.pose.empty() || !cf.left.empty() || !cf.right.empty())
+        return Status::InvalidArgument(yml + ": camera '" + cf.camera +
+                                       "': a ply recording's cameras have colour images only");
+      if (cf.colour.empty()) cf.colour = "frames/{frame:06d}/{camera}.png";
+    }
     return r;
   }
   if (r.depth_encoding == DepthEncoding::kInverse8 && !(r.z_near > 0 && r.z_far > r.z_near))
@@ -370,6 +383,19 @@ Result<FrameInput> LoadFrame(const Recording& r, int index, bool skip_invalid) {
     HVDB_ASSIGN_OR_RETURN(in.points, formats::ReadPly(path, o, &stats));
     in.skipped_invalid = stats.skipped_non_finite;
     in.bytes_read += size_of(path);
+    // Its colour cameras' photos, as depth views without depth.
+    std::vector<DepthFrameView> photos(r.files.size());
+    const Status read = ForEachCamera(r.files.size(), [&](size_t k) -> Status {
+      const CameraFiles& cf = r.files[k];
+      DepthFrameView& v = photos[k];
+      v.camera = cal.Find(cf.camera);
+      v.model = cal.cameras[static_cast<size_t>(v.camera)];
+      v.colour_path = r.Path(cf.colour, index, cf.camera);
+      HVDB_ASSIGN_OR_RETURN(v.colour, ReadImage(v.colour_path, cv::IMREAD_COLOR, "colour"));
+      return CheckSize(v.colour, v.model.size, v.colour_path, cf.camera);
+    });
+    HVDB_RETURN_IF_ERROR(read);
+    for (DepthFrameView& v : photos) in.bytes_read += size_of(v.colour_path), in.depth.push_back(std::move(v));
     return in;
   }
   if (r.kind == RecordingKind::kStereo) {

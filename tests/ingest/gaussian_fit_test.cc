@@ -131,7 +131,7 @@ std::vector<FitView> Photograph(const GaussianCloud& g, const std::vector<render
   for (const auto& cam : cams) {
     render::GaussianImage img;
     EXPECT_TRUE(render::RenderGaussians(g, cam, {}, &img).ok());
-    views.push_back({cam, img.rgb, {}});
+    views.push_back({cam, img.rgb, {}, {}});
   }
   return views;
 }
