@@ -53,7 +53,7 @@ Status WritePanopticRecording(const std::string& data, const std::string& dir, i
     std::vector<double> R(9), T(3), dist(5);
     for (int i = 0; i < 3; ++i) {
       for (int j = 0; j < 3; ++j) R[3 * i + j] = c["R"][i][j].get<double>();
-      T[i] = c["t"][i][0].get<double>() / 100.0;  // centimetres, as the clouds
+      T[i] = c["t"][i][0].get<double>() / 100.0;  // cm to m, as the clouds after ply_scale
     }
     for (int i = 0; i < 5; ++i) dist[i] = c["distCoef"][i].get<double>();
     cams += CameraYaml("\"" + name + "\"", c["resolution"][0].get<int>(), c["resolution"][1].get<int>(),

@@ -2,10 +2,10 @@
 #include "ingest/gaussian_fit.h"
 
 #include <Eigen/Dense>
-#include <nanoflann.hpp>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <nanoflann.hpp>
 #include <numeric>
 #include <random>
 #include <string>
@@ -133,7 +133,7 @@ void Freeze(const std::vector<uint8_t>& active, GaussianCloud* grad, std::vector
     grad->opacity[i] = 0.0f;
     std::fill_n(&grad->sh_dc[3 * i], 3, 0.0f);
     if (rest > 0) std::fill_n(&grad->sh_rest[rest * i], rest, 0.0f);
-    (*screen)[i] = 0.0f;
+    (*screen)[i] = -1.0f;  // not counted for densification
   }
 }
 
@@ -204,7 +204,8 @@ double Psnr(std::span<const float> render, std::span<const float> target,
     se += (a - b) * (a - b);
     ++n;
   }
-  const double mse = se / std::max<size_t>(1, n);
+  if (n == 0) return std::nan("");
+  const double mse = se / static_cast<double>(n);
   return mse > 0 ? 10.0 * std::log10(1.0 / mse) : 200.0;
 }
 
@@ -217,14 +218,13 @@ GaussianCloud CloudFromPoints(std::span<const Point> points, int sh_degree, size
   // The kept points' mean squared distance to their 3 nearest kept neighbours (3DGS sizes its
   // starting splats by it): nanoflann's kd-tree.
   const KeptPoints kept{points, step};
-  using Tree = nanoflann::KDTreeSingleIndexAdaptor<
-      nanoflann::L2_Simple_Adaptor<float, KeptPoints>, KeptPoints, 3, uint32_t>;
+  using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, KeptPoints>,
+                                                   KeptPoints, 3, uint32_t>;
   Tree tree(3, kept, nanoflann::KDTreeSingleIndexAdaptorParams(10));
   for (size_t i = 0; i < c.size(); ++i) {
     Point p = points[i * step];
     Eigen::Matrix3d cov;
-    cov << p.cov[0], p.cov[1], p.cov[2], p.cov[1], p.cov[3], p.cov[4], p.cov[2], p.cov[4],
-        p.cov[5];
+    cov << p.cov[0], p.cov[1], p.cov[2], p.cov[1], p.cov[3], p.cov[4], p.cov[2], p.cov[4], p.cov[5];
     Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
     // Grown (shape and orientation kept) until its widest standard deviation reaches the
     // neighbours' distance, so that a sparser sample still covers the surface; never shrunk.
@@ -241,11 +241,13 @@ GaussianCloud CloudFromPoints(std::span<const Point> points, int sh_degree, size
     double var[3];
     if (!(widest > 1e-14)) {  // a point without a covariance: round, the neighbours' size
       R.setIdentity();
-      for (double& v : var) v = found.size() > 1 ? mean : 1e-6;
+      // (at least 1 mm: neighbours may share the point's position)
+      for (double& v : var) v = std::max(found.size() > 1 ? mean : 1e-6, 1e-6);
     } else {
       const double grow = found.size() > 1 ? std::max(1.0, mean / widest) : 1.0;
       // Flat ones keep a hundredth of their width across (3DGS's splats may be thin, not 0).
-      for (int k = 0; k < 3; ++k) var[k] = std::max(eig.eigenvalues()[k] * grow, 1e-4 * widest * grow);
+      for (int k = 0; k < 3; ++k)
+        var[k] = std::max(eig.eigenvalues()[k] * grow, 1e-4 * widest * grow);
     }
     if (R.determinant() < 0) R.col(2) = -R.col(2);
     const Eigen::Quaterniond qr(R);
@@ -287,8 +289,8 @@ Status FitGaussians(const std::vector<FitView>& views, const FitOptions& o, Gaus
   HVDB_RETURN_IF_ERROR(formats::ValidateGaussianCloud(*cloud, "the starting cloud"));
   if (cloud->size() == 0) return Status::InvalidArgument("fit: the starting cloud is empty");
   cloud->antialiased = false;
-  const unsigned threads =
-      o.threads > 0 ? static_cast<unsigned>(o.threads) : std::max(1u, std::thread::hardware_concurrency());
+  const unsigned threads = o.threads > 0 ? static_cast<unsigned>(o.threads)
+                                         : std::max(1u, std::thread::hardware_concurrency());
   const float extent = SceneExtent(views);
   FitReport rep;
   rep.splats_in = cloud->size();
@@ -312,7 +314,7 @@ Status FitGaussians(const std::vector<FitView>& views, const FitOptions& o, Gaus
     if (mask.empty() != views.front().mask.empty()) {
       return Status::InvalidArgument("fit: masks are given for some views and not others");
     }
-    if (mask.empty() || std::find(mask.begin(), mask.end(), 1) != mask.end()) {
+    if (mask.empty() || std::any_of(mask.begin(), mask.end(), [](uint8_t b) { return b != 0; })) {
       order.push_back(static_cast<uint32_t>(k));
     }
   }
@@ -345,7 +347,8 @@ Status FitGaussians(const std::vector<FitView>& views, const FitOptions& o, Gaus
       epoch_views = 0;
     }
     const FitView& view = views[order[next_view++]];
-    HVDB_RETURN_IF_ERROR(raster.Forward(*cloud, view.camera, o.background, static_cast<int>(threads), &image));
+    HVDB_RETURN_IF_ERROR(
+        raster.Forward(*cloud, view.camera, o.background, static_cast<int>(threads), &image));
     // Outside the view's valid pixels the target is the render itself: no loss, and the
     // gradient there is cut below.
     const std::vector<float>* target = &view.rgb;
@@ -356,9 +359,9 @@ Status FitGaussians(const std::vector<FitView>& views, const FitOptions& o, Gaus
       }
       target = &masked;
     }
-    const PhotoLoss loss = L1DssimLoss(image, *target, static_cast<int>(view.camera.width),
-                                       static_cast<int>(view.camera.height), o.lambda_dssim,
-                                       threads, &dL);
+    const PhotoLoss loss =
+        L1DssimLoss(image, *target, static_cast<int>(view.camera.width),
+                    static_cast<int>(view.camera.height), o.lambda_dssim, threads, &dL);
     for (size_t p = 0; p < view.valid.size(); ++p) {
       if (!view.valid[p]) dL[3 * p] = dL[3 * p + 1] = dL[3 * p + 2] = 0.0f;
     }
@@ -368,7 +371,8 @@ Status FitGaussians(const std::vector<FitView>& views, const FitOptions& o, Gaus
     if (!active.empty()) Freeze(active, &grad, &screen);
     if (o.densify && it < o.densify_until) {
       for (size_t i = 0; i < cloud->size(); ++i) {
-        if (screen[i] > 0) grad_accum[i] += screen[i], ++grad_count[i];
+        // Every view that draws the splat counts, as 3DGS's denominator (visible: radius > 0).
+        if (screen[i] >= 0) grad_accum[i] += screen[i], ++grad_count[i];
       }
     }
 
@@ -377,12 +381,10 @@ Status FitGaussians(const std::vector<FitView>& views, const FitOptions& o, Gaus
     const float t = static_cast<float>(it - 1) / std::max(1, o.iterations - 1);
     const float lr_position =
         std::exp(std::log(o.lr_position) * (1 - t) + std::log(o.lr_position_final) * t) * extent;
-    const Group groups[] = {{&GaussianCloud::position, lr_position},
-                            {&GaussianCloud::scale, o.lr_scale},
-                            {&GaussianCloud::rotation, o.lr_rotation},
-                            {&GaussianCloud::opacity, o.lr_opacity},
-                            {&GaussianCloud::sh_dc, o.lr_sh_dc},
-                            {&GaussianCloud::sh_rest, o.lr_sh_rest}};
+    const Group groups[] = {
+        {&GaussianCloud::position, lr_position},   {&GaussianCloud::scale, o.lr_scale},
+        {&GaussianCloud::rotation, o.lr_rotation}, {&GaussianCloud::opacity, o.lr_opacity},
+        {&GaussianCloud::sh_dc, o.lr_sh_dc},       {&GaussianCloud::sh_rest, o.lr_sh_rest}};
     const double b1 = 0.9, b2 = 0.999, eps = 1e-15;
     const double c1 = 1 - std::pow(b1, adam.step), c2 = 1 - std::pow(b2, adam.step);
     for (const Group& g : groups) {
@@ -420,8 +422,9 @@ Status FitGaussians(const std::vector<FitView>& views, const FitOptions& o, Gaus
         const bool drop = formats::Sigmoid(cloud->opacity[i]) < o.prune_opacity;
         const double mean_grad = grad_count[i] > 0 ? grad_accum[i] / grad_count[i] : 0.0;
         const bool grow = mean_grad >= o.densify_gradient && n + added + 1 < o.max_splats;
-        const float smax = std::exp(std::max({cloud->scale[3 * i], cloud->scale[3 * i + 1],
-                                              cloud->scale[3 * i + 2]}));
+        const float smax = std::exp(
+            std::max({cloud->scale[3 * i], cloud->scale[3 * i + 1], cloud->scale[3 * i + 2]}));
+        if (drop) continue;        // (3DGS prunes after splitting: the children would go too)
         if (grow && smax > big) {  // split in two, each sampled from the splat
           for (int k = 0; k < 2; ++k) {
             from.push_back(static_cast<uint32_t>(i));
@@ -432,7 +435,6 @@ Status FitGaussians(const std::vector<FitView>& views, const FitOptions& o, Gaus
           next_active.resize(from.size(), 1);
           continue;  // the original goes
         }
-        if (drop) continue;
         from.push_back(static_cast<uint32_t>(i));
         fresh.push_back(0);
         offset.push_back({0, 0, 0});
@@ -463,13 +465,15 @@ Status FitGaussians(const std::vector<FitView>& views, const FitOptions& o, Gaus
         const float qn = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
         const float w = qn > 0 ? q[0] / qn : 1, x = qn > 0 ? q[1] / qn : 0;
         const float y = qn > 0 ? q[2] / qn : 0, z = qn > 0 ? q[3] / qn : 0;
-        const float R[9] = {1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-                            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-                            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)};
+        const float R[9] = {
+            1 - 2 * (y * y + z * z), 2 * (x * y - w * z),     2 * (x * z + w * y),
+            2 * (x * y + w * z),     1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y),     2 * (y * z + w * x),     1 - 2 * (x * x + y * y)};
         const float sz[3] = {std::exp(s[0]) * offset[k][0], std::exp(s[1]) * offset[k][1],
                              std::exp(s[2]) * offset[k][2]};
         for (int r = 0; r < 3; ++r) {
-          cloud->position[3 * k + r] += R[3 * r] * sz[0] + R[3 * r + 1] * sz[1] + R[3 * r + 2] * sz[2];
+          cloud->position[3 * k + r] +=
+              R[3 * r] * sz[0] + R[3 * r + 1] * sz[1] + R[3 * r + 2] * sz[2];
         }
         for (int c = 0; c < 3; ++c) s[c] -= std::log(1.6f);
       }
@@ -482,11 +486,16 @@ Status FitGaussians(const std::vector<FitView>& views, const FitOptions& o, Gaus
   if (epoch_views > 0) rep.loss = epoch_loss / epoch_views;
 
   double psnr = 0;
+  int psnr_views = 0;
   for (const FitView& view : views) {
-    HVDB_RETURN_IF_ERROR(raster.Forward(*cloud, view.camera, o.background, static_cast<int>(threads), &image));
-    psnr += Psnr(image, view.rgb, view.valid) / views.size();
+    HVDB_RETURN_IF_ERROR(
+        raster.Forward(*cloud, view.camera, o.background, static_cast<int>(threads), &image));
+    const double p = Psnr(image, view.rgb, view.valid);
+    if (std::isnan(p)) continue;  // no valid pixel
+    psnr += p;
+    ++psnr_views;
   }
-  rep.psnr = psnr;
+  rep.psnr = psnr_views > 0 ? psnr / psnr_views : std::nan("");
   rep.iterations = iterations;
   rep.splats_out = cloud->size();
   rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

@@ -16,8 +16,8 @@
 #define HVDB_INGEST_GAUSSIAN_FIT_H_
 
 #include <array>
-#include <cstdint>
 #include <cstddef>
+#include <cstdint>
 #include <functional>
 #include <span>
 #include <vector>
@@ -40,7 +40,9 @@ struct FitView {
   // are not drawn.
   std::vector<uint8_t> mask;
   // Empty: every pixel is fitted. Else one byte a pixel: only pixels with a non-zero byte count
-  // in the loss (the frame's geometry covers them: gaussian_frames.h).
+  // in the loss (the frame's geometry covers them: gaussian_frames.h). Outside them the target
+  // is the render itself and the gradient is cut; SSIM windows across the border still see
+  // both, so the border's few pixels are fitted approximately.
   std::vector<uint8_t> valid;
 };
 
@@ -83,8 +85,9 @@ FitOptions Scheduled(FitOptions o, int iterations);
 
 struct FitReport {
   int iterations = 0;
-  double loss = 0;           // the mean loss of the last epoch's views
-  double psnr = 0;           // over every training view's valid pixels at the end (dB)
+  double loss = 0;  // the mean loss of the last (possibly partial) epoch's views
+  // Over every training view's valid pixels at the end (dB); NaN when no view has one.
+  double psnr = 0;
   double seconds = 0;
   size_t splats_in = 0, splats_out = 0;
 };
@@ -103,13 +106,14 @@ formats::GaussianCloud CloudFromPoints(std::span<const Point> points, int sh_deg
 
 // Fits `cloud` (in: the start, from CloudFromPoints or a previous frame's fit; out: the result)
 // to `views`. When every view's mask is set and empty (a warm start where nothing moved) the
-// cloud is returned unchanged, with 0 iterations reported. InvalidArgument for no views, a view whose image does not match its camera, a
-// camera the rasteriser refuses, an empty or invalid cloud, or options out of range.
+// cloud is returned unchanged, with 0 iterations reported. InvalidArgument for no views, a view
+// whose image does not match its camera, a camera the rasteriser refuses, an empty or invalid
+// cloud, or options out of range.
 Status FitGaussians(const std::vector<FitView>& views, const FitOptions& options,
                     formats::GaussianCloud* cloud, FitReport* report = nullptr);
 
 // PSNR (dB) of `render` against `target`, both 3 floats a pixel, values clamped to [0, 1]; over
-// the pixels `valid` sets (one byte a pixel) when it is not empty.
+// the pixels `valid` sets (one byte a pixel) when it is not empty (NaN when it sets none).
 double Psnr(std::span<const float> render, std::span<const float> target,
             std::span<const uint8_t> valid = {});
 

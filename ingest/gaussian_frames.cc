@@ -20,10 +20,10 @@ Result<FitView> MakeView(const CameraModel& model, const cv::Mat& bgr, const std
                                    "); --gaussians fits to every colour camera's photo");
   }
   if (bgr.cols != model.size.width || bgr.rows != model.size.height || bgr.type() != CV_8UC3) {
-    return Status::InvalidArgument(
-        path + ": the photo is " + std::to_string(bgr.cols) + "x" + std::to_string(bgr.rows) +
-        ", camera " + model.name + " is calibrated for " + std::to_string(model.size.width) +
-        "x" + std::to_string(model.size.height));
+    return Status::InvalidArgument(path + ": the photo is " + std::to_string(bgr.cols) + "x" +
+                                   std::to_string(bgr.rows) + ", camera " + model.name +
+                                   " is calibrated for " + std::to_string(model.size.width) + "x" +
+                                   std::to_string(model.size.height));
   }
   bool distorted = false;
   for (double d : model.dist) distorted = distorted || d != 0;
@@ -35,7 +35,8 @@ Result<FitView> MakeView(const CameraModel& model, const cv::Mat& bgr, const std
   }
   const int w = std::max(1, bgr.cols / scale), h = std::max(1, bgr.rows / scale);
   cv::Mat small = pinhole;
-  if (w != bgr.cols || h != bgr.rows) cv::resize(pinhole, small, cv::Size(w, h), 0, 0, cv::INTER_AREA);
+  if (w != bgr.cols || h != bgr.rows)
+    cv::resize(pinhole, small, cv::Size(w, h), 0, 0, cv::INTER_AREA);
   FitView v;
   v.camera = model.ToRenderCamera();
   v.camera.distortion = {};
@@ -70,7 +71,8 @@ std::vector<uint8_t> Coverage(const FitView& view, const std::vector<Point>& poi
     if (x >= 0 && y >= 0 && x < w && y < h) hit[static_cast<size_t>(y) * w + x] = 1;
   }
   cv::Mat in(h, w, CV_8U, hit.data()), out;
-  cv::dilate(in, out, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * radius + 1, 2 * radius + 1)));
+  cv::dilate(in, out,
+             cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * radius + 1, 2 * radius + 1)));
   return std::vector<uint8_t>(out.data, out.data + hit.size());
 }
 
@@ -94,12 +96,18 @@ Result<std::vector<FitView>> FrameFitViews(const Recording& rec, const FrameInpu
     HVDB_ASSIGN_OR_RETURN(FitView v, MakeView(d.model, d.colour, d.colour_path, resolution_scale));
     views.push_back(std::move(v));
   }
-  if (views.empty()) {
-    return Status::InvalidArgument(
-        "--gaussians fits Gaussians to a frame's colour photos; this recording's frames have "
-        "none (a PLY recording, or cameras without colour)");
-  }
+  if (views.empty()) return CheckFitCameras(Recording{});
   return views;
+}
+
+Status CheckFitCameras(const Recording& rec) {
+  bool colour = !rec.files.empty() && rec.kind != RecordingKind::kStereo;
+  for (const Brick& b : rec.calibration.bricks) colour = colour || b.colour >= 0;
+  if (colour) return Status::OK();
+  return Status::InvalidArgument(
+      "--gaussians fits Gaussians to each frame's colour photos; this recording has no colour "
+      "cameras (a ply recording lists them under `cameras` with a calibration.yml: "
+      "docs/RECORDING.md)");
 }
 
 Result<formats::GaussianCloud> GaussianVideoFitter::Fit(int index, std::vector<FitView> views,
@@ -108,17 +116,18 @@ Result<formats::GaussianCloud> GaussianVideoFitter::Fit(int index, std::vector<F
   bool warm = previous_.has_value() && previous_->index == index - 1 &&
               previous_->views.size() == views.size();
   for (size_t k = 0; warm && k < views.size(); ++k) {
-    warm = previous_->views[k].rgb.size() == views[k].rgb.size();
+    const render::Camera &a = previous_->views[k].camera, &b = views[k].camera;
+    warm = a.width == b.width && a.height == b.height && a.fx == b.fx && a.fy == b.fy &&
+           a.cx == b.cx && a.cy == b.cy && a.world_from_camera == b.world_from_camera;
   }
   FitOptions o = options_.fit;
   formats::GaussianCloud cloud;
   if (warm) {
     cloud = previous_->cloud;
     for (size_t k = 0; k < views.size(); ++k) {
-      views[k].mask = ChangedPixels(previous_->views[k].rgb, views[k].rgb,
-                                    static_cast<int>(views[k].camera.width),
-                                    static_cast<int>(views[k].camera.height),
-                                    options_.change_threshold);
+      views[k].mask = ChangedPixels(
+          previous_->views[k].rgb, views[k].rgb, static_cast<int>(views[k].camera.width),
+          static_cast<int>(views[k].camera.height), options_.change_threshold);
     }
     // The same schedule, shortened: densification over its first two thirds.
     o.iterations = options_.warm_iterations > 0 ? options_.warm_iterations

@@ -29,6 +29,10 @@ struct GaussianFrameOptions {
   int coverage_radius = 6;
 };
 
+// OK when the recording has colour cameras to fit to (stereo bricks with a colour camera, depth
+// cameras, or a ply recording's colour cameras); else InvalidArgument saying so.
+Status CheckFitCameras(const Recording& recording);
+
 // The frame's colour photos as training views: undistorted with their calibration (the
 // rasteriser draws pinhole cameras), reduced to 1/scale (area averaging), RGB in [0, 1].
 // InvalidArgument naming the camera for a photo that is missing or whose size is not its
@@ -42,7 +46,8 @@ class GaussianVideoFitter {
   explicit GaussianVideoFitter(GaussianFrameOptions options) : options_(std::move(options)) {}
 
   // Frame `index`'s Gaussians from its views and points. Warm-started when the previous call
-  // was for index - 1 with the same cameras and succeeded; otherwise from `points`.
+  // was for index - 1 with the same cameras (sizes, intrinsics and poses) and succeeded;
+  // otherwise from `points`.
   Result<formats::GaussianCloud> Fit(int index, std::vector<FitView> views,
                                      const std::vector<Point>& points, FitReport* report);
 

@@ -59,9 +59,8 @@ void Blur(const float* in, float* out, float* tmp, int width, int height) {
 
 }  // namespace
 
-PhotoLoss L1DssimLoss(const std::vector<float>& render, const std::vector<float>& target,
-                      int width, int height, float lambda, unsigned threads,
-                      std::vector<float>* grad) {
+PhotoLoss L1DssimLoss(const std::vector<float>& render, const std::vector<float>& target, int width,
+                      int height, float lambda, unsigned threads, std::vector<float>* grad) {
   const size_t pixels = static_cast<size_t>(width) * height;
   const double n = 3.0 * static_cast<double>(pixels);
   if (grad != nullptr) grad->assign(3 * pixels, 0.0f);

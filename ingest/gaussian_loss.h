@@ -17,9 +17,8 @@ struct PhotoLoss {
 // The loss of `render` against `target` (each width * height * 3 floats, row-major RGB), and
 // when `grad` is not null dLoss/drender into it (resized). Convolutions on up to `threads`
 // threads.
-PhotoLoss L1DssimLoss(const std::vector<float>& render, const std::vector<float>& target,
-                      int width, int height, float lambda, unsigned threads,
-                      std::vector<float>* grad);
+PhotoLoss L1DssimLoss(const std::vector<float>& render, const std::vector<float>& target, int width,
+                      int height, float lambda, unsigned threads, std::vector<float>* grad);
 
 }  // namespace hvdb::ingest
 

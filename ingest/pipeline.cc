@@ -221,6 +221,7 @@ Result<FrameProcessor> FrameProcessor::Make(const Recording& rec, const IngestOp
   p.rec_ = &rec;
   p.opt_ = options;
   if (p.opt_.stride < 1) return Status::InvalidArgument("stride must be >= 1");
+  if (p.opt_.gaussians) HVDB_RETURN_IF_ERROR(CheckFitCameras(rec));
   if (p.opt_.filter == IngestOptions::Filter::kBillboard) {
     if (rec.kind == RecordingKind::kPly)
       return Status::InvalidArgument("the billboard filter works on depth maps: a PLY recording has "

@@ -189,6 +189,7 @@ Result<SubmitResult> SubmitIngest(const SubmitOptions& o, client::Backend& backe
   // chunk warm-started, as a local run of the same frames).
   const bool gaussians = std::find(o.run_options.begin(), o.run_options.end(), "--gaussians") !=
                          o.run_options.end();
+  if (gaussians) HVDB_RETURN_IF_ERROR(CheckFitCameras(rec));
   HVDB_RETURN_IF_ERROR(EnsureDataset(backend, rec, o.dataset, gaussians));
   if (!o.run_options.empty()) {
     // The run options checked once here (no frames: --count 0) rather than failing every task.

@@ -33,6 +33,9 @@ constexpr float kMinAlpha = 1.0f / 255.0f;
 constexpr float kMaxAlpha = 0.99f;
 constexpr float kMinTransmittance = 0.0001f;
 constexpr size_t kChunk = 4096;  // splats per preprocessing task
+// (splat, tile) pairs a view may have: the list's 4 bytes and the backward pass's 36 a pair
+// stay within 4 GiB, and the list's offsets within 32 bits.
+constexpr uint64_t kMaxPairs = 100'000'000;
 
 constexpr float kC0 = static_cast<float>(formats::kShC0);
 constexpr float kC1 = static_cast<float>(formats::kShC1);
@@ -40,21 +43,21 @@ constexpr float kC1 = static_cast<float>(formats::kShC1);
 // Everything about one splat's projection that both passes need, recomputed by the backward
 // pass rather than stored (it is cheap next to the blending).
 struct Geometry {
-  float t[3];          // view-space centre (eq. 29 of EWA: W p + trans)
-  float q[4];          // the normalised quaternion w x y z
-  float qn;            // the stored quaternion's norm (0: the identity was used)
-  float s[3];          // e^(log scale)
-  float R[9];          // rotation of q, row-major
-  float M[9];          // R S
-  float Sigma[6];      // R S S^T R^T: xx xy xz yy yz zz (3DGS eq. 6)
-  float t0[3], t1[3];  // the rows of J W (EWA eq. 31, 3DGS eq. 5)
-  float j02, j12;      // J's entries that depend on x and y
+  float t[3];            // view-space centre (eq. 29 of EWA: W p + trans)
+  float q[4];            // the normalised quaternion w x y z
+  float qn;              // the stored quaternion's norm (0: the identity was used)
+  float s[3];            // e^(log scale)
+  float R[9];            // rotation of q, row-major
+  float M[9];            // R S
+  float Sigma[6];        // R S S^T R^T: xx xy xz yy yz zz (3DGS eq. 6)
+  float t0[3], t1[3];    // the rows of J W (EWA eq. 31, 3DGS eq. 5)
+  float j02, j12;        // J's entries that depend on x and y
   int clamp_x, clamp_y;  // 0, or the sign of the limit x/z (y/z) was clamped to
-  float cov[3];        // the dilated 2D covariance a b c
-  float det;           // a c - b^2
-  float dir[3];        // unit direction from the camera centre
-  float dist;          // and the distance
-  float basis[15];     // the SH basis for dir, signs folded in (forward.cu's computeColorFromSH)
+  float cov[3];          // the dilated 2D covariance a b c
+  float det;             // a c - b^2
+  float dir[3];          // unit direction from the camera centre
+  float dist;            // and the distance
+  float basis[15];       // the SH basis for dir, signs folded in (forward.cu's computeColorFromSH)
 };
 
 // Sets g from splat i; false when the reference culls it (behind the near plane, a singular
@@ -62,7 +65,8 @@ struct Geometry {
 bool Project(const formats::GaussianCloud& cloud, size_t i, const ViewF& v, Geometry* g) {
   const float* p = &cloud.position[3 * i];
   const float* W = v.rot;
-  for (int r = 0; r < 3; ++r) g->t[r] = W[3 * r] * p[0] + W[3 * r + 1] * p[1] + W[3 * r + 2] * p[2] + v.trans[r];
+  for (int r = 0; r < 3; ++r)
+    g->t[r] = W[3 * r] * p[0] + W[3 * r + 1] * p[1] + W[3 * r + 2] * p[2] + v.trans[r];
   const float tz = g->t[2];
   if (!(tz > kNearZ)) return false;
   const float* q = &cloud.rotation[4 * i];
@@ -73,9 +77,10 @@ bool Project(const formats::GaussianCloud& cloud, size_t i, const ViewF& v, Geom
     g->q[0] = 1, g->q[1] = g->q[2] = g->q[3] = 0;
   }
   const float w = g->q[0], x = g->q[1], y = g->q[2], z = g->q[3];
-  const float R[9] = {1.f - 2.f * (y * y + z * z), 2.f * (x * y - w * z), 2.f * (x * z + w * y),
-                      2.f * (x * y + w * z), 1.f - 2.f * (x * x + z * z), 2.f * (y * z - w * x),
-                      2.f * (x * z - w * y), 2.f * (y * z + w * x), 1.f - 2.f * (x * x + y * y)};
+  const float R[9] = {
+      1.f - 2.f * (y * y + z * z), 2.f * (x * y - w * z),       2.f * (x * z + w * y),
+      2.f * (x * y + w * z),       1.f - 2.f * (x * x + z * z), 2.f * (y * z - w * x),
+      2.f * (x * z - w * y),       2.f * (y * z + w * x),       1.f - 2.f * (x * x + y * y)};
   std::memcpy(g->R, R, sizeof R);
   for (int k = 0; k < 3; ++k) g->s[k] = std::exp(std::min(cloud.scale[3 * i + k], 80.0f));
   for (int r = 0; r < 3; ++r) {
@@ -242,19 +247,20 @@ Status GaussianGradRasterizer::Forward(const formats::GaussianCloud& cloud, cons
       const float kq = 2.0f * std::log(std::max(255.0f * s.opacity, 1.0f)) * 1.001f + 0.01f;
       const float ex = std::sqrt(kq * std::max(g.cov[0], 0.0f)) * 1.001f + 0.01f;
       const float ey = std::sqrt(kq * std::max(g.cov[2], 0.0f)) * 1.001f + 0.01f;
-      const int x0 = std::max<int>(static_cast<int>(std::ceil(std::max(s.u - ex, -1.0f))), 0);
-      const int x1 = std::min<int>(
-          static_cast<int>(std::floor(std::min(s.u + ex, float(v.width)))), v.width - 1);
-      const int y0 = std::max<int>(static_cast<int>(std::ceil(std::max(s.v - ey, -1.0f))), 0);
-      const int y1 = std::min<int>(
-          static_cast<int>(std::floor(std::min(s.v + ey, float(v.height)))), v.height - 1);
+      // Clamped to [-1, size] before the conversions, so they are defined wherever the splat is.
+      auto clamp = [](float x, int size) { return std::min(std::max(x, -1.0f), float(size)); };
+      const int x0 = std::max(static_cast<int>(std::ceil(clamp(s.u - ex, v.width))), 0);
+      const int x1 = std::min(static_cast<int>(std::floor(clamp(s.u + ex, v.width))), v.width - 1);
+      const int y0 = std::max(static_cast<int>(std::ceil(clamp(s.v - ey, v.height))), 0);
+      const int y1 =
+          std::min(static_cast<int>(std::floor(clamp(s.v + ey, v.height))), v.height - 1);
       const int tx0 = std::max(rx0, x0 / kTile), tx1 = std::min(rx1, x1 / kTile + 1);
       const int ty0 = std::max(ry0, y0 / kTile), ty1 = std::min(ry1, y1 / kTile + 1);
       if (x0 > x1 || y0 > y1 || tx0 >= tx1 || ty0 >= ty1) continue;
       s.x0 = static_cast<int16_t>(x0), s.x1 = static_cast<int16_t>(x1);
       s.y0 = static_cast<int16_t>(y0), s.y1 = static_cast<int16_t>(y1);
-      rect[i] = {static_cast<uint16_t>(tx0), static_cast<uint16_t>(tx1),
-                 static_cast<uint16_t>(ty0), static_cast<uint16_t>(ty1)};
+      rect[i] = {static_cast<uint16_t>(tx0), static_cast<uint16_t>(tx1), static_cast<uint16_t>(ty0),
+                 static_cast<uint16_t>(ty1)};
       depth[i] = g.t[2];
       is_visible_[i] = 1;
     }
@@ -272,11 +278,23 @@ Status GaussianGradRasterizer::Forward(const formats::GaussianCloud& cloud, cons
   visible_ = visible.size();
   const std::vector<uint32_t> order = internal::StableOrder(keys);
   const size_t tiles = static_cast<size_t>(v.tiles_x) * v.tiles_y;
+  uint64_t pairs = 0;
+  for (uint32_t i : visible) {
+    const auto& r = rect[i];
+    pairs += static_cast<uint64_t>(r[1] - r[0]) * static_cast<uint64_t>(r[3] - r[2]);
+  }
+  if (pairs > kMaxPairs) {
+    return Status::LimitExceeded(
+        "the differentiable rasteriser's splats cover " + std::to_string(pairs) +
+        " (splat, tile) pairs in this view, more than " + std::to_string(kMaxPairs) +
+        " (40 bytes each): fit at a smaller size or from fewer or smaller splats");
+  }
   tile_start_.assign(tiles + 1, 0);
   for (uint32_t i : visible) {
     const auto& r = rect[i];
     for (int ty = r[2]; ty < r[3]; ++ty) {
-      for (int tx = r[0]; tx < r[1]; ++tx) ++tile_start_[static_cast<size_t>(ty) * v.tiles_x + tx + 1];
+      for (int tx = r[0]; tx < r[1]; ++tx)
+        ++tile_start_[static_cast<size_t>(ty) * v.tiles_x + tx + 1];
     }
   }
   for (size_t t = 0; t < tiles; ++t) tile_start_[t + 1] += tile_start_[t];
@@ -286,7 +304,8 @@ Status GaussianGradRasterizer::Forward(const formats::GaussianCloud& cloud, cons
     const uint32_t i = visible[o];
     const auto& r = rect[i];
     for (int ty = r[2]; ty < r[3]; ++ty) {
-      for (int tx = r[0]; tx < r[1]; ++tx) list_[next[static_cast<size_t>(ty) * v.tiles_x + tx]++] = i;
+      for (int tx = r[0]; tx < r[1]; ++tx)
+        list_[next[static_cast<size_t>(ty) * v.tiles_x + tx]++] = i;
     }
   }
 
@@ -299,7 +318,8 @@ Status GaussianGradRasterizer::Forward(const formats::GaussianCloud& cloud, cons
   final_T_.assign(pixels, 1.0f);
   last_.assign(pixels, 0);
   internal::ParallelFor(tiles, threads_, [&](size_t t) {
-    const int x0 = static_cast<int>(t % v.tiles_x) * kTile, y0 = static_cast<int>(t / v.tiles_x) * kTile;
+    const int x0 = static_cast<int>(t % v.tiles_x) * kTile,
+              y0 = static_cast<int>(t / v.tiles_x) * kTile;
     const int x1 = std::min(v.width, x0 + kTile) - 1, y1 = std::min(v.height, y0 + kTile) - 1;
     float T[kTile * kTile], C[kTile * kTile][3] = {};
     uint32_t last[kTile * kTile] = {};
@@ -358,7 +378,8 @@ void GaussianGradRasterizer::Backward(const std::vector<float>& dL_drgb, Gaussia
   std::vector<float> slots(list_.size() * kSlot, 0.0f);
   internal::ParallelFor(tiles, threads_, [&](size_t t) {
     constexpr int kPixels = kTile * kTile;
-    const int x0 = static_cast<int>(t % v.tiles_x) * kTile, y0 = static_cast<int>(t / v.tiles_x) * kTile;
+    const int x0 = static_cast<int>(t % v.tiles_x) * kTile,
+              y0 = static_cast<int>(t / v.tiles_x) * kTile;
     const int x1 = std::min(v.width, x0 + kTile) - 1, y1 = std::min(v.height, y0 + kTile) - 1;
     const uint32_t begin = tile_start_[t];
     float T[kPixels], final_T[kPixels], bg_dot[kPixels], last_alpha[kPixels] = {};
@@ -372,8 +393,8 @@ void GaussianGradRasterizer::Backward(const std::vector<float>& dL_drgb, Gaussia
         last[p] = last_[q];
         most = std::max(most, last[p]);
         for (int ch = 0; ch < 3; ++ch) dpix[p][ch] = dL_drgb[3 * q + ch];
-        bg_dot[p] = background_[0] * dpix[p][0] + background_[1] * dpix[p][1] +
-                    background_[2] * dpix[p][2];
+        bg_dot[p] =
+            background_[0] * dpix[p][0] + background_[1] * dpix[p][1] + background_[2] * dpix[p][2];
       }
     }
     for (uint32_t k = begin + most; k-- > begin;) {
@@ -398,7 +419,8 @@ void GaussianGradRasterizer::Backward(const std::vector<float>& dL_drgb, Gaussia
           // dC/dalpha = T (c - what lies behind, relative to T after this splat).
           float dL_dalpha = 0.0f;
           for (int ch = 0; ch < 3; ++ch) {
-            accum[p][ch] = last_alpha[p] * last_colour[p][ch] + (1.0f - last_alpha[p]) * accum[p][ch];
+            accum[p][ch] =
+                last_alpha[p] * last_colour[p][ch] + (1.0f - last_alpha[p]) * accum[p][ch];
             last_colour[p][ch] = s.rgb[ch];
             dL_dalpha += (s.rgb[ch] - accum[p][ch]) * dpix[p][ch];
             g[6 + ch] += alpha * T[p] * dpix[p][ch];
@@ -439,7 +461,7 @@ void GaussianGradRasterizer::Backward(const std::vector<float>& dL_drgb, Gaussia
   std::fill(grad->opacity.begin(), grad->opacity.end(), 0.0f);
   std::fill(grad->sh_dc.begin(), grad->sh_dc.end(), 0.0f);
   std::fill(grad->sh_rest.begin(), grad->sh_rest.end(), 0.0f);
-  if (screen_grad != nullptr) screen_grad->assign(n, 0.0f);
+  if (screen_grad != nullptr) screen_grad->assign(n, -1.0f);  // -1: culled
   const int per_channel = formats::ShRestPerChannel(cloud.sh_degree);
   internal::ParallelFor((n + kChunk - 1) / kChunk, threads_, [&](size_t c) {
     Geometry g;
@@ -464,7 +486,8 @@ void GaussianGradRasterizer::Backward(const std::vector<float>& dL_drgb, Gaussia
         grad->sh_dc[3 * i + ch] = kC0 * gc;
         for (int j = 0; j < per_channel; ++j) {
           grest[ch * per_channel + j] = g.basis[j] * gc;
-          for (int k = 0; k < 3; ++k) dL_ddir[k] += gc * rest[ch * per_channel + j] * basis_grad[j][k];
+          for (int k = 0; k < 3; ++k)
+            dL_ddir[k] += gc * rest[ch * per_channel + j] * basis_grad[j][k];
         }
       }
       // Opacity through the sigmoid.
@@ -500,14 +523,16 @@ void GaussianGradRasterizer::Backward(const std::vector<float>& dL_drgb, Gaussia
       float Gs[9];
       for (int r = 0; r < 3; ++r) {
         for (int k = 0; k < 3; ++k) {
-          Gs[3 * r + k] = 2.0f * ga * g.t0[r] * g.t0[k] + gb * (g.t0[r] * g.t1[k] + g.t1[r] * g.t0[k]) +
+          Gs[3 * r + k] = 2.0f * ga * g.t0[r] * g.t0[k] +
+                          gb * (g.t0[r] * g.t1[k] + g.t1[r] * g.t0[k]) +
                           2.0f * gc * g.t1[r] * g.t1[k];
         }
       }
       float dM[9];
       for (int r = 0; r < 3; ++r) {
         for (int k = 0; k < 3; ++k) {
-          dM[3 * r + k] = Gs[3 * r] * g.M[k] + Gs[3 * r + 1] * g.M[3 + k] + Gs[3 * r + 2] * g.M[6 + k];
+          dM[3 * r + k] =
+              Gs[3 * r] * g.M[k] + Gs[3 * r + 1] * g.M[3 + k] + Gs[3 * r + 2] * g.M[6 + k];
         }
       }
       // M = R S: scales (log) and the rotation.

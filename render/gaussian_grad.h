@@ -38,8 +38,9 @@ class GaussianGradRasterizer {
  public:
   // Renders `cloud` from `camera` into `rgb` (3 floats a pixel, row-major: C + T background, as
   // GaussianImage::rgb) and remembers what Backward needs. The same checks as RenderGaussians
-  // (CheckGaussianRender), and InvalidArgument for an antialiased cloud. `cloud` must stay
-  // unchanged until Backward.
+  // (CheckGaussianRender), InvalidArgument for an antialiased cloud, and LimitExceeded when
+  // the splats would cover over 10^8 (splat, tile) pairs (4 GiB of lists and gradient slots).
+  // `cloud` must stay unchanged until Backward.
   Status Forward(const formats::GaussianCloud& cloud, const Camera& camera,
                  const std::array<float, 3>& background, int threads, std::vector<float>* rgb);
 
@@ -47,7 +48,7 @@ class GaussianGradRasterizer {
   // cloud) (resized to the cloud's shape) and, when `screen_grad` is not null, resizes it to
   // the cloud's size and sets each splat's |dL/d(centre)| in normalised device coordinates
   // (pixel gradient times half the image size, as the reference's densification statistic;
-  // 0 for splats the view culls). REQUIRES: a successful Forward, dL_drgb of its image's size.
+  // -1 for splats the view culls). REQUIRES: a successful Forward, dL_drgb of its image's size.
   void Backward(const std::vector<float>& dL_drgb, GaussianGradient* grad,
                 std::vector<float>* screen_grad = nullptr);
 
@@ -56,12 +57,12 @@ class GaussianGradRasterizer {
   uint64_t tile_entries() const { return list_.size(); }
 
  private:
-  struct Splat {  // a visible splat's screen-space values, as forward.cu's preprocess keeps
-    float u, v;         // pixel centre
-    float A, B, C;      // conic
-    float opacity;      // after the sigmoid
-    float rgb[3];       // after + 0.5 and the clamp at 0
-    uint8_t clamped;    // bit c: channel c was clamped
+  struct Splat {      // a visible splat's screen-space values, as forward.cu's preprocess keeps
+    float u, v;       // pixel centre
+    float A, B, C;    // conic
+    float opacity;    // after the sigmoid
+    float rgb[3];     // after + 0.5 and the clamp at 0
+    uint8_t clamped;  // bit c: channel c was clamped
     int16_t x0, x1, y0, y1;  // the pixel box where alpha can reach 1/255 (inclusive)
   };
   const formats::GaussianCloud* cloud_ = nullptr;
@@ -69,12 +70,12 @@ class GaussianGradRasterizer {
   std::array<float, 3> background_{};
   int threads_ = 1;
   uint64_t visible_ = 0;
-  std::vector<Splat> splats_;            // per cloud splat; valid where visible
-  std::vector<uint8_t> is_visible_;      // per cloud splat
-  std::vector<uint32_t> list_;           // splat indices, tile after tile, front to back
-  std::vector<uint32_t> tile_start_;     // tiles + 1 offsets into list_
-  std::vector<float> final_T_;           // per pixel
-  std::vector<uint32_t> last_;           // per pixel: entries of its tile's list it used
+  std::vector<Splat> splats_;         // per cloud splat; valid where visible
+  std::vector<uint8_t> is_visible_;   // per cloud splat
+  std::vector<uint32_t> list_;        // splat indices, tile after tile, front to back
+  std::vector<uint32_t> tile_start_;  // tiles + 1 offsets into list_
+  std::vector<float> final_T_;        // per pixel
+  std::vector<uint32_t> last_;        // per pixel: entries of its tile's list it used
 };
 
 }  // namespace hvdb::render

@@ -290,7 +290,8 @@ TEST(GaussianFitTest, AMovingObjectsGaussiansFollowItAndTheRestStaysTheSame) {
   const double after = MeanPsnr(*frame1, views1);
   EXPECT_GT(after, before + 1) << before << " -> " << after << " dB";
   double dx = 0;
-  for (size_t i = 0; i < object; ++i) dx += (frame1->position[3 * i] - frame0->position[3 * i]) / object;
+  for (size_t i = 0; i < object; ++i)
+    dx += (frame1->position[3 * i] - frame0->position[3 * i]) / object;
   EXPECT_NEAR(dx, 0.04, 0.015);
   // The wall away from the object keeps its values bit for bit: the splats whose centre (where
   // the first fit put it) is over 14 pixels from the object's centre in every view, beyond its
@@ -315,8 +316,10 @@ TEST(GaussianFitTest, AMovingObjectsGaussiansFollowItAndTheRestStaysTheSame) {
     if (near) continue;
     ++far;
     bool equal = true;
-    for (int k = 0; k < 3; ++k) equal = equal && frame1->position[3 * i + k] == frame0->position[3 * i + k];
-    for (int k = 0; k < 3; ++k) equal = equal && frame1->sh_dc[3 * i + k] == frame0->sh_dc[3 * i + k];
+    for (int k = 0; k < 3; ++k)
+      equal = equal && frame1->position[3 * i + k] == frame0->position[3 * i + k];
+    for (int k = 0; k < 3; ++k)
+      equal = equal && frame1->sh_dc[3 * i + k] == frame0->sh_dc[3 * i + k];
     equal = equal && frame1->opacity[i] == frame0->opacity[i];
     same += equal;
   }

@@ -82,10 +82,8 @@ double Loss(const GaussianCloud& g, const Camera& cam, const std::vector<float>&
 // resolves. So each check weighs only the pixels well inside the splat checked (where it adds
 // at least 0.03 to some channel), which its edge does not reach in a step; there the render
 // is smooth in that splat's values, and other splats' edges do not move.
-TEST(GaussianGradTest, GradientsAgreeWithFiniteDifferences) {
+void ExpectGradientsAgree(const GaussianCloud& g0, const Camera& cam) {
   const std::array<float, 3> bg{0.2f, 0.5f, 0.1f};
-  const GaussianCloud g0 = RandomScene(60, 3, 11);
-  const Camera cam = TestCamera(0.4);
   const size_t values = 3u * cam.width * cam.height;
   std::mt19937_64 rng(5);
   std::uniform_real_distribution<float> u(-1, 1);
@@ -118,12 +116,10 @@ TEST(GaussianGradTest, GradientsAgreeWithFiniteDifferences) {
     std::vector<float> GaussianCloud::*array;
     size_t width;
   };
-  const Kind kinds[] = {{"position", &GaussianCloud::position, 3},
-                        {"scale", &GaussianCloud::scale, 3},
-                        {"rotation", &GaussianCloud::rotation, 4},
-                        {"opacity", &GaussianCloud::opacity, 1},
-                        {"sh_dc", &GaussianCloud::sh_dc, 3},
-                        {"sh_rest", &GaussianCloud::sh_rest, 45}};
+  const Kind kinds[] = {
+      {"position", &GaussianCloud::position, 3}, {"scale", &GaussianCloud::scale, 3},
+      {"rotation", &GaussianCloud::rotation, 4}, {"opacity", &GaussianCloud::opacity, 1},
+      {"sh_dc", &GaussianCloud::sh_dc, 3},       {"sh_rest", &GaussianCloud::sh_rest, 45}};
   // The splats checked: those covering at least 12 pixels.
   std::vector<std::pair<size_t, std::vector<float>>> splats;
   for (size_t i = 0; i < g0.size() && splats.size() < 12; ++i) {
@@ -164,6 +160,25 @@ TEST(GaussianGradTest, GradientsAgreeWithFiniteDifferences) {
     EXPECT_EQ(agree, checks) << kind.name << ": analytic vs finite difference:" << misses;
     EXPECT_GT(largest, 0.05) << kind.name << ": the checks saw no gradient";
   }
+}
+
+TEST(GaussianGradTest, GradientsAgreeWithFiniteDifferences) {
+  ExpectGradientsAgree(RandomScene(60, 3, 11), TestCamera(0.4));
+}
+
+// Where the reference's backward pass departs from its forward function: splats whose alpha is
+// clamped at 0.99 (opacity logit 6) and splats beyond 1.3 times the field of view, whose EWA
+// Jacobian is taken at the clamped x/z (large, so that they still reach into the image).
+TEST(GaussianGradTest, GradientsAgreeAtTheClampsToo) {
+  GaussianCloud g = RandomScene(60, 2, 17);
+  for (size_t i = 0; i < g.size(); ++i) {
+    if (i % 3 == 0) g.opacity[i] = 6.0f;
+    if (i % 3 == 1) {
+      g.position[3 * i] = (i % 2 ? 1.0f : -1.0f) * 2.2f;  // x/z ~ 0.75 from 3 m; the limit 0.54
+      for (int k = 0; k < 3; ++k) g.scale[3 * i + k] = std::log(0.5f);
+    }
+  }
+  ExpectGradientsAgree(g, Camera::LookAt({0, 0, -3}, {0, 0, 0}, {0, -1, 0}, 45, 64, 48));
 }
 
 TEST(GaussianGradTest, BackwardIsTheSameOnAnyNumberOfThreads) {
