@@ -108,7 +108,8 @@ formats::GaussianCloud CloudFromPoints(std::span<const Point> points, int sh_deg
 // to `views`. When every view's mask is set and empty (a warm start where nothing moved) the
 // cloud is returned unchanged, with 0 iterations reported. InvalidArgument for no views, a view
 // whose image does not match its camera, a camera the rasteriser refuses, an empty or invalid
-// cloud, or options out of range.
+// cloud, or options out of range; the rasteriser's LimitExceeded for splats that cover too
+// much of a view (gaussian_grad.h).
 Status FitGaussians(const std::vector<FitView>& views, const FitOptions& options,
                     formats::GaussianCloud* cloud, FitReport* report = nullptr);
 

@@ -14,7 +14,7 @@ ctest --test-dir build --output-on-failure -j2 --timeout 900
 
 # Sanitizers: a separate Debug build of the storage (the Gaussian column too), server, executor
 # and codec tests, the Gaussian-splat file readers (GLB and SPZ version 4 too), the SH-rotating
-# transforms and the 3DGS rasteriser, and of
+# transforms and the 3DGS rasteriser (and its differentiable twin), and of
 # ingest's point stages (photo-consistency's vector loops, billboards, segmentation). The tests that bound
 # the server's resident memory are left out (ASan's shadow memory and quarantine are what they
 # would measure), and so is photo-consistency's throughput test, and the photo video tier's
@@ -23,10 +23,10 @@ cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=Debug -DHVDB_SANITIZE=ON -D
   -DHVDB_BUILD_BENCH=OFF >/dev/null
 cmake --build build-asan --target storage_tests server_tests service_tests codec_tests \
   blockcode_tests ingest_points_tests photo_video_tests gaussian_files_tests gaussian_raster_tests \
-  gaussian_glb_tests gaussian_transform_tests
+  gaussian_glb_tests gaussian_transform_tests gaussian_grad_tests
 ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
   ctest --test-dir build-asan --output-on-failure -j2 --timeout 900 \
-  -R '^(Crc32c|Point|BufferPool|ConvertTest|ServiceTest|Lod|KdTree|Hyperslice|Wal|Dataset|FollowerTest|WatchTest|WatchServerTest|Photos|PhotoVideo|Crash|Corruption|ColdTier|RecordBlock|FaultInjection|Server|HttpServer|Hardening|HttpHeadCheck|Printable|WsCodec|WebPath|OriginAllowed|CodecTest|DepthSigma|PhotoConsistency|GeometricConsistencyTest|BillboardTest|SegmentationTest|ImportMediaLimitsTest|RequestTableTest|ExecuteUnaryTest|RenderConvertTest|GaussianCorpus|GaussianPly|Gaussians\.|Splat\.|Spz\.|GaussianColumn|GaussianRaster|GaussianGlb|GaussianTransform)' \
+  -R '^(Crc32c|Point|BufferPool|ConvertTest|ServiceTest|Lod|KdTree|Hyperslice|Wal|Dataset|FollowerTest|WatchTest|WatchServerTest|Photos|PhotoVideo|Crash|Corruption|ColdTier|RecordBlock|FaultInjection|Server|HttpServer|Hardening|HttpHeadCheck|Printable|WsCodec|WebPath|OriginAllowed|CodecTest|DepthSigma|PhotoConsistency|GeometricConsistencyTest|BillboardTest|SegmentationTest|ImportMediaLimitsTest|RequestTableTest|ExecuteUnaryTest|RenderConvertTest|GaussianCorpus|GaussianPly|Gaussians\.|Splat\.|Spz\.|GaussianColumn|GaussianRaster|GaussianGlb|GaussianTransform|GaussianGradTest)' \
   -E 'SlowReaderDoesNotGrowServerMemory|PipelinedQueriesOfClientsThatDoNotRead|TheServerWideBudgetHolds|PingsOfAClientThatDoesNotRead|PingPayloadsOverTheLimit|ConnectionsBeforeTheirHelloCannotAnnounce|AClientThatNeverReleasesHoldsOnlyItsRing|ClientsKilledWhileHoldingSlotsLeakNothing|PhotoConsistency.Throughput|PanopticViewsReadBack|ServedEveryFileIsRefusedTheServerKeepsServingWithinItsBudget|AValidPictureOfAQuarterGigapixel|AMillionSplatsAreFast'
 
 # Fuzz the decoders with clang's libFuzzer, 20 seconds each: the frame and message decoder of
