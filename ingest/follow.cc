@@ -302,7 +302,10 @@ Result<FollowReport> FollowRecording(const std::string& dir, client::Backend& ba
   if (opt.max_in_flight <= 0) opt.max_in_flight = opt.workers + 1;  // taken and not committed
   if (opt.stereo.threads <= 0) opt.stereo.threads = std::max(1, cores / opt.workers);
   HVDB_ASSIGN_OR_RETURN(FrameProcessor proc, FrameProcessor::Make(rec, opt));
-  HVDB_RETURN_IF_ERROR(EnsureDataset(backend, rec, opt.dataset));
+  HVDB_RETURN_IF_ERROR(EnsureDataset(backend, rec, opt.dataset, opt.gaussians));
+  // --gaussians: each frame fitted on this thread as it comes to be committed, in frame order
+  // (warm-started from the one before), while the workers prepare the next.
+  GaussianVideoFitter fitter(opt.gaussian);
   const int radius = proc.window_radius();
   const auto timeout = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(follow.frame_timeout));
   const auto t_start = Clock::now();
@@ -361,6 +364,7 @@ Result<FollowReport> FollowRecording(const std::string& dir, client::Backend& ba
         --jobs;
         PreparedFrame d = std::move(t->prepared);
         fr.stage_ms["load"] = t->load_ms;  // read when it completed, before it was taken
+        if (d.status.ok() && opt.gaussians) FitPreparedFrame(fitter, &d, &fr);
         if (!d.status.ok()) {
           fr.status = "skipped";
           fr.error = d.status.ToString();

@@ -228,12 +228,6 @@ void RegisterRun(CLI::App& app, int* rc) {
       *rc = Fail(Status::InvalidArgument("--y-threshold and --uv-threshold must be in (0, 1]"));
       return;
     }
-    if (a->follow && a->o.gaussians) {  // before anything is opened or created
-      *rc = Fail(Status(StatusCode::kUnsupported,
-          "--gaussians with --follow is not supported yet: ingest the recording once it is "
-          "written (hvdb-ingest run REC --gaussians)"));
-      return;
-    }
     Result<Recording> rec = a->follow ? Result<Recording>(Recording{}) : OpenRecording(a->rec);
     if (!rec.ok()) {
       *rc = Fail(rec.status());

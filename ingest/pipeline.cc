@@ -1,5 +1,7 @@
 #include "ingest/pipeline.h"
 
+#include "formats/gaussian_points.h"
+
 #include <sys/resource.h>
 #include <unistd.h>
 
@@ -689,6 +691,22 @@ PreparedFrame PrepareFrame(const Recording& rec, const FrameProcessor& proc,
     d.fit_views = std::move(views).value();
   }
   return d;
+}
+
+void FitPreparedFrame(GaussianVideoFitter& fitter, PreparedFrame* d, FrameReport* fr) {
+  const auto t0 = Clock::now();
+  FitReport fit;
+  auto cloud = fitter.Fit(d->index, std::move(d->fit_views), d->points, &fit);
+  if (cloud.ok()) {
+    d->points.clear();
+    d->gaussians.emplace();
+    formats::CloudToPoints(*cloud, fr->dataset_frame, &d->points, &*d->gaussians);
+    fr->fit = fit;
+    fr->points = d->points.size();
+  } else {
+    d->status = cloud.status();
+  }
+  fr->stage_ms["fit"] = MsSince(t0);
 }
 
 Result<uint64_t> CommitFrame(client::Backend& backend, const IngestOptions& opt,

@@ -188,6 +188,11 @@ PreparedFrame PrepareFrame(const Recording& recording, const FrameProcessor& pro
                            const IngestOptions& options, int i, int lo, int hi,
                            const FrameLoader& load, FrameReport* fr);
 
+// --gaussians: fits a prepared frame's Gaussians (frames in order: `fitter` carries each to the
+// next) and puts the splats, with their Gaussian records, in place of its points; a failure
+// becomes the frame's status. fr gets the fit's report and time.
+void FitPreparedFrame(GaussianVideoFitter& fitter, PreparedFrame* frame, FrameReport* fr);
+
 // Commits a prepared frame: its photos, then its points in one bulk load (atomic per frame).
 // Returns the points committed.
 Result<uint64_t> CommitFrame(client::Backend& backend, const IngestOptions& options,

@@ -9,7 +9,6 @@
 #include <mutex>
 #include <thread>
 
-#include "formats/gaussian_points.h"
 #include "ingest/pipeline.h"
 
 namespace hvdb::ingest {
@@ -113,21 +112,7 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
       const int st = proc.window_radius();
       PreparedFrame d = PrepareFrame(rec, proc, opt, i, std::max(0, i - st),
                                      std::min(rec.frames - 1, i + st), load, &fr);
-      if (opt.gaussians && d.status.ok() && !stop) {
-        const auto t0 = Clock::now();
-        FitReport fit;
-        auto cloud = fitter.Fit(i, std::move(d.fit_views), d.points, &fit);
-        if (cloud.ok()) {
-          d.points.clear();
-          d.gaussians.emplace();
-          formats::CloudToPoints(*cloud, fr.dataset_frame, &d.points, &*d.gaussians);
-          fr.fit = fit;
-          fr.points = d.points.size();
-        } else {
-          d.status = cloud.status();
-        }
-        fr.stage_ms["fit"] = MsSince(t0);
-      }
+      if (opt.gaussians && d.status.ok() && !stop) FitPreparedFrame(fitter, &d, &fr);
       Done r;
       r.index = i;
       r.prepared = d.status;

@@ -204,6 +204,46 @@ TEST(Live, FollowEqualsIngestingTheFinishedRecording) {
   }
 }
 
+// --follow --gaussians: each frame fitted as it is committed, warm-started from the one before,
+// gives the splats of a run over the finished recording.
+TEST(Live, FollowWithGaussiansEqualsIngestingTheFinishedRecording) {
+  TempDir dir;
+  const int frames = 3;
+  ASSERT_TRUE(GenerateRecording(Rig(frames), dir / "src").ok());
+  auto rec = OpenRecording(dir / "src");
+  ASSERT_TRUE(rec.ok());
+  IngestOptions o = Options();
+  o.gaussians = true;
+  o.gaussian.fit = Scheduled(o.gaussian.fit, 45);
+  o.gaussian.fit.sh_degree = 1;
+  o.gaussian.resolution_scale = 2;
+  std::map<uint32_t, std::vector<Point>> reference;
+  {
+    auto backend = client::MakeEmbeddedBackend(dir / "ref", 32 << 20);
+    auto rep = RunIngest(*rec, *backend, o);
+    ASSERT_TRUE(rep.ok()) << rep.status().ToString();
+    for (int f = 0; f < frames; ++f) reference[f] = FramePoints(*backend, "v", f, rec->fps);
+    EXPECT_LE(rep->frames[1].fit->iterations, 15);  // warm-started
+  }
+  std::thread writer([&] { WriteInPieces(dir / "src", dir / "live", frames, -1, ""); });
+  auto backend = client::MakeEmbeddedBackend(dir / "data", 32 << 20);
+  FollowOptions fo;
+  fo.status_every = 0;
+  auto rep = FollowRecording(dir / "live", *backend, o, fo);
+  writer.join();
+  ASSERT_TRUE(rep.ok()) << rep.status().ToString();
+  EXPECT_EQ(rep->ingest.ingested, frames);
+  auto info = backend->Describe("v");
+  ASSERT_TRUE(info.ok());
+  EXPECT_TRUE(info->gaussians);
+  for (int f = 0; f < frames; ++f) {
+    ASSERT_TRUE(rep->ingest.frames[static_cast<size_t>(f)].fit.has_value()) << "frame " << f;
+    const auto got = FramePoints(*backend, "v", f, rec->fps);
+    EXPECT_GT(got.size(), 100u);
+    EXPECT_TRUE(got == reference.at(f)) << "frame " << f;
+  }
+}
+
 // Without inotify events (as on NFS) the bounded poll alone still takes every frame: a PLY
 // video replayed at 20 fps, followed by polling, is the finished video's ingest.
 TEST(Live, ThePollAloneTakesEveryFrame) {

@@ -266,6 +266,35 @@ TEST_F(SlurmIngest, TwoTasksThroughAReaderEqualALocalIngest) {
   EXPECT_EQ(Photos(dir_ / "data", 6), Photos(dir_ / "local", 6));
 }
 
+// `submit ... -- --gaussians`: each task fits its chunk, the chunk's first frame from its
+// points and the next warm-started, exactly as local runs of the same chunks (the fit is
+// deterministic whatever the cores: tasks have one, the local runs every core).
+TEST_F(SlurmIngest, GaussiansOfEachTaskEqualLocalRunsOfTheSameChunks) {
+  Generate(4, 96, 72);
+  const std::string fit = " --gaussians --fit-iterations 40 --fit-resolution 1 --fit-sh-degree 1";
+  for (int first : {0, 2}) {
+    auto r = RunCommand(kIngest + " run " + dir_ / "rec" + " --data " + dir_ / "local" +
+                        " --dataset v --quiet --first " + std::to_string(first) + " --count 2" +
+                        kRunOptions + fit);
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+  }
+  auto a = Server("writer");
+  std::string out;
+  const std::string job =
+      Submit(a->Address(), "--frames-per-task 2 --job-dir " + dir_ / "job", &out, fit);
+  ASSERT_NE(job, "") << out;
+  json st = WaitFinished(job);
+  EXPECT_EQ(st["frames_committed"], 4) << st.dump(2);
+  EXPECT_GT(st["stage_median_ms"].value("fit", -1.0), 0.0) << st.dump(2);
+  a.reset();
+  auto info = client::MakeEmbeddedBackend(dir_ / "data", 16 << 20)->Describe("v");
+  ASSERT_TRUE(info.ok());
+  EXPECT_TRUE(info->gaussians);
+  const auto got = Sums(dir_ / "data", 4, rec_.fps);
+  EXPECT_EQ(got, Sums(dir_ / "local", 4, rec_.fps));
+  for (const auto& [frame, sum] : got) EXPECT_GT(sum.count, 0u) << "frame " << frame;
+}
+
 TEST_F(SlurmIngest, KilledTaskThenResubmitLeavesEveryFrameWholeAndOnce) {
   Generate(8, 192, 144);
   Reference();
