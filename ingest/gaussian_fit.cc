@@ -332,6 +332,9 @@ Status FitGaussians(const std::vector<FitView>& views, const FitOptions& o, Gaus
   int epoch_views = 0;
 
   for (int it = 1; it <= iterations; ++it) {
+    if (o.cancelled && o.cancelled()) {
+      return Status(StatusCode::kCancelled, "fit: cancelled at iteration " + std::to_string(it));
+    }
     // The SH degree grows as 3DGS's oneupSHdegree.
     if (cloud->sh_degree < o.sh_degree && it % o.sh_degree_interval == 0) {
       const int d = cloud->sh_degree + 1;

@@ -77,6 +77,8 @@ struct FitOptions {
   int threads = 0;  // 0: every core
   // Called every iteration with (done, total): a progress bar.
   std::function<void(int, int)> progress;
+  // Asked before every iteration; true: the fit stops with Cancelled (the cloud as it was then).
+  std::function<bool()> cancelled;
 };
 
 // `o` with `iterations` steps and its schedule scaled to them as the defaults are to 600:

@@ -51,16 +51,6 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
   // Options are checked (and strokes read) before anything is created.
   HVDB_ASSIGN_OR_RETURN(FrameProcessor proc, FrameProcessor::Make(rec, opt));
   HVDB_RETURN_IF_ERROR(EnsureDataset(backend, rec, opt.dataset, opt.gaussians));
-  GaussianFrameOptions fit_options = opt.gaussian;
-  if (opt.progress && !fit_options.fit.progress) {
-    fit_options.fit.progress = [](int done, int total) {
-      if (done % 10 == 0 || done == total) {
-        std::fprintf(stderr, "\r  fitting Gaussians: iteration %d/%d   ", done, total);
-        std::fflush(stderr);
-      }
-    };
-  }
-  GaussianVideoFitter fitter(fit_options);
 
   const auto t_start = Clock::now();
   IngestReport report;
@@ -100,6 +90,19 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
   std::deque<Done> done;
   std::atomic<size_t> next{0};
   std::atomic<bool> stop{false};
+  GaussianFrameOptions fit_options = opt.gaussian;
+  if (opt.progress && !fit_options.fit.progress) {
+    fit_options.fit.progress = [](int step, int total) {
+      if (step % 10 == 0 || step == total) {
+        std::fprintf(stderr, "\r  fitting Gaussians: iteration %d/%d   ", step, total);
+        std::fflush(stderr);
+      }
+    };
+  }
+  // A failed frame stops the run: the fit in progress stops with it instead of finishing a
+  // frame that would not be committed.
+  fit_options.fit.cancelled = [&stop] { return stop.load(); };
+  GaussianVideoFitter fitter(fit_options);
   const bool one_connection = backend.remote();
   auto worker = [&] {
     while (!stop) {

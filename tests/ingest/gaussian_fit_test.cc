@@ -327,6 +327,19 @@ TEST(GaussianFitTest, AMovingObjectsGaussiansFollowItAndTheRestStaysTheSame) {
   EXPECT_GE(far, 40u);
 }
 
+TEST(GaussianFitTest, ACancelledFitStopsAtTheNextIteration) {
+  GaussianCloud g = KnownScene(20, 3);
+  const auto views = Photograph(g, Ring(4, 0));
+  FitOptions o;
+  o.iterations = 1000;
+  o.threads = 1;
+  int asked = 0;
+  o.cancelled = [&asked] { return ++asked > 5; };
+  const Status st = FitGaussians(views, o, &g);
+  EXPECT_EQ(st.code(), StatusCode::kCancelled) << st.ToString();
+  EXPECT_EQ(asked, 6);
+}
+
 TEST(GaussianFitTest, RefusesViewsThatDoNotMatchTheirCameras) {
   GaussianCloud g = KnownScene(10, 1);
   auto views = Photograph(g, Ring(2, 0));
