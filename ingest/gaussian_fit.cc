@@ -100,22 +100,11 @@ float SceneExtent(const std::vector<FitView>& views) {
 std::vector<uint8_t> SeenOnMasks(const GaussianCloud& cloud, const std::vector<FitView>& views) {
   std::vector<uint8_t> seen(cloud.size(), 0);
   for (const FitView& v : views) {
-    const auto& m = v.camera.world_from_camera;  // columns: the camera's axes and centre
     for (size_t i = 0; i < cloud.size(); ++i) {
       if (seen[i]) continue;
-      double d[3], c[3] = {0, 0, 0};
-      for (int k = 0; k < 3; ++k) d[k] = cloud.position[3 * i + k] - m[4 * k + 3];
-      for (int r = 0; r < 3; ++r) {
-        for (int k = 0; k < 3; ++k) c[r] += m[4 * k + r] * d[k];  // R^T d
-      }
-      if (c[2] <= 0) continue;
-      const long x = std::lround(v.camera.fx * c[0] / c[2] + v.camera.cx);
-      const long y = std::lround(v.camera.fy * c[1] / c[2] + v.camera.cy);
-      if (x < 0 || y < 0 || x >= static_cast<long>(v.camera.width) ||
-          y >= static_cast<long>(v.camera.height)) {
-        continue;
-      }
-      seen[i] = v.mask[static_cast<size_t>(y) * v.camera.width + static_cast<size_t>(x)] != 0;
+      const float* p = &cloud.position[3 * i];
+      const long at = PixelOf(v.camera, p[0], p[1], p[2]);
+      seen[i] = at >= 0 && v.mask[static_cast<size_t>(at)] != 0;
     }
   }
   return seen;
@@ -153,6 +142,20 @@ struct KeptPoints {
 };
 
 }  // namespace
+
+long PixelOf(const render::Camera& camera, double x, double y, double z) {
+  const auto& m = camera.world_from_camera;  // columns: the camera's axes and centre
+  const double d[3] = {x - m[3], y - m[7], z - m[11]};
+  double c[3] = {0, 0, 0};
+  for (int r = 0; r < 3; ++r) {
+    for (int k = 0; k < 3; ++k) c[r] += m[4 * k + r] * d[k];  // R^T d
+  }
+  if (!(c[2] > 0)) return -1;
+  const double u = std::round(camera.fx * c[0] / c[2] + camera.cx);
+  const double v = std::round(camera.fy * c[1] / c[2] + camera.cy);
+  if (!(u >= 0 && v >= 0 && u < camera.width && v < camera.height)) return -1;
+  return static_cast<long>(v) * camera.width + static_cast<long>(u);
+}
 
 std::vector<uint8_t> ChangedPixels(const std::vector<float>& before, const std::vector<float>& now,
                                    int width, int height, float threshold, int grow) {

@@ -115,6 +115,10 @@ formats::GaussianCloud CloudFromPoints(std::span<const Point> points, int sh_deg
 Status FitGaussians(const std::vector<FitView>& views, const FitOptions& options,
                     formats::GaussianCloud* cloud, FitReport* report = nullptr);
 
+// The index (y * width + x) of the pixel whose centre is nearest to where `camera` (pinhole:
+// its distortion is not applied) sees world point (x, y, z); -1 behind it or outside the image.
+long PixelOf(const render::Camera& camera, double x, double y, double z);
+
 // PSNR (dB) of `render` against `target`, both 3 floats a pixel, values clamped to [0, 1]; over
 // the pixels `valid` sets (one byte a pixel) when it is not empty (NaN when it sets none).
 double Psnr(std::span<const float> render, std::span<const float> target,

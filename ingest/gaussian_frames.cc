@@ -58,17 +58,9 @@ std::vector<uint8_t> Coverage(const FitView& view, const std::vector<Point>& poi
   const auto& cam = view.camera;
   const int w = static_cast<int>(cam.width), h = static_cast<int>(cam.height);
   std::vector<uint8_t> hit(static_cast<size_t>(w) * h, 0);
-  const auto& m = cam.world_from_camera;
   for (const Point& p : points) {
-    const double d[3] = {p.x - m[3], p.y - m[7], p.z - m[11]};
-    double c[3] = {0, 0, 0};
-    for (int r = 0; r < 3; ++r) {
-      for (int k = 0; k < 3; ++k) c[r] += m[4 * k + r] * d[k];
-    }
-    if (c[2] <= 0) continue;
-    const long x = std::lround(cam.fx * c[0] / c[2] + cam.cx);
-    const long y = std::lround(cam.fy * c[1] / c[2] + cam.cy);
-    if (x >= 0 && y >= 0 && x < w && y < h) hit[static_cast<size_t>(y) * w + x] = 1;
+    const long at = PixelOf(cam, p.x, p.y, p.z);
+    if (at >= 0) hit[static_cast<size_t>(at)] = 1;
   }
   cv::Mat in(h, w, CV_8U, hit.data()), out;
   cv::dilate(in, out,

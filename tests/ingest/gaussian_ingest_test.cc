@@ -12,6 +12,7 @@
 #include "client/backend.h"
 #include "ingest/generator.h"
 #include "ingest/pipeline.h"
+#include "tests/ingest/frame_points.h"
 #include "tests/ingest/test_util.h"
 
 namespace hvdb::ingest {
@@ -47,26 +48,6 @@ IngestOptions GaussianOptions(const std::string& dataset) {
   return o;
 }
 
-// The points of dataset frame f.
-std::vector<Point> FramePoints(client::Backend& b, const std::string& dataset, uint32_t f,
-                               double fps) {
-  Window w;
-  for (int a = 0; a < 3; ++a) w.lo[a] = -1e9, w.hi[a] = 1e9;
-  w.lo[3] = w.hi[3] = f / fps;
-  auto q = b.Query(dataset, w, QueryOptions{});
-  EXPECT_TRUE(q.ok()) << q.status().ToString();
-  std::vector<Point> out;
-  if (!q.ok()) return out;
-  Batch batch;
-  while (true) {
-    auto more = (*q)->Next(&batch);
-    EXPECT_TRUE(more.ok());
-    if (!more.ok() || !*more) break;
-    out.insert(out.end(), batch.points.begin(), batch.points.end());
-  }
-  return out;
-}
-
 TEST(GaussianIngest, FitsEveryFrameInOrderIntoAGaussianDatasetAndResumes) {
   TempDir dir;
   ASSERT_TRUE(GenerateRecording(SmallRig(2), dir / "rec").ok());
@@ -85,7 +66,7 @@ TEST(GaussianIngest, FitsEveryFrameInOrderIntoAGaussianDatasetAndResumes) {
     EXPECT_GT(fr.fit->psnr, 20.0) << "frame " << fr.frame;  // on the training views
     EXPECT_GT(fr.stage_ms.at("fit"), 0);
     // The frame stores the fitted splats, each with its Gaussian record.
-    const auto points = FramePoints(*backend, "g", fr.dataset_frame, rec->fps);
+    const auto points = testing::QueryFramePoints(*backend, "g", fr.dataset_frame, rec->fps);
     EXPECT_EQ(points.size(), fr.fit->splats_out);
     EXPECT_EQ(points.size(), fr.points);
     auto records = backend->ReadGaussians("g", points);
@@ -133,8 +114,8 @@ TEST(GaussianIngest, AFrameWithAMissingPhotoIsNamedAndNotCommitted) {
   EXPECT_EQ(rep->frames[1].status, "skipped");
   EXPECT_NE(rep->frames[1].error.find(fs::path(lost).filename().string()), std::string::npos)
       << rep->frames[1].error;
-  EXPECT_TRUE(FramePoints(*backend, "g", 1, rec->fps).empty());
-  EXPECT_FALSE(FramePoints(*backend, "g", 0, rec->fps).empty());
+  EXPECT_TRUE(testing::QueryFramePoints(*backend, "g", 1, rec->fps).empty());
+  EXPECT_FALSE(testing::QueryFramePoints(*backend, "g", 0, rec->fps).empty());
 }
 
 TEST(GaussianIngest, TheCommandFitsAndReports) {
