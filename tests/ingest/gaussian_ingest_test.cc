@@ -118,6 +118,30 @@ TEST(GaussianIngest, AFrameWithAMissingPhotoIsNamedAndNotCommitted) {
   EXPECT_FALSE(testing::QueryFramePoints(*backend, "g", 0, rec->fps).empty());
 }
 
+// A point-cloud recording without colour cameras has nothing to fit to: refused, naming what
+// it lacks, before a dataset is created.
+TEST(GaussianIngest, ARecordingWithoutColourCamerasIsRefusedBeforeAnythingIsMade) {
+  TempDir dir;
+  Recording r;
+  r.dir = dir / "ply";
+  fs::create_directories(r.dir + "/frames");
+  r.kind = RecordingKind::kPly;
+  r.frames = 1;
+  ASSERT_TRUE(SaveRecording(r).ok());
+  std::ofstream(r.dir + "/frames/000000.ply")
+      << "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+         "property float z\nend_header\n0 0 1\n";
+  auto rec = OpenRecording(r.dir);
+  ASSERT_TRUE(rec.ok()) << rec.status().ToString();
+  auto backend = client::MakeEmbeddedBackend(dir / "data", 16 << 20);
+  auto rep = RunIngest(*rec, *backend, GaussianOptions("g"));
+  ASSERT_FALSE(rep.ok());
+  EXPECT_EQ(rep.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(rep.status().message().find("no colour cameras"), std::string::npos)
+      << rep.status().ToString();
+  EXPECT_TRUE(backend->Describe("g").status().IsNotFound());
+}
+
 TEST(GaussianIngest, TheCommandFitsAndReports) {
   TempDir dir;
   ASSERT_TRUE(GenerateRecording(SmallRig(1), dir / "rec").ok());
