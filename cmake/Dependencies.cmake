@@ -24,10 +24,22 @@ find_package(OpenEXR REQUIRED)
 find_package(glm REQUIRED)
 # FFmpeg's libraries: videos read by media/ (hvdb import-media) and written by
 # render/video_encoder.cc (hvdb render --video, the page's video export); meshes through assimp.
+# The product uses their headers and loads them on first use (formats/libav.h); the majors name
+# the Debian packages the .deb depends on.
 pkg_check_modules(LIBAV REQUIRED IMPORTED_TARGET libavformat libavcodec libswscale libavutil)
+foreach(m avformat avcodec avutil swscale)
+  string(TOUPPER ${m} upper)
+  string(REGEX MATCH "^[0-9]+" HVDB_LIB${upper}_MAJOR "${LIBAV_lib${m}_VERSION}")
+endforeach()
 # SPZ version 4 (formats/gaussian_spz.cc): one zstd stream per attribute.
 pkg_check_modules(ZSTD REQUIRED IMPORTED_TARGET libzstd)
 find_package(assimp REQUIRED)
+# media/ loads assimp on first use (media/assimp_lib.h) by the soname of the library found here
+# (libassimp.so.5), and the .deb depends on the package of that name (libassimp5).
+get_target_property(_assimp_configs assimp::assimp IMPORTED_CONFIGURATIONS)
+list(GET _assimp_configs 0 _assimp_config)
+get_target_property(HVDB_ASSIMP_SONAME assimp::assimp IMPORTED_SONAME_${_assimp_config})
+string(REPLACE ".so." "" HVDB_ASSIMP_PACKAGE "${HVDB_ASSIMP_SONAME}")
 find_package(OpenGL REQUIRED COMPONENTS EGL OpenGL)
 find_package(Protobuf REQUIRED)
 find_package(nlohmann_json 3.10 REQUIRED)

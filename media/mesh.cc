@@ -13,13 +13,9 @@
 #include <cstring>
 #include <random>
 
-#include <assimp/IOStream.hpp>
-#include <assimp/IOSystem.hpp>
-#include <assimp/Importer.hpp>
-#include <assimp/material.h>
 #include <assimp/postprocess.h>
-#include <assimp/scene.h>
 
+#include "media/assimp_lib.h"
 #include "media/media.h"
 #include "media/surfel.h"
 
@@ -39,29 +35,61 @@ constexpr uint64_t kSeed = 0x68766462'6d657368ull;
 constexpr double kMinSpacing = 0.002;      // metres
 constexpr double kMaxMeshPoints = 200000;  // a frame, at the default spacing
 
-// assimp's file access for a request's mesh: ReadFileFromMemory serves the file itself and
-// asks this for every other name (a glTF's external buffer, an OBJ's mtllib, ...), which it
-// refuses and remembers, so that no path on the server is ever opened on a client's behalf.
-class RequestOnlyIO : public Assimp::IOSystem {
- public:
-  explicit RequestOnlyIO(std::string* refused) : refused_(refused) {}
-  bool Exists(const char* name) const override {
-    Refuse(name);
-    return false;
-  }
-  char getOsSeparator() const override { return '/'; }
-  Assimp::IOStream* Open(const char* name, const char*) override {
-    Refuse(name);
-    return nullptr;
-  }
-  void Close(Assimp::IOStream* stream) override { delete stream; }
+// assimp's file access for a request's mesh (its C API's aiFileIO): the file itself is served
+// from memory under a name beginning with kMemoryName (as Assimp::Importer's ReadFileFromMemory
+// does), and every other name assimp asks for (a glTF's external buffer, an OBJ's mtllib, ...)
+// is refused and remembered, so that no path on the server is ever opened on a client's behalf.
+constexpr char kMemoryName[] = "$$$___magic___$$$";
 
- private:
-  void Refuse(const char* name) const {
-    if (refused_->empty()) *refused_ = name != nullptr && *name != 0 ? name : "(no name)";
-  }
-  std::string* refused_;
+struct RequestOnlyIO {
+  aiFileIO io;
+  std::string_view data;
+  std::string refused;
 };
+
+struct MemoryFile {
+  aiFile file;
+  std::string_view data;
+  size_t pos = 0;
+};
+
+MemoryFile* FileOf(aiFile* f) { return reinterpret_cast<MemoryFile*>(f->UserData); }
+
+size_t MemoryRead(aiFile* f, char* buf, size_t size, size_t count) {
+  MemoryFile* m = FileOf(f);
+  if (size == 0 || count == 0) return 0;
+  const size_t n = std::min(count, (m->data.size() - m->pos) / size);
+  std::memcpy(buf, m->data.data() + m->pos, n * size);
+  m->pos += n * size;
+  return n;
+}
+size_t MemoryWrite(aiFile*, const char*, size_t, size_t) { return 0; }
+size_t MemoryTell(aiFile* f) { return FileOf(f)->pos; }
+size_t MemorySize(aiFile* f) { return FileOf(f)->data.size(); }
+void MemoryFlush(aiFile*) {}
+aiReturn MemorySeek(aiFile* f, size_t offset, aiOrigin origin) {
+  MemoryFile* m = FileOf(f);
+  const size_t base = origin == aiOrigin_CUR ? m->pos : origin == aiOrigin_END ? m->data.size() : 0;
+  if (origin == aiOrigin_END ? offset > base : offset > m->data.size() - base) return aiReturn_FAILURE;
+  m->pos = origin == aiOrigin_END ? base - offset : base + offset;
+  return aiReturn_SUCCESS;
+}
+
+aiFile* RequestOpen(aiFileIO* io, const char* name, const char*) {
+  auto* r = reinterpret_cast<RequestOnlyIO*>(io->UserData);
+  if (name != nullptr && std::strncmp(name, kMemoryName, sizeof kMemoryName - 1) == 0) {
+    auto* m = new MemoryFile{{MemoryRead, MemoryWrite, MemoryTell, MemorySize, MemorySeek,
+                              MemoryFlush, nullptr},
+                             r->data};
+    m->file.UserData = reinterpret_cast<aiUserData>(m);
+    return &m->file;
+  }
+  if (r->refused.empty()) r->refused = name != nullptr && *name != 0 ? name : "(no name)";
+  return nullptr;
+}
+void RequestClose(aiFileIO*, aiFile* f) {
+  if (f != nullptr) delete FileOf(f);
+}
 
 // A mesh's colour source: a texture (RGBA), vertex colours, or one colour.
 struct Colours {
@@ -79,20 +107,24 @@ uint8_t ToByte(double v) {
 // a side: plenty for samples 2 mm apart.
 constexpr uint32_t kMaxTextureSide = 4096;
 
-Result<Colours> ColoursOf(const aiScene* scene, const aiMesh* mesh, const Budget& budget) {
+Result<Colours> ColoursOf(const AssimpLib& ai, const aiScene* scene, const aiMesh* mesh,
+                          const Budget& budget) {
   Colours c;
   if (mesh->HasVertexColors(0)) c.vertex_colours = true;
   if (mesh->mMaterialIndex >= scene->mNumMaterials) return c;
   const aiMaterial* mat = scene->mMaterials[mesh->mMaterialIndex];
   aiColor4D diffuse;
-  if (mat->Get(AI_MATKEY_BASE_COLOR, diffuse) == AI_SUCCESS ||
-      mat->Get(AI_MATKEY_COLOR_DIFFUSE, diffuse) == AI_SUCCESS) {
+  if (ai.aiGetMaterialColor(mat, AI_MATKEY_BASE_COLOR, &diffuse) == AI_SUCCESS ||
+      ai.aiGetMaterialColor(mat, AI_MATKEY_COLOR_DIFFUSE, &diffuse) == AI_SUCCESS) {
     c.flat = {ToByte(diffuse.r), ToByte(diffuse.g), ToByte(diffuse.b)};
   }
   for (aiTextureType type : {aiTextureType_BASE_COLOR, aiTextureType_DIFFUSE}) {
     aiString path;
     unsigned uv = 0;
-    if (mat->GetTexture(type, 0, &path, nullptr, &uv) != AI_SUCCESS) continue;
+    if (ai.aiGetMaterialTexture(mat, type, 0, &path, nullptr, &uv, nullptr, nullptr, nullptr,
+                                nullptr) != AI_SUCCESS) {
+      continue;
+    }
     // Only embedded textures travel with the bytes (GLB, data URIs); a file beside an OBJ does
     // not, and the mesh keeps its other colours.
     const aiTexture* tex = scene->GetEmbeddedTexture(path.C_Str());
@@ -156,30 +188,37 @@ constexpr uint64_t kAssimpBytesPerFileByte = 12;
 namespace {
 
 // assimp's parse and our sampling of it, run in the child process of SampleMesh.
-Result<std::vector<Point>> SampleHere(std::string_view data, const std::string& format,
-                                      const Placement& place, double spacing, uint32_t label,
-                                      const Budget& budget, const std::string& what) {
-  Assimp::Importer importer;
-  std::string refused;
-  importer.SetIOHandler(new RequestOnlyIO(&refused));  // the importer owns it
+Result<std::vector<Point>> SampleHere(const AssimpLib& ai, std::string_view data,
+                                      const std::string& format, const Placement& place,
+                                      double spacing, uint32_t label, const Budget& budget,
+                                      const std::string& what) {
+  RequestOnlyIO io{{RequestOpen, RequestClose, nullptr}, data, {}};
+  io.io.UserData = reinterpret_cast<aiUserData>(&io);
   // Node transforms baked in, points and lines dropped; the scene validated first (face indices
   // within the vertices, counts, references), before any step or our sampler reads it.
   // Polygons are split into triangles below, not by aiProcess_Triangulate: that step aborts the
   // process (an assertion) on some scenes that pass validation (found by media_import_fuzz).
-  importer.SetPropertyInteger(AI_CONFIG_PP_SBP_REMOVE,
-                              aiPrimitiveType_POINT | aiPrimitiveType_LINE);
+  aiPropertyStore* props = ai.aiCreatePropertyStore();
+  ai.aiSetImportPropertyInteger(props, AI_CONFIG_PP_SBP_REMOVE,
+                                aiPrimitiveType_POINT | aiPrimitiveType_LINE);
+  // The name's extension is assimp's format hint; none: it tells the format from the bytes.
   const std::string hint = format.empty() && data.substr(0, 4) == "glTF" ? "glb" : format;
-  const aiScene* scene = importer.ReadFileFromMemory(
-      data.data(), data.size(),
-      aiProcess_ValidateDataStructure | aiProcess_PreTransformVertices | aiProcess_SortByPType,
-      hint.c_str());
+  const std::string name = std::string(kMemoryName) + "." + hint;
+  std::unique_ptr<const aiScene, decltype(ai.aiReleaseImport)> scene(
+      ai.aiImportFileExWithProperties(
+          name.c_str(),
+          aiProcess_ValidateDataStructure | aiProcess_PreTransformVertices | aiProcess_SortByPType,
+          &io.io, props),
+      ai.aiReleaseImport);
+  ai.aiReleasePropertyStore(props);
+  const std::string& refused = io.refused;
   if (!refused.empty()) {
     return Status::InvalidArgument(what + " refers to '" + refused +
                                    "', outside the bytes sent: only the file itself and data: "
                                    "URIs are read; embed it (GLB, or a data: URI) or leave it out");
   }
   if (scene == nullptr) {
-    return Status::InvalidArgument(what + " could not be read: " + importer.GetErrorString());
+    return Status::InvalidArgument(what + " could not be read: " + ai.aiGetErrorString());
   }
   HVDB_RETURN_IF_ERROR(budget.CheckTime(what));
   std::vector<Colours> colours(scene->mNumMeshes);
@@ -190,7 +229,7 @@ Result<std::vector<Point>> SampleHere(std::string_view data, const std::string& 
   for (unsigned m = 0; m < scene->mNumMeshes; ++m) {
     const aiMesh* mesh = scene->mMeshes[m];
     if (!(mesh->mPrimitiveTypes & (aiPrimitiveType_TRIANGLE | aiPrimitiveType_POLYGON))) continue;
-    HVDB_ASSIGN_OR_RETURN(colours[m], ColoursOf(scene, mesh, budget));
+    HVDB_ASSIGN_OR_RETURN(colours[m], ColoursOf(ai, scene.get(), mesh, budget));
     for (unsigned f = 0; f < mesh->mNumFaces; ++f) {
       const aiFace& face = mesh->mFaces[f];
       if (face.mNumIndices < 3 || face.mIndices == nullptr) continue;
@@ -331,6 +370,8 @@ Result<std::vector<Point>> SampleMesh(std::string_view data, const std::string& 
   const std::string what = "import_media: the mesh (" + (format.empty() ? "?" : format) + ")";
   if (data.empty()) return Status::InvalidArgument(what + " is empty");
   HVDB_RETURN_IF_ERROR(CheckMeshFile(data, format, what));
+  // Loaded here, not in the child: a fork of a threaded process should not run the loader.
+  HVDB_ASSIGN_OR_RETURN(const AssimpLib* ai, LoadAssimp());
   const uint64_t parse_bytes = data.size() * kAssimpBytesPerFileByte;
   HVDB_RETURN_IF_ERROR(budget.Reserve(parse_bytes, what));
   // Seconds the parse may take: the job's time left, else kMaxParseSeconds.
@@ -376,7 +417,8 @@ Result<std::vector<Point>> SampleMesh(std::string_view data, const std::string& 
     }
 #endif
     std::string out;
-    Result<std::vector<Point>> r = SampleHere(data, format, place, spacing, label, Budget{}, what);
+    Result<std::vector<Point>> r =
+        SampleHere(*ai, data, format, place, spacing, label, Budget{}, what);
     if (r.ok()) {
       out.push_back('\1');
       out.append(reinterpret_cast<const char*>(r->data()), r->size() * sizeof(Point));

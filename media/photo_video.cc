@@ -10,21 +10,17 @@
 #include <memory>
 #include <mutex>
 
-extern "C" {
-#include <libavcodec/avcodec.h>
-#include <libavformat/avformat.h>
-#include <libavutil/log.h>
-#include <libswscale/swscale.h>
-}
-
 #include <opencv2/core.hpp>
 
 #include "formats/image_codec.h"
+#include "formats/libav.h"
 #include "media/media.h"
 #include "storage/photo_video.h"
 
 namespace hvdb::media {
 namespace {
+
+using formats::Av;
 
 // SVT-AV1 and libaom need a picture of at least this many pixels a side, and 4:2:0 even sides:
 // smaller or odd pictures are padded by repeating their edge, and cropped back on decoding.
@@ -33,7 +29,7 @@ constexpr int kStartCrf = 50;  // Panoptic's 1080p Kinect views: ~41.5 dB at 50 
 
 std::string AvError(int err) {
   char buf[AV_ERROR_MAX_STRING_SIZE] = {};
-  av_strerror(err, buf, sizeof buf);
+  Av().av_strerror(err, buf, sizeof buf);
   return buf;
 }
 
@@ -106,13 +102,13 @@ int Padded(int side) { return std::max(kMinSide, (side + 1) & ~1); }
 class IvfDecoder {
  public:
   ~IvfDecoder() {
-    sws_freeContext(sws_);
-    av_frame_free(&frame_);
-    av_packet_free(&packet_);
-    avcodec_free_context(&codec_);
-    avformat_close_input(&fmt_);
-    if (io_ != nullptr) av_freep(&io_->buffer);
-    avio_context_free(&io_);
+    Av().sws_freeContext(sws_);
+    Av().av_frame_free(&frame_);
+    Av().av_packet_free(&packet_);
+    Av().avcodec_free_context(&codec_);
+    Av().avformat_close_input(&fmt_);
+    if (io_ != nullptr) Av().av_freep(&io_->buffer);
+    Av().avio_context_free(&io_);
   }
 
   Status Open(std::string video, int w, int h, const std::string& what) {
@@ -122,22 +118,22 @@ class IvfDecoder {
     file_.read = reinterpret_cast<const uint8_t*>(video_.data());
     file_.size = int64_t(video_.size());
     constexpr int kBuffer = 1 << 16;
-    auto* buffer = static_cast<uint8_t*>(av_malloc(kBuffer));
+    auto* buffer = static_cast<uint8_t*>(Av().av_malloc(kBuffer));
     if (buffer == nullptr) return Status::Internal(what + ": out of memory");
-    io_ = avio_alloc_context(buffer, kBuffer, 0, &file_, &MemoryFile::Read, nullptr, &MemoryFile::Seek);
+    io_ = Av().avio_alloc_context(buffer, kBuffer, 0, &file_, &MemoryFile::Read, nullptr, &MemoryFile::Seek);
     if (io_ == nullptr) {
-      av_free(buffer);
+      Av().av_free(buffer);
       return Status::Internal(what + ": out of memory");
     }
-    fmt_ = avformat_alloc_context();
-    packet_ = av_packet_alloc();
-    frame_ = av_frame_alloc();
+    fmt_ = Av().avformat_alloc_context();
+    packet_ = Av().av_packet_alloc();
+    frame_ = Av().av_frame_alloc();
     if (fmt_ == nullptr || packet_ == nullptr || frame_ == nullptr) {
       return Status::Internal(what + ": out of memory");
     }
     fmt_->pb = io_;
     fmt_->flags |= AVFMT_FLAG_CUSTOM_IO;
-    int err = avformat_open_input(&fmt_, nullptr, av_find_input_format("ivf"), nullptr);
+    int err = Av().avformat_open_input(&fmt_, nullptr, Av().av_find_input_format("ivf"), nullptr);
     if (err < 0) {
       fmt_ = nullptr;  // freed by avformat_open_input (not our IO)
       return Bad("not an IVF video (" + AvError(err) + ")");
@@ -145,14 +141,14 @@ class IvfDecoder {
     if (fmt_->nb_streams != 1 || fmt_->streams[0]->codecpar->codec_id != AV_CODEC_ID_AV1) {
       return Bad("not one AV1 stream");
     }
-    const AVCodec* dec = avcodec_find_decoder_by_name("libdav1d");
-    if (dec == nullptr) dec = avcodec_find_decoder(AV_CODEC_ID_AV1);
+    const AVCodec* dec = Av().avcodec_find_decoder_by_name("libdav1d");
+    if (dec == nullptr) dec = Av().avcodec_find_decoder(AV_CODEC_ID_AV1);
     if (dec == nullptr) return Status::Unsupported(what + ": this libavcodec decodes no AV1");
-    codec_ = avcodec_alloc_context3(dec);
+    codec_ = Av().avcodec_alloc_context3(dec);
     if (codec_ == nullptr) return Status::Internal(what + ": out of memory");
-    avcodec_parameters_to_context(codec_, fmt_->streams[0]->codecpar);
+    Av().avcodec_parameters_to_context(codec_, fmt_->streams[0]->codecpar);
     codec_->thread_count = 0;
-    if ((err = avcodec_open2(codec_, dec, nullptr)) < 0) {
+    if ((err = Av().avcodec_open2(codec_, dec, nullptr)) < 0) {
       return Status::Internal(what + ": cannot open " + dec->name + ": " + AvError(err));
     }
     return Status::OK();
@@ -161,25 +157,25 @@ class IvfDecoder {
   // The next picture (false: the video has no more). Valid until the next call.
   Result<bool> Next(cv::Mat* out) {
     for (;;) {
-      const int r = avcodec_receive_frame(codec_, frame_);
+      const int r = Av().avcodec_receive_frame(codec_, frame_);
       if (r == 0) break;
       if (r == AVERROR_EOF || (r == AVERROR(EAGAIN) && eof_)) return false;
       if (r != AVERROR(EAGAIN)) return Bad("a picture does not decode (" + AvError(r) + ")");
-      const int e = av_read_frame(fmt_, packet_);
+      const int e = Av().av_read_frame(fmt_, packet_);
       if (e < 0) {
         eof_ = true;
-        avcodec_send_packet(codec_, nullptr);
+        Av().avcodec_send_packet(codec_, nullptr);
         continue;
       }
-      const int s = avcodec_send_packet(codec_, packet_);
-      av_packet_unref(packet_);
+      const int s = Av().avcodec_send_packet(codec_, packet_);
+      Av().av_packet_unref(packet_);
       if (s < 0) return Bad("a packet does not decode (" + AvError(s) + ")");
     }
     if (frame_->width < w_ || frame_->height < h_) {
-      av_frame_unref(frame_);
+      Av().av_frame_unref(frame_);
       return Bad("a picture smaller than its index says");
     }
-    sws_ = sws_getCachedContext(sws_, frame_->width, frame_->height, AVPixelFormat(frame_->format),
+    sws_ = Av().sws_getCachedContext(sws_, frame_->width, frame_->height, AVPixelFormat(frame_->format),
                                 frame_->width, frame_->height, AV_PIX_FMT_BGR24,
                                 SWS_BILINEAR | SWS_ACCURATE_RND | SWS_FULL_CHR_H_INT, nullptr,
                                 nullptr, nullptr);
@@ -187,8 +183,8 @@ class IvfDecoder {
     bgr_.create(frame_->height, frame_->width, CV_8UC3);
     uint8_t* dst[4] = {bgr_.data, nullptr, nullptr, nullptr};
     int stride[4] = {int(bgr_.step), 0, 0, 0};
-    sws_scale(sws_, frame_->data, frame_->linesize, 0, frame_->height, dst, stride);
-    av_frame_unref(frame_);
+    Av().sws_scale(sws_, frame_->data, frame_->linesize, 0, frame_->height, dst, stride);
+    Av().av_frame_unref(frame_);
     *out = bgr_(cv::Rect(0, 0, w_, h_));
     ++next_;
     return true;
@@ -256,8 +252,8 @@ class DecoderCache {
 // libaom), or, `full_chroma`, 4:4:4 by libaom (AV1's high profile; SVT-AV1 1.4 codes 4:2:0 only).
 Result<std::string> EncodeAt(const std::vector<cv::Mat>& pictures, int crf, bool full_chroma,
                              std::string* name) {
-  const AVCodec* enc = full_chroma ? nullptr : avcodec_find_encoder_by_name("libsvtav1");
-  if (enc == nullptr) enc = avcodec_find_encoder_by_name("libaom-av1");
+  const AVCodec* enc = full_chroma ? nullptr : Av().avcodec_find_encoder_by_name("libsvtav1");
+  if (enc == nullptr) enc = Av().avcodec_find_encoder_by_name("libaom-av1");
   if (enc == nullptr) {
     return Status::Unsupported(std::string("photo video: this libavcodec has no AV1 encoder (") +
                                (full_chroma ? "libaom-av1 for 4:4:4" : "libsvtav1 or libaom-av1") +
@@ -266,29 +262,29 @@ Result<std::string> EncodeAt(const std::vector<cv::Mat>& pictures, int crf, bool
   const AVPixelFormat pix = full_chroma ? AV_PIX_FMT_YUV444P : AV_PIX_FMT_YUV420P;
   const int w = pictures[0].cols, h = pictures[0].rows;
   AVFormatContext* fmt = nullptr;
-  AVCodecContext* codec = avcodec_alloc_context3(enc);
-  AVFrame* frame = av_frame_alloc();
-  AVPacket* packet = av_packet_alloc();
+  AVCodecContext* codec = Av().avcodec_alloc_context3(enc);
+  AVFrame* frame = Av().av_frame_alloc();
+  AVPacket* packet = Av().av_packet_alloc();
   SwsContext* sws = nullptr;
   MemoryFile file;
   struct Free {
     AVFormatContext*& fmt; AVCodecContext*& codec; AVFrame*& frame; AVPacket*& packet;
     SwsContext*& sws;
     ~Free() {
-      sws_freeContext(sws);
-      av_packet_free(&packet);
-      av_frame_free(&frame);
-      avcodec_free_context(&codec);
+      Av().sws_freeContext(sws);
+      Av().av_packet_free(&packet);
+      Av().av_frame_free(&frame);
+      Av().avcodec_free_context(&codec);
       if (fmt != nullptr) {
         if (fmt->pb != nullptr) {
-          av_freep(&fmt->pb->buffer);
-          avio_context_free(&fmt->pb);
+          Av().av_freep(&fmt->pb->buffer);
+          Av().avio_context_free(&fmt->pb);
         }
-        avformat_free_context(fmt);
+        Av().avformat_free_context(fmt);
       }
     }
   } free_all{fmt, codec, frame, packet, sws};
-  if (avformat_alloc_output_context2(&fmt, nullptr, "ivf", nullptr) < 0 || fmt == nullptr) {
+  if (Av().avformat_alloc_output_context2(&fmt, nullptr, "ivf", nullptr) < 0 || fmt == nullptr) {
     return Status::Internal("photo video: no IVF muxer in this libavformat");
   }
   codec->width = w;
@@ -300,62 +296,62 @@ Result<std::string> EncodeAt(const std::vector<cv::Mat>& pictures, int crf, bool
   codec->gop_size = int(pictures.size()) + 1;
   codec->thread_count = 0;
   AVDictionary* opts = nullptr;
-  av_dict_set_int(&opts, "crf", crf, 0);
+  Av().av_dict_set_int(&opts, "crf", crf, 0);
   if (std::strcmp(enc->name, "libsvtav1") == 0) {
-    av_dict_set(&opts, "preset", "8", 0);
+    Av().av_dict_set(&opts, "preset", "8", 0);
     *name = "libsvtav1 preset 8 crf " + std::to_string(crf);
   } else {
-    av_dict_set(&opts, "cpu-used", "6", 0);
-    av_dict_set(&opts, "row-mt", "1", 0);
+    Av().av_dict_set(&opts, "cpu-used", "6", 0);
+    Av().av_dict_set(&opts, "row-mt", "1", 0);
     codec->bit_rate = 0;
     *name = "libaom-av1 cpu-used 6 crf " + std::to_string(crf) + (full_chroma ? " yuv444p" : "");
   }
-  int err = avcodec_open2(codec, enc, &opts);
-  av_dict_free(&opts);
+  int err = Av().avcodec_open2(codec, enc, &opts);
+  Av().av_dict_free(&opts);
   if (err < 0) return Status::Internal("photo video: cannot open " + std::string(enc->name) + ": " + AvError(err));
-  AVStream* stream = avformat_new_stream(fmt, nullptr);
+  AVStream* stream = Av().avformat_new_stream(fmt, nullptr);
   if (stream == nullptr) return Status::Internal("photo video: cannot add a stream");
   stream->time_base = codec->time_base;
-  avcodec_parameters_from_context(stream->codecpar, codec);
+  Av().avcodec_parameters_from_context(stream->codecpar, codec);
   constexpr int kBuffer = 1 << 16;
-  auto* buffer = static_cast<uint8_t*>(av_malloc(kBuffer));
-  fmt->pb = avio_alloc_context(buffer, kBuffer, 1, &file, nullptr, &MemoryFile::Write, &MemoryFile::Seek);
+  auto* buffer = static_cast<uint8_t*>(Av().av_malloc(kBuffer));
+  fmt->pb = Av().avio_alloc_context(buffer, kBuffer, 1, &file, nullptr, &MemoryFile::Write, &MemoryFile::Seek);
   if (fmt->pb == nullptr) return Status::Internal("photo video: cannot allocate the output");
-  if ((err = avformat_write_header(fmt, nullptr)) < 0) {
+  if ((err = Av().avformat_write_header(fmt, nullptr)) < 0) {
     return Status::Internal("photo video: cannot write the IVF header: " + AvError(err));
   }
   frame->format = codec->pix_fmt;
   frame->width = w;
   frame->height = h;
-  if (av_frame_get_buffer(frame, 0) < 0) return Status::Internal("photo video: no frame buffer");
-  sws = sws_getContext(w, h, AV_PIX_FMT_BGR24, w, h, pix,
+  if (Av().av_frame_get_buffer(frame, 0) < 0) return Status::Internal("photo video: no frame buffer");
+  sws = Av().sws_getContext(w, h, AV_PIX_FMT_BGR24, w, h, pix,
                        SWS_BILINEAR | SWS_ACCURATE_RND, nullptr, nullptr, nullptr);
   if (sws == nullptr) return Status::Internal("photo video: no BGR to YUV conversion");
   auto send = [&](AVFrame* f) -> Status {
-    int e = avcodec_send_frame(codec, f);
+    int e = Av().avcodec_send_frame(codec, f);
     if (e < 0) return Status::Internal("photo video: the encoder refused a picture: " + AvError(e));
     for (;;) {
-      e = avcodec_receive_packet(codec, packet);
+      e = Av().avcodec_receive_packet(codec, packet);
       if (e == AVERROR(EAGAIN) || e == AVERROR_EOF) return Status::OK();
       if (e < 0) return Status::Internal("photo video: " + AvError(e));
-      av_packet_rescale_ts(packet, codec->time_base, stream->time_base);
+      Av().av_packet_rescale_ts(packet, codec->time_base, stream->time_base);
       packet->stream_index = stream->index;
-      if ((e = av_write_frame(fmt, packet)) < 0) {
+      if ((e = Av().av_write_frame(fmt, packet)) < 0) {
         return Status::Internal("photo video: cannot write a packet: " + AvError(e));
       }
     }
   };
   for (size_t i = 0; i < pictures.size(); ++i) {
-    if (av_frame_make_writable(frame) < 0) return Status::Internal("photo video: frame not writable");
+    if (Av().av_frame_make_writable(frame) < 0) return Status::Internal("photo video: frame not writable");
     const uint8_t* src[1] = {pictures[i].data};
     const int stride[1] = {int(pictures[i].step)};
-    sws_scale(sws, src, stride, 0, h, frame->data, frame->linesize);
+    Av().sws_scale(sws, src, stride, 0, h, frame->data, frame->linesize);
     frame->pts = int64_t(i);
     HVDB_RETURN_IF_ERROR(send(frame));
   }
   HVDB_RETURN_IF_ERROR(send(nullptr));
-  if ((err = av_write_trailer(fmt)) < 0) return Status::Internal("photo video: " + AvError(err));
-  avio_flush(fmt->pb);
+  if ((err = Av().av_write_trailer(fmt)) < 0) return Status::Internal("photo video: " + AvError(err));
+  Av().avio_flush(fmt->pb);
   return std::move(file.bytes);
 }
 
@@ -364,7 +360,7 @@ class AvPhotoVideoCodec : public PhotoVideoCodec {
   Result<EncodedPhotoVideo> Encode(const std::vector<std::string_view>& images,
                                    double min_psnr_db) const override {
     if (images.empty()) return Status::InvalidArgument("photo video: no pictures to code");
-    Quiet();
+    HVDB_RETURN_IF_ERROR(Ready());
     std::vector<cv::Mat> originals, padded;
     for (size_t i = 0; i < images.size(); ++i) {
       auto decoded = formats::DecodeImage(images[i], "photo video: picture " + std::to_string(i),
@@ -427,7 +423,7 @@ class AvPhotoVideoCodec : public PhotoVideoCodec {
 
   Result<std::string> Decode(std::string_view video, uint32_t index, uint32_t width,
                              uint32_t height, const std::string& what) const override {
-    Quiet();
+    HVDB_RETURN_IF_ERROR(Ready());
     if (width == 0 || height == 0) return Status::Corruption(what + ": a picture of no pixels");
     const int w = int(width), h = int(height);
     HVDB_ASSIGN_OR_RETURN(std::unique_ptr<IvfDecoder> d, cache_.Take(video, index, w, h, what));
@@ -451,13 +447,16 @@ class AvPhotoVideoCodec : public PhotoVideoCodec {
   }
 
  private:
-  // SVT-AV1 prints its configuration to stderr for every video unless told (SVT_LOG) not to.
-  static void Quiet() {
+  // FFmpeg loaded (formats/libav.h), and quiet: SVT-AV1 prints its configuration to stderr
+  // for every video unless told (SVT_LOG) not to.
+  static Status Ready() {
+    HVDB_RETURN_IF_ERROR(formats::LoadLibAv());
     static std::once_flag once;
     std::call_once(once, [] {
       setenv("SVT_LOG", "1", 0);
-      av_log_set_level(AV_LOG_ERROR);
+      Av().av_log_set_level(AV_LOG_ERROR);
     });
+    return Status::OK();
   }
   mutable DecoderCache cache_;
 };

@@ -7,17 +7,13 @@
 #include <memory>
 #include <mutex>
 
-extern "C" {
-#include <libavcodec/avcodec.h>
-#include <libavformat/avformat.h>
-#include <libavutil/imgutils.h>
-#include <libswscale/swscale.h>
-}
-
+#include "formats/libav.h"
 #include "media/media.h"
 
 namespace hvdb::media {
 namespace {
+
+using formats::Av;
 
 struct MemoryFile {
   const uint8_t* data;
@@ -56,11 +52,11 @@ int64_t Seek(void* opaque, int64_t offset, int whence) {
 thread_local std::string* tl_log = nullptr;
 
 void CaptureLog(void* avcl, int level, const char* fmt, va_list vl) {
-  if (tl_log == nullptr) return av_log_default_callback(avcl, level, fmt, vl);
+  if (tl_log == nullptr) return Av().av_log_default_callback(avcl, level, fmt, vl);
   if (level > AV_LOG_ERROR || !tl_log->empty()) return;
   char line[256];
   int prefix = 0;  // without "[codec @ 0x...]": the same words for the same file every time
-  av_log_format_line(avcl, level, fmt, vl, line, sizeof line, &prefix);
+  Av().av_log_format_line(avcl, level, fmt, vl, line, sizeof line, &prefix);
   std::string l = line;
   while (!l.empty() && (l.back() == '\n' || l.back() == ' ')) l.pop_back();
   *tl_log = l;
@@ -69,7 +65,7 @@ void CaptureLog(void* avcl, int level, const char* fmt, va_list vl) {
 struct LogScope {
   explicit LogScope(std::string* s) {
     static std::once_flag once;
-    std::call_once(once, [] { av_log_set_callback(CaptureLog); });
+    std::call_once(once, [] { Av().av_log_set_callback(CaptureLog); });
     tl_log = s;
   }
   ~LogScope() { tl_log = nullptr; }
@@ -87,7 +83,7 @@ int RefuseOpen(AVFormatContext*, AVIOContext**, const char* url, int, AVDictiona
 
 std::string AvError(int err, const std::string& log = "") {
   char buf[AV_ERROR_MAX_STRING_SIZE] = {};
-  av_strerror(err, buf, sizeof buf);
+  Av().av_strerror(err, buf, sizeof buf);
   return log.empty() ? std::string(buf) : std::string(buf) + ": " + log;
 }
 
@@ -100,13 +96,13 @@ struct Demuxer {
   AVFrame* frame = nullptr;
   SwsContext* sws = nullptr;
   ~Demuxer() {
-    sws_freeContext(sws);
-    av_frame_free(&frame);
-    av_packet_free(&packet);
-    avcodec_free_context(&codec);
-    avformat_close_input(&fmt);
-    if (io != nullptr) av_freep(&io->buffer);
-    avio_context_free(&io);
+    Av().sws_freeContext(sws);
+    Av().av_frame_free(&frame);
+    Av().av_packet_free(&packet);
+    Av().avcodec_free_context(&codec);
+    Av().avformat_close_input(&fmt);
+    if (io != nullptr) Av().av_freep(&io->buffer);
+    Av().avio_context_free(&io);
   }
 };
 
@@ -117,24 +113,25 @@ Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::strin
                                          uint64_t max_points, const Budget& budget) {
   const std::string what = "import_media: the video (" + (format.empty() ? "?" : format) + ")";
   if (data.empty()) return Status::InvalidArgument(what + " is empty");
+  HVDB_RETURN_IF_ERROR(formats::LoadLibAv());
   MemoryFile file{reinterpret_cast<const uint8_t*>(data.data()),
                   static_cast<int64_t>(data.size())};
   std::string log;
   LogScope scope(&log);  // outlives the demuxer: its teardown may log too
   Demuxer d;
   constexpr int kBuffer = 64 << 10;
-  auto* buffer = static_cast<uint8_t*>(av_malloc(kBuffer));
+  auto* buffer = static_cast<uint8_t*>(Av().av_malloc(kBuffer));
   if (buffer == nullptr) return Status::Internal(what + ": out of memory");
-  d.io = avio_alloc_context(buffer, kBuffer, 0, &file, ReadPacket, nullptr, Seek);
+  d.io = Av().avio_alloc_context(buffer, kBuffer, 0, &file, ReadPacket, nullptr, Seek);
   if (d.io == nullptr) {
-    av_free(buffer);
+    Av().av_free(buffer);
     return Status::Internal(what + ": out of memory");
   }
-  d.fmt = avformat_alloc_context();
+  d.fmt = Av().avformat_alloc_context();
   d.fmt->pb = d.io;
   d.fmt->flags |= AVFMT_FLAG_CUSTOM_IO;
   // The extension helps the probe of formats without a signature.
-  const AVInputFormat* hint = format.empty() ? nullptr : av_find_input_format(format.c_str());
+  const AVInputFormat* hint = format.empty() ? nullptr : Av().av_find_input_format(format.c_str());
   std::string refused;
   tl_refused = &refused;
   struct ClearRefused {
@@ -142,9 +139,9 @@ Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::strin
   } clear_refused;
   d.fmt->io_open = RefuseOpen;
   AVDictionary* opts = nullptr;
-  av_dict_set(&opts, "protocol_whitelist", "none", 0);
-  int err = avformat_open_input(&d.fmt, nullptr, hint, &opts);
-  av_dict_free(&opts);
+  Av().av_dict_set(&opts, "protocol_whitelist", "none", 0);
+  int err = Av().avformat_open_input(&d.fmt, nullptr, hint, &opts);
+  Av().av_dict_free(&opts);
   const auto outside = [&]() {
     return Status::InvalidArgument(what + " refers to '" + refused +
                                    "', outside the bytes sent; only the file itself is read");
@@ -155,13 +152,13 @@ Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::strin
     if (!refused.empty()) return outside();
     return Status::InvalidArgument(what + " could not be demuxed: " + AvError(err, log));
   }
-  err = avformat_find_stream_info(d.fmt, nullptr);
+  err = Av().avformat_find_stream_info(d.fmt, nullptr);
   if (!refused.empty()) return outside();
   if (err < 0) {
     return Status::InvalidArgument(what + ": no stream information: " + AvError(err, log));
   }
   const AVCodec* decoder = nullptr;
-  const int stream = av_find_best_stream(d.fmt, AVMEDIA_TYPE_VIDEO, -1, -1, &decoder, 0);
+  const int stream = Av().av_find_best_stream(d.fmt, AVMEDIA_TYPE_VIDEO, -1, -1, &decoder, 0);
   if (stream < 0 || decoder == nullptr) {
     return Status::InvalidArgument(what + " has no video stream that libavcodec decodes (" +
                                    AvError(stream, log) + ")");
@@ -177,17 +174,17 @@ Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::strin
                                  "of " + std::to_string(kMaxPictureSide) + " a side and " +
                                  std::to_string(kMaxPicturePixels >> 20) + " M pixels");
   }
-  d.codec = avcodec_alloc_context3(decoder);
-  avcodec_parameters_to_context(d.codec, par);
+  d.codec = Av().avcodec_alloc_context3(decoder);
+  Av().avcodec_parameters_to_context(d.codec, par);
   d.codec->max_pixels = static_cast<int64_t>(kMaxPicturePixels);
   d.codec->thread_count = 1;  // one request, one core; and its memory is what is reserved
-  err = avcodec_open2(d.codec, decoder, nullptr);
+  err = Av().avcodec_open2(d.codec, decoder, nullptr);
   if (err < 0) {
     return Status::InvalidArgument(what + ": the " + decoder->name +
                                    " decoder did not open: " + AvError(err, log));
   }
-  d.packet = av_packet_alloc();
-  d.frame = av_frame_alloc();
+  d.packet = Av().av_packet_alloc();
+  d.frame = Av().av_frame_alloc();
 
   std::vector<Picture> out;
   std::string decode_error;
@@ -228,7 +225,7 @@ Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::strin
       largest = pixels;
     }
     HVDB_RETURN_IF_ERROR(budget.Reserve(per * 4, what + ": its frames"));
-    d.sws = sws_getCachedContext(d.sws, fw, fh, static_cast<AVPixelFormat>(d.frame->format), w,
+    d.sws = Av().sws_getCachedContext(d.sws, fw, fh, static_cast<AVPixelFormat>(d.frame->format), w,
                                  h, AV_PIX_FMT_RGBA, SWS_AREA | SWS_ACCURATE_RND, nullptr,
                                  nullptr, nullptr);
     if (d.sws == nullptr) {
@@ -241,44 +238,44 @@ Result<std::vector<Picture>> DecodeVideo(std::string_view data, const std::strin
     p.rgba.resize(static_cast<size_t>(w) * h * 4);
     uint8_t* dst[4] = {p.rgba.data(), nullptr, nullptr, nullptr};
     int stride[4] = {w * 4, 0, 0, 0};
-    sws_scale(d.sws, d.frame->data, d.frame->linesize, 0, fh, dst, stride);
+    Av().sws_scale(d.sws, d.frame->data, d.frame->linesize, 0, fh, dst, stride);
     out.push_back(std::move(p));
     return Status::OK();
   };
   // Drains the decoder's frames; stops at max_frames.
   auto drain = [&]() -> Status {
     while (out.size() < max_frames) {
-      const int r = avcodec_receive_frame(d.codec, d.frame);
+      const int r = Av().avcodec_receive_frame(d.codec, d.frame);
       if (r == AVERROR(EAGAIN) || r == AVERROR_EOF) return Status::OK();
       if (r < 0) {
         decode_error = AvError(r, log);
         return Status::OK();
       }
       Status st = take();
-      av_frame_unref(d.frame);
+      Av().av_frame_unref(d.frame);
       if (!st.ok()) return st;
     }
     return Status::OK();
   };
   bool eof = false;
   while (out.size() < max_frames && !eof) {
-    err = av_read_frame(d.fmt, d.packet);
+    err = Av().av_read_frame(d.fmt, d.packet);
     if (err < 0) {
       // End of file, or a damaged tail: flush what the decoder holds.
       if (err != AVERROR_EOF) decode_error = AvError(err, log);
       eof = true;
-      avcodec_send_packet(d.codec, nullptr);
+      Av().avcodec_send_packet(d.codec, nullptr);
     } else {
       if (d.packet->stream_index == stream) {
         // A full decoder (EAGAIN) takes the packet once its frames are out.
-        int r = avcodec_send_packet(d.codec, d.packet);
+        int r = Av().avcodec_send_packet(d.codec, d.packet);
         if (r == AVERROR(EAGAIN)) {
           HVDB_RETURN_IF_ERROR(drain());
-          r = avcodec_send_packet(d.codec, d.packet);
+          r = Av().avcodec_send_packet(d.codec, d.packet);
         }
         if (r < 0 && r != AVERROR(EAGAIN)) decode_error = AvError(r, log);
       }
-      av_packet_unref(d.packet);
+      Av().av_packet_unref(d.packet);
     }
     HVDB_RETURN_IF_ERROR(drain());
   }

@@ -1,13 +1,5 @@
 #include "render/video_encoder.h"
 
-extern "C" {
-#include <libavcodec/avcodec.h>
-#include <libavformat/avformat.h>
-#include <libavutil/log.h>
-#include <libavutil/opt.h>
-#include <libswscale/swscale.h>
-}
-
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -16,15 +8,18 @@ extern "C" {
 #include <thread>
 #include <vector>
 
+#include "formats/libav.h"
 #include "render/splat.h"
 
 namespace hvdb::render {
 
 namespace {
 
+using formats::Av;
+
 std::string AvError(int err) {
   char buf[AV_ERROR_MAX_STRING_SIZE] = {};
-  av_strerror(err, buf, sizeof buf);
+  Av().av_strerror(err, buf, sizeof buf);
   return buf;
 }
 
@@ -69,16 +64,16 @@ class AvEncoder : public VideoEncoder {
  public:
   ~AvEncoder() override {
     if (pending_.valid()) pending_.wait();  // it uses the contexts freed below
-    if (sws_ != nullptr) sws_freeContext(sws_);
-    av_frame_free(&frame_);
-    av_packet_free(&packet_);
-    avcodec_free_context(&codec_);
+    if (sws_ != nullptr) Av().sws_freeContext(sws_);
+    Av().av_frame_free(&frame_);
+    Av().av_packet_free(&packet_);
+    Av().avcodec_free_context(&codec_);
     if (format_ != nullptr) {
       if (format_->pb != nullptr) {
-        av_freep(&format_->pb->buffer);
-        avio_context_free(&format_->pb);
+        Av().av_freep(&format_->pb->buffer);
+        Av().avio_context_free(&format_->pb);
       }
-      avformat_free_context(format_);
+      Av().avformat_free_context(format_);
     }
   }
 
@@ -87,14 +82,14 @@ class AvEncoder : public VideoEncoder {
     height_ = height;
     // libx264 and libvpx report every file's statistics on stderr; errors come back as codes.
     static std::once_flag quiet;
-    std::call_once(quiet, [] { av_log_set_level(AV_LOG_ERROR); });
+    std::call_once(quiet, [] { Av().av_log_set_level(AV_LOG_ERROR); });
     const std::vector<const char*> names =
         container == VideoContainer::kMp4
             ? std::vector<const char*>{"libx264", "mpeg4"}
             : std::vector<const char*>{"libvpx-vp9", "libsvtav1", "libaom-av1"};
     const AVCodec* enc = nullptr;
     for (const char* n : names) {
-      if ((enc = avcodec_find_encoder_by_name(n)) != nullptr) break;
+      if ((enc = Av().avcodec_find_encoder_by_name(n)) != nullptr) break;
     }
     if (enc == nullptr) {
       return Status::Unsupported(std::string("video: this libavcodec has no ") +
@@ -103,14 +98,14 @@ class AvEncoder : public VideoEncoder {
     }
     name_ = enc->name;
     const char* muxer = container == VideoContainer::kMp4 ? "mp4" : "webm";
-    if (avformat_alloc_output_context2(&format_, nullptr, muxer, nullptr) < 0 || format_ == nullptr) {
+    if (Av().avformat_alloc_output_context2(&format_, nullptr, muxer, nullptr) < 0 || format_ == nullptr) {
       return Status::Internal(std::string("video: no ") + muxer + " muxer in this libavformat");
     }
-    codec_ = avcodec_alloc_context3(enc);
+    codec_ = Av().avcodec_alloc_context3(enc);
     codec_->width = int(width);
     codec_->height = int(height);
     codec_->pix_fmt = AV_PIX_FMT_YUV420P;
-    const AVRational rate = av_d2q(fps, 100000);
+    const AVRational rate = Av().av_d2q(fps, 100000);
     codec_->time_base = av_inv_q(rate);
     codec_->framerate = rate;
     codec_->gop_size = 60;
@@ -118,45 +113,45 @@ class AvEncoder : public VideoEncoder {
     if (format_->oformat->flags & AVFMT_GLOBALHEADER) codec_->flags |= AV_CODEC_FLAG_GLOBAL_HEADER;
     AVDictionary* opts = nullptr;
     if (name_ == "libx264") {
-      av_dict_set(&opts, "preset", "ultrafast", 0);
-      av_dict_set(&opts, "crf", "20", 0);
+      Av().av_dict_set(&opts, "preset", "ultrafast", 0);
+      Av().av_dict_set(&opts, "crf", "20", 0);
     } else if (name_ == "mpeg4") {
       codec_->flags |= AV_CODEC_FLAG_QSCALE;
       codec_->global_quality = FF_QP2LAMBDA * 3;
     } else if (name_ == "libvpx-vp9") {
-      av_dict_set(&opts, "deadline", "realtime", 0);
-      av_dict_set(&opts, "cpu-used", "8", 0);
-      av_dict_set(&opts, "row-mt", "1", 0);
-      av_dict_set(&opts, "crf", "32", 0);
+      Av().av_dict_set(&opts, "deadline", "realtime", 0);
+      Av().av_dict_set(&opts, "cpu-used", "8", 0);
+      Av().av_dict_set(&opts, "row-mt", "1", 0);
+      Av().av_dict_set(&opts, "crf", "32", 0);
       codec_->bit_rate = 0;
     } else if (name_ == "libsvtav1") {
-      av_dict_set(&opts, "preset", "12", 0);
+      Av().av_dict_set(&opts, "preset", "12", 0);
     } else if (name_ == "libaom-av1") {
-      av_dict_set(&opts, "cpu-used", "8", 0);
-      av_dict_set(&opts, "usage", "realtime", 0);
+      Av().av_dict_set(&opts, "cpu-used", "8", 0);
+      Av().av_dict_set(&opts, "usage", "realtime", 0);
     }
-    int err = avcodec_open2(codec_, enc, &opts);
-    av_dict_free(&opts);
+    int err = Av().avcodec_open2(codec_, enc, &opts);
+    Av().av_dict_free(&opts);
     if (err < 0) return Status::Internal("video: cannot open " + name_ + ": " + AvError(err));
-    stream_ = avformat_new_stream(format_, nullptr);
+    stream_ = Av().avformat_new_stream(format_, nullptr);
     if (stream_ == nullptr) return Status::Internal("video: cannot add a stream");
     stream_->time_base = codec_->time_base;
     stream_->avg_frame_rate = rate;
-    avcodec_parameters_from_context(stream_->codecpar, codec_);
+    Av().avcodec_parameters_from_context(stream_->codecpar, codec_);
     constexpr int kBuffer = 1 << 16;
-    auto* buffer = static_cast<uint8_t*>(av_malloc(kBuffer));
-    format_->pb = avio_alloc_context(buffer, kBuffer, 1, &file_, nullptr, &MemoryFile::Write,
+    auto* buffer = static_cast<uint8_t*>(Av().av_malloc(kBuffer));
+    format_->pb = Av().avio_alloc_context(buffer, kBuffer, 1, &file_, nullptr, &MemoryFile::Write,
                                      &MemoryFile::Seek);
     if (format_->pb == nullptr) return Status::Internal("video: cannot allocate the output");
-    err = avformat_write_header(format_, nullptr);
+    err = Av().avformat_write_header(format_, nullptr);
     if (err < 0) return Status::Internal("video: cannot write the header: " + AvError(err));
-    frame_ = av_frame_alloc();
-    packet_ = av_packet_alloc();
+    frame_ = Av().av_frame_alloc();
+    packet_ = Av().av_packet_alloc();
     frame_->format = codec_->pix_fmt;
     frame_->width = codec_->width;
     frame_->height = codec_->height;
-    if (av_frame_get_buffer(frame_, 0) < 0) return Status::Internal("video: no frame buffer");
-    sws_ = sws_getContext(int(width), int(height), AV_PIX_FMT_RGB24, int(width), int(height),
+    if (Av().av_frame_get_buffer(frame_, 0) < 0) return Status::Internal("video: no frame buffer");
+    sws_ = Av().sws_getContext(int(width), int(height), AV_PIX_FMT_RGB24, int(width), int(height),
                           AV_PIX_FMT_YUV420P, SWS_BILINEAR, nullptr, nullptr, nullptr);
     if (sws_ == nullptr) return Status::Internal("video: no RGB to YUV converter");
     rgb_.resize(size_t{width} * height * 3);
@@ -188,10 +183,10 @@ class AvEncoder : public VideoEncoder {
     });
     const int64_t pts = int64_t(frames_++);
     pending_ = std::async(std::launch::async, [this, pts] {
-      if (av_frame_make_writable(frame_) < 0) return Status::Internal("video: frame not writable");
+      if (Av().av_frame_make_writable(frame_) < 0) return Status::Internal("video: frame not writable");
       const uint8_t* src[1] = {rgb_.data()};
       const int stride[1] = {int(width_ * 3)};
-      sws_scale(sws_, src, stride, 0, int(height_), frame_->data, frame_->linesize);
+      Av().sws_scale(sws_, src, stride, 0, int(height_), frame_->data, frame_->linesize);
       frame_->pts = pts;
       return Send(frame_);
     });
@@ -203,9 +198,9 @@ class AvEncoder : public VideoEncoder {
     finished_ = true;
     HVDB_RETURN_IF_ERROR(Wait());
     HVDB_RETURN_IF_ERROR(Send(nullptr));
-    int err = av_write_trailer(format_);
+    int err = Av().av_write_trailer(format_);
     if (err < 0) return Status::Internal("video: cannot finish the file: " + AvError(err));
-    avio_flush(format_->pb);
+    Av().avio_flush(format_->pb);
     return std::move(file_.bytes);
   }
 
@@ -221,15 +216,15 @@ class AvEncoder : public VideoEncoder {
 
   // Sends a frame (nullptr: flush) and writes the packets the encoder has ready.
   Status Send(const AVFrame* frame) {
-    int err = avcodec_send_frame(codec_, frame);
+    int err = Av().avcodec_send_frame(codec_, frame);
     if (err < 0) return Status::Internal("video: " + name_ + " refused a frame: " + AvError(err));
     for (;;) {
-      err = avcodec_receive_packet(codec_, packet_);
+      err = Av().avcodec_receive_packet(codec_, packet_);
       if (err == AVERROR(EAGAIN) || err == AVERROR_EOF) return Status::OK();
       if (err < 0) return Status::Internal("video: " + name_ + ": " + AvError(err));
-      av_packet_rescale_ts(packet_, codec_->time_base, stream_->time_base);
+      Av().av_packet_rescale_ts(packet_, codec_->time_base, stream_->time_base);
       packet_->stream_index = stream_->index;
-      err = av_interleaved_write_frame(format_, packet_);
+      err = Av().av_interleaved_write_frame(format_, packet_);
       if (err < 0) return Status::Internal("video: cannot write a packet: " + AvError(err));
     }
   }
@@ -268,6 +263,7 @@ Result<std::unique_ptr<VideoEncoder>> VideoEncoder::Create(VideoContainer contai
   if (!(fps > 0 && fps <= 1000)) {
     return Status::InvalidArgument("render.video_fps: must be in (0, 1000] frames a second");
   }
+  HVDB_RETURN_IF_ERROR(formats::LoadLibAv());  // before the encoder: its teardown calls FFmpeg
   auto enc = std::make_unique<AvEncoder>();
   HVDB_RETURN_IF_ERROR(enc->Open(container, width, height, fps));
   return std::unique_ptr<VideoEncoder>(std::move(enc));

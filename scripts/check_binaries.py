@@ -3,8 +3,9 @@
 
   check_binaries.py --lean BIN... [--travels BIN...]
 
---lean: each binary (hvdb, hvdb-server, the Python module) must load no GDAL and no OpenCV
-imgcodecs: those ~120 libraries were most of every command's start. --travels: each binary
+--lean: each binary (hvdb, hvdb-server, the Python module) must load no GDAL, no OpenCV
+imgcodecs and no FFmpeg at start: those ~120 and ~130 libraries were most of every command's
+start (FFmpeg is loaded on first use, formats/libav.h). --travels: each binary
 (render-bench-gpu) must also fit a GPU machine without the Debian stack: its shared libraries
 beyond glibc, libstdc++/libgcc and libGL/libEGL (which the GPU's driver brings) at most 40 MiB.
 Run by CTest (LeanBinaries); prints each binary's count and size either way.
@@ -15,7 +16,7 @@ import re
 import subprocess
 import sys
 
-FORBIDDEN = re.compile(r"^lib(gdal|opencv_imgcodecs)\.so")
+FORBIDDEN = re.compile(r"^lib(gdal|opencv_imgcodecs|avformat|avcodec|avutil|swscale)\.so")
 # What a GPU machine has without Debian's packages: glibc, the C++ runtime, and the OpenGL/EGL
 # dispatch libraries the driver installs.
 SYSTEM = re.compile(
@@ -50,7 +51,8 @@ def main():
         print(f"{os.path.basename(binary)}: {len(libs)} shared libraries, {size / 2**20:.1f} MiB")
         if bad:
             failed.append(f"{binary} loads {', '.join(bad)}: link OpenCV's core modules only "
-                          "(HVDB_OPENCV_CORE) and read pictures through formats/image_codec.h")
+                          "(HVDB_OPENCV_CORE), read pictures through formats/image_codec.h and "
+                          "call FFmpeg through formats/libav.h (hvdb_libav), never linked")
         if binary in args.travels:
             extra = {n: p for n, p in libs.items() if not SYSTEM.match(n)}
             extra_size = sum(os.path.getsize(p) for p in extra.values())

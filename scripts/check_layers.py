@@ -34,7 +34,7 @@ ALLOWED = {
     "codec": ["storage"],
     "edit": ["storage"],
     "render": ["formats", "storage"],     # the renderers (and request.h, a request's values)
-    "media": ["storage", "edit", "formats"],   # formats: jpeg_error.h, a header
+    "media": ["storage", "edit", "formats"],   # formats: jpeg_error.h, libav.h
     "protocol": ["storage", "edit", "media", "codec", "render"],  # render: request.h's values
     "formats/point_files": ["formats", "storage", "codec", "protocol"],  # hvdb_point_files
     "render/job": ["render", "formats", "storage"],                     # hvdb_render_job

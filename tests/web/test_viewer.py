@@ -254,7 +254,11 @@ def test_slice_and_graph_cut_through_the_page(browser, server):
     browser.find_element(By.ID, "tool-brush-bg").click()
     drag(browser, [(470, 420), (500, 440), (525, 460)])
     stacks = call(browser, "window.hvdbApp.idle()")
-    assert stacks["undo"] == 2
+    # On failure, what the page and the server had: the page's error, frame and view mode,
+    # and the frame's points on the server (a stroke that met no surface selects nothing).
+    assert stacks["undo"] == 2, (stacks, browser.execute_script(
+        "const a = window.hvdbApp.app; return [a.lastError, a.frame, a.viewMode, "
+        "a.lastBrushRequest]"), len(frame_points(server, FRAME)))
     browser.find_element(By.ID, "graph-cut").click()
     WebDriverWait(browser, 120).until(
         lambda d: d.execute_script("return window.hvdbApp.app.editor.undoStack.length") == 3)

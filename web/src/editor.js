@@ -274,7 +274,16 @@ export class Editor {
     s.busy = this.app.conn.request(req).then((r) => {
       if (r.selected && String(r.selected.lsn) !== '0') s.lsns.push(String(r.selected.lsn));
       this.app.lastSelect = r.selected;
-    }, (err) => { s.error = err; }).then(() => {
+      s.stampedSurface = true;
+    }, (err) => {
+      // A stamp over empty space (no surface under the brush) paints nothing, as in any paint
+      // tool; the stroke goes on, and its first stamp on a surface is its first (firstMode).
+      if (err && err.code === 'NOT_FOUND' && /no surface under pixel/.test(err.message)) {
+        if (!s.stampedSurface) s.stamped = false;
+        return;
+      }
+      s.error = err;
+    }).then(() => {
       s.busy = null;
       if (s.pending && !s.error) {
         const next = s.pending;
