@@ -11,10 +11,87 @@
 #include <cstring>
 #include <mutex>
 #include <random>
+#include <string>
 #include <thread>
+
+#include "storage/shared_library.h"
 
 namespace hvdb {
 namespace {
+
+// librados, loaded when a RADOS store is opened (storage/shared_library.h), not linked: it and
+// libceph-common are ~15 shared libraries with tens of thousands of relocations, which every
+// start of hvdb-server paid, RADOS or not. HVDB_RADOS_SONAME: the library it was built with.
+#define HVDB_RADOS_FUNCTIONS(X) \
+  X(rados_aio_create_completion2) \
+  X(rados_aio_get_return_value) \
+  X(rados_aio_read) \
+  X(rados_aio_release) \
+  X(rados_aio_wait_for_complete) \
+  X(rados_append) \
+  X(rados_blocklist_add) \
+  X(rados_buffer_free) \
+  X(rados_conf_read_file) \
+  X(rados_conf_set) \
+  X(rados_connect) \
+  X(rados_create) \
+  X(rados_create_read_op) \
+  X(rados_create_write_op) \
+  X(rados_getaddrs) \
+  X(rados_getxattr) \
+  X(rados_ioctx_create) \
+  X(rados_ioctx_destroy) \
+  X(rados_lock_exclusive) \
+  X(rados_omap_get_end) \
+  X(rados_omap_get_next2) \
+  X(rados_pool_create) \
+  X(rados_pool_lookup) \
+  X(rados_read) \
+  X(rados_read_op_omap_get_keys2) \
+  X(rados_read_op_operate) \
+  X(rados_release_read_op) \
+  X(rados_release_write_op) \
+  X(rados_remove) \
+  X(rados_rmxattr) \
+  X(rados_setxattr) \
+  X(rados_shutdown) \
+  X(rados_stat) \
+  X(rados_trunc) \
+  X(rados_unlock) \
+  X(rados_write) \
+  X(rados_write_full) \
+  X(rados_write_op_create) \
+  X(rados_write_op_omap_rm_keys) \
+  X(rados_write_op_omap_set) \
+  X(rados_write_op_operate)
+
+struct RadosLib {
+#define HVDB_RADOS_MEMBER(name) decltype(&::name) name = nullptr;
+  HVDB_RADOS_FUNCTIONS(HVDB_RADOS_MEMBER)
+#undef HVDB_RADOS_MEMBER
+};
+
+RadosLib g_rados;
+
+Status LoadRados() {
+  static Status status;
+  static std::once_flag once;
+  std::call_once(once, [] {
+    const std::string soname = HVDB_RADOS_SONAME;
+    std::string package = soname;
+    package.erase(package.find(".so."), 4);
+    void* handle = nullptr;
+    status = OpenSharedLibrary(soname, package, "a RADOS store", &handle);
+#define HVDB_RADOS_LOAD(name) \
+  if (status.ok()) status = SharedLibraryFunction(handle, soname, #name, &g_rados.name);
+    HVDB_RADOS_FUNCTIONS(HVDB_RADOS_LOAD)
+#undef HVDB_RADOS_LOAD
+  });
+  return status;
+}
+
+// The functions; only once LoadRados() succeeded (OpenRadosEnv, before any RadosEnv exists).
+const RadosLib& Rados() { return g_rados; }
 
 // Larger single ops than this are split (the OSD refuses ops above osd_max_write_size, 90 MB
 // by default; reads are split alike to bound one op's memory on the OSD).
@@ -58,7 +135,7 @@ class RadosReadFile : public RandomAccessFile {
     size_t done = 0;
     while (done < n) {
       size_t len = std::min(kMaxOp, n - done);
-      int r = rados_read(io_, oid_.c_str(), p + done, len, offset + done);
+      int r = Rados().rados_read(io_, oid_.c_str(), p + done, len, offset + done);
       if (r < 0) return Err("read " + oid_, r);
       if (r == 0) break;
       done += static_cast<size_t>(r);
@@ -86,13 +163,13 @@ class RadosReadFile : public RandomAccessFile {
         for (size_t done = 0; done < buf.size();) {
           size_t len = std::min(kMaxOp, buf.size() - done);
           Op op{nullptr, i, len};
-          int rc = rados_aio_create_completion2(nullptr, nullptr, &op.c);
+          int rc = Rados().rados_aio_create_completion2(nullptr, nullptr, &op.c);
           if (rc == 0) {
-            rc = rados_aio_read(io_, oid_.c_str(), op.c,
+            rc = Rados().rados_aio_read(io_, oid_.c_str(), op.c,
                                 reinterpret_cast<char*>(buf.data() + done), len, off + done);
           }
           if (rc < 0) {
-            if (op.c) rados_aio_release(op.c);
+            if (op.c) Rados().rados_aio_release(op.c);
             if (r.status.ok()) r.status = Err("read " + oid_, rc);
           } else {
             ops.push_back(op);
@@ -103,9 +180,9 @@ class RadosReadFile : public RandomAccessFile {
       }
     }
     for (Op& op : ops) {
-      rados_aio_wait_for_complete(op.c);
-      int rc = rados_aio_get_return_value(op.c);
-      rados_aio_release(op.c);
+      Rados().rados_aio_wait_for_complete(op.c);
+      int rc = Rados().rados_aio_get_return_value(op.c);
+      Rados().rados_aio_release(op.c);
       Status& st = requests[op.request].status;
       if (!st.ok()) continue;
       if (rc < 0) {
@@ -135,9 +212,9 @@ class RadosWriteFile : public WritableFile {
   Status Append(std::string_view data) override {
     for (size_t done = 0; done < data.size();) {
       size_t len = std::min(kMaxOp, data.size() - done);
-      int r = rados_append(io_, oid_.c_str(), data.data() + done, len);
+      int r = Rados().rados_append(io_, oid_.c_str(), data.data() + done, len);
       if (r < 0) {
-        if (done > 0) (void)rados_trunc(io_, oid_.c_str(), size_);  // nothing of it stays
+        if (done > 0) (void)Rados().rados_trunc(io_, oid_.c_str(), size_);  // nothing of it stays
         return Err("append " + oid_, r);
       }
       done += len;
@@ -148,7 +225,7 @@ class RadosWriteFile : public WritableFile {
   Status WriteAt(uint64_t offset, std::string_view data) override {
     for (size_t done = 0; done < data.size();) {
       size_t len = std::min(kMaxOp, data.size() - done);
-      int r = rados_write(io_, oid_.c_str(), data.data() + done, len, offset + done);
+      int r = Rados().rados_write(io_, oid_.c_str(), data.data() + done, len, offset + done);
       if (r < 0) return Err("write " + oid_, r);
       done += len;
     }
@@ -158,7 +235,7 @@ class RadosWriteFile : public WritableFile {
   // librados returns from a write once the OSDs have committed it.
   Status Sync() override { return Status::OK(); }
   Status Truncate(uint64_t size) override {
-    int r = rados_trunc(io_, oid_.c_str(), size);
+    int r = Rados().rados_trunc(io_, oid_.c_str(), size);
     if (r < 0) return Err("truncate " + oid_, r);
     size_ = size;
     return Status::OK();
@@ -188,8 +265,8 @@ class RadosLock : public FileLock {
     cv_.notify_all();
     renewer_.join();
     // A clean release: the next holder has nobody to fence.
-    (void)rados_rmxattr(io_, oid_.c_str(), kHolderXattr);
-    (void)rados_unlock(io_, oid_.c_str(), kName, cookie_.c_str());
+    (void)Rados().rados_rmxattr(io_, oid_.c_str(), kHolderXattr);
+    (void)Rados().rados_unlock(io_, oid_.c_str(), kName, cookie_.c_str());
   }
   static constexpr const char* kHolderXattr = "hvdb.holder";
   static constexpr const char* kName = "hvdb";
@@ -199,7 +276,7 @@ class RadosLock : public FileLock {
     std::unique_lock<std::mutex> l(mu_);
     while (!cv_.wait_for(l, lease_ / 3, [this] { return stop_; })) {
       timeval tv{static_cast<time_t>(lease_.count()), 0};
-      (void)rados_lock_exclusive(io_, oid_.c_str(), kName, cookie_.c_str(), "hvdb data", &tv,
+      (void)Rados().rados_lock_exclusive(io_, oid_.c_str(), kName, cookie_.c_str(), "hvdb data", &tv,
                                  LIBRADOS_LOCK_FLAG_MAY_RENEW);
     }
   }
@@ -218,15 +295,15 @@ class RadosEnv : public Env {
   RadosEnv(rados_t cluster, rados_ioctx_t io, RadosSpec spec)
       : cluster_(cluster), io_(io), spec_(std::move(spec)) {}
   ~RadosEnv() override {
-    rados_ioctx_destroy(io_);
-    rados_shutdown(cluster_);
+    Rados().rados_ioctx_destroy(io_);
+    Rados().rados_shutdown(cluster_);
   }
 
   Result<std::shared_ptr<RandomAccessFile>> OpenRead(const std::string& path) override {
     std::string oid = Normalize(path);
     uint64_t size = 0;
     time_t mtime = 0;
-    int r = rados_stat(io_, oid.c_str(), &size, &mtime);
+    int r = Rados().rados_stat(io_, oid.c_str(), &size, &mtime);
     if (r < 0) return Err("open " + oid, r);
     return std::shared_ptr<RandomAccessFile>(new RadosReadFile(io_, oid, size));
   }
@@ -236,14 +313,14 @@ class RadosEnv : public Env {
     uint64_t size = 0;
     int r;
     if (truncate) {
-      r = rados_write_full(io_, oid.c_str(), "", 0);
+      r = Rados().rados_write_full(io_, oid.c_str(), "", 0);
     } else {
-      rados_write_op_t op = rados_create_write_op();
-      rados_write_op_create(op, LIBRADOS_CREATE_IDEMPOTENT, nullptr);
-      r = rados_write_op_operate(op, io_, oid.c_str(), nullptr, 0);
-      rados_release_write_op(op);
+      rados_write_op_t op = Rados().rados_create_write_op();
+      Rados().rados_write_op_create(op, LIBRADOS_CREATE_IDEMPOTENT, nullptr);
+      r = Rados().rados_write_op_operate(op, io_, oid.c_str(), nullptr, 0);
+      Rados().rados_release_write_op(op);
       time_t mtime = 0;
-      if (r >= 0) r = rados_stat(io_, oid.c_str(), &size, &mtime);
+      if (r >= 0) r = Rados().rados_stat(io_, oid.c_str(), &size, &mtime);
     }
     if (r < 0) return Err("open " + oid, r);
     HVDB_RETURN_IF_ERROR(AddEntry(oid));
@@ -269,7 +346,7 @@ class RadosEnv : public Env {
   Status Remove(const std::string& path) override {
     std::string oid = Normalize(path);
     HVDB_RETURN_IF_ERROR(RemoveEntry(oid));  // first out of the listing, then gone
-    int r = rados_remove(io_, oid.c_str());
+    int r = Rados().rados_remove(io_, oid.c_str());
     if (r < 0 && r != -ENOENT) return Err("remove " + oid, r);
     return Status::OK();
   }
@@ -282,10 +359,10 @@ class RadosEnv : public Env {
     if (d == "." || d == "/") return Status::OK();
     std::string parent = ParentDir(d);
     if (parent != d && !Exists(parent)) HVDB_RETURN_IF_ERROR(CreateDirs(parent));
-    rados_write_op_t op = rados_create_write_op();
-    rados_write_op_create(op, LIBRADOS_CREATE_IDEMPOTENT, nullptr);
-    int r = rados_write_op_operate(op, io_, DirObject(d).c_str(), nullptr, 0);
-    rados_release_write_op(op);
+    rados_write_op_t op = Rados().rados_create_write_op();
+    Rados().rados_write_op_create(op, LIBRADOS_CREATE_IDEMPOTENT, nullptr);
+    int r = Rados().rados_write_op_operate(op, io_, DirObject(d).c_str(), nullptr, 0);
+    Rados().rados_release_write_op(op);
     if (r < 0) return Err("mkdir " + d, r);
     return AddEntry(d + "/");
   }
@@ -295,28 +372,28 @@ class RadosEnv : public Env {
     std::vector<std::string> names;
     std::string after;
     for (;;) {
-      rados_read_op_t op = rados_create_read_op();
+      rados_read_op_t op = Rados().rados_create_read_op();
       rados_omap_iter_t it = nullptr;
       unsigned char more = 0;
       int prval = 0;
-      rados_read_op_omap_get_keys2(op, after.c_str(), 1000, &it, &more, &prval);
-      int r = rados_read_op_operate(op, io_, obj.c_str(), 0);
+      Rados().rados_read_op_omap_get_keys2(op, after.c_str(), 1000, &it, &more, &prval);
+      int r = Rados().rados_read_op_operate(op, io_, obj.c_str(), 0);
       if (r >= 0 && prval < 0) r = prval;
       if (r < 0) {
-        if (it) rados_omap_get_end(it);
-        rados_release_read_op(op);
+        if (it) Rados().rados_omap_get_end(it);
+        Rados().rados_release_read_op(op);
         return Err("list " + Normalize(dir), r);
       }
       char *key = nullptr, *val = nullptr;
       size_t klen = 0, vlen = 0;
-      while (rados_omap_get_next2(it, &key, &val, &klen, &vlen) == 0 && key != nullptr) {
+      while (Rados().rados_omap_get_next2(it, &key, &val, &klen, &vlen) == 0 && key != nullptr) {
         after.assign(key, klen);
         std::string name = after;
         if (!name.empty() && name.back() == '/') name.pop_back();
         names.push_back(name);
       }
-      rados_omap_get_end(it);
-      rados_release_read_op(op);
+      Rados().rados_omap_get_end(it);
+      Rados().rados_release_read_op(op);
       if (!more) break;
     }
     return names;
@@ -335,7 +412,7 @@ class RadosEnv : public Env {
       }
     }
     HVDB_RETURN_IF_ERROR(RemoveEntry(d + "/"));
-    int r = rados_remove(io_, DirObject(d).c_str());
+    int r = Rados().rados_remove(io_, DirObject(d).c_str());
     if (r < 0 && r != -ENOENT) return Err("rmdir " + d, r);
     return Status::OK();
   }
@@ -344,7 +421,7 @@ class RadosEnv : public Env {
     std::string oid = Normalize(path);
     uint64_t size;
     time_t mtime;
-    return rados_stat(io_, oid.c_str(), &size, &mtime) == 0 || IsDir(oid);
+    return Rados().rados_stat(io_, oid.c_str(), &size, &mtime) == 0 || IsDir(oid);
   }
 
   Result<std::unique_ptr<FileLock>> Lock(const std::string& path) override {
@@ -355,7 +432,7 @@ class RadosEnv : public Env {
     std::string cookie = std::string(host) + ":" + std::to_string(getpid()) + ":" +
                          std::to_string(std::random_device{}());
     timeval tv{static_cast<time_t>(spec_.lock_lease.count()), 0};
-    int r = rados_lock_exclusive(io_, oid.c_str(), RadosLock::kName, cookie.c_str(), "hvdb data",
+    int r = Rados().rados_lock_exclusive(io_, oid.c_str(), RadosLock::kName, cookie.c_str(), "hvdb data",
                                  &tv, 0);
     if (r == -EBUSY || r == -EEXIST) {
       return Status::IOError("lock " + oid + ": held by another process (it expires " +
@@ -365,7 +442,7 @@ class RadosEnv : public Env {
     if (r < 0) return Err("lock " + oid, r);
     Status fenced = FencePreviousHolder(oid);
     if (!fenced.ok()) {
-      (void)rados_unlock(io_, oid.c_str(), RadosLock::kName, cookie.c_str());
+      (void)Rados().rados_unlock(io_, oid.c_str(), RadosLock::kName, cookie.c_str());
       return fenced;
     }
     HVDB_RETURN_IF_ERROR(AddEntry(oid));
@@ -379,12 +456,12 @@ class RadosEnv : public Env {
   // blocklist, as RBD's exclusive lock does) before it writes anything itself.
   Status FencePreviousHolder(const std::string& oid) {
     char* mine = nullptr;
-    int r = rados_getaddrs(cluster_, &mine);
+    int r = Rados().rados_getaddrs(cluster_, &mine);
     if (r < 0) return Err("own address", r);
     std::string own = mine;
-    rados_buffer_free(mine);
+    Rados().rados_buffer_free(mine);
     char prev[1024];
-    int n = rados_getxattr(io_, oid.c_str(), RadosLock::kHolderXattr, prev, sizeof prev - 1);
+    int n = Rados().rados_getxattr(io_, oid.c_str(), RadosLock::kHolderXattr, prev, sizeof prev - 1);
     if (n > 0) {
       std::string holder(prev, static_cast<size_t>(n));
       if (holder != own) {
@@ -394,14 +471,14 @@ class RadosEnv : public Env {
         addr.erase(std::remove(addr.begin(), addr.end(), ']'), addr.end());
         addr = addr.substr(0, addr.find(','));
         if (addr.compare(0, 3, "v2:") == 0 || addr.compare(0, 3, "v1:") == 0) addr = addr.substr(3);
-        r = rados_blocklist_add(cluster_, addr.data(), 3600);
+        r = Rados().rados_blocklist_add(cluster_, addr.data(), 3600);
         if (r < 0) {
           return Err("lock " + oid + ": cannot fence the previous holder " + holder +
                      " (refusing to take over while it might still write)", r);
         }
       }
     }
-    r = rados_setxattr(io_, oid.c_str(), RadosLock::kHolderXattr, own.data(), own.size());
+    r = Rados().rados_setxattr(io_, oid.c_str(), RadosLock::kHolderXattr, own.data(), own.size());
     if (r < 0) return Err("lock " + oid + ": recording the holder", r);
     return Status::OK();
   }
@@ -417,17 +494,17 @@ class RadosEnv : public Env {
   bool IsDir(const std::string& path) {
     uint64_t size;
     time_t mtime;
-    return rados_stat(io_, DirObject(path).c_str(), &size, &mtime) == 0;
+    return Rados().rados_stat(io_, DirObject(path).c_str(), &size, &mtime) == 0;
   }
 
   // The object's whole content: one atomic write_full when it fits one op; larger ones are
   // written in pieces to an object nothing refers to yet (trees are written before the
   // manifest that names them).
   Status WriteWhole(const std::string& oid, std::string_view data) {
-    int r = rados_write_full(io_, oid.c_str(), data.data(), std::min(kMaxOp, data.size()));
+    int r = Rados().rados_write_full(io_, oid.c_str(), data.data(), std::min(kMaxOp, data.size()));
     if (r < 0) return Err("write " + oid, r);
     for (size_t done = kMaxOp; done < data.size(); done += kMaxOp) {
-      r = rados_write(io_, oid.c_str(), data.data() + done, std::min(kMaxOp, data.size() - done),
+      r = Rados().rados_write(io_, oid.c_str(), data.data() + done, std::min(kMaxOp, data.size() - done),
                       done);
       if (r < 0) return Err("write " + oid, r);
     }
@@ -449,21 +526,21 @@ class RadosEnv : public Env {
     const char* keys[] = {e.key.c_str()};
     const char* vals[] = {""};
     size_t lens[] = {0};
-    rados_write_op_t op = rados_create_write_op();
-    rados_write_op_create(op, LIBRADOS_CREATE_IDEMPOTENT, nullptr);
-    rados_write_op_omap_set(op, keys, vals, lens, 1);
-    int r = rados_write_op_operate(op, io_, DirObject(e.parent).c_str(), nullptr, 0);
-    rados_release_write_op(op);
+    rados_write_op_t op = Rados().rados_create_write_op();
+    Rados().rados_write_op_create(op, LIBRADOS_CREATE_IDEMPOTENT, nullptr);
+    Rados().rados_write_op_omap_set(op, keys, vals, lens, 1);
+    int r = Rados().rados_write_op_operate(op, io_, DirObject(e.parent).c_str(), nullptr, 0);
+    Rados().rados_release_write_op(op);
     if (r < 0) return Err("add " + name + " to " + e.parent, r);
     return Status::OK();
   }
   Status RemoveEntry(const std::string& name) {
     Entry e = EntryOf(name);
     const char* keys[] = {e.key.c_str()};
-    rados_write_op_t op = rados_create_write_op();
-    rados_write_op_omap_rm_keys(op, keys, 1);
-    int r = rados_write_op_operate(op, io_, DirObject(e.parent).c_str(), nullptr, 0);
-    rados_release_write_op(op);
+    rados_write_op_t op = Rados().rados_create_write_op();
+    Rados().rados_write_op_omap_rm_keys(op, keys, 1);
+    int r = Rados().rados_write_op_operate(op, io_, DirObject(e.parent).c_str(), nullptr, 0);
+    Rados().rados_release_write_op(op);
     if (r < 0 && r != -ENOENT) return Err("remove " + name + " from " + e.parent, r);
     return Status::OK();
   }
@@ -522,27 +599,28 @@ Result<std::unique_ptr<Env>> OpenRadosEnv(const RadosSpec& spec) {
   if (access(spec.conf.c_str(), R_OK) != 0) {
     return Status::FromErrno("ceph configuration " + spec.conf, errno);
   }
+  HVDB_RETURN_IF_ERROR(LoadRados());
   rados_t cluster = nullptr;
-  int r = rados_create(&cluster, nullptr);
+  int r = Rados().rados_create(&cluster, nullptr);
   if (r < 0) return Err("rados_create", r);
   auto fail = [&](const std::string& what, int rc) {
-    rados_shutdown(cluster);
+    Rados().rados_shutdown(cluster);
     return Err(what, rc);
   };
-  if ((r = rados_conf_read_file(cluster, spec.conf.c_str())) < 0) return fail("read " + spec.conf, r);
+  if ((r = Rados().rados_conf_read_file(cluster, spec.conf.c_str())) < 0) return fail("read " + spec.conf, r);
   // Fail operations the cluster cannot serve instead of waiting for ever.
   const std::string timeout = std::to_string(spec.op_timeout.count());
-  rados_conf_set(cluster, "client_mount_timeout", timeout.c_str());
-  rados_conf_set(cluster, "rados_mon_op_timeout", timeout.c_str());
-  rados_conf_set(cluster, "rados_osd_op_timeout", timeout.c_str());
-  rados_conf_set(cluster, "log_to_stderr", "false");
-  if ((r = rados_connect(cluster)) < 0) return fail("connect to the cluster of " + spec.conf, r);
-  if (rados_pool_lookup(cluster, spec.pool.c_str()) < 0) {
-    r = rados_pool_create(cluster, spec.pool.c_str());
+  Rados().rados_conf_set(cluster, "client_mount_timeout", timeout.c_str());
+  Rados().rados_conf_set(cluster, "rados_mon_op_timeout", timeout.c_str());
+  Rados().rados_conf_set(cluster, "rados_osd_op_timeout", timeout.c_str());
+  Rados().rados_conf_set(cluster, "log_to_stderr", "false");
+  if ((r = Rados().rados_connect(cluster)) < 0) return fail("connect to the cluster of " + spec.conf, r);
+  if (Rados().rados_pool_lookup(cluster, spec.pool.c_str()) < 0) {
+    r = Rados().rados_pool_create(cluster, spec.pool.c_str());
     if (r < 0 && r != -EEXIST) return fail("create pool " + spec.pool, r);
   }
   rados_ioctx_t io = nullptr;
-  if ((r = rados_ioctx_create(cluster, spec.pool.c_str(), &io)) < 0) {
+  if ((r = Rados().rados_ioctx_create(cluster, spec.pool.c_str(), &io)) < 0) {
     return fail("open pool " + spec.pool, r);
   }
   return std::unique_ptr<Env>(new RadosEnv(cluster, io, spec));

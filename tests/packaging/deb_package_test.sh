@@ -27,8 +27,10 @@ dpkg-deb -e "$deb" "$ctl"
 grep -qx "/etc/hvdb/hvdb-server.conf" "$ctl/conffiles"
 for s in postinst prerm postrm; do sh -n "$ctl/$s"; test -x "$ctl/$s"; done
 depends=$(dpkg-deb -f "$deb" Depends)
-# FFmpeg and assimp are loaded on first use, not linked: named by hand (packaging/CMakeLists.txt).
-for d in python3-numpy libopencv-core adduser libprotobuf libavformat libavcodec libswscale libassimp; do
+# FFmpeg, assimp and librados are loaded on first use, not linked: named by hand
+# (packaging/CMakeLists.txt).
+for d in python3-numpy libopencv-core adduser libprotobuf libavformat libavcodec libswscale libassimp \
+         librados2; do
   grep -q "$d" <<<"$depends" || { echo "Depends lacks $d: $depends" >&2; exit 1; }
 done
 # The unit runs the packaged binary with the packaged configuration, as user hvdb.
