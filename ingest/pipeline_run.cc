@@ -17,17 +17,48 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-void Progress(int done, int total, double secs, bool final) {
-  const int width = 30;
-  const int fill = total ? done * width / total : width;
-  const double fps = secs > 0 ? done / secs : 0;
-  const double eta = fps > 0 ? (total - done) / fps : 0;
-  std::fprintf(stderr, "\r[%.*s%.*s] %d/%d frames  %.2f frames/s  ETA %.0f s   ", fill,
-               "==============================", width - fill, "                              ",
-               done, total, fps, eta);
-  if (final) std::fprintf(stderr, "\n");
-  std::fflush(stderr);
-}
+// The run's one status line on stderr: the frame bar, and while a frame's Gaussians are fitted
+// (on a worker), that fit's iteration, so that neither overwrites the other.
+class ProgressLine {
+ public:
+  void Frames(int done, int total, double secs, bool final) {
+    std::lock_guard<std::mutex> l(mu_);
+    done_ = done;
+    total_ = total;
+    secs_ = secs;
+    if (final) fit_total_ = 0;
+    Draw();
+    if (final) std::fprintf(stderr, "\n");
+    std::fflush(stderr);
+  }
+  void Fit(int step, int total) {
+    if (step % 10 != 0 && step != total) return;
+    std::lock_guard<std::mutex> l(mu_);
+    fit_step_ = step;
+    fit_total_ = step == total ? 0 : total;  // a finished fit leaves the line
+    Draw();
+    std::fflush(stderr);
+  }
+
+ private:
+  void Draw() {
+    const int width = 30;
+    const int fill = total_ ? done_ * width / total_ : width;
+    const double fps = secs_ > 0 ? done_ / secs_ : 0;
+    const double eta = fps > 0 ? (total_ - done_) / fps : 0;
+    char fit[64] = "";
+    if (fit_total_ > 0) {
+      std::snprintf(fit, sizeof fit, "  fitting Gaussians %d/%d", fit_step_, fit_total_);
+    }
+    std::fprintf(stderr, "\r[%.*s%.*s] %d/%d frames  %.2f frames/s  ETA %.0f s%s%*s", fill,
+                 "==============================", width - fill,
+                 "                              ", done_, total_, fps, eta, fit,
+                 fit_total_ > 0 ? 3 : 30, "");
+  }
+  std::mutex mu_;
+  int done_ = 0, total_ = 0, fit_step_ = 0, fit_total_ = 0;
+  double secs_ = 0;
+};
 
 }  // namespace
 
@@ -91,13 +122,9 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
   std::atomic<size_t> next{0};
   std::atomic<bool> stop{false};
   GaussianFrameOptions fit_options = opt.gaussian;
+  ProgressLine line;
   if (opt.progress && !fit_options.fit.progress) {
-    fit_options.fit.progress = [](int step, int total) {
-      if (step % 10 == 0 || step == total) {
-        std::fprintf(stderr, "\r  fitting Gaussians: iteration %d/%d   ", step, total);
-        std::fflush(stderr);
-      }
-    };
+    fit_options.fit.progress = [&line](int step, int total) { line.Fit(step, total); };
   }
   // A failed frame stops the run: the fit in progress stops with it instead of finishing a
   // frame that would not be committed.
@@ -143,7 +170,7 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
   Status failure;
   size_t handled = 0;
   const int total = static_cast<int>(pending.size());
-  if (opt.progress) Progress(0, total, 0, false);
+  if (opt.progress) line.Frames(0, total, 0, false);
   while (handled < pending.size()) {
     Done r;
     {
@@ -174,12 +201,12 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
       report.bytes_read += r.bytes;
     }
     ++handled;
-    if (opt.progress) Progress(static_cast<int>(handled), total, MsSince(t_start) / 1000, false);
+    if (opt.progress) line.Frames(static_cast<int>(handled), total, MsSince(t_start) / 1000, false);
     if (!failure.ok()) break;
   }
   stop = true;
   for (auto& t : threads) t.join();
-  if (opt.progress) Progress(static_cast<int>(handled), total, MsSince(t_start) / 1000, true);
+  if (opt.progress) line.Frames(static_cast<int>(handled), total, MsSince(t_start) / 1000, true);
   if (!failure.ok()) return failure;
   report.seconds = MsSince(t_start) / 1000;
   report.peak_rss_mb = PeakRssMb();
