@@ -7,11 +7,6 @@
 // T0. A built tree is not synced: its points are still in the log, and recovery deletes tree
 // files no frame state lists. Checkpoints (also run by the merger once the log is large) sync
 // the trees a frame lists, then write its state; trees the old state listed are deleted after.
-#include <pthread.h>
-#include <sys/resource.h>
-#include <sys/syscall.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <cstdio>
 
@@ -91,27 +86,7 @@ void DatasetImpl::WakeMerger() {
   merge_cv_.notify_one();
 }
 
-namespace {
-
-// Background work yields to the writers: the merger, and the builder threads it starts (which
-// inherit a thread's nice value and I/O priority), run at nice 10 and the lowest best-effort
-// I/O priority, so that a commit waiting on its fdatasync, and the writer's next append, never
-// wait for a core or the disk behind a merge. When the writers wait (back-pressure on a full
-// T0), the merger has the machine to itself: priorities only order who runs first. Best effort:
-// a failure leaves the thread as it was (the order is an optimisation, not a guarantee).
-void YieldToWriters() {
-  ::pthread_setname_np(::pthread_self(), "hvdb-merge");  // as top -H and the tests see it
-  const auto tid = static_cast<id_t>(::syscall(SYS_gettid));
-  (void)::setpriority(PRIO_PROCESS, tid, 10);
-  constexpr int kIoprioWhoProcess = 1, kIoprioClassBe = 2, kIoprioClassShift = 13;
-  (void)::syscall(SYS_ioprio_set, kIoprioWhoProcess, static_cast<int>(tid),
-                  (kIoprioClassBe << kIoprioClassShift) | 7);
-}
-
-}  // namespace
-
 void DatasetImpl::MergerLoop() {
-  YieldToWriters();
   std::unique_lock<std::mutex> l(merge_mu_);
   for (;;) {
     if (opts_.retired_grace_ms > 0 || opts_.cold_after_s > 0) {

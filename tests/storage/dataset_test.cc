@@ -1,15 +1,10 @@
 // Differential tests of the engine against a brute-force model: random inserts, deletes,
 // label changes and transforms interleaved with window and slice queries at every level.
 #include <gtest/gtest.h>
-#include <sys/resource.h>
-#include <sys/syscall.h>
-#include <unistd.h>
-
 #include <atomic>
 
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 #include <map>
 #include <random>
 #include <set>
@@ -598,31 +593,6 @@ TEST_F(DatasetTest, SnapshotIsolation) {
 
 // The merger swaps trees in while a query holds the versions it started on: the query sees
 // exactly its snapshot, the merged-away tree files live until it lets go, and then go.
-// The merger (and the builders it starts) yields to the writers: nice 10 and the lowest
-// best-effort I/O priority, so a durable commit never waits for a core behind a merge.
-TEST_F(DatasetTest, TheMergerYieldsToWriters) {
-  Open();
-  std::mt19937_64 rng(17);
-  for (int i = 0; i < 4; ++i) InsertRandom(rng, 100);
-  ASSERT_TRUE(ds_->WaitForMerges().ok());
-  int mergers = 0;
-  for (const auto& task : std::filesystem::directory_iterator("/proc/self/task")) {
-    std::ifstream comm(task.path() / "comm");
-    std::string name;
-    std::getline(comm, name);
-    if (name != "hvdb-merge") continue;
-    ++mergers;
-    const int tid = std::stoi(task.path().filename().string());
-    errno = 0;
-    EXPECT_EQ(::getpriority(PRIO_PROCESS, static_cast<id_t>(tid)), 10) << "thread " << tid;
-    constexpr int kIoprioWhoProcess = 1;
-    EXPECT_EQ(::syscall(SYS_ioprio_get, kIoprioWhoProcess, tid), (2 << 13) | 7) << "thread " << tid;
-  }
-  EXPECT_EQ(mergers, 1);
-  // This thread, a writer's, keeps its own priority.
-  EXPECT_EQ(::getpriority(PRIO_PROCESS, static_cast<id_t>(::syscall(SYS_gettid))), 0);
-}
-
 TEST_F(DatasetTest, MergesSwapTreesUnderAnOpenQuery) {
   Open();
   std::mt19937_64 rng(13);
