@@ -15,10 +15,8 @@ Result<const AssimpLib*> LoadAssimp() {
     // HVDB_ASSIMP_SONAME: the soname of the library hvdb was built with (media/CMakeLists.txt);
     // Debian's package is named by it (libassimp.so.5: libassimp5).
     const std::string soname = HVDB_ASSIMP_SONAME;
-    std::string package = soname;
-    package.erase(package.find(".so."), 4);
     void* handle = nullptr;
-    status = OpenSharedLibrary(soname, package, "a mesh (assimp)", &handle);
+    status = OpenSharedLibrary(soname, "a mesh (assimp)", &handle);
 #define HVDB_ASSIMP_LOAD(name) \
   if (status.ok()) status = SharedLibraryFunction(handle, soname, #name, &lib.name);
     HVDB_ASSIMP_FUNCTIONS(HVDB_ASSIMP_LOAD)

@@ -78,10 +78,8 @@ Status LoadRados() {
   static std::once_flag once;
   std::call_once(once, [] {
     const std::string soname = HVDB_RADOS_SONAME;
-    std::string package = soname;
-    package.erase(package.find(".so."), 4);
     void* handle = nullptr;
-    status = OpenSharedLibrary(soname, package, "a RADOS store", &handle);
+    status = OpenSharedLibrary(soname, "a RADOS store", &handle);
 #define HVDB_RADOS_LOAD(name) \
   if (status.ok()) status = SharedLibraryFunction(handle, soname, #name, &g_rados.name);
     HVDB_RADOS_FUNCTIONS(HVDB_RADOS_LOAD)

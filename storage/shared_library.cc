@@ -14,6 +14,13 @@ Status OpenSharedLibrary(const std::string& soname, const std::string& package,
                              package);
 }
 
+Status OpenSharedLibrary(const std::string& soname, const std::string& purpose, void** handle) {
+  std::string package = soname;
+  const size_t so = package.find(".so.");
+  if (so != std::string::npos) package.erase(so, 4);
+  return OpenSharedLibrary(soname, package, purpose, handle);
+}
+
 Status SharedLibrarySymbol(void* handle, const std::string& soname, const char* name,
                            void** address) {
   dlerror();

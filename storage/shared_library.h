@@ -19,6 +19,10 @@ namespace hvdb {
 Status OpenSharedLibrary(const std::string& soname, const std::string& package,
                          const std::string& purpose, void** handle);
 
+// The same, with the package named as Debian names a library's: its soname without ".so."
+// (libassimp.so.5: libassimp5, librados.so.2: librados2).
+Status OpenSharedLibrary(const std::string& soname, const std::string& purpose, void** handle);
+
 // The address of `name` in an opened library; Unsupported (a library other than the one hvdb
 // was built with) when it lacks it.
 Status SharedLibrarySymbol(void* handle, const std::string& soname, const char* name,
