@@ -4,7 +4,8 @@
 // :SCALE (LINEAR, exp of the cloud's log scale: the ratified text and splat-transform; a review
 // draft said log), :OPACITY (linear 0..1, the sigmoid of the logit) and :SH_DEGREE_l_COEF_n (r g b
 // of the coefficient of degree l, order m = n - l). Written: PlayCanvas splat-transform's layout,
-// one node, mesh and primitive, a bufferView per attribute.
+// one node, mesh and primitive, a bufferView per attribute. Read: every splat primitive, placed
+// by its node's world transform when that is a similarity (gaussian_glb_nodes.h).
 //
 // Coordinates: glTF is x left, y up, z forward (LUF), the cloud x right, y down, z forward (RDF):
 // a 180-degree turn about z, C = diag(-1, -1, 1), its own inverse, so both directions apply it.
@@ -36,6 +37,7 @@
 #include <string_view>
 #include <vector>
 
+#include "formats/gaussian_glb_nodes.h"
 #include "formats/gaussians.h"
 
 namespace hvdb::formats {
@@ -327,6 +329,7 @@ Status Resolve(const Doc& d, uint64_t index, int slot, const std::string& where,
 struct Splats {
   const json* prim = nullptr;
   std::string where;  // "<name>: mesh 0 primitive 0"
+  size_t mesh = 0;
   std::array<View, kSlots> views;
   int degree = 0;
 };
@@ -404,58 +407,6 @@ Status ParsePrimitive(const Doc& d, Splats* s, std::vector<std::string>* ignored
       return Status::InvalidArgument(where + ": " + SlotName(slot) + " has " +
                                      S(s->views[slot].count) + " elements, POSITION " +
                                      S(s->views[0].count));
-    }
-  }
-  return Status::OK();
-}
-
-// The transform of a node, by name, when it is not the identity; "" for none.
-std::string NodeTransform(const json& node) {
-  auto is = [&](const char* key, std::initializer_list<double> want) {
-    const json* v = Member(&node, key);
-    if (v == nullptr) return true;
-    if (!v->is_array() || v->size() != want.size()) return false;
-    size_t k = 0;
-    for (double w : want) {
-      const json& e = (*v)[k++];
-      if (!e.is_number() || e.get<double>() != w) return false;
-    }
-    return true;
-  };
-  if (!is("matrix", {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1})) return "matrix";
-  if (!is("translation", {0, 0, 0})) return "translation";
-  if (!is("rotation", {0, 0, 0, 1})) return "rotation";
-  return is("scale", {1, 1, 1}) ? "" : "scale";
-}
-
-// Refuses a transform on a node that instantiates a splat mesh or is an ancestor of one: the
-// cloud has no place for it, and splats read without it would be in the wrong place.
-Status CheckNodes(const json& root, const std::vector<bool>& splat_mesh, const std::string& name) {
-  const json* nodes = Member(&root, "nodes");
-  if (nodes == nullptr || !nodes->is_array()) return Status::OK();
-  const size_t count = nodes->size();
-  std::vector<size_t> parent(count, count);
-  for (size_t i = 0; i < count; ++i) {
-    const json* children = Member(&(*nodes)[i], "children");
-    for (size_t k = 0; children != nullptr && children->is_array() && k < children->size(); ++k) {
-      const json& c = (*children)[k];
-      if (c.is_number_unsigned() && c.get<uint64_t>() < count) parent[c.get<uint64_t>()] = i;
-    }
-  }
-  for (size_t i = 0; i < count; ++i) {
-    const json* mesh = Member(&(*nodes)[i], "mesh");
-    if (mesh == nullptr || !mesh->is_number_unsigned() ||
-        mesh->get<uint64_t>() >= splat_mesh.size() || !splat_mesh[mesh->get<uint64_t>()]) {
-      continue;
-    }
-    // Up to the root; at most `count` steps, should the file hold a cycle.
-    for (size_t j = i, steps = 0; j < count && steps <= count; j = parent[j], ++steps) {
-      const std::string t = NodeTransform((*nodes)[j]);
-      if (!t.empty()) {
-        return Status::Unsupported(name + ": node " + S(j) + " has a " + t + " (over splats of " +
-                                   "mesh " + S(mesh->get<uint64_t>()) + "): node transforms " +
-                                   "are not applied; flatten the scene first");
-      }
     }
   }
   return Status::OK();
@@ -585,7 +536,7 @@ Result<GaussianCloud> ReadGlbImpl(std::string_view bytes, const std::string& nam
       for (size_t p = 0; ps != nullptr && ps->is_array() && p < ps->size(); ++p) {
         if (Member(Member(&(*ps)[p], "extensions"), kExt) == nullptr) continue;
         splat_mesh[m] = true;
-        prims.push_back({&(*ps)[p], name + ": mesh " + S(m) + " primitive " + S(p), {}, 0});
+        prims.push_back({&(*ps)[p], name + ": mesh " + S(m) + " primitive " + S(p), m, {}, 0});
       }
     }
   }
@@ -594,7 +545,8 @@ Result<GaussianCloud> ReadGlbImpl(std::string_view bytes, const std::string& nam
                                    ": a glTF file without KHR_gaussian_splatting "
                                    "primitives (a mesh or point cloud, not splats)");
   }
-  HVDB_RETURN_IF_ERROR(CheckNodes(root, splat_mesh, name));
+  HVDB_ASSIGN_OR_RETURN(const std::vector<Similarity> placed,
+                        glb::SplatMeshPlacements(root, splat_mesh, name));
   const Doc doc{name, root, bin, has_bin};
   GaussianCloud c;
   uint64_t total = 0;
@@ -620,6 +572,10 @@ Result<GaussianCloud> ReadGlbImpl(std::string_view bytes, const std::string& nam
   size_t base = 0;
   for (const Splats& s : prims) {
     HVDB_RETURN_IF_ERROR(Decode(s, base, &c));
+    // Where the node tree puts the mesh (its one node's world transform).
+    if (!placed[s.mesh].IsIdentity()) {
+      HVDB_RETURN_IF_ERROR(glb::PlaceSplats(&c, base, s.views[0].count, placed[s.mesh], s.where));
+    }
     base += s.views[0].count;
   }
   HVDB_RETURN_IF_ERROR(ValidateGaussianCloud(c, name));  // NaN or infinite positions, SH, ...

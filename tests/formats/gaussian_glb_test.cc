@@ -26,6 +26,7 @@
 #include <string>
 #include <vector>
 
+#include "formats/gaussian_transform.h"
 #include "formats/gaussians.h"
 #include "tests/formats/random_cloud.h"
 
@@ -492,6 +493,82 @@ TEST(GaussianGlb, ReadsTheRatifiedTypesAndRefusesOthers) {
       << bad.status().message();
 }
 
+// The node tree places the splats: a node's translation, rotation and uniform scale, and its
+// parents', move them as TransformCloud moves a cloud, in glTF's axes (x left, y up).
+TEST(GaussianGlb, NodeTransformsPlaceTheSplats) {
+  const GaussianCloud c = RandomCloud(40, 3, 5);
+  const std::string good = *WriteGlb(c, "x");
+  const GaussianCloud plain = *ReadGlb(good, "plain.glb");
+  auto edit = [&](auto change) {
+    Glb g = Unpack(good);
+    change(g.gltf);
+    return Pack(g.gltf, g.bin);
+  };
+  // A translation of (1, 2, 3) in glTF's axes is (-1, -2, 3) in the cloud's; nothing else moves.
+  auto moved = ReadGlb(edit([](json& j) { j["nodes"][0]["translation"] = {1, 2, 3}; }), "t.glb");
+  ASSERT_TRUE(moved.ok()) << moved.status().ToString();
+  for (size_t i = 0; i < plain.size(); ++i) {
+    EXPECT_FLOAT_EQ(moved->position[3 * i], plain.position[3 * i] - 1);
+    EXPECT_FLOAT_EQ(moved->position[3 * i + 1], plain.position[3 * i + 1] - 2);
+    EXPECT_FLOAT_EQ(moved->position[3 * i + 2], plain.position[3 * i + 2] + 3);
+  }
+  EXPECT_EQ(moved->rotation, plain.rotation);
+  EXPECT_EQ(moved->scale, plain.scale);
+  EXPECT_EQ(moved->sh_rest, plain.sh_rest);
+  // A parent's scale of 2 and 90 degrees about glTF's y (up) over a child's translation:
+  // world = T_parent R_parent S_parent T_child.
+  const double h = std::sqrt(0.5);
+  auto nested = ReadGlb(edit([&](json& j) {
+                          j["nodes"][0]["translation"] = {0.5, 0, 0};
+                          j["nodes"].push_back({{"children", {0}},
+                                                {"translation", {0, 1, 0}},
+                                                {"rotation", {0, h, 0, h}},
+                                                {"scale", {2, 2, 2}}});
+                        }),
+                        "n.glb");
+  ASSERT_TRUE(nested.ok()) << nested.status().ToString();
+  // In glTF's axes: p -> 2 R p + (0, 1, -1), R about y by 90 degrees (x -> -z, z -> x). In the
+  // cloud's, C M C with C = diag(-1, -1, 1): the turn is about -y (x -> z, z -> -x), the
+  // translation C (0, 1, -1) = (0, -1, -1).
+  Similarity m;
+  m.rotation = {0, 0, -1, 0, 1, 0, 1, 0, 0};
+  m.scale = 2;
+  m.translation = {0, -1, -1};
+  GaussianCloud want = plain;
+  ASSERT_TRUE(TransformCloud(&want, m, "want").ok());
+  for (size_t i = 0; i < want.position.size(); ++i) {
+    EXPECT_NEAR(nested->position[i], want.position[i], 1e-5) << i;
+  }
+  for (size_t i = 0; i < want.scale.size(); ++i) EXPECT_NEAR(nested->scale[i], want.scale[i], 1e-5);
+  for (size_t i = 0; i < want.size(); ++i) {  // the same rotation, up to the quaternion's sign
+    double dot = 0;
+    for (int k = 0; k < 4; ++k) dot += nested->rotation[4 * i + k] * want.rotation[4 * i + k];
+    EXPECT_NEAR(std::abs(dot), 1.0, 1e-5) << i;
+  }
+  for (size_t i = 0; i < want.sh_rest.size(); ++i) {
+    EXPECT_NEAR(nested->sh_rest[i], want.sh_rest[i], 1e-5) << i;
+  }
+  EXPECT_EQ(nested->opacity, plain.opacity);
+  EXPECT_EQ(nested->sh_dc, plain.sh_dc);
+  // A column-major matrix is the same placement as its T R S.
+  auto by_matrix = ReadGlb(edit([](json& j) {
+                             j["nodes"][0]["matrix"] = {0, 0, -2, 0, 0, 2, 0, 0,
+                                                        2, 0, 0, 0, 1, 1, 0, 1};
+                           }),
+                           "m.glb");
+  auto by_trs = ReadGlb(edit([&](json& j) {
+                          j["nodes"][0]["translation"] = {1, 1, 0};
+                          j["nodes"][0]["rotation"] = {0, h, 0, h};
+                          j["nodes"][0]["scale"] = {2, 2, 2};
+                        }),
+                        "trs.glb");
+  ASSERT_TRUE(by_matrix.ok()) << by_matrix.status().ToString();
+  ASSERT_TRUE(by_trs.ok()) << by_trs.status().ToString();
+  for (size_t i = 0; i < by_trs->position.size(); ++i) {
+    EXPECT_NEAR(by_matrix->position[i], by_trs->position[i], 1e-5) << i;
+  }
+}
+
 // Each malformed file: not ok, the message names the file and says what is wrong.
 TEST(GaussianGlb, MalformedFilesAreClearErrors) {
   const GaussianCloud c = RandomCloud(40, 2, 4);
@@ -586,16 +663,26 @@ TEST(GaussianGlb, MalformedFilesAreClearErrors) {
                "splat 0: " + Attr("SCALE") + " inf", kInvalid);
   expect_error(set_float("POSITION", 2, 3, 1, std::numeric_limits<float>::quiet_NaN()),
                "splat 2: y is nan", kInvalid);
+  // Node transforms a Gaussian cannot follow, or that are not one place for the splats.
+  expect_error(edit([](json& j, std::string&) { j["nodes"][0]["scale"] = {1, 2, 1}; }),
+               "node 0 (over the splats of mesh 0): a non-uniform scale or shear", kUnsupported);
   expect_error(edit([](json& j, std::string&) {
-                 j["nodes"][0]["translation"] = {1, 0, 0};
+                 j["nodes"].push_back({{"children", {0}}, {"scale", {-1, 1, 1}}});
                }),
-               "node 0 has a translation (over splats of mesh 0): node transforms are not "
-               "applied; flatten the scene first",
-               kUnsupported);
+               "a mirroring transform", kUnsupported);
   expect_error(edit([](json& j, std::string&) {
-                 j["nodes"].push_back({{"children", {0}}, {"scale", {2, 2, 2}}});
+                 j["nodes"][0]["matrix"] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0.5, 0, 0, 0, 1};
                }),
-               "node 1 has a scale", kUnsupported);
+               "a projective transform", kUnsupported);
+  expect_error(edit([](json& j, std::string&) { j["nodes"].push_back({{"mesh", 0}}); }),
+               "the splats of mesh 0 are instanced by nodes 0 and 1", kUnsupported);
+  expect_error(edit([](json& j, std::string&) { j["nodes"][0]["rotation"] = {0, 0, 0, 2}; }),
+               "node 0: rotation is not a unit quaternion", kInvalid);
+  expect_error(edit([](json& j, std::string&) {
+                 j["nodes"][0]["children"] = {1};
+                 j["nodes"].push_back({{"children", {0}}});
+               }),
+               "form a cycle", kInvalid);
   // Identity transforms, and transforms of nodes over no splats, are fine.
   EXPECT_TRUE(ReadGlb(edit([](json& j, std::string&) {
                         j["nodes"][0]["rotation"] = {0, 0, 0, 1};
