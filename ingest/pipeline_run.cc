@@ -50,13 +50,17 @@ class ProgressLine {
     if (fit_total_ > 0) {
       std::snprintf(fit, sizeof fit, "  fitting Gaussians %d/%d", fit_step_, fit_total_);
     }
-    std::fprintf(stderr, "\r[%.*s%.*s] %d/%d frames  %.2f frames/s  ETA %.0f s%s%*s", fill,
-                 "==============================", width - fill,
-                 "                              ", done_, total_, fps, eta, fit,
-                 fit_total_ > 0 ? 3 : 30, "");
+    char line[192];
+    const int n =
+        std::snprintf(line, sizeof line, "[%.*s%.*s] %d/%d frames  %.2f frames/s  ETA %.0f s%s",
+                      fill, "==============================", width - fill,
+                      "                              ", done_, total_, fps, eta, fit);
+    // Spaces over what a longer line before left on the terminal.
+    std::fprintf(stderr, "\r%s%*s", line, std::max(0, shown_ - n), "");
+    shown_ = n;
   }
   std::mutex mu_;
-  int done_ = 0, total_ = 0, fit_step_ = 0, fit_total_ = 0;
+  int done_ = 0, total_ = 0, fit_step_ = 0, fit_total_ = 0, shown_ = 0;
   double secs_ = 0;
 };
 
@@ -93,7 +97,8 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
     FrameReport& fr = reports[static_cast<size_t>(i - opt.first)];
     fr.frame = i;
     fr.dataset_frame = opt.frame_offset + static_cast<uint32_t>(i);
-    HVDB_ASSIGN_OR_RETURN(bool present, FramePresent(backend, opt.dataset, fr.dataset_frame, rec.fps));
+    HVDB_ASSIGN_OR_RETURN(bool present,
+                          FramePresent(backend, opt.dataset, fr.dataset_frame, rec.fps));
     if (present) {
       fr.status = "present";
       ++report.present;
@@ -184,16 +189,17 @@ Result<IngestReport> RunIngest(const Recording& rec, client::Backend& backend,
       fr.status = "skipped";
       fr.error = r.prepared.ToString();
       if (!opt.skip_bad_frames) {
-        failure = Status(r.prepared.code(),
-                         "frame " + std::to_string(r.index) + ": " + r.prepared.message() +
-                             " (--skip-bad-frames goes on without it)");
+        failure = Status(r.prepared.code(), "frame " + std::to_string(r.index) + ": " +
+                                                r.prepared.message() +
+                                                " (--skip-bad-frames goes on without it)");
       } else {
         ++report.skipped;
-        if (opt.progress) std::fprintf(stderr, "\nskipped frame %d: %s\n", r.index, fr.error.c_str());
+        if (opt.progress)
+          std::fprintf(stderr, "\nskipped frame %d: %s\n", r.index, fr.error.c_str());
       }
     } else if (!r.committed.ok()) {
-      failure = Status(r.committed.code(), "frame " + std::to_string(r.index) + ": commit: " +
-                                               r.committed.message());
+      failure = Status(r.committed.code(),
+                       "frame " + std::to_string(r.index) + ": commit: " + r.committed.message());
     } else {
       ++report.ingested;
       report.points += r.loaded;

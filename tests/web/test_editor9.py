@@ -383,15 +383,25 @@ def test_numeric_translation_in_time_moves_the_selection_frames_later(browser, s
 def test_a_stroke_begun_over_empty_space_paints_where_it_reaches_the_surface(browser, server):
     open_page(browser, server)
     undo = js(browser, "window.hvdbApp.app.editor.undoStack.length")
+    before = selected_ids(server, 1)  # the foreground strokes' bit
     browser.find_element(By.ID, "tool-brush-fg").click()
     # From the empty studio floor's left (no surface under the brush) onto the chest.
     drag(browser, [(60, 300), (300, 220), (490, 180)])
     stacks = call(browser, "window.hvdbApp.idle()")
     assert js(browser, "window.hvdbApp.lastError") is None
     assert stacks["undo"] == undo + 1
-    assert len(selected_ids(server, 1)) > 10  # the foreground strokes' bit
+    painted = selected_ids(server, 1)
+    assert len(painted - before) > 10
+    # An intersect stroke that meets no surface at all leaves the selection and the undo stack.
+    browser.find_element(By.ID, "mode-intersect").click()
+    drag(browser, [(60, 300), (80, 320), (100, 340)])
+    stacks = call(browser, "window.hvdbApp.idle()")
+    browser.find_element(By.ID, "mode-replace").click()
+    assert js(browser, "window.hvdbApp.lastError") is None
+    assert stacks["undo"] == undo + 1
+    assert selected_ids(server, 1) == painted
     call(browser, "window.hvdbApp.undo()")
-    assert not selected_ids(server, 1)
+    assert selected_ids(server, 1) == before
 
 
 def test_brush_strokes_subtract_and_intersect(browser, server):

@@ -301,7 +301,9 @@ export class Editor {
     return this.enqueue(async () => {
       while (s.busy) await s.busy;
       if (this.stroke === s) this.stroke = null;  // a stroke started meanwhile stays
-      if (s.intersect && !s.error) {
+      // An intersect stroke that met no surface leaves the selection as it was (its scratch
+      // bit is empty: combining would clear the selection).
+      if (s.intersect && !s.error && s.stampedSurface) {
         try {
           const r = await this.app.conn.request({ edit: { dataset: s.dataset, ops: combineOps(s.bit, 'SELECT_INTERSECT') } });
           if (String(r.commit.lsn) !== '0') s.lsns.push(String(r.commit.lsn));
