@@ -4,21 +4,17 @@
 
 namespace hvdb {
 
-Status OpenSharedLibrary(const std::string& soname, const std::string& package,
-                         const std::string& purpose, void** handle) {
+Status OpenSharedLibrary(const std::string& soname, const std::string& purpose, void** handle) {
   *handle = dlopen(soname.c_str(), RTLD_NOW | RTLD_LOCAL);
   if (*handle != nullptr) return Status::OK();
   const char* why = dlerror();
-  return Status::Unsupported(purpose + " needs " + soname + ", which did not load (" +
-                             (why != nullptr ? why : "unknown reason") + "): apt install " +
-                             package);
-}
-
-Status OpenSharedLibrary(const std::string& soname, const std::string& purpose, void** handle) {
+  // Debian names a library's package by its soname without ".so." (libassimp.so.5: libassimp5).
   std::string package = soname;
   const size_t so = package.find(".so.");
   if (so != std::string::npos) package.erase(so, 4);
-  return OpenSharedLibrary(soname, package, purpose, handle);
+  return Status::Unsupported(purpose + " needs " + soname + ", which did not load (" +
+                             (why != nullptr ? why : "unknown reason") + "): apt install " +
+                             package);
 }
 
 Status SharedLibrarySymbol(void* handle, const std::string& soname, const char* name,

@@ -15,12 +15,8 @@ namespace hvdb {
 // dlopen(soname) with RTLD_NOW | RTLD_LOCAL (its symbols stay out of the global namespace,
 // where they could interpose on another copy that a library of the process linked). The handle
 // is never closed: the libraries keep global state that must outlive any caller.
-// Unsupported, naming `purpose`, the soname and the package, when it does not load.
-Status OpenSharedLibrary(const std::string& soname, const std::string& package,
-                         const std::string& purpose, void** handle);
-
-// The same, with the package named as Debian names a library's: its soname without ".so."
-// (libassimp.so.5: libassimp5, librados.so.2: librados2).
+// Unsupported, naming `purpose`, the soname and its Debian package (the soname without ".so.":
+// libassimp.so.5, libassimp5), when it does not load.
 Status OpenSharedLibrary(const std::string& soname, const std::string& purpose, void** handle);
 
 // The address of `name` in an opened library; Unsupported (a library other than the one hvdb
