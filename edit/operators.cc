@@ -202,6 +202,17 @@ Result<SelectResult> Select(Dataset& ds, const SelectRequest& req) {
   if (!to_set.empty()) t.SetLabel(Explicit(to_set), mask, true);
   HVDB_ASSIGN_OR_RETURN(CommitInfo info, ds.Commit(t));
   res.lsn = info.lsn;
+  if (req.return_flips) {
+    for (const auto* keys : {&to_clear, &to_set}) {
+      for (const Key& k : *keys) {
+        if (res.flips.empty() || res.flips.back().frame != k.first ||
+            res.flips.back().set != (keys == &to_set)) {
+          res.flips.push_back({k.first, keys == &to_set, {}});
+        }
+        res.flips.back().ids.push_back(k.second);
+      }
+    }
+  }
   return res;
 }
 

@@ -45,6 +45,15 @@ struct SelectRequest {
   std::variant<std::monostate, Lasso, Brush> shape;  // monostate: the whole region
   int bit = 0;                                       // label bit 0..31 that holds the selection
   SelectMode mode = SelectMode::kReplace;
+  bool return_flips = false;  // fill SelectResult::flips
+};
+
+// The points of one frame whose selection bit a Select set or cleared, ids ascending: what a
+// client showing them needs to redraw their labels without querying the frame again.
+struct LabelFlips {
+  uint32_t frame = 0;
+  bool set = false;
+  std::vector<uint64_t> ids;
 };
 
 struct SelectResult {
@@ -52,6 +61,7 @@ struct SelectResult {
   uint64_t selected = 0;  // points carrying the bit afterwards
   uint64_t lsn = 0;       // 0 when nothing changed
   std::optional<std::array<double, 3>> brush_center;
+  std::vector<LabelFlips> flips;  // with return_flips: cleared ones first, then set ones
 };
 
 Result<SelectResult> Select(Dataset& ds, const SelectRequest& req);

@@ -6,6 +6,8 @@
 #include <string>
 #include <variant>
 
+#include "storage/coding.h"
+
 namespace hvdb::wire {
 
 uint32_t BitToWire(int bit) { return static_cast<uint32_t>(bit); }
@@ -33,6 +35,7 @@ void ToWire(const edit::SelectRequest& r, wire::SelectRequest* out) {
     b->set_radius(brush->radius);
     b->set_nearest(brush->depth == edit::Brush::Depth::kNearest);
   }
+  out->set_return_flips(r.return_flips);
 }
 
 Result<edit::SelectRequest> FromWire(const wire::SelectRequest& q) {
@@ -63,6 +66,7 @@ Result<edit::SelectRequest> FromWire(const wire::SelectRequest& q) {
     b.depth = q.brush().nearest() ? edit::Brush::Depth::kNearest : edit::Brush::Depth::kMedian;
     sr.shape = std::move(b);
   }
+  sr.return_flips = q.return_flips();
   return sr;
 }
 
@@ -73,15 +77,54 @@ void ToWire(const edit::SelectResult& r, wire::SelectReply* out) {
   if (r.brush_center) {
     for (double v : *r.brush_center) out->add_brush_center(v);
   }
+  for (const edit::LabelFlips& f : r.flips) {
+    wire::LabelFlips* w = out->add_flips();
+    w->set_frame(f.frame);
+    w->set_set(f.set);
+    w->set_count(static_cast<uint32_t>(f.ids.size()));
+    std::string* ids = w->mutable_ids();
+    ids->reserve(f.ids.size() * 2);
+    uint64_t prev = 0;
+    for (uint64_t id : f.ids) {
+      PutVarint(ids, id - prev);
+      prev = id;
+    }
+  }
 }
 
-edit::SelectResult FromWire(const wire::SelectReply& r) {
+Result<edit::SelectResult> FromWire(const wire::SelectReply& r) {
   edit::SelectResult out;
   out.matched = r.matched();
   out.selected = r.selected();
   out.lsn = r.lsn();
   if (r.brush_center_size() == 3) {
     out.brush_center = std::array<double, 3>{r.brush_center(0), r.brush_center(1), r.brush_center(2)};
+  }
+  for (const wire::LabelFlips& w : r.flips()) {
+    edit::LabelFlips f{w.frame(), w.set(), {}};
+    Reader rd(reinterpret_cast<const uint8_t*>(w.ids().data()), w.ids().size());
+    // Each id takes at least a byte: a count beyond the bytes is malformed, not an allocation.
+    if (w.count() > w.ids().size()) {
+      return Status::InvalidArgument("select reply: flips of frame " + std::to_string(w.frame()) +
+                                     " claim " + std::to_string(w.count()) + " ids in " +
+                                     std::to_string(w.ids().size()) + " bytes");
+    }
+    f.ids.reserve(w.count());
+    uint64_t prev = 0;
+    for (uint32_t i = 0; i < w.count(); ++i) {
+      uint64_t gap;
+      if (!GetVarint(&rd, &gap) || (i > 0 && gap == 0) || gap > UINT64_MAX - prev) {
+        return Status::InvalidArgument("select reply: flips of frame " + std::to_string(w.frame()) +
+                                       ": id " + std::to_string(i) + " is not a valid ascending varint");
+      }
+      prev += gap;
+      f.ids.push_back(prev);
+    }
+    if (rd.remaining() != 0) {
+      return Status::InvalidArgument("select reply: flips of frame " + std::to_string(w.frame()) +
+                                     " have bytes after their " + std::to_string(w.count()) + " ids");
+    }
+    out.flips.push_back(std::move(f));
   }
   return out;
 }

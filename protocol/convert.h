@@ -20,7 +20,7 @@ int BitFromWire(uint32_t bit);
 void ToWire(const edit::SelectRequest& r, wire::SelectRequest* out);
 Result<edit::SelectRequest> FromWire(const wire::SelectRequest& r);
 void ToWire(const edit::SelectResult& r, wire::SelectReply* out);
-edit::SelectResult FromWire(const wire::SelectReply& r);
+Result<edit::SelectResult> FromWire(const wire::SelectReply& r);
 
 void ToWire(const edit::GraphCutRequest& r, wire::GraphCutRequest* out);
 Result<edit::GraphCutRequest> FromWire(const wire::GraphCutRequest& r);

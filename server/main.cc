@@ -1,11 +1,20 @@
 // hvdb-server: flags, the optional config file, and the server's lifetime. The only
 // try/catch of the server is here.
 #include <CLI/CLI.hpp>
+#include <malloc.h>
+
 #include <cstdio>
 
 #include "server/server.h"
 
 int main(int argc, char** argv) {
+  // Keep freed memory for the next request instead of returning it to the kernel: a request's
+  // vectors of points (a 57 k-point select allocates ~20 MB) otherwise come from fresh mmaps
+  // each time, and faulting their pages in was most of a select's time (bench/README.md,
+  // "Label summaries": 102 -> 40 ms). glibc's defaults return blocks over 128 KiB at once and
+  // trim the heap above 128 KiB free.
+  mallopt(M_MMAP_THRESHOLD, 64 << 20);
+  mallopt(M_TRIM_THRESHOLD, 256 << 20);
   using hvdb::server::Config;
   Config c;
   std::string log_level = "info";

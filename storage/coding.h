@@ -118,6 +118,28 @@ class Reader {
   const uint8_t* end_;
 };
 
+// LEB128, as protobuf's varints: ids ascending are stored as their gaps, a byte or two each
+// (the log's relabels, the protocol's label flips).
+inline void PutVarint(std::string* out, uint64_t v) {
+  while (v >= 0x80) {
+    out->push_back(static_cast<char>(v | 0x80));
+    v >>= 7;
+  }
+  out->push_back(static_cast<char>(v));
+}
+
+// False when the bytes end first or the value does not fit 64 bits.
+inline bool GetVarint(Reader* r, uint64_t* v) {
+  *v = 0;
+  for (int shift = 0; shift < 64; shift += 7) {
+    uint8_t b;
+    if (!r->Get(&b)) return false;
+    *v |= uint64_t{b & 0x7fu} << shift;
+    if (!(b & 0x80)) return shift < 63 || b <= 1;
+  }
+  return false;
+}
+
 }  // namespace hvdb
 
 #endif  // HVDB_STORAGE_CODING_H_

@@ -58,8 +58,7 @@ void OrderForCoding(TreeImage* image) {
   std::vector<uint8_t> tmp;
   for (uint32_t bucket = 0; bucket < h.bucket_count; ++bucket) {
     const DirEntry e = DecodeDirEntry(
-        base + size_t{h.dir_block_start + bucket / per} * bs + size_t{bucket % per} * h.DirEntrySize(),
-        h.levels);
+        base + size_t{h.dir_block_start + bucket / per} * bs + size_t{bucket % per} * h.DirEntrySize(), h);
     for (uint32_t k = 0; k < h.levels; ++k) {
       const uint32_t n = e.count[k];
       if (n < 2) continue;

@@ -52,11 +52,18 @@ Status ScanVersion(const FrameVersion& v, const RegionPlan* plan, uint32_t label
   for (size_t s = 0; s < v.slots.size(); ++s) {
     const TreeSlot& slot = v.slots[s];
     if (!slot.tree) continue;
+    // Label summaries: trees and buckets without the bits hold no point of a masked scan.
+    if (label_mask != 0 && (slot.tree->header().labels & label_mask) == 0) continue;
     BoxTest test = [&](const Box3& b) {
       return plan == nullptr ? Relation::kInside : plan->Classify(b, v.frame);
     };
     std::vector<KdTree::BucketHit> hits;
     HVDB_RETURN_IF_ERROR(slot.tree->FindBuckets(test, &hits));
+    if (label_mask != 0) {
+      std::erase_if(hits, [label_mask](const KdTree::BucketHit& h) {
+        return (h.entry.labels & label_mask) == 0;
+      });
+    }
     HVDB_RETURN_IF_ERROR(ReadHits(*slot.tree, hits, [&](const KdTree::BucketHit& hit,
                                                         const uint8_t* rec, size_t n) {
       for (size_t j = 0; j < n; ++j) {
@@ -261,9 +268,11 @@ Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
       }
     };
     std::unordered_set<std::pair<uint32_t, uint64_t>, PairHash> seen;
-    seen.reserve(sel.ids.size() + 1024);
+    // Only a region and ids together can meet a point twice (ids are unique in a frame).
+    const bool dedup = sel.region.has_value() && !sel.ids.empty();
+    if (dedup) seen.reserve(sel.ids.size() + 1024);
     auto add = [&](const Point& p, int32_t where) {
-      if (seen.insert({p.frame, p.id}).second) {
+      if (!dedup || seen.insert({p.frame, p.id}).second) {
         out.by_frame[p.frame].push_back(p);
         out.where[p.frame].push_back(where);
       }
@@ -287,6 +296,8 @@ Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
                                                                  // of structured bindings)
       auto v = ws->Get(f);
       if (!v) return Status::NotFound("frame " + std::to_string(f) + " has no points");
+      out.by_frame[f].reserve(out.by_frame[f].size() + ids.size());
+      out.where[f].reserve(out.where[f].size() + ids.size());
       size_t found = 0;
       HVDB_RETURN_IF_ERROR(ScanVersion(*v, nullptr, sel.label_mask, [&](const Point& p, int32_t w) {
         add(p, w);
@@ -356,6 +367,9 @@ Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
         const std::vector<int32_t>& where = sel.where[f];
         FrameEffect step;
         step.frame = f;
+        step.removed.reserve(pts.size());
+        step.added.reserve(pts.size());
+        step.found_in.reserve(pts.size());
         // The log keeps the ids in groups by the bits that flip (one group for a whole
         // selection, as a rule); the points before and after are applied here.
         std::map<std::pair<uint32_t, uint32_t>, std::vector<uint64_t>> groups;

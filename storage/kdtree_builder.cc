@@ -216,6 +216,7 @@ Status BuildTreeImage(std::vector<Point>& points, const TreeBuildParams& params,
   const int max_level = params.lod_levels;
   std::vector<Rec> recs(points.size());
   TreeHeader h;
+  if (!params.label_summaries) h.flags = 0;
   h.min_id = std::numeric_limits<uint64_t>::max();
   for (size_t i = 0; i < points.size(); ++i) {
     const Point& p = points[i];
@@ -244,8 +245,16 @@ Status BuildTreeImage(std::vector<Point>& points, const TreeBuildParams& params,
     std::span<Rec> span(recs.data() + begin, end - begin);
     dir[i].box = BoundsOf(span);
     KdOrder(span, points);
-    for (size_t m = 0; m < span.size(); ++m) ++dir[i].count[LevelOfRank(m, max_level)];
+    uint32_t labels = 0;
+    for (size_t m = 0; m < span.size(); ++m) {
+      ++dir[i].count[LevelOfRank(m, max_level)];
+      labels |= points[span[m].idx].label;
+    }
+    dir[i].labels = labels;
   });
+  h.labels = 0;
+  for (const DirEntry& e : dir) h.labels |= e.labels;
+  if (!h.label_summaries()) h.labels = ~0u;
   // Level segments, coarsest first, each starting on a block boundary (fig. 8.11).
   uint32_t block = 1;  // block 0: header
   for (int k = static_cast<int>(levels) - 1; k >= 0; --k) {
@@ -325,7 +334,7 @@ Status BuildTreeImage(std::vector<Point>& points, const TreeBuildParams& params,
   for (size_t i = 0; i < nb; ++i) {
     uint8_t* dst = base + size_t{h.dir_block_start + i / per_dir} * bs +
                    (i % per_dir) * h.DirEntrySize();
-    EncodeDirEntry(dir[i], levels, dst);
+    EncodeDirEntry(dir[i], h, dst);
   }
   uint8_t* crc_base = base + size_t{h.crc_block_start} * bs;
   ParallelFor(h.crc_block_start, [&](size_t blk) {

@@ -27,6 +27,9 @@ struct TreeBuildParams {
   uint64_t tree_seq = 0;
   // Write the compressed format of the cold tier (storage/cold_tree.h) instead of raw blocks.
   bool compressed = false;
+  // Per-bucket label summaries (docs/FORMAT.md); false writes the layout of files from before
+  // them, which readers must keep reading (tests).
+  bool label_summaries = true;
 };
 
 // A tree file's bytes in memory, as BuildTreeFile writes them in the raw format.

@@ -39,6 +39,8 @@ void EncodeTreeHeader(const TreeHeader& h, uint8_t* d) {
     EncodeLE(d + 128 + 8 * k, h.level_count[k]);
     EncodeLE(d + 132 + 8 * k, h.level_start_block[k]);
   }
+  EncodeLE(d + 200, h.flags);
+  EncodeLE(d + 204, h.label_summaries() ? h.labels : 0u);
   EncodeLE(d + 252, crc32c::Mask(crc32c::Value(d, 252)));
 }
 
@@ -85,6 +87,11 @@ Result<TreeHeader> DecodeTreeHeader(const uint8_t* d, const std::string& what) {
     h.level_count[k] = DecodeLE<uint32_t>(d + 128 + 8 * k);
     h.level_start_block[k] = DecodeLE<uint32_t>(d + 132 + 8 * k);
   }
+  h.flags = DecodeLE<uint32_t>(d + 200);
+  if ((h.flags & ~kTreeFlagLabelSummaries) != 0) {
+    return corrupt("unknown flags " + std::to_string(h.flags) + " (this build knows bit 0)");
+  }
+  h.labels = h.label_summaries() ? DecodeLE<uint32_t>(d + 204) : ~0u;
   if (h.block_size < 4096 || h.block_size > (1u << 20) || (h.block_size & (h.block_size - 1))) {
     return corrupt("block size " + std::to_string(h.block_size) + " out of range");
   }
@@ -119,7 +126,8 @@ NodeRecord DecodeNode(const uint8_t* d) {
   return n;
 }
 
-void EncodeDirEntry(const DirEntry& e, uint32_t levels, uint8_t* d) {
+void EncodeDirEntry(const DirEntry& e, const TreeHeader& h, uint8_t* d) {
+  const uint32_t levels = h.levels;
   for (int a = 0; a < 3; ++a) {
     EncodeLE(d + 4 * a, e.box.lo[a]);
     EncodeLE(d + 12 + 4 * a, e.box.hi[a]);
@@ -128,9 +136,11 @@ void EncodeDirEntry(const DirEntry& e, uint32_t levels, uint8_t* d) {
     EncodeLE(d + 24 + 8 * k, e.start[k]);
     EncodeLE(d + 28 + 8 * k, e.count[k]);
   }
+  if (h.label_summaries()) EncodeLE(d + 24 + 8 * levels, e.labels);
 }
 
-DirEntry DecodeDirEntry(const uint8_t* d, uint32_t levels) {
+DirEntry DecodeDirEntry(const uint8_t* d, const TreeHeader& h) {
+  const uint32_t levels = h.levels;
   DirEntry e;
   for (int a = 0; a < 3; ++a) {
     e.box.lo[a] = DecodeLE<float>(d + 4 * a);
@@ -140,6 +150,7 @@ DirEntry DecodeDirEntry(const uint8_t* d, uint32_t levels) {
     e.start[k] = DecodeLE<uint32_t>(d + 24 + 8 * k);
     e.count[k] = DecodeLE<uint32_t>(d + 28 + 8 * k);
   }
+  e.labels = h.label_summaries() ? DecodeLE<uint32_t>(d + 24 + 8 * levels) : ~0u;
   return e;
 }
 

@@ -20,6 +20,10 @@ inline constexpr int kMaxLevels = 9;  // l <= 8
 inline constexpr size_t kTreeHeaderSize = 256;
 inline constexpr size_t kNodeRecordSize = 16;
 inline constexpr size_t kNodeBlockHeader = 8;
+// Header flag: every directory entry ends with a u32 label summary (the OR of its bucket's
+// points' labels) and the header holds the OR over the tree. Files without it (written before
+// summaries existed) read as if every bucket held every bit.
+inline constexpr uint32_t kTreeFlagLabelSummaries = 1;
 
 enum class ChildType : uint8_t { kNode = 0, kNodeBlock = 1, kBucket = 2 };
 
@@ -51,8 +55,12 @@ struct TreeHeader {
   std::array<uint32_t, kMaxLevels> level_count{};        // points in each level's segment
   std::array<uint32_t, kMaxLevels> level_start_block{};  // first block of each segment
   uint32_t crc_table_crc = 0;  // masked CRC-32C of the checksum table's bytes
+  uint32_t flags = kTreeFlagLabelSummaries;
+  // OR of every point's label (a superset: weak deletes do not clear it); ~0 without summaries.
+  uint32_t labels = ~0u;
 
-  uint32_t DirEntrySize() const { return 24 + 8 * levels; }
+  bool label_summaries() const { return (flags & kTreeFlagLabelSummaries) != 0; }
+  uint32_t DirEntrySize() const { return 24 + 8 * levels + (label_summaries() ? 4 : 0); }
   uint32_t DirEntriesPerBlock() const { return block_size / DirEntrySize(); }
   uint32_t NodesPerBlock() const {
     return static_cast<uint32_t>((block_size - kNodeBlockHeader) / kNodeRecordSize);
@@ -76,9 +84,13 @@ NodeRecord DecodeNode(const uint8_t* src);
 struct DirEntry {
   Box3 box;
   std::array<uint32_t, kMaxLevels> start{}, count{};
+  // OR of the labels of the bucket's points at every level; ~0 in files without summaries.
+  // Lets label-masked scans (selections, replace-mode edits) skip buckets without the bits.
+  uint32_t labels = ~0u;
 };
-void EncodeDirEntry(const DirEntry& e, uint32_t levels, uint8_t* dst);
-DirEntry DecodeDirEntry(const uint8_t* src, uint32_t levels);
+// The entry's layout depends on the header's levels and flags.
+void EncodeDirEntry(const DirEntry& e, const TreeHeader& h, uint8_t* dst);
+DirEntry DecodeDirEntry(const uint8_t* src, const TreeHeader& h);
 
 }  // namespace hvdb
 

@@ -105,7 +105,7 @@ Result<DirEntry> KdTree::Dir(uint32_t bucket) const {
   }
   uint32_t per = h_.DirEntriesPerBlock();
   HVDB_ASSIGN_OR_RETURN(PageRef page, Block(h_.dir_block_start + bucket / per));
-  return DecodeDirEntry(page.data() + size_t{bucket % per} * h_.DirEntrySize(), h_.levels);
+  return DecodeDirEntry(page.data() + size_t{bucket % per} * h_.DirEntrySize(), h_);
 }
 
 void KdTree::PrefetchBlocks(const std::vector<uint32_t>& blocks) const {
@@ -359,13 +359,17 @@ std::vector<std::string> KdTree::Verify() const {
     uint32_t per = h_.DirEntriesPerBlock();
     std::vector<uint8_t> blk(bs);
     (void)LoadBlock(h_.dir_block_start + bucket / per, blk.data());  // checked above
-    return DecodeDirEntry(blk.data() + size_t{bucket % per} * h_.DirEntrySize(), h_.levels);
+    return DecodeDirEntry(blk.data() + size_t{bucket % per} * h_.DirEntrySize(), h_);
   };
   const uint64_t cap = 2ull * h_.points_per_block;
   uint64_t total = 0;
   for (uint32_t i = 0; i < h_.bucket_count; ++i) {
     DirEntry e = read_entry(i);
     uint64_t n = 0;
+    if ((e.labels & ~h_.labels) != 0) {
+      problems.push_back(path() + ": bucket " + std::to_string(i) +
+                         ": label summary has bits the header's lacks");
+    }
     for (uint32_t k = 0; k < h_.levels; ++k) {
       n += e.count[k];
       Status s = ReadRange(static_cast<int>(k), e.start[k], e.count[k],
@@ -380,6 +384,12 @@ std::vector<std::string> KdTree::Verify() const {
                                                       " outside the bucket box");
                                    return;
                                  }
+                               }
+                               if ((p.label & ~e.labels) != 0) {
+                                 problems.push_back(path() + ": bucket " + std::to_string(i) +
+                                                    ": point " + std::to_string(p.id) +
+                                                    " has label bits its summary lacks");
+                                 return;
                                }
                                if (p.frame != h_.frame) {
                                  problems.push_back(path() + ": point " + std::to_string(p.id) +

@@ -60,26 +60,6 @@ static bool HasRelabels(const TxnRecord& t) {
   return false;
 }
 
-// LEB128, as protobuf's varints: ids ascending are stored as their gaps, a byte or two each.
-static void PutVarint(std::string* out, uint64_t v) {
-  while (v >= 0x80) {
-    out->push_back(static_cast<char>(v | 0x80));
-    v >>= 7;
-  }
-  out->push_back(static_cast<char>(v));
-}
-
-static bool GetVarint(Reader* r, uint64_t* v) {
-  *v = 0;
-  for (int shift = 0; shift < 64; shift += 7) {
-    uint8_t b;
-    if (!r->Get(&b)) return false;
-    *v |= uint64_t{b & 0x7fu} << shift;
-    if (!(b & 0x80)) return shift < 63 || b <= 1;
-  }
-  return false;
-}
-
 static void PutRelabels(Writer* w, const std::vector<Relabel>& groups) {
   w->Put<uint32_t>(static_cast<uint32_t>(groups.size()));
   for (const Relabel& g : groups) {

@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <map>
 #include <set>
@@ -115,35 +116,73 @@ TEST_F(OperatorsTest, RegionSelectionModesMatchTheModel) {
   SelectRequest r;
   r.bit = 3;
   r.region = a;
-  ASSERT_TRUE(Select(*ds_, r).ok());
+  // What a client applying each reply's flips shows (the page's label-only refresh).
+  std::set<Key> shown;
+  auto select = [&]() -> SelectResult {
+    r.return_flips = true;
+    auto res = Select(*ds_, r);
+    EXPECT_TRUE(res.ok()) << res.status().ToString();
+    if (!res.ok()) return {};
+    for (const LabelFlips& f : res->flips) {
+      EXPECT_TRUE(std::is_sorted(f.ids.begin(), f.ids.end()));
+      for (uint64_t id : f.ids) {
+        if (f.set) {
+          EXPECT_TRUE(shown.insert({f.frame, id}).second) << id << " set twice";
+        } else {
+          EXPECT_EQ(shown.erase({f.frame, id}), 1u) << id << " cleared but not set";
+        }
+      }
+    }
+    return *res;
+  };
+  select();
   std::set<Key> model;
   for (const auto& [k, p] : before) {
     if (in_box(p, -1e9, 0.5)) model.insert(k);
   }
   EXPECT_EQ(WithBit(ReadAll(*ds_), 3), model);
+  EXPECT_EQ(shown, model);
   r.region = b;
   r.mode = SelectMode::kIntersect;
-  auto res = Select(*ds_, r);
-  ASSERT_TRUE(res.ok());
+  SelectResult res = select();
   std::erase_if(model, [&](const Key& k) { return !in_box(before[k], 0.3, 1e9); });
   EXPECT_EQ(WithBit(ReadAll(*ds_), 3), model);
-  EXPECT_EQ(res->selected, model.size());
+  EXPECT_EQ(res.selected, model.size());
+  EXPECT_EQ(shown, model);
   r.mode = SelectMode::kSubtract;
   Window c = Everything();
   c.lo[0] = 0.4;
   r.region = c;
-  ASSERT_TRUE(Select(*ds_, r).ok());
+  select();
   std::erase_if(model, [&](const Key& k) { return before[k].x >= 0.4; });
   EXPECT_EQ(WithBit(ReadAll(*ds_), 3), model);
+  EXPECT_EQ(shown, model);
   r.mode = SelectMode::kAdd;
   Window d = Everything();
   d.lo[0] = 0.9;
   r.region = d;
-  ASSERT_TRUE(Select(*ds_, r).ok());
+  select();
   for (const auto& [k, p] : before) {
     if (p.x >= 0.9) model.insert(k);
   }
   EXPECT_EQ(WithBit(ReadAll(*ds_), 3), model);
+  EXPECT_EQ(shown, model);
+  // Replace: the old selection's points outside the new region come back as cleared.
+  r.mode = SelectMode::kReplace;
+  r.region = a;
+  res = select();
+  model.clear();
+  for (const auto& [k, p] : before) {
+    if (in_box(p, -1e9, 0.5)) model.insert(k);
+  }
+  EXPECT_EQ(WithBit(ReadAll(*ds_), 3), model);
+  EXPECT_EQ(shown, model);
+  // Without return_flips, none.
+  r.return_flips = false;
+  r.region = b;
+  auto plain = Select(*ds_, r);
+  ASSERT_TRUE(plain.ok());
+  EXPECT_TRUE(plain->flips.empty());
   // Labels aside, nothing moved.
   auto after = ReadAll(*ds_);
   ASSERT_EQ(after.size(), before.size());

@@ -105,15 +105,36 @@ TEST(ConvertTest, SelectRequestWithEachShape) {
 }
 
 TEST(ConvertTest, SelectReply) {
-  edit::SelectResult r{12, 34, 56, std::array<double, 3>{1.5, -2, 3}};
+  edit::SelectResult r{12, 34, 56, std::array<double, 3>{1.5, -2, 3}, {}};
+  r.flips = {{3, false, {1, 2, 300}}, {3, true, {7, UINT64_MAX}}, {9, true, {1ull << 40}}};
   wire::SelectReply w;
   ToWire(r, &w);
-  edit::SelectResult back = FromWire(w);
-  EXPECT_EQ(back.matched, 12u);
-  EXPECT_EQ(back.selected, 34u);
-  EXPECT_EQ(back.lsn, 56u);
-  ASSERT_TRUE(back.brush_center.has_value());
-  EXPECT_EQ(*back.brush_center, *r.brush_center);
+  EXPECT_EQ(w.flips(0).ids().size(), 4u);  // gaps 1, 1, 298: a byte, a byte, two bytes
+  auto back = FromWire(w);
+  ASSERT_TRUE(back.ok()) << back.status().ToString();
+  EXPECT_EQ(back->matched, 12u);
+  EXPECT_EQ(back->selected, 34u);
+  EXPECT_EQ(back->lsn, 56u);
+  ASSERT_TRUE(back->brush_center.has_value());
+  EXPECT_EQ(*back->brush_center, *r.brush_center);
+  ASSERT_EQ(back->flips.size(), 3u);
+  for (size_t i = 0; i < 3; ++i) {
+    EXPECT_EQ(back->flips[i].frame, r.flips[i].frame);
+    EXPECT_EQ(back->flips[i].set, r.flips[i].set);
+    EXPECT_EQ(back->flips[i].ids, r.flips[i].ids);
+  }
+  // A reply's flips that do not decode are an error, never a shorter list.
+  for (auto [count, bytes] : std::vector<std::pair<uint32_t, std::string>>{
+           {4, std::string("\x01\x01\x01", 3)},             // fewer ids than the count
+           {2, std::string("\x01\x00", 2)},                 // a repeated id (gap 0)
+           {1, std::string("\x01\x01", 2)},                 // bytes after the ids
+           {1000000, std::string("\x01", 1)},                // a count no bytes could hold
+           {1, std::string(10, '\xff')}}) {                  // a varint past 64 bits
+    wire::SelectReply bad = w;
+    bad.mutable_flips(0)->set_count(count);
+    bad.mutable_flips(0)->set_ids(bytes);
+    EXPECT_FALSE(FromWire(bad).ok()) << count;
+  }
 }
 
 // Every graph-cut parameter travels, including values the server will refuse: the executor, not

@@ -506,7 +506,9 @@ TEST_F(ServiceTest, AGoodRequestGetsTheSameValuesEverywhere) {
   wire::ToWire(s, &q);
   auto theirs = (*conn)->Select(q);
   ASSERT_TRUE(theirs.ok()) << theirs.status().ToString();
-  const edit::SelectResult t = wire::FromWire(*theirs);
+  auto back = wire::FromWire(*theirs);
+  ASSERT_TRUE(back.ok()) << back.status().ToString();
+  const edit::SelectResult& t = *back;
   EXPECT_GT(mine->selected, 0u);
   EXPECT_EQ(t.matched, mine->matched);
   EXPECT_EQ(t.selected, mine->selected);

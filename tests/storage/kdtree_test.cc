@@ -190,6 +190,56 @@ TEST(KdTreeTest, SmallFrameTreeFileIsSparse) {
   }
 }
 
+// Each bucket's label summary is exactly the OR of its points' labels, the header's the OR of
+// all; a file written without summaries (before they existed) reads every bucket as holding
+// every bit, and its points and checks are the same.
+TEST(KdTreeTest, LabelSummariesAreTheBucketsLabelsAndOldFilesStillRead) {
+  TempDir dir;
+  BufferPool pool(8u << 20, 4096);
+  std::mt19937_64 rng(3);
+  auto pts = RandomPoints(rng, 20000, 0);
+  for (size_t i = 0; i < pts.size(); ++i) {
+    pts[i].id = i + 1;
+    pts[i].label = (pts[i].z < 0.5f ? 1u << 3 : 0u) | (i % 777 == 0 ? 1u << 30 : 0u);
+  }
+  auto everything = [](const Box3&) { return Relation::kCrosses; };
+  for (bool summaries : {true, false}) {
+    const std::string path = dir.path() + (summaries ? "/new.kdt" : "/old.kdt");
+    TreeBuildParams params;
+    params.block_size = 4096;
+    params.label_summaries = summaries;
+    std::vector<Point> copy = pts;
+    ASSERT_TRUE(BuildTreeFile(Env::Default(), path, copy, params, true).ok());
+    auto tree = KdTree::Open(Env::Default(), path, &pool);
+    ASSERT_TRUE(tree.ok()) << tree.status().ToString();
+    const TreeHeader& h = (*tree)->header();
+    EXPECT_EQ(h.label_summaries(), summaries);
+    EXPECT_EQ(h.labels, summaries ? (1u << 3 | 1u << 30) : ~0u);
+    std::vector<KdTree::BucketHit> hits;
+    ASSERT_TRUE((*tree)->FindBuckets(everything, &hits).ok());
+    ASSERT_EQ(hits.size(), h.bucket_count);
+    size_t with_bit3 = 0;
+    for (const auto& hit : hits) {
+      uint32_t labels = 0;
+      for (uint32_t k = 0; k < h.levels; ++k) {
+        ASSERT_TRUE((*tree)->ReadRange(static_cast<int>(k), hit.entry.start[k], hit.entry.count[k],
+                                       [&](const uint8_t* rec, size_t n) {
+                                         for (size_t j = 0; j < n; ++j) labels |= DecodePoint(rec + 64 * j).label;
+                                       }).ok());
+      }
+      EXPECT_EQ(hit.entry.labels, summaries ? labels : ~0u) << "bucket " << hit.bucket;
+      with_bit3 += (hit.entry.labels & (1u << 3)) != 0;
+    }
+    if (summaries) {
+      EXPECT_LT(with_bit3 * 3, hits.size());  // z < 0.5 is a slab of the frame
+    }
+    EXPECT_TRUE((*tree)->Verify().empty());
+    std::vector<Point> all;
+    ASSERT_TRUE((*tree)->ReadAll(&all).ok());
+    EXPECT_EQ(all.size(), pts.size());
+  }
+}
+
 TEST(KdTreeTest, DuplicatePositionsAreAllFound) {
   TempDir dir;
   BufferPool pool(8u << 20, 4096);

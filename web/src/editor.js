@@ -183,7 +183,9 @@ export class Editor {
 
   async select(shape, mode, bit = this.app.bit) {
     checkTarget(bit);
-    const req = { select: { dataset: this.app.dataset, region: this.app.currentRegion(), bit, mode: selectMode(mode), ...shape } };
+    // return_flips: the reply lists the points whose bit changed, and the page redraws
+    // their labels in place (main.js refreshLabels) instead of querying the frame again.
+    const req = { select: { dataset: this.app.dataset, region: this.app.currentRegion(), bit, mode: selectMode(mode), return_flips: true, ...shape } };
     return this.commit('select', req, (r) => r.selected);
   }
 
@@ -217,7 +219,9 @@ export class Editor {
     if (record && lsn !== '0') this.record(label, dataset, [lsn]);
     this.app.ui?.updateEditButtons();
     const t1 = performance.now();
-    const fresh = await this.app.refreshAfterEdit();
+    const flips = label === 'select' && req.select.return_flips
+      ? { flips: (body && body.flips) || [], mask: (1 << req.select.bit) >>> 0 } : null;
+    const fresh = await this.app.refreshAfterEdit(flips);
     const t2 = performance.now();
     this.app.renderer.waitForGpu();  // the round trip ends with the overlay on screen
     this.app.lastEditMs = performance.now() - t0;
@@ -226,6 +230,7 @@ export class Editor {
     this.app.lastEditPhases = {
       request_ms: t1 - t0,
       requery_ms: fresh && fresh.loadMs !== null ? fresh.loadMs : null,
+      label_only: !!(fresh && fresh.labelOnly),
       refresh_ms: t2 - t1,
       gpu_ms: performance.now() - t2,
     };

@@ -6,7 +6,7 @@
 import { Connection, frameWindow, allTimeWindow, sliceRegion } from './connection.js';
 import { ViewCamera, NavigationController, wireCamera, DEFAULT_UP } from './camera.js';
 import { SplatRenderer } from './renderer.js';
-import { FrameStore, Player } from './player.js';
+import { FrameStore, Player, decodeFlips } from './player.js';
 import { Editor } from './editor.js';
 import { UI } from './ui.js';
 import { Live } from './live.js';
@@ -381,8 +381,14 @@ class App {
   // After an edit every cached frame may be stale: re-query what is on screen (keeping the
   // old picture until the new one is complete), drop the rest (prefetch reloads them). Of
   // several reloads of a key only the newest replaces the cached entry (FrameStore.reload).
-  async refreshAfterEdit() {
+  // `labelFlips` ({flips, mask}: a select's reply): the frame on screen takes the new labels in
+  // place instead (FrameData.applyFlips), where it can.
+  async refreshAfterEdit(labelFlips = null) {
     const key = this.currentKey();
+    if (labelFlips && this.refreshLabels(key, labelFlips)) {
+      await nextFrame();
+      return { loadMs: null, labelOnly: true };
+    }
     this.store.invalidate(new Set([key]));
     const d = this.store.reload(key, this.loadSpec());
     const fresh = await d.promise;
@@ -399,6 +405,22 @@ class App {
     }
     if (this.viewMode === 'frames') this.player.prefetch(this.frame, 2);
     return fresh;
+  }
+
+  // A select's label-only refresh of the frame on screen: no query, no upload of positions.
+  // Other cached views are dropped, as after any edit (prefetch reloads them). False: the
+  // caller refreshes by querying (a slice, the gaussian mode's own records, a view still
+  // loading or without ids).
+  refreshLabels(key, { flips, mask }) {
+    if (this.viewMode !== 'frames' || this.gaussian.active) return false;
+    const d = this.store.map.get(key);
+    if (!d || this.shown !== d || d.stale || this.store.reloads.has(key)) return false;
+    const decoded = decodeFlips(flips);
+    if (!decoded || !d.applyFlips(decoded, mask, this.renderer)) return false;
+    this.store.invalidate(new Set([key]));
+    this.showFrameData(d, this.frame, true, 1);
+    this.player.prefetch(this.frame, 2);
+    return true;
   }
 
   // A reload replaced `old` in the cache: if the page shows (or waits for) it, it shows the
@@ -632,6 +654,7 @@ function exposeHooks(app, ready) {
     camera: () => app.wireCamera(),
     marquee: (u0, v0, u1, v1, mode = 'SELECT_REPLACE') => app.editor.marquee(u0, v0, u1, v1, mode),
     selectedCount: () => (app.shown ? app.shown.countBit((1 << app.bit) >>> 0) : 0),
+    selectedIds: () => (app.shown ? app.shown.selectedIds((1 << app.bit) >>> 0) : []),
     pointsShown: () => (app.shown ? app.shown.points : 0),
     rendererInfo: () => ({ name: app.renderer.rendererName, software: app.renderer.software, mode: app.renderer.mode, splats: app.renderer.sprites ? 'sprites' : 'quads', renderMode: app.gaussian.mode }),
     gaussianInfo: () => app.gaussian.info(),

@@ -12,6 +12,8 @@ export class FrameData {
     this.lod = lod;
     this.chunks = [];
     this.labels = [];       // Uint32Array copies per chunk (for selectedCount)
+    this.ids = [];          // per chunk: ids as (low, high) u32 pairs, or null (not sent)
+    this.idIndex = null;    // id -> chunk * 2^20 + index, built at the first label refresh
     this.positions = [];    // Float32Array copies per chunk (xyz: the selection's centre)
     this.points = 0;
     this.scale = 1;          // splat growth: the finest complete level's splat_scale
@@ -38,6 +40,46 @@ export class FrameData {
     let n = 0;
     for (const l of this.labels) for (let i = 0; i < l.length; ++i) if (l[i] & mask) ++n;
     return n;
+  }
+
+  // Ids (as numbers) of the points with a label bit of `mask`.
+  selectedIds(mask) {
+    const out = [];
+    this.labels.forEach((l, k) => {
+      const ids = this.ids[k];
+      for (let i = 0; i < l.length; ++i) if ((l[i] & mask) && ids) out.push(ids[2 * i] + ids[2 * i + 1] * 4294967296);
+    });
+    return out;
+  }
+
+  // A select's label-only refresh (SelectReply.flips, decoded by decodeFlips): sets or clears
+  // `mask` on the listed points of this view's frame and re-uploads only the labels of the
+  // chunks it touched; positions and colours stay on the GPU. False (nothing changed) when
+  // this view cannot: a batch came without ids (hvdb7 streams carry none), or an id is past
+  // 2^53; the caller then queries the frame again.
+  applyFlips(flips, mask, renderer) {
+    if (!this.done || this.error || this.ids.length !== this.chunks.length) return false;
+    if (this.chunks.some((c) => !c.labelBuffer)) return false;
+    if (!this.idIndex) {
+      if (this.ids.some((x) => !x || x.some((v, j) => j % 2 === 1 && v >= 0x200000))) return false;
+      this.idIndex = new Map();
+      this.ids.forEach((ids, k) => {
+        for (let i = 0; 2 * i < ids.length; ++i) this.idIndex.set(ids[2 * i] + ids[2 * i + 1] * 4294967296, k * 1048576 + i);
+      });
+    }
+    const dirty = new Set();
+    for (const f of flips) {
+      if (f.frame !== this.frame) continue;
+      for (const id of f.ids) {
+        const at = this.idIndex.get(id);
+        if (at === undefined) continue;  // not in this view (a box, a coarser level)
+        const k = Math.floor(at / 1048576), i = at % 1048576;
+        this.labels[k][i] = f.set ? (this.labels[k][i] | mask) >>> 0 : (this.labels[k][i] & ~mask) >>> 0;
+        dirty.add(k);
+      }
+    }
+    for (const k of dirty) renderer.updateLabels(this.chunks[k], this.labels[k]);
+    return true;
   }
 
   // Mean position and count of the points with a label bit of `mask` (displayed coordinates).
@@ -214,7 +256,8 @@ export class FrameStore {
     if (n > 0) {
       if (!cols.position || cols.position.length < 3 * n) throw new Error(`batch of ${n} points without a position column`);
       d.chunks.push(this.renderer.createChunk(cols, n));
-      d.labels.push(cols.label ? new Uint32Array(cols.label) : new Uint32Array(n));
+      d.labels.push(cols.label ? new Uint32Array(cols.label.subarray(0, n)) : new Uint32Array(n));
+      d.ids.push(cols.id ? new Uint32Array(cols.id.subarray(0, 2 * n)) : null);
       d.positions.push(new Float32Array(cols.position.subarray(0, 3 * n)));  // the selection's centre (gizmo.js)
       this.onColumns(d, cols, n);
       d.points += n;
@@ -248,6 +291,8 @@ export class FrameStore {
     for (const c of d.chunks) this.renderer.deleteChunk(c);
     d.chunks = [];
     d.labels = [];
+    d.ids = [];
+    d.idIndex = null;
     d.positions = [];
     this.cancelQuery(d);
   }
@@ -429,4 +474,34 @@ export class Player {
     if (!this.playing) return Promise.reject(new Error('cannot play: no frames (or a slice is shown)'));
     return new Promise((resolve) => setTimeout(() => resolve(this.stop()), seconds * 1000));
   }
+}
+
+// SelectReply.flips (docs/PROTOCOL.md) as [{frame, set, ids: Float64Array}]: each group's
+// `count` ids are LEB128 varints of their gaps, base64 in JSON. Null when an id is past 2^53
+// (not exact as a number). A malformed list throws: the reply is wrong, not the view.
+export function decodeFlips(flips) {
+  const out = [];
+  for (const f of flips || []) {
+    const bin = atob(f.ids || '');
+    const count = Number(f.count || 0);
+    if (count > bin.length) throw new Error(`select reply: ${count} flipped ids in ${bin.length} bytes`);
+    const ids = new Float64Array(count);
+    let prev = 0, p = 0;
+    for (let i = 0; i < count; ++i) {
+      let gap = 0, mul = 1, b;
+      do {
+        if (p >= bin.length) throw new Error('select reply: flipped ids end early');
+        b = bin.charCodeAt(p++);
+        gap += (b & 0x7f) * mul;
+        mul *= 128;
+      } while (b & 0x80);
+      if (i > 0 && gap === 0) throw new Error('select reply: flipped ids not ascending');
+      prev += gap;
+      if (prev > Number.MAX_SAFE_INTEGER) return null;
+      ids[i] = prev;
+    }
+    if (p !== bin.length) throw new Error('select reply: bytes after the flipped ids');
+    out.push({ frame: Number(f.frame || 0), set: !!f.set, ids });
+  }
+  return out;
 }

@@ -297,8 +297,9 @@ export class SplatRenderer {
       gl.disableVertexAttribArray(2);
       gl.disableVertexAttribArray(3);
     }
+    let labelBuffer = null;
     if (columns.label) {
-      upload(columns.label);
+      labelBuffer = upload(columns.label);
       gl.enableVertexAttribArray(4);
       gl.vertexAttribIPointer(4, 1, gl.UNSIGNED_INT, 4, 0);
       gl.vertexAttribDivisor(4, this.divisor);
@@ -316,7 +317,17 @@ export class SplatRenderer {
     gl.bindVertexArray(null);
     // Constant values of disabled integer attributes are per context, not per VAO: keep them
     // with the chunk and set them before drawing it.
-    return { vao, buffers, count, constLabel: columns.label ? null : 0, constFlags: columns.flags ? null : (hasCov ? 2 : 0) };
+    this.chunkSerial = (this.chunkSerial || 0) + 1;
+    return { vao, buffers, count, labelBuffer, serial: this.chunkSerial, constLabel: columns.label ? null : 0, constFlags: columns.flags ? null : (hasCov ? 2 : 0) };
+  }
+
+  // New labels for a chunk's points (a selection's label-only refresh): one buffer update;
+  // positions, colours and covariances stay where they are.
+  updateLabels(chunk, labels) {
+    if (!chunk.labelBuffer) throw new Error('updateLabels: the chunk was drawn without labels');
+    const gl = this.gl;
+    gl.bindBuffer(gl.ARRAY_BUFFER, chunk.labelBuffer);
+    gl.bufferSubData(gl.ARRAY_BUFFER, 0, labels);
   }
 
   // Blocks until the GPU has finished what was drawn (a one-pixel read of the canvas: gl.finish
@@ -467,17 +478,28 @@ export class SplatRenderer {
     } else {
       const t = this.ensureTargets(w, h);
       gl.viewport(0, 0, w, h);
-      // Pass 1: nearest depth.
-      gl.bindFramebuffer(gl.FRAMEBUFFER, t.depthFbo);
-      gl.disable(gl.BLEND);
-      gl.enable(gl.DEPTH_TEST);
-      gl.depthFunc(gl.LESS);
-      gl.depthMask(true);
-      gl.clearDepth(1);
-      gl.clear(gl.DEPTH_BUFFER_BIT);
-      gl.useProgram(this.progDepth.p);
       const splat = this.sprites ? gl.POINTS : gl.TRIANGLE_STRIP;
-      n = this.drawLayers(this.progDepth, layers, cam, opts, w, h, splat);
+      // Pass 1: nearest depth. It depends on the splats' geometry and the camera, not on labels
+      // or colours: when neither changed since this target's last draw (a selection's
+      // label-only refresh, an overlay toggle) its depth texture is still right and the pass
+      // (about half of a draw on a software rasteriser) is skipped. A transform's preview moves
+      // selected points, so it always redraws.
+      const depthKey = opts.preview ? null : JSON.stringify([cam, w, h, opts.zFar,
+        layers.map((l) => [l.scale, l.chunks.map((c) => c.serial)])]);
+      if (depthKey !== null && depthKey === t.depthKey) {
+        for (const l of layers) for (const c of l.chunks) n += c.count;
+      } else {
+        gl.bindFramebuffer(gl.FRAMEBUFFER, t.depthFbo);
+        gl.disable(gl.BLEND);
+        gl.enable(gl.DEPTH_TEST);
+        gl.depthFunc(gl.LESS);
+        gl.depthMask(true);
+        gl.clearDepth(1);
+        gl.clear(gl.DEPTH_BUFFER_BIT);
+        gl.useProgram(this.progDepth.p);
+        n = this.drawLayers(this.progDepth, layers, cam, opts, w, h, splat);
+        t.depthKey = depthKey;
+      }
       // Pass 2: accumulate; the depth test is done in the shader against pass 1's texture
       // because the coverage must also count the occluded fragments.
       gl.bindFramebuffer(gl.FRAMEBUFFER, t.accumFbo);
