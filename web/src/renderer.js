@@ -484,7 +484,7 @@ export class SplatRenderer {
       // label-only refresh, an overlay toggle) its depth texture is still right and the pass
       // (about half of a draw on a software rasteriser) is skipped. A transform's preview moves
       // selected points, so it always redraws.
-      const depthKey = opts.preview ? null : JSON.stringify([cam, w, h, opts.zFar,
+      const depthKey = opts.preview ? null : JSON.stringify([cam, w, h, opts.zFar, this.sprites,
         layers.map((l) => [l.scale, l.chunks.map((c) => c.serial)])]);
       if (depthKey !== null && depthKey === t.depthKey) {
         for (const l of layers) for (const c of l.chunks) n += c.count;
