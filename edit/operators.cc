@@ -32,13 +32,16 @@ Window Everything() {
   return w;
 }
 
-// Streams every point of the region (lod 0, no temporal subsampling) into fn.
+// Streams every point of the region (lod 0, no temporal subsampling) into fn; the frames the
+// region covers into *frames when given.
 Status ForEach(Dataset& ds, const Region& region, uint32_t label_mask,
-               const std::function<void(const Point&)>& fn) {
+               const std::function<void(const Point&)>& fn,
+               std::vector<uint32_t>* frames = nullptr) {
   QueryOptions o;
   o.temporal_lod = false;
   o.label_mask = label_mask;
   HVDB_ASSIGN_OR_RETURN(auto cursor, ds.Query(region, o));
+  if (frames != nullptr) *frames = cursor->frames();
   Batch b;
   for (;;) {
     HVDB_ASSIGN_OR_RETURN(bool more, cursor->Next(&b));
@@ -96,11 +99,12 @@ Result<SelectResult> Select(Dataset& ds, const SelectRequest& req) {
   HVDB_RETURN_IF_ERROR(CheckBit(req.bit, "select"));
   const uint32_t mask = 1u << req.bit;
   SelectResult res;
-  std::vector<Key> target;  // sorted below (a query's points are distinct)
+  std::vector<Key> target;  // sorted below
+  std::vector<uint32_t> frames;  // of the region: the frames whose flips the reply lists
   if (std::holds_alternative<std::monostate>(req.shape)) {
     HVDB_RETURN_IF_ERROR(ForEach(ds, req.region, 0, [&](const Point& p) {
       target.push_back({p.frame, p.id});
-    }));
+    }, &frames));
   } else if (const auto* lasso = std::get_if<Lasso>(&req.shape)) {
     HVDB_RETURN_IF_ERROR(CheckCamera(lasso->camera));
     if (lasso->polygon.size() < 3) {
@@ -117,7 +121,7 @@ Result<SelectResult> Select(Dataset& ds, const SelectRequest& req) {
           InPolygon(lasso->polygon, u, v)) {
         target.push_back({p.frame, p.id});
       }
-    }));
+    }, &frames));
   } else {
     const Brush& brush = std::get<Brush>(req.shape);
     HVDB_RETURN_IF_ERROR(CheckCamera(brush.camera));
@@ -136,7 +140,7 @@ Result<SelectResult> Select(Dataset& ds, const SelectRequest& req) {
           std::hypot(u - brush.u, v - brush.v) <= brush.pixel_radius) {
         depths.push_back(depth);
       }
-    }));
+    }, &frames));
     if (depths.empty()) {
       return Status::NotFound("brush: no surface under pixel (" + std::to_string(brush.u) + ", " +
                               std::to_string(brush.v) + ")");
@@ -165,7 +169,13 @@ Result<SelectResult> Select(Dataset& ds, const SelectRequest& req) {
       if (dx * dx + dy * dy + dz * dz <= brush.radius * brush.radius) target.push_back({p.frame, p.id});
     }
   }
-  std::sort(target.begin(), target.end());
+  // Sorted and distinct: points sharing an id in a frame (inserts may give one twice) are one
+  // key, relabelled together.
+  auto sort_unique = [](std::vector<Key>* keys) {
+    std::sort(keys->begin(), keys->end());
+    keys->erase(std::unique(keys->begin(), keys->end()), keys->end());
+  };
+  sort_unique(&target);
   res.matched = target.size();
 
   // Points carrying the bit now, for replace / intersect and the final count. Sorted vectors
@@ -174,7 +184,7 @@ Result<SelectResult> Select(Dataset& ds, const SelectRequest& req) {
   HVDB_RETURN_IF_ERROR(ForEach(ds, Everything(), mask, [&](const Point& p) {
     current.push_back({p.frame, p.id});
   }));
-  std::sort(current.begin(), current.end());
+  sort_unique(&current);
   std::vector<Key> to_set, to_clear;
   auto minus = [](const std::vector<Key>& a, const std::vector<Key>& b, std::vector<Key>* out) {
     std::set_difference(a.begin(), a.end(), b.begin(), b.end(), std::back_inserter(*out));
@@ -203,8 +213,10 @@ Result<SelectResult> Select(Dataset& ds, const SelectRequest& req) {
   HVDB_ASSIGN_OR_RETURN(CommitInfo info, ds.Commit(t));
   res.lsn = info.lsn;
   if (req.return_flips) {
+    std::sort(frames.begin(), frames.end());
     for (const auto* keys : {&to_clear, &to_set}) {
       for (const Key& k : *keys) {
+        if (!std::binary_search(frames.begin(), frames.end(), k.first)) continue;
         if (res.flips.empty() || res.flips.back().frame != k.first ||
             res.flips.back().set != (keys == &to_set)) {
           res.flips.push_back({k.first, keys == &to_set, {}});

@@ -45,7 +45,9 @@ struct SelectRequest {
   std::variant<std::monostate, Lasso, Brush> shape;  // monostate: the whole region
   int bit = 0;                                       // label bit 0..31 that holds the selection
   SelectMode mode = SelectMode::kReplace;
-  bool return_flips = false;  // fill SelectResult::flips
+  // Fill SelectResult::flips with the changes in the frames `region` covers (what a client
+  // showing the region redraws; a replace's clears in other frames are not listed).
+  bool return_flips = false;
 };
 
 // The points of one frame whose selection bit a Select set or cleared, ids ascending: what a

@@ -131,7 +131,7 @@ Status WriteCompressedTree(Env* env, const std::string& path, TreeImage& image, 
   code(0);
   other.join();
 
-  h.version = kTreeVersionCompressed;
+  h.version = h.label_summaries() ? kTreeVersionCompressed : kTreeVersionCompressedNoLabels;
   const uint64_t data_start = kTreeHeaderSize + kColdTableEntrySize * uint64_t{h.total_blocks};
   std::string table(kColdTableEntrySize * size_t{h.total_blocks}, '\0');
   uint64_t at = data_start;

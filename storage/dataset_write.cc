@@ -268,7 +268,8 @@ Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
       }
     };
     std::unordered_set<std::pair<uint32_t, uint64_t>, PairHash> seen;
-    // Only a region and ids together can meet a point twice (ids are unique in a frame).
+    // Only a region and ids together can meet a point twice: a scan meets each live point
+    // once (it is in T0 or in one tree), and `wanted` holds each id once.
     const bool dedup = sel.region.has_value() && !sel.ids.empty();
     if (dedup) seen.reserve(sel.ids.size() + 1024);
     auto add = [&](const Point& p, int32_t where) {

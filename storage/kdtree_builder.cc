@@ -216,7 +216,7 @@ Status BuildTreeImage(std::vector<Point>& points, const TreeBuildParams& params,
   const int max_level = params.lod_levels;
   std::vector<Rec> recs(points.size());
   TreeHeader h;
-  if (!params.label_summaries) h.flags = 0;
+  if (!params.label_summaries) h.version = kTreeVersionNoLabels;
   h.min_id = std::numeric_limits<uint64_t>::max();
   for (size_t i = 0; i < points.size(); ++i) {
     const Point& p = points[i];

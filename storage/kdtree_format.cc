@@ -39,8 +39,7 @@ void EncodeTreeHeader(const TreeHeader& h, uint8_t* d) {
     EncodeLE(d + 128 + 8 * k, h.level_count[k]);
     EncodeLE(d + 132 + 8 * k, h.level_start_block[k]);
   }
-  EncodeLE(d + 200, h.flags);
-  EncodeLE(d + 204, h.label_summaries() ? h.labels : 0u);
+  EncodeLE(d + 200, h.label_summaries() ? h.labels : 0u);
   EncodeLE(d + 252, crc32c::Mask(crc32c::Value(d, 252)));
 }
 
@@ -53,9 +52,8 @@ Result<TreeHeader> DecodeTreeHeader(const uint8_t* d, const std::string& what) {
     return corrupt("checksum mismatch");
   }
   uint32_t version = DecodeLE<uint32_t>(d + 8);
-  if (version != kTreeVersion && version != kTreeVersionCompressed) {
-    return corrupt("unsupported version " + std::to_string(version) + " (this build reads " +
-                   std::to_string(kTreeVersion) + " and " +
+  if (version < kTreeVersionNoLabels || version > kTreeVersionCompressed) {
+    return corrupt("unsupported version " + std::to_string(version) + " (this build reads 1 to " +
                    std::to_string(kTreeVersionCompressed) + ")");
   }
   TreeHeader h;
@@ -87,11 +85,7 @@ Result<TreeHeader> DecodeTreeHeader(const uint8_t* d, const std::string& what) {
     h.level_count[k] = DecodeLE<uint32_t>(d + 128 + 8 * k);
     h.level_start_block[k] = DecodeLE<uint32_t>(d + 132 + 8 * k);
   }
-  h.flags = DecodeLE<uint32_t>(d + 200);
-  if ((h.flags & ~kTreeFlagLabelSummaries) != 0) {
-    return corrupt("unknown flags " + std::to_string(h.flags) + " (this build knows bit 0)");
-  }
-  h.labels = h.label_summaries() ? DecodeLE<uint32_t>(d + 204) : ~0u;
+  h.labels = h.label_summaries() ? DecodeLE<uint32_t>(d + 200) : ~0u;
   if (h.block_size < 4096 || h.block_size > (1u << 20) || (h.block_size & (h.block_size - 1))) {
     return corrupt("block size " + std::to_string(h.block_size) + " out of range");
   }

@@ -13,17 +13,19 @@
 namespace hvdb {
 
 inline constexpr char kTreeMagic[8] = {'H', 'V', 'D', 'B', 'K', 'D', 'T', '\0'};
-inline constexpr uint32_t kTreeVersion = 1;
+// Versions 3 and 4 carry label summaries: every directory entry ends with a u32, the OR of its
+// bucket's points' labels, and the header holds the OR over the tree. Files of versions 1 and 2
+// (written before summaries existed) read as if every bucket held every bit; builds from before
+// summaries refuse versions 3 and 4 instead of misreading the longer entries.
+inline constexpr uint32_t kTreeVersion = 3;
 // The cold tier's compressed tree file (storage/cold_tree.h): the same tree, its blocks coded.
-inline constexpr uint32_t kTreeVersionCompressed = 2;
+inline constexpr uint32_t kTreeVersionCompressed = 4;
+inline constexpr uint32_t kTreeVersionNoLabels = 1;
+inline constexpr uint32_t kTreeVersionCompressedNoLabels = 2;
 inline constexpr int kMaxLevels = 9;  // l <= 8
 inline constexpr size_t kTreeHeaderSize = 256;
 inline constexpr size_t kNodeRecordSize = 16;
 inline constexpr size_t kNodeBlockHeader = 8;
-// Header flag: every directory entry ends with a u32 label summary (the OR of its bucket's
-// points' labels) and the header holds the OR over the tree. Files without it (written before
-// summaries existed) read as if every bucket held every bit.
-inline constexpr uint32_t kTreeFlagLabelSummaries = 1;
 
 enum class ChildType : uint8_t { kNode = 0, kNodeBlock = 1, kBucket = 2 };
 
@@ -55,11 +57,13 @@ struct TreeHeader {
   std::array<uint32_t, kMaxLevels> level_count{};        // points in each level's segment
   std::array<uint32_t, kMaxLevels> level_start_block{};  // first block of each segment
   uint32_t crc_table_crc = 0;  // masked CRC-32C of the checksum table's bytes
-  uint32_t flags = kTreeFlagLabelSummaries;
   // OR of every point's label (a superset: weak deletes do not clear it); ~0 without summaries.
   uint32_t labels = ~0u;
 
-  bool label_summaries() const { return (flags & kTreeFlagLabelSummaries) != 0; }
+  bool label_summaries() const { return version == kTreeVersion || version == kTreeVersionCompressed; }
+  bool compressed() const {
+    return version == kTreeVersionCompressed || version == kTreeVersionCompressedNoLabels;
+  }
   uint32_t DirEntrySize() const { return 24 + 8 * levels + (label_summaries() ? 4 : 0); }
   uint32_t DirEntriesPerBlock() const { return block_size / DirEntrySize(); }
   uint32_t NodesPerBlock() const {
@@ -88,7 +92,7 @@ struct DirEntry {
   // Lets label-masked scans (selections, replace-mode edits) skip buckets without the bits.
   uint32_t labels = ~0u;
 };
-// The entry's layout depends on the header's levels and flags.
+// The entry's layout depends on the header's levels and version.
 void EncodeDirEntry(const DirEntry& e, const TreeHeader& h, uint8_t* dst);
 DirEntry DecodeDirEntry(const uint8_t* src, const TreeHeader& h);
 

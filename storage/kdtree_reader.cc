@@ -24,7 +24,7 @@ Result<std::shared_ptr<KdTree>> KdTree::Open(Env* env, const std::string& path,
                                    " differs from the database's " +
                                    std::to_string(pool->block_size()));
   }
-  if (h.version == kTreeVersionCompressed) {
+  if (h.compressed()) {
     std::vector<uint32_t> crcs;
     HVDB_ASSIGN_OR_RETURN(ColdBlockTable cold, ReadColdBlockTable(file.get(), h, &crcs));
     auto tree = std::shared_ptr<KdTree>(
@@ -335,7 +335,7 @@ Status KdTree::ReadImage(TreeImage* out) const {
   std::memset(table, 0, size_t{h_.crc_block_count} * bs);
   for (uint32_t blk = 1; blk < h_.crc_block_start; ++blk) EncodeLE(table + 4 * blk, (*crcs_)[blk]);
   out->header = h_;
-  out->header.version = kTreeVersion;
+  out->header.version = h_.label_summaries() ? kTreeVersion : kTreeVersionNoLabels;
   out->header.crc_table_crc = crc32c::Mask(crc32c::Value(table, size_t{h_.crc_block_count} * bs));
   EncodeTreeHeader(out->header, base);
   return Status::OK();

@@ -183,6 +183,19 @@ TEST_F(OperatorsTest, RegionSelectionModesMatchTheModel) {
   auto plain = Select(*ds_, r);
   ASSERT_TRUE(plain.ok());
   EXPECT_TRUE(plain->flips.empty());
+  // A region of frame 0: the replace also clears the bit in frames 1 and 2, but the flips list
+  // only the region's frame (what a client showing it redraws).
+  Window f0 = Everything();
+  f0.lo[3] = f0.hi[3] = 0;
+  r.region = f0;
+  r.return_flips = true;
+  auto one = Select(*ds_, r);
+  ASSERT_TRUE(one.ok());
+  ASSERT_FALSE(one->flips.empty());
+  for (const LabelFlips& f : one->flips) EXPECT_EQ(f.frame, 0u);
+  const auto now = WithBit(ReadAll(*ds_), 3);
+  ASSERT_FALSE(now.empty());
+  for (const Key& k : now) EXPECT_EQ(k.first, 0u);
   // Labels aside, nothing moved.
   auto after = ReadAll(*ds_);
   ASSERT_EQ(after.size(), before.size());

@@ -191,8 +191,8 @@ TEST(KdTreeTest, SmallFrameTreeFileIsSparse) {
 }
 
 // Each bucket's label summary is exactly the OR of its points' labels, the header's the OR of
-// all; a file written without summaries (before they existed) reads every bucket as holding
-// every bit, and its points and checks are the same.
+// all, raw or compressed; a file written without summaries (versions 1 and 2, before they
+// existed) reads every bucket as holding every bit, and its points and checks are the same.
 TEST(KdTreeTest, LabelSummariesAreTheBucketsLabelsAndOldFilesStillRead) {
   TempDir dir;
   BufferPool pool(8u << 20, 4096);
@@ -203,17 +203,22 @@ TEST(KdTreeTest, LabelSummariesAreTheBucketsLabelsAndOldFilesStillRead) {
     pts[i].label = (pts[i].z < 0.5f ? 1u << 3 : 0u) | (i % 777 == 0 ? 1u << 30 : 0u);
   }
   auto everything = [](const Box3&) { return Relation::kCrosses; };
-  for (bool summaries : {true, false}) {
-    const std::string path = dir.path() + (summaries ? "/new.kdt" : "/old.kdt");
+  for (int mode = 0; mode < 4; ++mode) {  // with and without summaries, raw and compressed
+    const bool summaries = (mode & 1) == 0, compressed = (mode & 2) != 0;
+    const std::string path = dir.path() + "/t" + std::to_string(mode) + ".kdt";
     TreeBuildParams params;
     params.block_size = 4096;
     params.label_summaries = summaries;
+    params.compressed = compressed;
     std::vector<Point> copy = pts;
     ASSERT_TRUE(BuildTreeFile(Env::Default(), path, copy, params, true).ok());
     auto tree = KdTree::Open(Env::Default(), path, &pool);
     ASSERT_TRUE(tree.ok()) << tree.status().ToString();
     const TreeHeader& h = (*tree)->header();
     EXPECT_EQ(h.label_summaries(), summaries);
+    EXPECT_EQ(h.version, compressed ? (summaries ? kTreeVersionCompressed : kTreeVersionCompressedNoLabels)
+                                    : (summaries ? kTreeVersion : kTreeVersionNoLabels));
+    EXPECT_EQ((*tree)->compressed(), compressed);
     EXPECT_EQ(h.labels, summaries ? (1u << 3 | 1u << 30) : ~0u);
     std::vector<KdTree::BucketHit> hits;
     ASSERT_TRUE((*tree)->FindBuckets(everything, &hits).ok());

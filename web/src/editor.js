@@ -184,8 +184,10 @@ export class Editor {
   async select(shape, mode, bit = this.app.bit) {
     checkTarget(bit);
     // return_flips: the reply lists the points whose bit changed, and the page redraws
-    // their labels in place (main.js refreshLabels) instead of querying the frame again.
-    const req = { select: { dataset: this.app.dataset, region: this.app.currentRegion(), bit, mode: selectMode(mode), return_flips: true, ...shape } };
+    // their labels in place (main.js refreshLabels) instead of querying the frame again; a
+    // slice or the gaussian mode's records are queried again, so they do not ask.
+    const flips = this.app.viewMode === 'frames' && !this.app.gaussian.active;
+    const req = { select: { dataset: this.app.dataset, region: this.app.currentRegion(), bit, mode: selectMode(mode), return_flips: flips, ...shape } };
     return this.commit('select', req, (r) => r.selected);
   }
 

@@ -415,7 +415,14 @@ class App {
     if (this.viewMode !== 'frames' || this.gaussian.active) return false;
     const d = this.store.map.get(key);
     if (!d || this.shown !== d || d.stale || this.store.reloads.has(key)) return false;
-    const decoded = decodeFlips(flips);
+    let decoded;
+    try {
+      decoded = decodeFlips(flips);
+    } catch (e) {
+      // The commit is done: a reply whose flips do not decode costs a re-query, not the view.
+      console.warn(`label-only refresh: ${e.message}; querying the frame again`);
+      return false;
+    }
     if (!decoded || !d.applyFlips(decoded, mask, this.renderer)) return false;
     this.store.invalidate(new Set([key]));
     this.showFrameData(d, this.frame, true, 1);
