@@ -145,20 +145,13 @@ class CursorImpl {
       return true;
     }
     const TreeSlot& slot = v.slots[static_cast<size_t>(t.slot)];
-    // Label summaries (docs/FORMAT.md): a tree, or a bucket, without any of the asked bits
-    // holds no result; a selection's scan for the points carrying its bit reads only those.
-    const uint32_t mask = opts_.label_mask;
-    if (mask != 0 && (slot.tree->header().labels & mask) == 0) return true;
     auto key = std::make_pair(t.frame_idx, t.slot);
     auto it = buckets_.find(key);
     if (it == buckets_.end()) {
       std::vector<KdTree::BucketHit> hits;
       const uint32_t frame = v.frame;
       HVDB_RETURN_IF_ERROR(slot.tree->FindBuckets(
-          [&](const Box3& b) { return plan_.Classify(b, frame); }, &hits));
-      if (mask != 0) {
-        std::erase_if(hits, [mask](const KdTree::BucketHit& h) { return (h.entry.labels & mask) == 0; });
-      }
+          [&](const Box3& b) { return plan_.Classify(b, frame); }, &hits, opts_.label_mask));
       // Every block this task and the slot's later levels will read, requested at once; a
       // progressive query asks for this level and the next finer one (read while the caller
       // consumes this one), and for each further level when it starts.

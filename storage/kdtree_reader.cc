@@ -215,8 +215,10 @@ void KdTree::Prefetch(const std::vector<BucketHit>& hits, int lo, int hi) const 
   PrefetchBlocks(blocks);
 }
 
-Status KdTree::FindBuckets(const BoxTest& test, std::vector<BucketHit>* out) const {
+Status KdTree::FindBuckets(const BoxTest& test, std::vector<BucketHit>* out,
+                           uint32_t label_mask) const {
   if (test(h_.bbox) == Relation::kOutside) return Status::OK();
+  if (label_mask != 0 && (h_.labels & label_mask) == 0) return Status::OK();
   {
     // The walk reads node blocks, then directory blocks, one after another: ask for all of
     // them at once (they are contiguous, and few) unless they are cached.
@@ -226,6 +228,7 @@ Status KdTree::FindBuckets(const BoxTest& test, std::vector<BucketHit>* out) con
   }
   auto visit_bucket = [&](uint32_t bucket) -> Status {
     HVDB_ASSIGN_OR_RETURN(DirEntry e, Dir(bucket));
+    if (label_mask != 0 && (e.labels & label_mask) == 0) return Status::OK();
     Relation r = test(e.box);
     if (r != Relation::kOutside) out->push_back({bucket, r == Relation::kInside, e});
     return Status::OK();

@@ -50,8 +50,11 @@ class KdTree {
     DirEntry entry;
   };
   // Walks the inner nodes and returns the buckets whose boxes are not outside `test`,
-  // in depth-first (= storage) order.
-  Status FindBuckets(const BoxTest& test, std::vector<BucketHit>* out) const;
+  // in depth-first (= storage) order. With a `label_mask`, only buckets whose label summary
+  // has one of its bits (docs/FORMAT.md), and none at all, without reading a block, when the
+  // tree's summary has none: a masked scan reads only what can hold its points.
+  Status FindBuckets(const BoxTest& test, std::vector<BucketHit>* out,
+                     uint32_t label_mask = 0) const;
   // Has the buffer pool load, in the background, the blocks of the hits' records at levels
   // [lo, hi] that it lacks: batches of merged requests issued at once, so the device serves
   // them in parallel instead of one 64 KiB read at a time (BufferPool::Prefetch).

@@ -58,8 +58,7 @@ export class FrameData {
   // this view cannot: a batch came without ids (hvdb7 streams carry none), or an id is past
   // 2^53; the caller then queries the frame again.
   applyFlips(flips, mask, renderer) {
-    if (!this.done || this.error || this.ids.length !== this.chunks.length) return false;
-    if (this.chunks.some((c) => !c.labelBuffer)) return false;
+    if (!this.done || this.error || this.chunks.some((c) => !c.labelBuffer)) return false;
     if (!this.idIndex) {
       if (this.ids.some((x) => !x || x.some((v, j) => j % 2 === 1 && v >= 0x200000))) return false;
       this.idIndex = new Map();

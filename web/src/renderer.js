@@ -245,6 +245,7 @@ export class SplatRenderer {
       this.progResolve = program(gl, kResolveVS, kResolveFS, 'resolve');
     }
     this.emptyVao = gl.createVertexArray();
+    this.chunkSerial = 0;  // numbers chunks: the depth pass's reuse key names them
     this.divisor = this.mode === 'points' || this.sprites ? 0 : 1;
     this.background = [0, 0, 0, 1];
     this.lastStats = { points: 0, ms: 0 };
@@ -317,8 +318,7 @@ export class SplatRenderer {
     gl.bindVertexArray(null);
     // Constant values of disabled integer attributes are per context, not per VAO: keep them
     // with the chunk and set them before drawing it.
-    this.chunkSerial = (this.chunkSerial || 0) + 1;
-    return { vao, buffers, count, labelBuffer, serial: this.chunkSerial, constLabel: columns.label ? null : 0, constFlags: columns.flags ? null : (hasCov ? 2 : 0) };
+    return { vao, buffers, count, labelBuffer, serial: ++this.chunkSerial, constLabel: columns.label ? null : 0, constFlags: columns.flags ? null : (hasCov ? 2 : 0) };
   }
 
   // New labels for a chunk's points (a selection's label-only refresh): one buffer update;
