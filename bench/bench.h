@@ -43,6 +43,7 @@ struct Config {
   size_t ins_total = 2'000'000;
   size_t ins_set = 1000;
   size_t ins_durable_total = 2'000'000;
+  uint32_t merge_fanout = Options().merge_fanout;  // the logarithmic method's (2: the thesis's)
 
   // 4. Table 8.1: against the R*-tree.
   uint32_t rt_small_frames = 60;

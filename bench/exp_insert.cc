@@ -1,7 +1,9 @@
 // 3. Thesis Figure 8.14, dynamic inserts: sets of ins_set random points committed one
 // transaction at a time into an initially empty frame (the logarithmic method's Bkd-tree
 // forest), the time of every set and the running average; once without and once with a
-// durable commit (log fsync) per set.
+// durable commit (log fsync) per set, and once more without, with the thesis's binary method
+// (fan-out 2) as the peer of the configured fan-out: the rebuilds per point, and warm windows
+// on the forest each leaves (queries visit more trees with a wider fan-out).
 #include <numeric>
 
 #include "bench/bench.h"
@@ -11,6 +13,32 @@ namespace hvdb::bench {
 namespace {
 
 const char* kExp = "3-inserts";
+
+struct InsertRun {
+  std::string tag;  // figure names: ins.<tag>.*
+  bool durable;
+  uint32_t fanout;
+};
+
+// Warm windows of ~10 k points on the forest the inserts left: one warm pass, then each timed.
+std::vector<double> ForestWindows(Dataset& ds, size_t n, const Config& c) {
+  const double side = std::cbrt(10'000.0 / static_cast<double>(n));
+  Rng rng(c.seed + 350);
+  std::vector<Window> ws(static_cast<size_t>(c.win_queries));
+  for (Window& w : ws) {
+    for (int a = 0; a < 3; ++a) {
+      w.lo[a] = rng.Uniform() * (1 - side);
+      w.hi[a] = w.lo[a] + side;
+    }
+    w.lo[3] = -0.25 / c.fps;
+    w.hi[3] = 0.25 / c.fps;
+  }
+  QueryOptions qo;
+  for (const Window& w : ws) RunQuery(ds, w, qo);
+  std::vector<double> ms;
+  for (const Window& w : ws) ms.push_back(RunQuery(ds, w, qo).ms);
+  return ms;
+}
 
 }  // namespace
 
@@ -31,12 +59,19 @@ void RunInserts(Ctx& ctx) {
         "physical limit of a durable commit: append the set's bytes to a file and fdatasync "
         "(each sample the median of 5)");
 
-  for (int durable = 0; durable < 2; ++durable) {
+  std::vector<InsertRun> runs = {{"nosync", false, c.merge_fanout},
+                                 {"durable", true, c.merge_fanout}};
+  if (c.merge_fanout != 2) runs.push_back({"nosync.binary", false, 2});
+  for (const InsertRun& ir : runs) {
+    const bool durable = ir.durable;
     const size_t total = durable ? c.ins_durable_total : c.ins_total;
-    const std::string tag = durable ? "durable" : "nosync";
+    const std::string& tag = ir.tag;
     const std::string dir = c.scratch + "/ins_" + tag;
-    Log("3 inserts (%s): %zu points in sets of %zu", tag.c_str(), total, c.ins_set);
-    Db db = Db::Create(dir, "ins", c.DbOptions(durable != 0), c.fps);
+    Log("3 inserts (%s, fan-out %u): %zu points in sets of %zu", tag.c_str(), ir.fanout, total,
+        c.ins_set);
+    Options opts = c.DbOptions(durable);
+    opts.merge_fanout = ir.fanout;
+    Db db = Db::Create(dir, "ins", opts, c.fps);
     const std::vector<Point> pts = UniformPoints(total, c.seed + 300 + durable);
     std::vector<double> ms, x, avg, faults;
     double sum = 0;
@@ -70,7 +105,12 @@ void RunInserts(Ctx& ctx) {
     const uint64_t run_faults = ReadProcCounters().minor_faults - run0.minor_faults;
     DatasetStats st = db.ds->Stats();
     nlohmann::json p = {{"set_points", c.ins_set},
+                        {"merge_fanout", ir.fanout},
                         {"merges", st.merges},
+                        // Points the merger wrote into trees per point inserted: the
+                        // logarithmic method's rebuilds (about log_k(n / T0's capacity)).
+                        {"rebuilds_per_point", static_cast<double>(st.merged_points) /
+                                                   static_cast<double>(total)},
                         {"drain_ms", drain_ms},
                         {"wall_ms", wall_ms},
                         {"total_points", total},
@@ -95,14 +135,26 @@ void RunInserts(Ctx& ctx) {
                          "first commit until the merger has built every tree");
     const double r = static_cast<double>(total) / wall_ms / 1e3;
     rate.fixed = Figure::Stats{r, r, r, 1};
+    if (!durable) {
+      R.Add(f + ".window", kExp, "ms", ForestWindows(*db.ds, total, c),
+            {{"merge_fanout", ir.fanout}, {"trees", st.trees}, {"buffered_points", st.buffered_points}},
+            "warm ~10 k-point window on the frame the inserts built (its forest and T0)");
+    }
     db.Close();
     RemoveAll(dir);
 
+    if (tag == "nosync.binary") continue;  // its figures are the peer's; the curve is the thesis's
     curve.series.push_back({tag == "durable" ? "every set (durable commit)" : "every set (no fsync)",
                             x, ms, "points"});
     curve.series.push_back({tag == "durable" ? "running average (durable)"
                                              : "running average (no fsync)",
                             x, avg, "line"});
+  }
+  if (c.merge_fanout != 2) {
+    R.Ratio("ins.nosync.rate.x_binary", kExp, "ins.nosync.rate", "ins.nosync.binary.rate",
+            "sustained insert rate with the configured fan-out / with the thesis's binary method");
+    R.Ratio("ins.nosync.window.x_binary", kExp, "ins.nosync.window", "ins.nosync.binary.window",
+            "warm window on the insert-built forest, configured fan-out / binary method (medians)");
   }
   R.AddTarget("ins.nosync.set.mean", "<=", 110, "thesis 2008, Figure 8.14",
               "under 110 ms per 1000-point insert");

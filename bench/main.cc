@@ -56,6 +56,7 @@ Options Config::DbOptions(bool sync) const {
   o.block_size = block_kib << 10;
   o.lod_levels = lod_levels;
   o.sync = sync;
+  o.merge_fanout = merge_fanout;
   if (read_engine == "uring") o.env = Env::Posix(Env::ReadEngine::kIoUring);
   if (read_engine == "preadv") o.env = Env::Posix(Env::ReadEngine::kPreadv);
   return o;
@@ -110,6 +111,7 @@ nlohmann::json ConfigJson(const Config& c) {
           {"ins_total", c.ins_total},
           {"ins_set", c.ins_set},
           {"ins_durable_total", c.ins_durable_total},
+          {"merge_fanout", c.merge_fanout},
           {"rt_small_frames", c.rt_small_frames},
           {"rt_small_points", c.rt_small_points},
           {"rt_large_frames", c.rt_large_frames},
@@ -191,6 +193,10 @@ int Main(int argc, char** argv) {
   g3->add_option("--ins-total", c.ins_total, "points inserted without fsync")->capture_default_str();
   g3->add_option("--ins-set", c.ins_set, "points per set (one commit)")->capture_default_str();
   g3->add_option("--ins-durable-total", c.ins_durable_total, "points inserted with durable commits")
+      ->capture_default_str();
+  g3->add_option("--merge-fanout", c.merge_fanout,
+                 "the logarithmic method's fan-out (the no-fsync run is repeated with 2, the thesis's)")
+      ->check(CLI::Range(2, 16))
       ->capture_default_str();
   auto* g4 = app.add_option_group("4 against the R*-tree (Table 8.1)");
   g4->add_option("--rt-small-frames", c.rt_small_frames, "frames of the small-frame set")->capture_default_str();

@@ -45,6 +45,10 @@ static Status ValidateOptions(const Options& o) {
     return Status::InvalidArgument("lod_levels must be in 0..8, got " +
                                    std::to_string(o.lod_levels));
   }
+  if (o.merge_fanout < 2 || o.merge_fanout > 16) {
+    return Status::InvalidArgument("merge_fanout must be in [2, 16], got " +
+                                   std::to_string(o.merge_fanout));
+  }
   if (o.t0_points < 64 || o.t0_points > (4u << 20)) {
     return Status::InvalidArgument("t0_points must be in [64, 4194304], got " +
                                    std::to_string(o.t0_points));

@@ -42,10 +42,14 @@ struct Options {
   bool sync = true;                 // fsync the log on every commit (group commit)
   uint32_t max_slice_frames = 64;   // default bound on frames a slice may read
   uint64_t wal_checkpoint_bytes = 64u << 20;  // checkpoint once the log grows past this
-  // Points a frame's in-memory buffer T0 holds before the merger makes a tree of it; slot i
-  // of the forest then holds up to t0_points * 2^i. Commits wait for the merger when a T0
-  // reaches 8x this. In [64, 4 Mi].
+  // Points a frame's in-memory buffer T0 holds before the merger makes a tree of it. Commits
+  // wait for the merger when a T0 reaches 8x this. In [64, 4 Mi].
   uint32_t t0_points = 64u << 10;
+  // The logarithmic method's fan-out k: level L of a frame's forest holds up to k-1 trees of up
+  // to t0_points * k^L points. A point is rebuilt about log_k(n / t0_points) times on its way
+  // up, a query visits up to k-1 trees a level: 2 is the thesis's binary method (8.3.2); 4
+  // builds a point about 3/4 as often (bench/README.md). In [2, 16]; any value reads any dataset.
+  uint32_t merge_fanout = 4;
   Env* env = nullptr;  // all file I/O (storage/env.h); null: the POSIX Env::Default()
   // When another process holds the data directory: open it as a follower (read-only; see
   // Database::Refresh) instead of failing.
@@ -230,6 +234,7 @@ struct DatasetStats {
   uint32_t cold_frames = 0;
   uint64_t cold_trees = 0, cold_tree_bytes = 0, cold_points = 0;
   uint64_t merges = 0;       // trees built by the merger since open
+  uint64_t merged_points = 0;  // points written into those trees (rebuilds: / points inserted)
   uint64_t checkpoints = 0;  // log segments closed since open
   double leaf_utilisation = 0;  // points / (leaf blocks * b) over all trees
   // Gaussian datasets: the Gaussian column's segment files, records and bytes.

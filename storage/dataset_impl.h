@@ -173,18 +173,33 @@ class DatasetImpl {
   std::string TreePath(uint32_t frame, uint64_t seq) const;
 
   // dataset_merge.cc: the logarithmic method.
-  // Smallest slot that can take T0 plus slots 0..i-1 of `v` (plus `extra` points).
-  size_t TargetSlot(const FrameVersion& v, uint64_t extra) const;
+  // The logarithmic method with fan-out k (Options::merge_fanout): level L is slots
+  // L(k-1) .. L(k-1)+k-2, each holding a tree of up to p*k^L points (p: T0's capacity). A
+  // merge builds T0 (plus `extra` points) and every tree of the levels from L0 below L into
+  // one tree in a free slot of the first level L >= L0 where the total fits; trees of L and
+  // above stay. L0 is 0 for a bulk load (the frame's small trees go into the loaded one); for
+  // the merger it is the level T0 alone fits in, which is 0 unless commits ran ahead of the
+  // merger: a T0 grown to several times p then skips the levels below its size instead of
+  // taking their trees up with it (rebuilding them for nothing). By induction a level-L tree
+  // holds at most p + (k-1)(p + kp + .. + k^(L-1)p) = p*k^L points, and a point is rebuilt
+  // once per level it climbs. Slot order carries no meaning: a live point is in one place.
+  struct SlotChoice {
+    size_t slot = 0;              // the new tree's
+    size_t from = 0, to = 0;      // slots [from, to) go into it
+  };
+  SlotChoice TargetSlot(const FrameVersion& v, uint64_t extra, bool keep_lower) const;
+  uint64_t SlotCapacity(size_t slot) const;
   // Builds the tree of slot i from v's T0, `extra` and slots 0..i-1 (no lock held).
-  // Appends T0 and the live points of slots [0, slots) of `v` to *pts.
-  Status LivePoints(const FrameVersion& v, size_t slots, std::vector<Point>* pts) const;
+  // Appends T0 and the live points of slots [from, to) of `v` to *pts.
+  Status LivePoints(const FrameVersion& v, size_t from, size_t to, std::vector<Point>* pts) const;
   TreeBuildParams TreeParams(uint32_t frame, uint64_t seq) const;
   // A new tree file of the frame: `write` makes it at the path of a fresh sequence number,
   // then it is opened (synced: its contents are durable); on failure nothing is left behind.
   Result<std::shared_ptr<KdTree>> NewTree(
       uint32_t frame, bool sync,
       const std::function<Status(const std::string& path, uint64_t seq)>& write);
-  Result<std::shared_ptr<KdTree>> BuildMerged(const FrameVersion& v, size_t i,
+  // A tree of `extra`, T0 and the live points of the slots `c` merges.
+  Result<std::shared_ptr<KdTree>> BuildMerged(const FrameVersion& v, const SlotChoice& c,
                                               std::vector<Point> extra, bool sync);
   void MergerLoop();
   Status MergeOnce(uint32_t frame);
@@ -221,6 +236,8 @@ class DatasetImpl {
   bool NeedsMerge(const FrameVersion& v) const { return v.t0.size() > t0_cap_; }
   // So far behind that commits wait for the merger (back-pressure).
   bool Backlogged(const FrameVersion& v) const { return v.t0.size() > 8 * t0_cap_; }
+  // The merger's niceness (and its builders'): commits first, yet merges still progress.
+  static constexpr int kMergerNice = 10;
 
   const std::string dir_;
   const Options opts_;
@@ -265,7 +282,7 @@ class DatasetImpl {
   std::deque<std::pair<std::chrono::steady_clock::time_point, std::shared_ptr<KdTree>>> graves_;
   std::atomic<uint64_t> next_id_{1};
   std::atomic<uint64_t> next_seq_{1};
-  std::atomic<uint64_t> merges_{0}, checkpoints_{0};
+  std::atomic<uint64_t> merges_{0}, merged_points_{0}, checkpoints_{0};
   std::atomic<uint64_t> wal_bytes_{0};
   // Set by a commit that leaves some T0 above 8x its capacity, cleared by the first writer that
   // finds none: commits look at the frames only while it is set.
@@ -309,7 +326,7 @@ struct DatasetImpl::WriteRequest {
 struct DatasetImpl::Merge {
   uint32_t frame = 0;
   std::shared_ptr<const FrameVersion> base;
-  size_t slot = 0;
+  SlotChoice to;  // the new tree's slot, and base's slots that went into it
   std::shared_ptr<KdTree> tree;
 };
 

@@ -7,6 +7,10 @@
 // T0. A built tree is not synced: its points are still in the log, and recovery deletes tree
 // files no frame state lists. Checkpoints (also run by the merger once the log is large) sync
 // the trees a frame lists, then write its state; trees the old state listed are deleted after.
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <cstdio>
 
@@ -16,23 +20,41 @@
 
 namespace hvdb {
 
-size_t DatasetImpl::TargetSlot(const FrameVersion& v, uint64_t extra) const {
-  uint64_t total = v.t0.size() + extra;
-  size_t i = 0;
-  while (i < v.slots.size() && (v.slots[i].tree || total > (t0_cap_ << i))) {
-    total += v.slots[i].live();
-    ++i;
+uint64_t DatasetImpl::SlotCapacity(size_t slot) const {
+  const size_t per_level = opts_.merge_fanout - 1;
+  uint64_t cap = t0_cap_;
+  for (size_t l = slot / per_level; l > 0 && cap < (uint64_t{1} << 62) / opts_.merge_fanout; --l) {
+    cap *= opts_.merge_fanout;
   }
-  while (total > (t0_cap_ << i)) ++i;  // past the last slot every slot is free
-  return i;
+  return cap;
 }
 
-Status DatasetImpl::LivePoints(const FrameVersion& v, size_t slots, std::vector<Point>* pts) const {
+DatasetImpl::SlotChoice DatasetImpl::TargetSlot(const FrameVersion& v, uint64_t extra,
+                                                bool keep_lower) const {
+  const size_t per_level = opts_.merge_fanout - 1;
+  uint64_t total = v.t0.size() + extra;
+  size_t from = 0;
+  while (keep_lower && total > SlotCapacity(from)) from += per_level;
+  for (size_t first = from;; first += per_level) {
+    // Past the last slot every slot is free.
+    std::optional<size_t> free;
+    for (size_t s = first; s < first + per_level && !free; ++s) {
+      if (s >= v.slots.size() || !v.slots[s].tree) free = s;
+    }
+    if (free && total <= SlotCapacity(first)) return {*free, from, first};
+    for (size_t s = first; s < first + per_level && s < v.slots.size(); ++s) {
+      total += v.slots[s].live();
+    }
+  }
+}
+
+Status DatasetImpl::LivePoints(const FrameVersion& v, size_t from, size_t to,
+                               std::vector<Point>* pts) const {
   uint64_t want = pts->size() + v.t0.size();
-  for (size_t j = 0; j < slots && j < v.slots.size(); ++j) want += v.slots[j].live();
+  for (size_t j = from; j < to && j < v.slots.size(); ++j) want += v.slots[j].live();
   pts->reserve(want);
   v.t0.ForEach([pts](const Point& p) { pts->push_back(p); });
-  for (size_t j = 0; j < slots && j < v.slots.size(); ++j) {
+  for (size_t j = from; j < to && j < v.slots.size(); ++j) {
     const TreeSlot& s = v.slots[j];
     if (!s.tree) continue;
     size_t at = pts->size();
@@ -70,10 +92,11 @@ Result<std::shared_ptr<KdTree>> DatasetImpl::NewTree(
   return opened;
 }
 
-Result<std::shared_ptr<KdTree>> DatasetImpl::BuildMerged(const FrameVersion& v, size_t i,
+Result<std::shared_ptr<KdTree>> DatasetImpl::BuildMerged(const FrameVersion& v,
+                                                         const SlotChoice& c,
                                                          std::vector<Point> extra, bool sync) {
   std::vector<Point> pts = std::move(extra);
-  HVDB_RETURN_IF_ERROR(LivePoints(v, i, &pts));
+  HVDB_RETURN_IF_ERROR(LivePoints(v, c.from, c.to, &pts));
   if (pts.empty()) return std::shared_ptr<KdTree>();  // everything was deleted
   return NewTree(v.frame, sync, [&](const std::string& path, uint64_t seq) {
     return BuildTreeFile(env_, path, pts, TreeParams(v.frame, seq), sync);
@@ -87,6 +110,11 @@ void DatasetImpl::WakeMerger() {
 }
 
 void DatasetImpl::MergerLoop() {
+  // Background work yields to commits: a durable commit that wakes from its fdatasync must get
+  // a core at once, not after the merger's builders (which inherit this niceness) have used
+  // their slice. Lowering one's own priority needs no privilege; where it fails the merger
+  // simply runs at the caller's priority.
+  (void)setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), kMergerNice);
   std::unique_lock<std::mutex> l(merge_mu_);
   for (;;) {
     if (opts_.retired_grace_ms > 0 || opts_.cold_after_s > 0) {
@@ -154,8 +182,8 @@ Status DatasetImpl::MergeOnce(uint32_t frame) {
   Merge m;
   m.frame = frame;
   m.base = v;
-  m.slot = TargetSlot(*v, 0);
-  HVDB_ASSIGN_OR_RETURN(m.tree, BuildMerged(*v, m.slot, {}, /*sync=*/false));
+  m.to = TargetSlot(*v, 0, /*keep_lower=*/true);
+  HVDB_ASSIGN_OR_RETURN(m.tree, BuildMerged(*v, m.to, {}, /*sync=*/false));
   WriteRequest w;
   w.kind = WriteRequest::Kind::kInstall;
   w.merge = &m;
@@ -168,8 +196,8 @@ Status DatasetImpl::Install(const Merge& m) {
   auto cur = Snapshot(m.frame);
   const FrameVersion& base = *m.base;
   // A bulk load may have replaced the trees since the snapshot: then the work is stale.
-  bool fresh = cur != nullptr && (m.slot >= cur->slots.size() || !cur->slots[m.slot].tree);
-  for (size_t j = 0; fresh && j < m.slot && j < base.slots.size(); ++j) {
+  bool fresh = cur != nullptr && (m.to.slot >= cur->slots.size() || !cur->slots[m.to.slot].tree);
+  for (size_t j = m.to.from; fresh && j < m.to.to && j < base.slots.size(); ++j) {
     fresh = j < cur->slots.size() && cur->slots[j].tree == base.slots[j].tree;
   }
   if (!fresh) {
@@ -195,7 +223,7 @@ Status DatasetImpl::Install(const Merge& m) {
   });
   auto nv = std::make_shared<FrameVersion>(*cur);
   std::vector<std::shared_ptr<KdTree>> merged;
-  for (size_t j = 0; j < m.slot && j < base.slots.size(); ++j) {
+  for (size_t j = m.to.from; j < m.to.to && j < base.slots.size(); ++j) {
     const TreeSlot& was = base.slots[j];
     if (!was.tree) continue;
     // Deleted from the merged tree since the snapshot.
@@ -207,14 +235,14 @@ Status DatasetImpl::Install(const Merge& m) {
     merged.push_back(was.tree);
     nv->slots[j] = TreeSlot{};
   }
-  while (nv->slots.size() <= m.slot) nv->slots.emplace_back();
+  while (nv->slots.size() <= m.to.slot) nv->slots.emplace_back();
   std::sort(dead.begin(), dead.end());
   TreeSlot out;
   out.tree = m.tree;
   if (m.tree && !dead.empty()) {
     out.dead = std::make_shared<const std::vector<uint64_t>>(std::move(dead));
   }
-  nv->slots[m.slot] = std::move(out);
+  nv->slots[m.to.slot] = std::move(out);
   nv->t0 = cur->t0.Suffix(kept);
   {
     std::lock_guard<std::mutex> l(mu_);
@@ -223,6 +251,7 @@ Status DatasetImpl::Install(const Merge& m) {
   dirty_.insert(m.frame);
   for (auto& t : merged) Retire(m.frame, t);
   ++merges_;
+  if (m.tree) merged_points_ += m.tree->header().point_count;
   return Status::OK();
 }
 
@@ -245,6 +274,7 @@ Status DatasetImpl::BulkLocked(uint32_t frame, std::vector<Point>* points,
   v.frame = frame;
   std::shared_ptr<KdTree> tree;
   size_t i = 0;
+  SlotChoice to;  // nothing merged into a prebuilt tree
   uint64_t loaded = points->size();
   if (prebuilt) {
     // Built for the empty frame: still right if nothing came into the frame meanwhile.
@@ -266,12 +296,13 @@ Status DatasetImpl::BulkLocked(uint32_t frame, std::vector<Point>* points,
       if (p.id == 0) p.id = next_id_++;
     }
     loaded = points->size();
-    i = TargetSlot(v, points->size());
-    HVDB_ASSIGN_OR_RETURN(tree, BuildMerged(v, i, std::move(*points), /*sync=*/true));
+    to = TargetSlot(v, points->size(), /*keep_lower=*/false);
+    i = to.slot;
+    HVDB_ASSIGN_OR_RETURN(tree, BuildMerged(v, to, std::move(*points), /*sync=*/true));
   }
   FrameVersion nv = v;
   std::vector<std::shared_ptr<KdTree>> merged;
-  for (size_t j = 0; j < i && j < nv.slots.size(); ++j) {
+  for (size_t j = to.from; j < to.to && j < nv.slots.size(); ++j) {
     if (nv.slots[j].tree) merged.push_back(nv.slots[j].tree);
     nv.slots[j] = TreeSlot{};
   }

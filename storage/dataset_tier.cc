@@ -60,7 +60,7 @@ Status DatasetImpl::CompactFrame(uint32_t frame, CompactInfo* info, bool* stale)
                             info, stale);
   }
   std::vector<Point> pts;
-  HVDB_RETURN_IF_ERROR(LivePoints(*v, v->slots.size(), &pts));
+  HVDB_RETURN_IF_ERROR(LivePoints(*v, 0, v->slots.size(), &pts));
   if (pts.empty()) return Status::OK();
   // The buffer's points count as the 64-byte records they are held as (in the buffer T0 and
   // its log): a frame of buffered points only was 0 bytes "before" its compaction.
@@ -83,7 +83,7 @@ Status DatasetImpl::InstallCompacted(
   t.frame = v->frame;
   t.compact = true;
   t.base = v;
-  t.slot = TargetSlot(FrameVersion{}, n);
+  t.slot = TargetSlot(FrameVersion{}, n, /*keep_lower=*/false).slot;
   HVDB_ASSIGN_OR_RETURN(t.tree, NewTree(v->frame, /*sync=*/true, write));
   HVDB_RETURN_IF_ERROR(SubmitTier(t));
   *stale = t.stale;

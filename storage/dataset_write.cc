@@ -52,18 +52,11 @@ Status ScanVersion(const FrameVersion& v, const RegionPlan* plan, uint32_t label
   for (size_t s = 0; s < v.slots.size(); ++s) {
     const TreeSlot& slot = v.slots[s];
     if (!slot.tree) continue;
-    // Label summaries: trees and buckets without the bits hold no point of a masked scan.
-    if (label_mask != 0 && (slot.tree->header().labels & label_mask) == 0) continue;
     BoxTest test = [&](const Box3& b) {
       return plan == nullptr ? Relation::kInside : plan->Classify(b, v.frame);
     };
     std::vector<KdTree::BucketHit> hits;
-    HVDB_RETURN_IF_ERROR(slot.tree->FindBuckets(test, &hits));
-    if (label_mask != 0) {
-      std::erase_if(hits, [label_mask](const KdTree::BucketHit& h) {
-        return (h.entry.labels & label_mask) == 0;
-      });
-    }
+    HVDB_RETURN_IF_ERROR(slot.tree->FindBuckets(test, &hits, label_mask));
     HVDB_RETURN_IF_ERROR(ReadHits(*slot.tree, hits, [&](const KdTree::BucketHit& hit,
                                                         const uint8_t* rec, size_t n) {
       for (size_t j = 0; j < n; ++j) {
@@ -155,8 +148,9 @@ Result<uint64_t> DatasetImpl::BulkLoadThen(uint32_t frame, std::vector<Point> po
       if (p.id == 0) p.id = id++;
     FrameVersion none;
     none.frame = frame;
-    w.prebuilt_slot = TargetSlot(none, points.size());
-    HVDB_ASSIGN_OR_RETURN(w.prebuilt, BuildMerged(none, w.prebuilt_slot, std::move(points), /*sync=*/true));
+    const SlotChoice to = TargetSlot(none, points.size(), /*keep_lower=*/false);
+    w.prebuilt_slot = to.slot;
+    HVDB_ASSIGN_OR_RETURN(w.prebuilt, BuildMerged(none, to, std::move(points), /*sync=*/true));
     points.clear();
   }
   if (before_install) {

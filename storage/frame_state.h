@@ -1,7 +1,7 @@
 // FrameVersion: one frame's Bkd-tree (thesis 8.3.2) as an immutable snapshot, and its file.
 //
-// A frame is a forest: slot i holds a kd-tree of at most 2^i p points (or nothing; p =
-// Options::t0_points), each with its weak deletes (sorted ids), plus the buffer T0 of recently
+// A frame is a forest: slot i holds a kd-tree of at most k^(i/(k-1)) p points (or nothing;
+// p = Options::t0_points, k = Options::merge_fanout), each with its weak deletes (sorted ids), plus the buffer T0 of recently
 // inserted points, in memory and in the log. Queries hold a shared_ptr to the version they
 // started on; writers publish new versions; the merger turns a full T0 into a tree.
 //

@@ -778,6 +778,142 @@ TEST_F(DatasetTest, T0CapacityOutOfRangeIsRefused) {
   EXPECT_EQ(db_->ListDatasets(), std::vector<std::string>{"video"});
 }
 
+// The logarithmic method of every fan-out (Options::merge_fanout): the same points answer the
+// same queries, Check() finds every tree within its slot's capacity, and a wider fan-out
+// rebuilds each point fewer times (about log_k(n / 64) with T0 at 64 points).
+TEST_F(DatasetTest, EveryFanOutAnswersAsBruteForceAndAWiderOneRebuildsLess) {
+  std::map<uint32_t, double> rebuilds;
+  for (uint32_t k : {2u, 3u, 4u, 16u}) {
+    SCOPED_TRACE("fan-out " + std::to_string(k));
+    TempDir dir;
+    Options o;
+    o.cache_bytes = 8u << 20;
+    o.block_size = 4096;
+    o.t0_points = 64;
+    o.merge_fanout = k;
+    auto db = Database::Open(dir.path(), o);
+    ASSERT_TRUE(db.ok()) << db.status().ToString();
+    DatasetInfo info;
+    info.name = "forest";
+    info.fps = kFps;
+    auto ds = (*db)->CreateDataset(info);
+    ASSERT_TRUE(ds.ok()) << ds.status().ToString();
+    std::mt19937_64 rng(77);  // the same points for every fan-out
+    std::map<uint64_t, Point> model;
+    for (int set = 0; set < 240; ++set) {
+      std::vector<Point> pts;
+      for (int i = 0; i < 50; ++i) pts.push_back(testing::RandomPoint(rng, 0));
+      Transaction t;
+      t.Insert(pts);
+      auto r = (*ds)->Commit(t);
+      ASSERT_TRUE(r.ok()) << r.status().ToString();
+      for (size_t i = 0; i < pts.size(); ++i) {
+        pts[i].id = r->assigned_ids[i];
+        model[pts[i].id] = pts[i];
+      }
+      if (set % 40 == 39) {  // and deletes, which the merges carry as dead ids or drop
+        Transaction del;
+        for (int d = 0; d < 30; ++d) {
+          auto it = std::next(model.begin(), static_cast<long>(rng() % model.size()));
+          del.Delete(it->first, 0, {it->second.x, it->second.y, it->second.z});
+          model.erase(it);
+        }
+        ASSERT_TRUE((*ds)->Commit(del).ok());
+      }
+      // Each overflow merged before the next set: the same forest shape on every run.
+      ASSERT_TRUE((*ds)->WaitForMerges().ok());
+    }
+    EXPECT_TRUE((*ds)->Check().empty());
+    std::mt19937_64 wrng(5);
+    std::uniform_real_distribution<double> u(0, 10);
+    for (int q = 0; q < 6; ++q) {
+      Window w = FrameWindow(0);
+      for (int a = 0; a < 3; ++a) {
+        double x = u(wrng), y = u(wrng);
+        w.lo[a] = std::min(x, y);
+        w.hi[a] = std::max(x, y);
+      }
+      std::set<std::pair<uint32_t, uint64_t>> want;
+      for (const auto& [id, p] : model) {
+        if (p.x >= w.lo[0] && p.x <= w.hi[0] && p.y >= w.lo[1] && p.y <= w.hi[1] &&
+            p.z >= w.lo[2] && p.z <= w.hi[2]) {
+          want.insert({0, id});
+        }
+      }
+      EXPECT_EQ(Keys(RunQuery(**ds, w)), want) << "window " << q;
+    }
+    const DatasetStats st = (*ds)->Stats();
+    EXPECT_EQ(st.points, model.size());
+    rebuilds[k] = static_cast<double>(st.merged_points) / 12000.0;
+    ds->reset();
+    db->reset();
+    // Reopened with the other fan-out: the forest reads as it is, and grows on.
+    o.merge_fanout = k == 2 ? 4 : 2;
+    db = Database::Open(dir.path(), o);
+    ASSERT_TRUE(db.ok()) << db.status().ToString();
+    ds = (*db)->GetDataset("forest");
+    ASSERT_TRUE(ds.ok());
+    EXPECT_TRUE((*ds)->Check().empty());
+    EXPECT_EQ(RunQuery(**ds, Everything()).size(), model.size());
+  }
+  for (const auto& [k, r] : rebuilds) std::printf("fan-out %u: %.3f builds a point\n", k, r);
+  // A point climbs about log_k(n / p) levels, with probability (k-1)/k at each: 3/8 log2(n / p)
+  // times for k = 4 against 1/2 log2(n / p) for k = 2, 0.23 log2(n / p) for k = 16.
+  EXPECT_LT(rebuilds[4], 0.85 * rebuilds[2]) << rebuilds[2] << " vs " << rebuilds[4];
+  EXPECT_LT(rebuilds[16], 0.7 * rebuilds[2]) << rebuilds[2] << " vs " << rebuilds[16];
+  EXPECT_LT(rebuilds[3], rebuilds[2]);
+  EXPECT_LT(rebuilds[16], rebuilds[4]);
+}
+
+// Commits that ran ahead of the merger leave a T0 of several times its capacity: it goes to
+// the level its size needs, and the smaller trees below stay where they are instead of being
+// rebuilt with it.
+TEST_F(DatasetTest, AnOverfullBufferSkipsTheLevelsBelowItsSize) {
+  Options o;
+  o.cache_bytes = 8u << 20;
+  o.block_size = 4096;
+  o.t0_points = 64;  // level 1 holds trees of up to 256 points, level 2 of up to 1024
+  o.merge_fanout = 4;
+  auto db = Database::Open(dir_.path(), o);
+  ASSERT_TRUE(db.ok()) << db.status().ToString();
+  DatasetInfo info;
+  info.name = "forest";
+  info.fps = kFps;
+  auto ds = (*db)->CreateDataset(info);
+  ASSERT_TRUE(ds.ok()) << ds.status().ToString();
+  std::mt19937_64 rng(9);
+  auto commit = [&](int n) {
+    std::vector<Point> pts;
+    for (int i = 0; i < n; ++i) pts.push_back(testing::RandomPoint(rng, 0));
+    Transaction t;
+    t.Insert(pts);
+    ASSERT_TRUE((*ds)->Commit(t).ok());
+    ASSERT_TRUE((*ds)->WaitForMerges().ok());
+  };
+  for (int i = 0; i < 3; ++i) commit(100);  // three trees of level 1
+  EXPECT_EQ((*ds)->Stats().trees, 3u);
+  commit(600);  // one T0 of 600 points: level 2, beside them
+  const DatasetStats st = (*ds)->Stats();
+  EXPECT_EQ(st.trees, 4u);
+  EXPECT_EQ(st.merged_points, 900u) << "the level-1 trees were rebuilt";
+  EXPECT_EQ(st.points, 900u);
+  EXPECT_TRUE((*ds)->Check().empty());
+  commit(100);  // level 1 is full: its trees and T0 go up to level 2, beside the 600
+  EXPECT_EQ((*ds)->Stats().trees, 2u);
+  EXPECT_EQ(RunQuery(**ds, Everything()).size(), 1000u);
+}
+
+TEST_F(DatasetTest, MergeFanOutOutOfRangeIsRefused) {
+  for (uint32_t bad : {0u, 1u, 17u}) {
+    Options o;
+    o.merge_fanout = bad;
+    auto db = Database::Open(dir_.path(), o);
+    ASSERT_FALSE(db.ok()) << bad;
+    EXPECT_NE(db.status().message().find("merge_fanout must be in [2, 16]"), std::string::npos)
+        << db.status().ToString();
+  }
+}
+
 TEST_F(DatasetTest, ConcurrentCommitsAndQueries) {
   Open();
   std::mt19937_64 seed_rng(12);

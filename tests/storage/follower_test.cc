@@ -336,7 +336,9 @@ TEST_F(FollowerTest, ReplacedTreesOutliveTheirGrace) {
   auto want = Dump(*f_);
   auto c = f_->Query(testing::EverythingWindow());
   ASSERT_TRUE(c.ok());
-  ASSERT_TRUE(w_->BulkLoad(0, RandomPoints(rng_, 1000, 0)).ok());  // merges frame 0's trees
+  // More than the level of the frame's one tree holds (fan-out 2 or the default 4, T0 at 256
+  // points): the load takes that tree into its own.
+  ASSERT_TRUE(w_->BulkLoad(0, RandomPoints(rng_, 1500, 0)).ok());
   Options io = Opts();
   Env* env = io.env ? io.env : Env::Default();
   const std::string trees = dir_.path() + "/video/trees";
