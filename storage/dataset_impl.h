@@ -236,8 +236,6 @@ class DatasetImpl {
   bool NeedsMerge(const FrameVersion& v) const { return v.t0.size() > t0_cap_; }
   // So far behind that commits wait for the merger (back-pressure).
   bool Backlogged(const FrameVersion& v) const { return v.t0.size() > 8 * t0_cap_; }
-  // The merger's niceness (and its builders'): commits first, yet merges still progress.
-  static constexpr int kMergerNice = 10;
 
   const std::string dir_;
   const Options opts_;

@@ -7,10 +7,6 @@
 // T0. A built tree is not synced: its points are still in the log, and recovery deletes tree
 // files no frame state lists. Checkpoints (also run by the merger once the log is large) sync
 // the trees a frame lists, then write its state; trees the old state listed are deleted after.
-#include <sys/resource.h>
-#include <sys/syscall.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <cstdio>
 
@@ -110,11 +106,6 @@ void DatasetImpl::WakeMerger() {
 }
 
 void DatasetImpl::MergerLoop() {
-  // Background work yields to commits: a durable commit that wakes from its fdatasync must get
-  // a core at once, not after the merger's builders (which inherit this niceness) have used
-  // their slice. Lowering one's own priority needs no privilege; where it fails the merger
-  // simply runs at the caller's priority.
-  (void)setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), kMergerNice);
   std::unique_lock<std::mutex> l(merge_mu_);
   for (;;) {
     if (opts_.retired_grace_ms > 0 || opts_.cold_after_s > 0) {

@@ -1,5 +1,7 @@
 #include "storage/kdtree_builder.h"
 
+#include <sys/mman.h>
+
 #include <algorithm>
 #include <bit>
 #include <cstdlib>
@@ -296,8 +298,13 @@ Status BuildTreeImage(std::vector<Point>& points, const TreeBuildParams& params,
   // zeros for the tails of level segments and the other blocks).
   const size_t file_bytes = size_t{h.total_blocks} * bs;
   // 4 KiB-aligned, so that a durable write can go straight to the device (Env::WriteNewFile).
-  out->data.reset(
-      static_cast<uint8_t*>(std::aligned_alloc(4096, (file_bytes + 4095) / 4096 * 4096)));
+  // A large image on transparent huge pages where the kernel offers them (madvise mode): its
+  // first touches are a fifth of a merge's time on 4 KiB pages (a fault and a clear per page).
+  constexpr size_t kHuge = size_t{2} << 20;
+  const size_t align = file_bytes >= 4 * kHuge ? kHuge : 4096;
+  const size_t alloc_bytes = (file_bytes + align - 1) / align * align;
+  out->data.reset(static_cast<uint8_t*>(std::aligned_alloc(align, alloc_bytes)));
+  if (out->data && align == kHuge) (void)madvise(out->data.get(), alloc_bytes, MADV_HUGEPAGE);
   if (!out->data) return Status::IOError("out of memory for a " + std::to_string(file_bytes) + "-byte tree");
   out->bytes = file_bytes;
   uint8_t* base = out->data.get();
