@@ -77,6 +77,14 @@ class CursorImpl {
   void Cancel() { cancelled_ = true; }
   const std::vector<uint32_t>& frames() const { return plan_.frames; }
   bool clipped() const { return plan_.clipped; }
+  uint64_t PointsBound() const {
+    uint64_t n = 0;
+    for (const auto& v : versions_) {
+      n += v->t0.size();
+      for (const TreeSlot& s : v->slots) n += s.live();
+    }
+    return n;
+  }
 
  private:
   struct Task {
@@ -248,5 +256,6 @@ Result<bool> Cursor::NextInto(Point* buf, size_t capacity, size_t* n, Batch* inf
 void Cursor::Cancel() { impl_->Cancel(); }
 const std::vector<uint32_t>& Cursor::frames() const { return impl_->frames(); }
 bool Cursor::clipped() const { return impl_->clipped(); }
+uint64_t Cursor::PointsBound() const { return impl_->PointsBound(); }
 
 }  // namespace hvdb

@@ -173,6 +173,10 @@ class Cursor {
   // Frames the query reads (after bounds and temporal LOD), and whether a slice was clipped.
   const std::vector<uint32_t>& frames() const;
   bool clipped() const;
+  // At least as many points as the query returns: the live points of the frames it reads. For
+  // a caller that keeps every result, to reserve its memory once (reserved, untouched pages
+  // cost nothing).
+  uint64_t PointsBound() const;
 
  private:
   std::unique_ptr<CursorImpl> impl_;

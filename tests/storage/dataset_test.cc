@@ -903,6 +903,31 @@ TEST_F(DatasetTest, AnOverfullBufferSkipsTheLevelsBelowItsSize) {
   EXPECT_EQ(RunQuery(**ds, Everything()).size(), 1000u);
 }
 
+// A cursor's points bound: the live points of the frames it reads (trees, less their dead ids,
+// and T0), never fewer than it returns.
+TEST_F(DatasetTest, ACursorsPointsBoundCountsItsFramesLivePoints) {
+  Open();
+  std::mt19937_64 rng(21);
+  ASSERT_TRUE(ds_->BulkLoad(0, testing::RandomPoints(rng, 3000, 0)).ok());
+  Transaction t;
+  t.Insert(testing::RandomPoints(rng, 40, 0));
+  t.Insert(testing::RandomPoints(rng, 70, 1));
+  ASSERT_TRUE(ds_->Commit(t).ok());
+  const Point gone = RunQuery(*ds_, FrameWindow(0)).front();
+  Transaction del;
+  del.Delete(gone.id, 0, {gone.x, gone.y, gone.z});
+  ASSERT_TRUE(ds_->Commit(del).ok());
+  auto whole = ds_->Query(FrameWindow(0));
+  ASSERT_TRUE(whole.ok());
+  EXPECT_EQ((*whole)->PointsBound(), RunQuery(*ds_, FrameWindow(0)).size());
+  Window part = FrameWindow(1);
+  part.hi[0] = 0.5;  // half of frame 1's points
+  auto some = ds_->Query(part);
+  ASSERT_TRUE(some.ok());
+  EXPECT_EQ((*some)->PointsBound(), 70u);
+  EXPECT_LT(RunQuery(*ds_, part).size(), 70u);
+}
+
 TEST_F(DatasetTest, MergeFanOutOutOfRangeIsRefused) {
   for (uint32_t bad : {0u, 1u, 17u}) {
     Options o;
