@@ -778,6 +778,31 @@ TEST_F(DatasetTest, T0CapacityOutOfRangeIsRefused) {
   EXPECT_EQ(db_->ListDatasets(), std::vector<std::string>{"video"});
 }
 
+// Options for the logarithmic method's tests: T0 of 64 points, so that small sets make forests.
+Options ForestOptions(uint32_t fanout) {
+  Options o;
+  o.cache_bytes = 8u << 20;
+  o.block_size = 4096;
+  o.t0_points = 64;
+  o.merge_fanout = fanout;
+  return o;
+}
+
+// A database with one dataset, "forest".
+std::pair<std::unique_ptr<Database>, std::shared_ptr<Dataset>> OpenForest(const std::string& dir,
+                                                                          const Options& o) {
+  auto db = Database::Open(dir, o);
+  EXPECT_TRUE(db.ok()) << db.status().ToString();
+  if (!db.ok()) return {};
+  DatasetInfo info;
+  info.name = "forest";
+  info.fps = kFps;
+  auto ds = (*db)->CreateDataset(info);
+  EXPECT_TRUE(ds.ok()) << ds.status().ToString();
+  if (!ds.ok()) return {};
+  return {std::move(*db), *ds};
+}
+
 // The logarithmic method of every fan-out (Options::merge_fanout): the same points answer the
 // same queries, Check() finds every tree within its slot's capacity, and a wider fan-out
 // rebuilds each point fewer times (about log_k(n / 64) with T0 at 64 points).
@@ -786,18 +811,9 @@ TEST_F(DatasetTest, EveryFanOutAnswersAsBruteForceAndAWiderOneRebuildsLess) {
   for (uint32_t k : {2u, 3u, 4u, 16u}) {
     SCOPED_TRACE("fan-out " + std::to_string(k));
     TempDir dir;
-    Options o;
-    o.cache_bytes = 8u << 20;
-    o.block_size = 4096;
-    o.t0_points = 64;
-    o.merge_fanout = k;
-    auto db = Database::Open(dir.path(), o);
-    ASSERT_TRUE(db.ok()) << db.status().ToString();
-    DatasetInfo info;
-    info.name = "forest";
-    info.fps = kFps;
-    auto ds = (*db)->CreateDataset(info);
-    ASSERT_TRUE(ds.ok()) << ds.status().ToString();
+    Options o = ForestOptions(k);
+    auto [db, ds] = OpenForest(dir.path(), o);
+    ASSERT_TRUE(ds);
     std::mt19937_64 rng(77);  // the same points for every fan-out
     std::map<uint64_t, Point> model;
     for (int set = 0; set < 240; ++set) {
@@ -805,7 +821,7 @@ TEST_F(DatasetTest, EveryFanOutAnswersAsBruteForceAndAWiderOneRebuildsLess) {
       for (int i = 0; i < 50; ++i) pts.push_back(testing::RandomPoint(rng, 0));
       Transaction t;
       t.Insert(pts);
-      auto r = (*ds)->Commit(t);
+      auto r = ds->Commit(t);
       ASSERT_TRUE(r.ok()) << r.status().ToString();
       for (size_t i = 0; i < pts.size(); ++i) {
         pts[i].id = r->assigned_ids[i];
@@ -818,12 +834,12 @@ TEST_F(DatasetTest, EveryFanOutAnswersAsBruteForceAndAWiderOneRebuildsLess) {
           del.Delete(it->first, 0, {it->second.x, it->second.y, it->second.z});
           model.erase(it);
         }
-        ASSERT_TRUE((*ds)->Commit(del).ok());
+        ASSERT_TRUE(ds->Commit(del).ok());
       }
       // Each overflow merged before the next set: the same forest shape on every run.
-      ASSERT_TRUE((*ds)->WaitForMerges().ok());
+      ASSERT_TRUE(ds->WaitForMerges().ok());
     }
-    EXPECT_TRUE((*ds)->Check().empty());
+    EXPECT_TRUE(ds->Check().empty());
     std::mt19937_64 wrng(5);
     std::uniform_real_distribution<double> u(0, 10);
     for (int q = 0; q < 6; ++q) {
@@ -840,21 +856,21 @@ TEST_F(DatasetTest, EveryFanOutAnswersAsBruteForceAndAWiderOneRebuildsLess) {
           want.insert({0, id});
         }
       }
-      EXPECT_EQ(Keys(RunQuery(**ds, w)), want) << "window " << q;
+      EXPECT_EQ(Keys(RunQuery(*ds, w)), want) << "window " << q;
     }
-    const DatasetStats st = (*ds)->Stats();
+    const DatasetStats st = ds->Stats();
     EXPECT_EQ(st.points, model.size());
     rebuilds[k] = static_cast<double>(st.merged_points) / 12000.0;
-    ds->reset();
-    db->reset();
+    ds.reset();
+    db.reset();
     // Reopened with the other fan-out: the forest reads as it is, and grows on.
     o.merge_fanout = k == 2 ? 4 : 2;
-    db = Database::Open(dir.path(), o);
-    ASSERT_TRUE(db.ok()) << db.status().ToString();
-    ds = (*db)->GetDataset("forest");
-    ASSERT_TRUE(ds.ok());
-    EXPECT_TRUE((*ds)->Check().empty());
-    EXPECT_EQ(RunQuery(**ds, Everything()).size(), model.size());
+    auto reopened = Database::Open(dir.path(), o);
+    ASSERT_TRUE(reopened.ok()) << reopened.status().ToString();
+    auto again = (*reopened)->GetDataset("forest");
+    ASSERT_TRUE(again.ok());
+    EXPECT_TRUE((*again)->Check().empty());
+    EXPECT_EQ(RunQuery(**again, Everything()).size(), model.size());
   }
   for (const auto& [k, r] : rebuilds) std::printf("fan-out %u: %.3f builds a point\n", k, r);
   // A point climbs about log_k(n / p) levels, with probability (k-1)/k at each: 3/8 log2(n / p)
@@ -869,38 +885,30 @@ TEST_F(DatasetTest, EveryFanOutAnswersAsBruteForceAndAWiderOneRebuildsLess) {
 // the level its size needs, and the smaller trees below stay where they are instead of being
 // rebuilt with it.
 TEST_F(DatasetTest, AnOverfullBufferSkipsTheLevelsBelowItsSize) {
-  Options o;
-  o.cache_bytes = 8u << 20;
-  o.block_size = 4096;
-  o.t0_points = 64;  // level 1 holds trees of up to 256 points, level 2 of up to 1024
-  o.merge_fanout = 4;
-  auto db = Database::Open(dir_.path(), o);
-  ASSERT_TRUE(db.ok()) << db.status().ToString();
-  DatasetInfo info;
-  info.name = "forest";
-  info.fps = kFps;
-  auto ds = (*db)->CreateDataset(info);
-  ASSERT_TRUE(ds.ok()) << ds.status().ToString();
+  // T0 of 64 points: level 1 holds trees of up to 256 points, level 2 of up to 1024.
+  auto forest = OpenForest(dir_.path(), ForestOptions(4));
+  std::shared_ptr<Dataset>& ds = forest.second;  // (a structured binding: no lambda capture in clang 14)
+  ASSERT_TRUE(ds);
   std::mt19937_64 rng(9);
   auto commit = [&](int n) {
     std::vector<Point> pts;
     for (int i = 0; i < n; ++i) pts.push_back(testing::RandomPoint(rng, 0));
     Transaction t;
     t.Insert(pts);
-    ASSERT_TRUE((*ds)->Commit(t).ok());
-    ASSERT_TRUE((*ds)->WaitForMerges().ok());
+    ASSERT_TRUE(ds->Commit(t).ok());
+    ASSERT_TRUE(ds->WaitForMerges().ok());
   };
   for (int i = 0; i < 3; ++i) commit(100);  // three trees of level 1
-  EXPECT_EQ((*ds)->Stats().trees, 3u);
+  EXPECT_EQ(ds->Stats().trees, 3u);
   commit(600);  // one T0 of 600 points: level 2, beside them
-  const DatasetStats st = (*ds)->Stats();
+  const DatasetStats st = ds->Stats();
   EXPECT_EQ(st.trees, 4u);
   EXPECT_EQ(st.merged_points, 900u) << "the level-1 trees were rebuilt";
   EXPECT_EQ(st.points, 900u);
-  EXPECT_TRUE((*ds)->Check().empty());
+  EXPECT_TRUE(ds->Check().empty());
   commit(100);  // level 1 is full: its trees and T0 go up to level 2, beside the 600
-  EXPECT_EQ((*ds)->Stats().trees, 2u);
-  EXPECT_EQ(RunQuery(**ds, Everything()).size(), 1000u);
+  EXPECT_EQ(ds->Stats().trees, 2u);
+  EXPECT_EQ(RunQuery(*ds, Everything()).size(), 1000u);
 }
 
 // A cursor's points bound: the live points of the frames it reads (trees, less their dead ids,
