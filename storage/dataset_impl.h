@@ -178,9 +178,10 @@ class DatasetImpl {
   // merge builds T0 (plus `extra` points) and every tree of the levels from L0 below L into
   // one tree in a free slot of the first level L >= L0 where the total fits; trees of L and
   // above stay. L0 is 0 for a bulk load (the frame's small trees go into the loaded one); for
-  // the merger it is the level T0 alone fits in, which is 0 unless commits ran ahead of the
-  // merger: a T0 grown to several times p then skips the levels below its size instead of
-  // taking their trees up with it (rebuilding them for nothing). By induction a level-L tree
+  // the merger it is the level T0 alone fits in: 1 when T0 just passed p (so level 0 holds
+  // bulk loads only), higher when commits ran ahead of the merger, and a T0 grown to several
+  // times p then skips the levels below its size instead of taking their trees up with it
+  // (rebuilding them for nothing). By induction a level-L tree
   // holds at most p + (k-1)(p + kp + .. + k^(L-1)p) = p*k^L points, and a point is rebuilt
   // once per level it climbs. Slot order carries no meaning: a live point is in one place.
   struct SlotChoice {
@@ -324,7 +325,7 @@ struct DatasetImpl::WriteRequest {
 struct DatasetImpl::Merge {
   uint32_t frame = 0;
   std::shared_ptr<const FrameVersion> base;
-  SlotChoice to;  // the new tree's slot, and base's slots that went into it
+  SlotChoice target;  // the new tree's slot, and base's slots that went into it
   std::shared_ptr<KdTree> tree;
 };
 

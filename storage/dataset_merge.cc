@@ -173,8 +173,8 @@ Status DatasetImpl::MergeOnce(uint32_t frame) {
   Merge m;
   m.frame = frame;
   m.base = v;
-  m.to = TargetSlot(*v, 0, /*keep_lower=*/true);
-  HVDB_ASSIGN_OR_RETURN(m.tree, BuildMerged(*v, m.to, {}, /*sync=*/false));
+  m.target = TargetSlot(*v, 0, /*keep_lower=*/true);
+  HVDB_ASSIGN_OR_RETURN(m.tree, BuildMerged(*v, m.target, {}, /*sync=*/false));
   WriteRequest w;
   w.kind = WriteRequest::Kind::kInstall;
   w.merge = &m;
@@ -187,8 +187,9 @@ Status DatasetImpl::Install(const Merge& m) {
   auto cur = Snapshot(m.frame);
   const FrameVersion& base = *m.base;
   // A bulk load may have replaced the trees since the snapshot: then the work is stale.
-  bool fresh = cur != nullptr && (m.to.slot >= cur->slots.size() || !cur->slots[m.to.slot].tree);
-  for (size_t j = m.to.from; fresh && j < m.to.to && j < base.slots.size(); ++j) {
+  const size_t slot = m.target.slot;
+  bool fresh = cur != nullptr && (slot >= cur->slots.size() || !cur->slots[slot].tree);
+  for (size_t j = m.target.from; fresh && j < m.target.to && j < base.slots.size(); ++j) {
     fresh = j < cur->slots.size() && cur->slots[j].tree == base.slots[j].tree;
   }
   if (!fresh) {
@@ -214,7 +215,7 @@ Status DatasetImpl::Install(const Merge& m) {
   });
   auto nv = std::make_shared<FrameVersion>(*cur);
   std::vector<std::shared_ptr<KdTree>> merged;
-  for (size_t j = m.to.from; j < m.to.to && j < base.slots.size(); ++j) {
+  for (size_t j = m.target.from; j < m.target.to && j < base.slots.size(); ++j) {
     const TreeSlot& was = base.slots[j];
     if (!was.tree) continue;
     // Deleted from the merged tree since the snapshot.
@@ -226,14 +227,14 @@ Status DatasetImpl::Install(const Merge& m) {
     merged.push_back(was.tree);
     nv->slots[j] = TreeSlot{};
   }
-  while (nv->slots.size() <= m.to.slot) nv->slots.emplace_back();
+  while (nv->slots.size() <= slot) nv->slots.emplace_back();
   std::sort(dead.begin(), dead.end());
   TreeSlot out;
   out.tree = m.tree;
   if (m.tree && !dead.empty()) {
     out.dead = std::make_shared<const std::vector<uint64_t>>(std::move(dead));
   }
-  nv->slots[m.to.slot] = std::move(out);
+  nv->slots[slot] = std::move(out);
   nv->t0 = cur->t0.Suffix(kept);
   {
     std::lock_guard<std::mutex> l(mu_);
