@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <atomic>
 #include <limits>
+#include <tuple>
 #include <thread>
 
 namespace hvdb::edit {
@@ -83,9 +84,8 @@ void MaxFlow::StartTrees(Search& s) {
       Push(a, b);
     }
   }
-  // Time stamps start afresh: ones left by an earlier search (another block's, or the last
-  // cut's) must not pass for this search's marks.
-  s.time = 1;
+  // Time stamps start afresh (s.time: 1, see Solve): ones left by an earlier search (another
+  // block's, or the last cut's) must not pass for this search's marks.
   for (uint32_t v = s.lo; v < s.hi; ++v) {
     Node& nd = node_[v];
     nd.active = 0;
@@ -102,30 +102,88 @@ void MaxFlow::StartTrees(Search& s) {
   }
 }
 
+void MaxFlow::ReuseTrees(Search& s, size_t threads) {
+  // The trees the searches of the blocks below left are trees of this search too (blocks share
+  // no node and no arc, and each ended with nothing left to grow inside it): only a tree node
+  // with a residual arc into this search's range that leads out of its own tree (necessarily
+  // across a block boundary) can still grow, so only those are active. Free nodes have no
+  // terminal residual (a search's invariant), so nothing else is a root. The scan reads every
+  // arc of the range: on all cores when the range is the whole graph (one search, nothing else
+  // running), then the nodes found are queued in order.
+  auto grows = [&](uint32_t v) {
+    const Node& nd = node_[v];
+    if (nd.parent == kFree) return false;
+    for (uint32_t a = start_[v]; a < start_[v + 1]; ++a) {
+      const uint32_t u = arc_[a].head;
+      if (!s.Has(u) || (nd.sink ? arc_[a].rrev : arc_[a].rcap) <= 0) continue;
+      if (node_[u].parent == kFree || node_[u].sink != nd.sink) return true;
+    }
+    return false;
+  };
+  const uint32_t len = s.hi - s.lo;
+  const size_t parts = len < (1u << 16) ? 1 : threads;
+  std::vector<std::vector<uint32_t>> found(parts);
+  auto scan = [&](size_t p) {
+    const uint32_t lo = s.lo + static_cast<uint32_t>(uint64_t{len} * p / parts);
+    const uint32_t hi = s.lo + static_cast<uint32_t>(uint64_t{len} * (p + 1) / parts);
+    for (uint32_t v = lo; v < hi; ++v) {
+      if (grows(v)) found[p].push_back(v);
+    }
+  };
+  std::vector<std::thread> pool;
+  for (size_t p = 1; p < parts; ++p) pool.emplace_back(scan, p);
+  scan(0);
+  for (auto& th : pool) th.join();
+  for (const auto& f : found) {
+    for (uint32_t v : f) Activate(s, v);
+  }
+}
+
 void MaxFlow::Solve() {
-  // The flow found so far is kept (a re-cut continues from it); the search trees are grown
-  // afresh. Reusing them too (Kolmogorov's "reuse trees") was measured slower for a re-cut:
-  // retrained colour models change every node's terminal links, so every node is revisited
-  // anyway, without the one-link pre-pass that cancels most of the change (issue 15's real
-  // scene: 2.6 s and 0.24 M augmentations against 0.53 s and 0.07 M).
+  // The flow found so far is kept (a re-cut continues from it); the first level's search
+  // trees are grown afresh, as terminals may have changed. Reusing the last cut's trees
+  // (Kolmogorov's "reuse trees") was measured slower for a re-cut: retrained colour models
+  // change every node's terminal links, so every node is revisited anyway, without the
+  // one-link pre-pass that cancels most of the change (issue 15's real scene: 2.6 s and
+  // 0.24 M augmentations against 0.53 s and 0.07 M).
   //
   // Blocks first (set_levels), on all cores: the graph cut numbers its nodes by place, so a block
   // of consecutive nodes is a compact piece of the scene, and most of the flow goes between
   // nearby nodes. Each block's max-flow with the arcs that leave it held at zero is a flow of
-  // the whole graph (blocks share no node and no arc), so the whole graph's search continues
-  // from it and only routes what must cross between blocks; a block's nodes and arcs also
-  // stay in the cache while it is solved.
+  // the whole graph (blocks share no node and no arc), so the coarser blocks and then the whole
+  // graph continue from it and only route what must cross between blocks; a block's nodes and
+  // arcs also stay in the cache while it is solved. A coarser level also keeps the finer one's
+  // search trees and starts from the nodes on block boundaries (ReuseTrees): growing the trees
+  // of the whole graph afresh was a serial pass over every arc, 190 ms of a re-cut on issue
+  // 15's real scene (1.2 M points) when nothing was left to route.
+  //
+  // Kolmogorov's time stamps need one clock for trees that outlive a search: blocks of a level
+  // run in parallel with clocks from the same start, and afterwards each block's stamps are
+  // shifted past the blocks before it, as if the blocks had run one after another.
   const uint32_t n = static_cast<uint32_t>(node_.size());
   const size_t threads = std::clamp<size_t>(std::thread::hardware_concurrency(), 1, 16);
-  for (const std::vector<uint32_t>& level : levels_) {
+  std::vector<std::vector<uint32_t>> levels = levels_;
+  levels.push_back({0});  // the whole graph
+  for (size_t l = 0; l < levels.size(); ++l) {
+    const std::vector<uint32_t>& level = levels[l];
+    // Trees are kept when each block is made of whole blocks of the level before (a tree
+    // reaching over a block's edge would be changed by two searches at once). A fresh start
+    // wipes every stamp (the levels cover every node); so does a clock near its end.
+    bool reuse = l > 0 && clock_ <= (1u << 30) &&
+                 std::includes(levels[l - 1].begin(), levels[l - 1].end(), level.begin(), level.end());
+
+    const uint32_t base = reuse ? clock_ + 1 : 1;
+    std::vector<uint32_t> ends(level.size(), base);
     std::atomic<size_t> next{0};
     std::atomic<uint64_t> augs{0};
+    auto block = [&](size_t b) { return std::make_pair(level[b], b + 1 < level.size() ? level[b + 1] : n); };
     auto work = [&] {
       Search s;
       for (size_t b; (b = next++) < level.size();) {
-        s.lo = level[b];
-        s.hi = b + 1 < level.size() ? level[b + 1] : n;
-        augs += Run(s);
+        std::tie(s.lo, s.hi) = block(b);
+        s.time = base;
+        augs += Run(s, reuse, level.size() == 1 ? threads : 1);
+        ends[b] = s.time;
       }
     };
     std::vector<std::thread> pool;
@@ -133,18 +191,36 @@ void MaxFlow::Solve() {
     work();
     for (auto& th : pool) th.join();
     augmentations_ += augs;
+    std::vector<uint32_t> shift(level.size(), 0);
+    for (size_t b = 1; b < level.size(); ++b) shift[b] = shift[b - 1] + (ends[b - 1] - base + 1);
+    clock_ = ends.back() + shift.back();
+    if (level.size() > 1) {
+      next = 0;
+      auto restamp = [&] {
+        for (size_t b; (b = next++) < level.size();) {
+          const auto [lo, hi] = block(b);
+          for (uint32_t v = lo; v < hi; ++v) {
+            if (node_[v].ts >= base) node_[v].ts += shift[b];
+          }
+        }
+      };
+      pool.clear();
+      for (size_t t = 1; t < std::min(threads, level.size()); ++t) pool.emplace_back(restamp);
+      restamp();
+      for (auto& th : pool) th.join();
     }
-  Search all;
-  all.lo = 0;
-  all.hi = n;
-  augmentations_ += Run(all);
+  }
 }
 
-uint64_t MaxFlow::Run(Search& s) {
+uint64_t MaxFlow::Run(Search& s, bool reuse, size_t threads) {
   uint64_t augmentations = 0;
   s.head = s.tail = kFree;
   s.orphans.clear();
-  StartTrees(s);
+  if (reuse) {
+    ReuseTrees(s, threads);
+  } else {
+    StartTrees(s);
+  }
   for (;;) {
     while (s.head != kFree && node_[s.head].parent == kFree) PopActive(s);  // freed while waiting
     if (s.head == kFree) break;

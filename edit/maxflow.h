@@ -45,7 +45,8 @@ class MaxFlow {
   // each level (below) on all cores, then over the whole graph.
   void Solve();
   // Levels of blocks of consecutive nodes, finest first, each given as the sorted first nodes
-  // of its blocks (the first 0). None by default: the whole graph at once.
+  // of its blocks (the first 0). None by default: the whole graph at once. A level whose blocks
+  // are unions of the finer level's blocks continues from that level's search trees.
   void set_levels(std::vector<std::vector<uint32_t>> levels) { levels_ = std::move(levels); }
   // After Solve: whether v is on the source side of the minimum cut.
   bool SourceSide(uint32_t v) const { return node_[v].parent != kFree && !node_[v].sink; }
@@ -79,13 +80,17 @@ class MaxFlow {
     uint32_t time = 0;
     bool Has(uint32_t v) const { return v - lo < hi - lo; }
   };
-  uint64_t Run(Search& s);  // max-flow within s; returns the augmentations
+  // Max-flow within s, its clock starting at s.time; returns the augmentations. reuse: keep the
+  // search trees that searches of smaller blocks inside s left (ReuseTrees, on `threads`
+  // threads), else StartTrees.
+  uint64_t Run(Search& s, bool reuse, size_t threads);
   void Activate(Search& s, uint32_t v);
   void PopActive(Search& s);
   void Augment(Search& s, uint32_t mid);  // mid: an arc from the source tree into the sink tree
   void Adopt(Search& s, uint32_t v);
   void Orphan(Search& s, uint32_t v, bool front);
   void StartTrees(Search& s);  // a one-link pre-pass, then every node with a terminal residual a root
+  void ReuseTrees(Search& s, size_t threads);  // activates the tree nodes that can grow across block boundaries
 
   // Arcs and nodes as structs: the search touches all fields of one at once (a cache line
   // instead of three to six).
@@ -110,6 +115,7 @@ class MaxFlow {
   std::vector<float> to_src_, to_snk_;  // the capacities SetTerminals was given
   std::vector<std::vector<uint32_t>> levels_;
   uint64_t augmentations_ = 0;
+  uint32_t clock_ = 0;  // the last time stamp given (Solve)
 };
 
 }  // namespace hvdb::edit

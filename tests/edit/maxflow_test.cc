@@ -171,5 +171,37 @@ TEST(MaxFlowTest, BlocksThenWholeGraphIsMinimum) {
   }
 }
 
+// Coarser levels continue from the finer levels' search trees (ReuseTrees) with one clock
+// across blocks that ran in parallel: still the minimum, with consistent trees, over many
+// re-cuts that change every terminal (as a retrained colour model does), on uneven blocks.
+TEST(MaxFlowTest, CoarserLevelsKeepTheFinerTreesOverManyReCuts) {
+  std::mt19937 rng(20261203);
+  std::uniform_int_distribution<int> term(0, 12);
+  for (int round = 0; round < 16; ++round) {
+    Graph g = RandomGraph(rng, 40 + round % 7, 24 + round % 4);
+    const uint32_t n = static_cast<uint32_t>(g.n);
+    auto f = Make(g);
+    // Nested levels, or (odd rounds) a last level whose edge at n / 2 cuts a block of the
+    // level before: that one starts its trees afresh.
+    if (round % 2 == 0) {
+      f->set_levels({{0, 3, n / 5, n / 4, n / 2, n / 2 + 1, 3 * n / 4}, {0, n / 4, n / 2}, {0, n / 2}});
+    } else {
+      f->set_levels({{0, 3, n / 5, n / 4, n / 2, n / 2 + 1, 3 * n / 4}, {0, n / 4, 3 * n / 4}, {0, n / 2}});
+    }
+    for (int step = 0; step < 4; ++step) {
+      for (size_t v = 0; v < g.n; ++v) {
+        if (step > 0 && (v + step) % 2 == 0) {
+          g.src[v] = static_cast<float>(term(rng));
+          g.snk[v] = static_cast<float>(term(rng));
+        }
+        f->SetTerminals(static_cast<uint32_t>(v), g.src[v], g.snk[v]);
+      }
+      f->Solve();
+      ASSERT_EQ(f->CheckTrees(), "") << "round " << round << " step " << step;
+      EXPECT_DOUBLE_EQ(CutCost(g, Sides(*f, g.n)), Oracle(g)) << "round " << round << " step " << step;
+    }
+  }
+}
+
 }  // namespace
 }  // namespace hvdb::edit
