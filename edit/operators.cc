@@ -246,6 +246,24 @@ uint64_t Bits(T v) {
   return b;
 }
 
+// Every parameter the graph and the cut depend on.
+std::array<double, 12> ParamValues(const GraphCutParams& g) {
+  return {double(g.k), g.intra_radius, g.inter_radius, g.max_color_diff, g.max_normal_diff,
+          double(g.gmm_components), g.beta_c, g.beta_n, g.lambda_d, g.lambda_i, g.lambda_t,
+          double(g.use_normals)};
+}
+
+bool SameWindow(const Window& a, const Window& b) { return a.lo == b.lo && a.hi == b.hi; }
+
+bool SameRegion(const Region& a, const Region& b) {
+  if (a.index() != b.index()) return false;
+  if (const auto* w = std::get_if<Window>(&a)) return SameWindow(*w, std::get<Window>(b));
+  const Slice &x = std::get<Slice>(a), &y = std::get<Slice>(b);
+  return x.normal == y.normal && x.offset == y.offset && x.thickness == y.thickness &&
+         x.clip.has_value() == y.clip.has_value() && (!x.clip || SameWindow(*x.clip, *y.clip)) &&
+         x.on_too_many_frames == y.on_too_many_frames && x.max_frames == y.max_frames;
+}
+
 // Of everything the graph depends on: each point's id, frame, position, colour and normal (not
 // its label: strokes and selections change labels), in any order, and the parameters. Two
 // independent sums of per-point hashes, so that a collision needs both to collide.
@@ -261,9 +279,7 @@ std::array<uint64_t, 2> Fingerprint(const std::vector<Point>& pts, const GraphCu
     f[0] += h;
     f[1] += Mix(h ^ 0x5851f42d4c957f2dULL);
   }
-  for (double v : {double(g.k), g.intra_radius, g.inter_radius, g.max_color_diff,
-                   g.max_normal_diff, double(g.gmm_components), g.beta_c, g.beta_n, g.lambda_d,
-                   g.lambda_i, g.lambda_t, double(g.use_normals)}) {
+  for (double v : ParamValues(g)) {
     f[0] = Mix(f[0] ^ Bits(v));
     f[1] = Mix(f[1] + Bits(v));
   }
@@ -271,6 +287,87 @@ std::array<uint64_t, 2> Fingerprint(const std::vector<Point>& pts, const GraphCu
 }
 
 }  // namespace
+
+void GraphCutCache::Watch(Dataset& ds) {
+  if (watched_ == &ds && watch_ && !watch_->ended()) return;
+  watch_.reset();
+  watched_ = nullptr;
+  {
+    // A new subscription (another dataset, or this one dropped and made again at the same
+    // address) makes every graph read before it stale.
+    std::lock_guard<std::mutex> l(ev_mu_);
+    ++seen_.content;
+  }
+  auto w = ds.Watch(std::nullopt, [this](const ChangeEvent& ev) {
+    if (ev.kind == ChangeEvent::Kind::kLive) return;
+    std::lock_guard<std::mutex> l(ev_mu_);
+    seen_.lsn = std::max(seen_.lsn, ev.lsn);
+    if (ev.kind == ChangeEvent::Kind::kDropped || !ev.labels_only) {
+      ++seen_.content;
+      return;
+    }
+    for (int b = 0; b < 32; ++b) seen_.bits[b] += (ev.label_bits >> b) & 1;
+  });
+  if (!w.ok()) return;  // not watched: every cut reads the whole region
+  watch_ = std::move(w).value();
+  watched_ = &ds;
+  // Changes before the subscription are in what a read from now on sees; ones published after
+  // it are counted (a change published late counts too, making a graph stale needlessly but
+  // never wrongly).
+  const uint64_t lsn = ds.Info().last_lsn;
+  std::lock_guard<std::mutex> l(ev_mu_);
+  seen_.lsn = std::max(seen_.lsn, lsn);
+}
+
+uint32_t GraphCutCache::Find(uint64_t id) const {
+  if (!dense_.empty()) {
+    const uint64_t off = id - dense_base_;
+    return id >= dense_base_ && off < dense_.size() ? dense_[off] : UINT32_MAX;
+  }
+  auto it = std::lower_bound(nodes_.begin(), nodes_.end(), std::make_pair(id, uint32_t{0}));
+  return it != nodes_.end() && it->first == id ? it->second : UINT32_MAX;
+}
+
+Status GraphCutCache::Prepare(Dataset& ds, const GraphCutRequest& req,
+                              const std::vector<Point>& pts, const Seen& seen0) {
+  // Node i of the cached graph is the point of id nodes_[..].first; the query's order
+  // differs from the last one's (a relabelled point moves within its frame's trees).
+  const auto fp = Fingerprint(pts, req.params);
+  bool hit = graph_ && fp == fingerprint_ && graph_->size() == pts.size();
+  for (size_t i = 0; i < pts.size() && hit; ++i) hit = Find(pts[i].id) != UINT32_MAX;
+  if (!hit) {
+    graph_.reset();
+    nodes_.clear();
+    dense_.clear();
+    keys_.clear();
+    has_out_.clear();
+    out_count_ = content_ = kStale;
+    if (pts.size() > max_points_) return Status::OK();  // too large to keep: cut without
+    HVDB_ASSIGN_OR_RETURN(graph_, GraphCut::Build(pts, req.params));
+    fingerprint_ = fp;
+    nodes_.reserve(pts.size());
+    keys_.resize(pts.size());
+    for (size_t i = 0; i < pts.size(); ++i) {
+      nodes_.emplace_back(pts[i].id, static_cast<uint32_t>(i));
+      keys_[i] = {pts[i].frame, pts[i].id};
+    }
+    std::sort(nodes_.begin(), nodes_.end());
+    if (!pts.empty()) {
+      const uint64_t lo = nodes_.front().first, hi = nodes_.back().first;
+      if (hi - lo < 4 * uint64_t{pts.size()}) {
+        dense_base_ = lo;
+        dense_.assign(hi - lo + 1, UINT32_MAX);
+        for (const auto& [id, v] : nodes_) dense_[id - lo] = v;
+      }
+    }
+  }
+  ds_ = &ds;
+  roi_ = req.roi;
+  params_ = req.params;
+  // Valid for label-only re-cuts only if nothing but labels changed while the points were read.
+  content_ = seen().content == seen0.content ? seen0.content : kStale;
+  return Status::OK();
+}
 
 Result<GraphCutReply> GraphCutSelect(Dataset& ds, const GraphCutRequest& req,
                                      GraphCutCache* cache) {
@@ -285,98 +382,124 @@ Result<GraphCutReply> GraphCutSelect(Dataset& ds, const GraphCutRequest& req,
   using Clock = std::chrono::steady_clock;
   auto t0 = Clock::now();
   GraphCutReply reply;
-  std::vector<Point> pts;
-  std::vector<Seed> seeds;
   const uint32_t fmask = 1u << req.foreground_bit, bmask = 1u << req.background_bit;
-  // Reserved for all the frames' points at once (up to 4 Mi points: the bound counts whole
-  // frames, however small the region): growing a million-point vector by doubling copied and
-  // first-touched twice its size.
-  HVDB_RETURN_IF_ERROR(ForEach(ds, req.roi, 0, [&](const Point& p) {
-    pts.push_back(p);
-    seeds.push_back((p.label & fmask) ? Seed::kForeground
-                    : (p.label & bmask) ? Seed::kBackground
-                                        : Seed::kUnknown);
-  }, nullptr, [&](uint64_t bound) {
-    const auto n = static_cast<size_t>(std::min<uint64_t>(bound, uint64_t{4} << 20));
-    pts.reserve(n);
-    seeds.reserve(n);
-  }));
-  reply.roi_points = pts.size();
-  reply.load_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+  const uint32_t omask = 1u << req.out_bit;
+  auto seed_of = [&](uint32_t label) {
+    return (label & fmask) ? Seed::kForeground : (label & bmask) ? Seed::kBackground : Seed::kUnknown;
+  };
+  // What the cut runs on, indexed alike (by node of the cached graph, or in the query's order):
+  // each point's seed, whether it carries the output bit now, and its key.
+  std::vector<Seed> seeds;
+  std::vector<uint8_t> had_out;
+  std::vector<Key> keys;
   GraphCutResult cut;
-  if (cache == nullptr) {
-    HVDB_ASSIGN_OR_RETURN(cut, RunGraphCut(pts, seeds, req.params));
-  } else {
-    std::lock_guard<std::mutex> l(cache->mu_);
-    const auto fp = Fingerprint(pts, req.params);
-    // Node i of the cached graph is the point of id nodes_[..].first; the query's order
-    // differs from the last one's (a relabelled point moves within its frame's trees).
-    std::vector<uint32_t> node(pts.size());
-    bool hit = cache->graph_ && fp == cache->fingerprint_ && cache->graph_->size() == pts.size();
-    const std::vector<uint32_t>& dense = cache->dense_;
-    for (size_t i = 0; i < pts.size() && hit; ++i) {
-      const uint64_t off = pts[i].id - cache->dense_base_;
-      if (!dense.empty()) {
-        hit = pts[i].id >= cache->dense_base_ && off < dense.size() && dense[off] != UINT32_MAX;
-        if (hit) node[i] = dense[off];
-        continue;
-      }
-      auto it = std::lower_bound(cache->nodes_.begin(), cache->nodes_.end(),
-                                 std::make_pair(pts[i].id, uint32_t{0}));
-      hit = it != cache->nodes_.end() && it->first == pts[i].id;
-      if (hit) node[i] = it->second;
+  std::unique_lock<std::mutex> lock;
+  GraphCutCache::Seen seen0;
+  bool quick = false;  // a re-cut that read labels only
+  if (cache != nullptr) {
+    lock = std::unique_lock<std::mutex>(cache->mu_);
+    cache->Watch(ds);
+    seen0 = cache->seen();
+    quick = cache->graph_ && cache->ds_ == &ds && cache->content_ != GraphCutCache::kStale &&
+            seen0.content == cache->content_ && SameRegion(cache->roi_, req.roi) &&
+            ParamValues(cache->params_) == ParamValues(req.params) &&
+            ds.Info().last_lsn == seen0.lsn;
+  }
+  if (quick) {
+    // Only labels changed since the graph was read: the seeds come from the points carrying a
+    // stroke bit, the output bit from the last cut's commit (or the points carrying it).
+    const size_t n = cache->graph_->size();
+    auto node_of = [&](const Point& p, uint32_t* node) {
+      *node = cache->Find(p.id);
+      return *node < n && cache->keys_[*node] == Key{p.frame, p.id};
+    };
+    seeds.assign(n, Seed::kUnknown);
+    bool known = true;  // every point read is a node (else: read the region after all)
+    HVDB_RETURN_IF_ERROR(ForEach(ds, req.roi, fmask | bmask, [&](const Point& p) {
+      uint32_t v;
+      if (!node_of(p, &v)) known = false; else seeds[v] = seed_of(p.label);
+    }));
+    if (req.out_bit == cache->out_bit_ && seen0.bits[req.out_bit] == cache->out_count_) {
+      had_out = cache->has_out_;
+    } else if (known) {
+      had_out.assign(n, 0);
+      HVDB_RETURN_IF_ERROR(ForEach(ds, req.roi, omask, [&](const Point& p) {
+        uint32_t v;
+        if (!node_of(p, &v)) known = false; else had_out[v] = 1;
+      }));
     }
-    if (!hit) {
-      cache->graph_.reset();
-      cache->nodes_.clear();
-      cache->dense_.clear();
-      if (pts.size() <= cache->max_points_) {
-        HVDB_ASSIGN_OR_RETURN(cache->graph_, GraphCut::Build(pts, req.params));
-        cache->fingerprint_ = fp;
-        cache->nodes_.reserve(pts.size());
-        for (size_t i = 0; i < pts.size(); ++i) {
-          cache->nodes_.emplace_back(pts[i].id, static_cast<uint32_t>(i));
-          node[i] = static_cast<uint32_t>(i);
-        }
-        std::sort(cache->nodes_.begin(), cache->nodes_.end());
-        if (!pts.empty()) {
-          const uint64_t lo = cache->nodes_.front().first, hi = cache->nodes_.back().first;
-          if (hi - lo < 4 * uint64_t{pts.size()}) {
-            cache->dense_base_ = lo;
-            cache->dense_.assign(hi - lo + 1, UINT32_MAX);
-            for (const auto& [id, n] : cache->nodes_) cache->dense_[id - lo] = n;
-          }
-        }
-      }
-    }
-    if (cache->graph_) {
-      std::vector<Seed> by_node(pts.size());
-      for (size_t i = 0; i < pts.size(); ++i) by_node[node[i]] = seeds[i];
-      HVDB_ASSIGN_OR_RETURN(cut, cache->graph_->Cut(by_node));
-      std::vector<uint8_t> sel(pts.size());
-      for (size_t i = 0; i < pts.size(); ++i) sel[i] = cut.selected[node[i]];
-      cut.selected = std::move(sel);
+    if (known) {
+      reply.roi_points = n;
+      reply.labels_only = true;
+      reply.load_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+      HVDB_ASSIGN_OR_RETURN(cut, cache->graph_->Cut(seeds));
     } else {
-      HVDB_ASSIGN_OR_RETURN(cut, RunGraphCut(pts, seeds, req.params));  // too large to keep
+      quick = false;
+      seeds.clear();
+      had_out.clear();
+      t0 = Clock::now();
     }
   }
+  if (!quick) {
+    std::vector<Point> pts;
+    // Reserved for all the frames' points at once (up to 4 Mi points: the bound counts whole
+    // frames, however small the region): growing a million-point vector by doubling copied and
+    // first-touched twice its size.
+    HVDB_RETURN_IF_ERROR(ForEach(ds, req.roi, 0, [&](const Point& p) {
+      pts.push_back(p);
+      seeds.push_back(seed_of(p.label));
+    }, nullptr, [&](uint64_t bound) {
+      const auto n = static_cast<size_t>(std::min<uint64_t>(bound, uint64_t{4} << 20));
+      pts.reserve(n);
+      seeds.reserve(n);
+    }));
+    reply.roi_points = pts.size();
+    reply.load_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+    if (cache != nullptr) HVDB_RETURN_IF_ERROR(cache->Prepare(ds, req, pts, seen0));
+    const bool by_node = cache != nullptr && cache->graph_;
+    const size_t n = pts.size();
+    had_out.assign(n, 0);
+    keys.resize(n);
+    std::vector<Seed> node_seeds(by_node ? n : 0);
+    for (size_t i = 0; i < n; ++i) {
+      const size_t v = by_node ? cache->Find(pts[i].id) : i;
+      had_out[v] = (pts[i].label & omask) != 0;
+      keys[v] = {pts[i].frame, pts[i].id};
+      if (by_node) node_seeds[v] = seeds[i];
+    }
+    if (by_node) {
+      HVDB_ASSIGN_OR_RETURN(cut, cache->graph_->Cut(node_seeds));
+    } else {
+      HVDB_ASSIGN_OR_RETURN(cut, RunGraphCut(pts, seeds, req.params));  // no cache, or too large
+    }
+  }
+  const std::vector<Key>& key_of = quick ? cache->keys_ : keys;
   t0 = Clock::now();
-  const uint32_t omask = 1u << req.out_bit;
   std::vector<Key> to_set, to_clear;  // a query's points are distinct: no set needed
-  for (size_t i = 0; i < pts.size(); ++i) {
-    bool has = pts[i].label & omask;
-    if (cut.selected[i] && !has) to_set.push_back({pts[i].frame, pts[i].id});
-    if (!cut.selected[i] && has) to_clear.push_back({pts[i].frame, pts[i].id});
+  for (size_t i = 0; i < cut.selected.size(); ++i) {
+    if (cut.selected[i] && !had_out[i]) to_set.push_back(key_of[i]);
+    if (!cut.selected[i] && had_out[i]) to_clear.push_back(key_of[i]);
     reply.selected += cut.selected[i];
   }
+  bool committed = false;
   if (!to_set.empty() || !to_clear.empty()) {
     Transaction t;
     if (!to_clear.empty()) t.SetLabel(Explicit(to_clear), omask, false);
     if (!to_set.empty()) t.SetLabel(Explicit(to_set), omask, true);
     HVDB_ASSIGN_OR_RETURN(CommitInfo info, ds.Commit(t));
     reply.lsn = info.lsn;
+    committed = true;
   }
   reply.commit_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+  if (cache != nullptr && cache->graph_) {
+    // The output bit as this commit left it, unless some other change flipped that bit since
+    // the labels were read (the commit's own event is published before Commit returns).
+    cache->out_bit_ = req.out_bit;
+    cache->out_count_ = cache->seen().bits[req.out_bit] == seen0.bits[req.out_bit] + committed
+                            ? seen0.bits[req.out_bit] + committed
+                            : GraphCutCache::kStale;
+    cache->has_out_ = cut.selected;
+  }
   cut.selected.clear();
   reply.cut = std::move(cut);
   return reply;

@@ -79,6 +79,7 @@ struct GraphCutReply {
   uint64_t roi_points = 0, selected = 0, lsn = 0;
   GraphCutResult cut;  // energy, edge counts and timings (selected[] cleared; cut.warm: a re-cut)
   double load_ms = 0, commit_ms = 0;
+  bool labels_only = false;  // a re-cut that read only the labelled points (GraphCutCache)
 };
 
 // The last cut's graph and flow (graph_cut.h's GraphCut), kept between requests: a cut over
@@ -86,12 +87,36 @@ struct GraphCutReply {
 // last selection change them) is a re-cut that starts from the last flow. One entry, for
 // regions of at most max_points points (the graph holds ~250 bytes a point); cuts through it
 // are serialised.
+//
+// The cache watches the dataset of its graph (Dataset::Watch): while every change since the
+// graph was read only flipped labels (ChangeEvent::labels_only), a re-cut of the same region
+// with the same parameters reads only the points carrying a stroke bit (a label-masked query,
+// which skips buckets without them) instead of the whole region, and knows which points carry
+// the output bit from its own last commit unless a change since flipped that bit.
 class GraphCutCache {
  public:
   explicit GraphCutCache(size_t max_points = size_t{2} << 20) : max_points_(max_points) {}
 
  private:
   friend Result<GraphCutReply> GraphCutSelect(Dataset&, const GraphCutRequest&, GraphCutCache*);
+  // What the watch has seen of the graph's dataset (ev_mu_: the watch's callback takes only
+  // this lock, never mu_, so a commit made while a cut holds mu_ does not wait for the cut).
+  struct Seen {
+    uint64_t content = 0;             // changes that were not labels only (and drops)
+    std::array<uint64_t, 32> bits{};  // changes that flipped each label bit
+    uint64_t lsn = 0;                 // the highest LSN seen (or read at subscription)
+  };
+  Seen seen() {
+    std::lock_guard<std::mutex> l(ev_mu_);
+    return seen_;
+  }
+  void Watch(Dataset& ds);  // (re)subscribes to ds unless watching it already
+  uint32_t Find(uint64_t id) const;  // the node of point `id`, UINT32_MAX if none
+  // After a read of the whole region (its points `pts`): keeps the graph if those are its
+  // points, else builds it (none above max_points_); notes what the graph was read from.
+  Status Prepare(Dataset& ds, const GraphCutRequest& req, const std::vector<Point>& pts,
+                 const Seen& seen0);
+
   std::mutex mu_;
   size_t max_points_;
   std::array<uint64_t, 2> fingerprint_{};  // of the points (not labels) and the parameters
@@ -101,6 +126,22 @@ class GraphCutCache {
   uint64_t dense_base_ = 0;
   std::vector<uint32_t> dense_;
   std::unique_ptr<GraphCut> graph_;
+  // For re-cuts that read only labels: the graph's dataset, region and parameters, each node's
+  // point (frame, id), Seen::content when its points were read (kStale: unknown), and which
+  // nodes carried out_bit_ after the last cut (valid while Seen::bits[out_bit_] == out_count_).
+  static constexpr uint64_t kStale = ~uint64_t{0};
+  const Dataset* ds_ = nullptr;
+  Region roi_;
+  GraphCutParams params_;
+  std::vector<std::pair<uint32_t, uint64_t>> keys_;  // (frame, id)
+  uint64_t content_ = kStale;
+  int out_bit_ = -1;
+  uint64_t out_count_ = kStale;
+  std::vector<uint8_t> has_out_;
+  std::mutex ev_mu_;
+  Seen seen_;
+  std::unique_ptr<WatchHandle> watch_;
+  const Dataset* watched_ = nullptr;
 };
 
 // With a cache, a cut over the same points as the cached one is a re-cut.

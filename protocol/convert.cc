@@ -189,6 +189,7 @@ void ToWire(const edit::GraphCutReply& r, wire::GraphCutReply* out) {
   out->set_maxflow_ms(r.cut.maxflow_ms);
   out->set_commit_ms(r.commit_ms);
   out->set_recut(r.cut.warm);
+  out->set_labels_only(r.labels_only);
 }
 
 edit::GraphCutReply FromWire(const wire::GraphCutReply& r) {
@@ -204,6 +205,7 @@ edit::GraphCutReply FromWire(const wire::GraphCutReply& r) {
   out.cut.graph_ms = r.graph_ms();
   out.cut.maxflow_ms = r.maxflow_ms();
   out.cut.warm = r.recut();
+  out.labels_only = r.labels_only();
   out.load_ms = r.load_ms();
   out.commit_ms = r.commit_ms();
   return out;

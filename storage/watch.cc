@@ -25,7 +25,10 @@ ChangeEvent EventOfRecord(const std::string& dataset, const TxnRecord& rec) {
   ev.kind = rec.bulk ? ChangeEvent::Kind::kBulk
                      : rec.reverts ? ChangeEvent::Kind::kRevert : ChangeEvent::Kind::kCommit;
   ev.reverts = rec.reverts;
+  ev.labels_only = !rec.bulk && !rec.frames.empty();
   for (const FrameEffect& f : rec.frames) {
+    ev.labels_only = ev.labels_only && !f.relabels.empty();
+    for (const Relabel& r : f.relabels) ev.label_bits |= r.flip;
     ev.frames.push_back(f.frame);
     ev.points += EffectAdded(f);
     ev.removed += EffectRemoved(f);

@@ -35,6 +35,11 @@ struct ChangeEvent {
   uint64_t points = 0;           // points added
   uint64_t removed = 0;          // points removed
   uint64_t reverts = 0;          // kRevert: the transaction undone
+  // A commit or revert that only flipped label bits (every step a relabel): no point was added,
+  // removed or moved, so what depends on the points but not on their labels (a graph cut's
+  // graph) still holds. label_bits: the bits it flipped (of relabel steps; 0 otherwise).
+  bool labels_only = false;
+  uint32_t label_bits = 0;
   // Read from the log by a watch that resumed from an LSN, on the thread that asked for the
   // watch and outside every lock: the only events a subscriber may wait on (to pace a replay).
   bool replayed = false;

@@ -201,6 +201,7 @@ int CmdGraphCut(Context& ctx, const GraphCutArgs& a) {
                 {"intra_edges", c.intra_edges},
                 {"inter_edges", c.inter_edges},
                 {"recut", c.warm},
+                {"labels_only", r->labels_only},
                 {"timings_ms",
                  {{"load", r->load_ms},
                   {"neighbours", c.neighbours_ms},

@@ -309,6 +309,7 @@ TEST_F(OperatorsTest, CutAgainAfterAnotherStrokeReusesTheGraph) {
   auto again = GraphCutSelect(*ds_, gc, &cache);
   ASSERT_TRUE(again.ok()) << again.status().ToString();
   EXPECT_TRUE(again->cut.warm);
+  EXPECT_TRUE(again->labels_only);  // only a stroke (labels) changed since the first cut
   EXPECT_EQ(again->cut.neighbours_ms, 0);
   const auto warm = WithBit(ReadAll(*ds_), 0);
   // From scratch, on the same labels.
@@ -329,6 +330,69 @@ TEST_F(OperatorsTest, CutAgainAfterAnotherStrokeReusesTheGraph) {
   auto moved = GraphCutSelect(*ds_, gc, &cache);
   ASSERT_TRUE(moved.ok());
   EXPECT_FALSE(moved->cut.warm);
+  EXPECT_FALSE(moved->labels_only);
+}
+
+// A re-cut that reads only labels still leaves exactly a cut's selection in the output bit when
+// other edits flipped that bit since the last cut, and reads the whole region again once a
+// change was not labels only (an undone transform: the same points, but not only labels).
+TEST_F(OperatorsTest, AReCutReadingLabelsOnlyStillSeesOtherEdits) {
+  PaintStrokes();
+  if (HasFatalFailure()) return;
+  const GraphCutRequest gc = SphereCut();
+  GraphCutCache cache;
+  auto first = GraphCutSelect(*ds_, gc, &cache);
+  ASSERT_TRUE(first.ok()) << first.status().ToString();
+  EXPECT_FALSE(first->labels_only);
+  const auto cut = WithBit(ReadAll(*ds_), 0);
+  ASSERT_FALSE(cut.empty());
+  // Another edit clears the output bit on part of the selection and sets it on the floor.
+  SelectRequest other;
+  other.bit = 0;
+  other.mode = SelectMode::kSubtract;
+  Window half = Everything();
+  half.hi[0] = 0.5;
+  other.region = half;
+  ASSERT_TRUE(Select(*ds_, other).ok());
+  other.mode = SelectMode::kAdd;
+  Window corner = Everything();
+  corner.lo = {0.8, 0.8, -1, 0};
+  corner.hi = {1.0, 1.0, 0.001, 10};
+  other.region = corner;
+  ASSERT_TRUE(Select(*ds_, other).ok());
+  ASSERT_NE(WithBit(ReadAll(*ds_), 0), cut);
+  auto again = GraphCutSelect(*ds_, gc, &cache);
+  ASSERT_TRUE(again.ok()) << again.status().ToString();
+  EXPECT_TRUE(again->labels_only);
+  EXPECT_NE(again->lsn, 0u);
+  EXPECT_EQ(WithBit(ReadAll(*ds_), 0), cut);
+  // Nothing changed since: labels only, nothing to commit.
+  auto same = GraphCutSelect(*ds_, gc, &cache);
+  ASSERT_TRUE(same.ok());
+  EXPECT_TRUE(same->labels_only);
+  EXPECT_EQ(same->lsn, 0u);
+  // A transform and its undo: the points are the same again, but the change was not labels
+  // only, so the region is read whole (and the graph, the same points, reused).
+  Transaction t;
+  Selection one;
+  one.ids = {*cut.begin()};
+  Affine4 up;
+  up.c = {0, 0, 0.001, 0};
+  t.Transform(one, up);
+  auto moved = ds_->Commit(t);
+  ASSERT_TRUE(moved.ok());
+  ASSERT_TRUE(ds_->Revert(moved->lsn).ok());
+  auto reread = GraphCutSelect(*ds_, gc, &cache);
+  ASSERT_TRUE(reread.ok());
+  EXPECT_FALSE(reread->labels_only);
+  EXPECT_TRUE(reread->cut.warm);
+  EXPECT_EQ(WithBit(ReadAll(*ds_), 0), cut);
+  // Another region: read whole.
+  GraphCutRequest part = gc;
+  std::get<Window>(part.roi).hi[0] = 0.9;
+  auto other_roi = GraphCutSelect(*ds_, part, &cache);
+  ASSERT_TRUE(other_roi.ok());
+  EXPECT_FALSE(other_roi->labels_only);
 }
 
 TEST_F(OperatorsTest, CutPasteAndRedo) {

@@ -122,6 +122,14 @@ TEST_F(WatchTest, EventsSayWhatEachChangeDidInOrder) {
   EXPECT_EQ(ev[3].reverts, l->lsn);
   EXPECT_EQ(ev[3].removed, ev[2].points);
   for (const auto& e : ev) EXPECT_EQ(e.dataset, "video");
+  // Which changes only flipped labels (a graph cut's cache keeps its graph through those).
+  EXPECT_FALSE(ev[0].labels_only);
+  EXPECT_FALSE(ev[1].labels_only);
+  EXPECT_EQ(ev[1].label_bits, 0u);
+  EXPECT_TRUE(ev[2].labels_only);
+  EXPECT_EQ(ev[2].label_bits, 1u);
+  EXPECT_TRUE(ev[3].labels_only);
+  EXPECT_EQ(ev[3].label_bits, 1u);
   EXPECT_STREQ(ChangeKindName(ev[0].kind), "bulk");
   EXPECT_EQ(ds_->Info().last_lsn, r->lsn);
 }
