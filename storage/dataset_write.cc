@@ -35,12 +35,44 @@ Status ValidatePoint(const Point& p) {
   return Status::OK();
 }
 
+// The ids a selection names in one frame, tested once for every record of the frame: a bitmap
+// over their range when they are that dense (ids are given out in sequence, so a frame's are
+// mostly one run), else a sorted array. A hash set cost ~40 ns a record, most of a graph cut's
+// commit of 0.37 M relabels over a 1.2 M-point region.
+class IdSet {
+ public:
+  explicit IdSet(std::vector<uint64_t> ids) : ids_(std::move(ids)) {
+    std::sort(ids_.begin(), ids_.end());
+    ids_.erase(std::unique(ids_.begin(), ids_.end()), ids_.end());
+    if (ids_.empty()) return;
+    lo_ = ids_.front();
+    const uint64_t span = ids_.back() - lo_ + 1;
+    if (span / 64 <= ids_.size() + 1024) {
+      bits_.assign(span / 64 + 1, 0);
+      for (uint64_t id : ids_) bits_[(id - lo_) >> 6] |= uint64_t{1} << ((id - lo_) & 63);
+    }
+  }
+  size_t size() const { return ids_.size(); }
+  bool count(uint64_t id) const {
+    if (!bits_.empty()) {
+      const uint64_t off = id - lo_;  // wraps for ids below lo_: then out of range
+      return (off >> 6) < bits_.size() && ((bits_[off >> 6] >> (off & 63)) & 1);
+    }
+    return std::binary_search(ids_.begin(), ids_.end(), id);
+  }
+
+ private:
+  std::vector<uint64_t> ids_;
+  uint64_t lo_ = 0;
+  std::vector<uint64_t> bits_;
+};
+
 // Calls fn(point, where) for every live point of `v` in the region (nullptr: all),
 // label-filtered; `where` is -1 for T0, else the point's tree slot. With `ids`, only points of
 // those ids (checked before a record is decoded).
 Status ScanVersion(const FrameVersion& v, const RegionPlan* plan, uint32_t label_mask,
                    const std::function<void(const Point&, int32_t)>& fn,
-                   const std::unordered_set<uint64_t>* ids = nullptr) {
+                   const IdSet* ids = nullptr) {
   auto accept = [&](const Point& p) {
     if (label_mask != 0 && (p.label & label_mask) == 0) return false;
     if (ids != nullptr && !ids->count(p.id)) return false;
@@ -283,12 +315,11 @@ Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
         HVDB_RETURN_IF_ERROR(ScanVersion(*v, nullptr, sel.label_mask, add));
       }
     }
-    std::map<uint32_t, std::unordered_set<uint64_t>> wanted;
-    for (auto [f, id] : sel.ids) wanted[f].insert(id);
-    for (const auto& entry : wanted) {
-      const uint32_t f = entry.first;
-      const std::unordered_set<uint64_t>& ids = entry.second;  // (clang 14: no lambda capture
-                                                                 // of structured bindings)
+    std::map<uint32_t, std::vector<uint64_t>> wanted;
+    for (auto [f, id] : sel.ids) wanted[f].push_back(id);
+    for (auto& entry : wanted) {
+      const uint32_t f = entry.first;  // (clang 14: no lambda capture of structured bindings)
+      const IdSet ids(std::move(entry.second));
       auto v = ws->Get(f);
       if (!v) return Status::NotFound("frame " + std::to_string(f) + " has no points");
       out.by_frame[f].reserve(out.by_frame[f].size() + ids.size());
