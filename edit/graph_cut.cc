@@ -322,17 +322,22 @@ Result<std::unique_ptr<GraphCut>> GraphCut::Build(const std::vector<Point>& poin
   res.beta_c = beta_c;
   res.beta_n = beta_n;
   std::vector<float> weight(arcs.size());
+  const double inv_c = 1 / (2 * beta_c * beta_c), inv_n = 1 / (2 * beta_n * beta_n);
   ParallelFor(arcs.size(), [&](size_t lo, size_t hi) {
     for (size_t x = lo; x < hi; ++x) {
       const Arc& a = arcs[x];
-      double dc = ColorDiff(attr[a.a], attr[a.b]);
-      double s = std::exp(-dc * dc / (2 * beta_c * beta_c));
+      const double dc = ColorDiff(attr[a.a], attr[a.b]);
+      double s;
       if (attr[a.a].has_normal && attr[a.b].has_normal) {
-        double dn = NormalDiff(attr[a.a], attr[a.b]);
+        const double dn = NormalDiff(attr[a.a], attr[a.b]);
         // Both cues must agree for a strong link (eq. 9.6 adds them; a product keeps a link
         // between alike colours across a crease weak, where the sum left it half strong and
         // the cut went around the strokes instead: recall 0.05 on an alike-coloured sphere).
-        s = 2 * s * std::exp(-dn * dn / (2 * beta_n * beta_n));
+        // The product of the two exponentials as one (an exp per arc is a fifth of the graph's
+        // time).
+        s = 2 * std::exp(-dc * dc * inv_c - dn * dn * inv_n);
+      } else {
+        s = std::exp(-dc * dc * inv_c);
       }
       weight[x] = static_cast<float>((a.inter ? params.lambda_t : params.lambda_i) * s);
     }
