@@ -179,8 +179,9 @@ int main(int argc, char** argv) {
     json s = RunJson(remote + stroke, &stroke_ms);
     json j2 = RunJson(remote + cut_args, &ms);
     recut.Add(ms, j2);
-    std::printf("served cut %.0f ms, re-cut %.0f ms (recut=%s)\n", served.wall.back(), ms,
-                j2.value("recut", false) ? "yes" : "no");
+    std::printf("served cut %.0f ms, re-cut %.0f ms (recut=%s, labels only=%s)\n",
+                served.wall.back(), ms, j2.value("recut", false) ? "yes" : "no",
+                j2.value("labels_only", false) ? "yes" : "no");
     for (const json* k : {&j2, &s, &j}) {
       if (k->at("lsn").get<uint64_t>() != 0) {
         hvdb::testing::RunCommand(remote + " undo scene " + std::to_string(k->at("lsn").get<uint64_t>()));
