@@ -187,9 +187,10 @@ int CmdGraphCut(Context& ctx, const GraphCutArgs& a) {
                 static_cast<unsigned long long>(c.inter_edges));
     std::printf(
         "time: load %.1f ms, neighbours %.1f ms, GMM %.1f ms, graph %.1f ms, max-flow %.1f ms, "
-        "commit %.1f ms%s\n",
+        "commit %.1f ms%s%s\n",
         r->load_ms, c.neighbours_ms, c.gmm_ms, c.graph_ms, c.maxflow_ms, r->commit_ms,
-        c.warm ? " (a re-cut: the server's last graph and flow reused)" : "");
+        c.warm ? " (a re-cut: the server's last graph and flow reused" : "",
+        !c.warm ? "" : r->labels_only ? "; only labels changed: the labelled points read)" : ")");
   }
   CommitOutput out;
   out.lsn = r->lsn;
