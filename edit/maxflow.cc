@@ -192,6 +192,12 @@ void MaxFlow::Solve() {
     for (auto& th : pool) th.join();
     augmentations_ += augs;
     std::vector<uint32_t> shift(level.size(), 0);
+    uint64_t total = 0;  // the stamps the level used, all blocks together
+    for (size_t b = 0; b < level.size(); ++b) total += uint64_t{ends[b]} - base + 1;
+    if (base + total > (uint64_t{1} << 31)) {
+      clock_ = ~uint32_t{0};  // too many to restamp: the next level starts afresh
+      continue;
+    }
     for (size_t b = 1; b < level.size(); ++b) shift[b] = shift[b - 1] + (ends[b - 1] - base + 1);
     clock_ = ends.back() + shift.back();
     if (level.size() > 1) {

@@ -364,6 +364,9 @@ Status GraphCutCache::Prepare(Dataset& ds, const GraphCutRequest& req,
   ds_ = &ds;
   roi_ = req.roi;
   params_ = req.params;
+  // The output bit is known again only once this cut commits (a cut that fails leaves it
+  // unknown: other changes may have flipped it since the last successful one).
+  out_count_ = kStale;
   // Valid for label-only re-cuts only if nothing but labels changed while the points were read.
   content_ = seen().content == seen0.content ? seen0.content : kStale;
   return Status::OK();

@@ -46,9 +46,9 @@ class IdSet {
     ids_.erase(std::unique(ids_.begin(), ids_.end()), ids_.end());
     if (ids_.empty()) return;
     lo_ = ids_.front();
-    const uint64_t span = ids_.back() - lo_ + 1;
-    if (span / 64 <= ids_.size() + 1024) {
-      bits_.assign(span / 64 + 1, 0);
+    const uint64_t words = (ids_.back() - lo_) / 64 + 1;  // no overflow: any ids a client sends
+    if (words <= ids_.size() + 1024) {
+      bits_.assign(words, 0);
       for (uint64_t id : ids_) bits_[(id - lo_) >> 6] |= uint64_t{1} << ((id - lo_) & 63);
     }
   }

@@ -395,6 +395,42 @@ TEST_F(OperatorsTest, AReCutReadingLabelsOnlyStillSeesOtherEdits) {
   EXPECT_FALSE(other_roi->labels_only);
 }
 
+// A cut that fails (no background stroke) after a change that was not labels only must not
+// leave the output bit as the last successful cut knew it: here a point of the selection was
+// deleted and inserted again without the bit (the same point otherwise, so the graph is kept).
+TEST_F(OperatorsTest, AFailedCutForgetsWhereTheOutputBitWas) {
+  PaintStrokes();
+  if (HasFatalFailure()) return;
+  const GraphCutRequest gc = SphereCut();
+  GraphCutCache cache;
+  ASSERT_TRUE(GraphCutSelect(*ds_, gc, &cache).ok());
+  const auto cut = WithBit(ReadAll(*ds_), 0);
+  ASSERT_FALSE(cut.empty());
+  Point p = ReadAll(*ds_).at(*cut.begin());
+  Transaction del;
+  del.Delete(p.id, p.frame, {p.x, p.y, p.z});
+  ASSERT_TRUE(ds_->Commit(del).ok());
+  p.label &= ~1u;
+  Transaction ins;
+  ins.Insert({p});
+  ASSERT_TRUE(ds_->Commit(ins).ok());
+  ASSERT_FALSE(WithBit(ReadAll(*ds_), 0).count(*cut.begin()));
+  // No background stroke: the cut fails, after reading the region (the graph is kept).
+  SelectRequest clear;
+  clear.region = Everything();
+  clear.bit = 2;
+  clear.mode = SelectMode::kSubtract;
+  ASSERT_TRUE(Select(*ds_, clear).ok());
+  EXPECT_FALSE(GraphCutSelect(*ds_, gc, &cache).ok());
+  // The stroke again (labels only): a re-cut that reads labels, and the point gets its bit.
+  PaintStrokes();
+  if (HasFatalFailure()) return;
+  auto again = GraphCutSelect(*ds_, gc, &cache);
+  ASSERT_TRUE(again.ok()) << again.status().ToString();
+  EXPECT_TRUE(again->labels_only);
+  EXPECT_EQ(WithBit(ReadAll(*ds_), 0), cut);
+}
+
 TEST_F(OperatorsTest, CutPasteAndRedo) {
   auto before = ReadAll(*ds_);
   SelectRequest r;

@@ -572,6 +572,14 @@ TEST_F(DatasetTest, FailedTransactionChangesNothing) {
   bad.Insert({nan});
   EXPECT_TRUE(ds_->Commit(bad).status().IsInvalidArgument());
   CheckAll();
+  // Explicit ids as far apart as ids go (a client may send any): not found, nothing changed.
+  Transaction far;
+  Selection ends;
+  ends.ids = {{0, 0}, {0, UINT64_MAX}, {0, UINT64_MAX - 63}};
+  far.SetLabel(ends, 1, true);
+  EXPECT_TRUE(ds_->Commit(far).status().IsNotFound());
+  EXPECT_EQ(ds_->Info().last_lsn, lsn);
+  CheckAll();
 }
 
 TEST_F(DatasetTest, ProgressiveIsCoarseFirstAndEachPointOnce) {
