@@ -391,7 +391,8 @@ Result<GraphCutReply> GraphCutSelect(Dataset& ds, const GraphCutRequest& req,
     return (label & fmask) ? Seed::kForeground : (label & bmask) ? Seed::kBackground : Seed::kUnknown;
   };
   // What the cut runs on, indexed alike (by node of the cached graph, or in the query's order):
-  // each point's seed, whether it carries the output bit now, and its key.
+  // each point's seed, whether it carries the output bit now, and (without a cached graph,
+  // whose keys_ say it by node) its key.
   std::vector<Seed> seeds;
   std::vector<uint8_t> had_out;
   std::vector<Key> keys;
@@ -462,13 +463,16 @@ Result<GraphCutReply> GraphCutSelect(Dataset& ds, const GraphCutRequest& req,
     const bool by_node = cache != nullptr && cache->graph_;
     const size_t n = pts.size();
     had_out.assign(n, 0);
-    keys.resize(n);
+    keys.resize(by_node ? 0 : n);
     std::vector<Seed> node_seeds(by_node ? n : 0);
     for (size_t i = 0; i < n; ++i) {
       const size_t v = by_node ? cache->Find(pts[i].id) : i;
       had_out[v] = (pts[i].label & omask) != 0;
-      keys[v] = {pts[i].frame, pts[i].id};
-      if (by_node) node_seeds[v] = seeds[i];
+      if (by_node) {
+        node_seeds[v] = seeds[i];
+      } else {
+        keys[v] = {pts[i].frame, pts[i].id};
+      }
     }
     if (by_node) {
       HVDB_ASSIGN_OR_RETURN(cut, cache->graph_->Cut(node_seeds));
@@ -476,7 +480,7 @@ Result<GraphCutReply> GraphCutSelect(Dataset& ds, const GraphCutRequest& req,
       HVDB_ASSIGN_OR_RETURN(cut, RunGraphCut(pts, seeds, req.params));  // no cache, or too large
     }
   }
-  const std::vector<Key>& key_of = quick ? cache->keys_ : keys;
+  const std::vector<Key>& key_of = cache != nullptr && cache->graph_ ? cache->keys_ : keys;
   t0 = Clock::now();
   std::vector<Key> to_set, to_clear;  // a query's points are distinct: no set needed
   for (size_t i = 0; i < cut.selected.size(); ++i) {
