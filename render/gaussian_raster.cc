@@ -298,40 +298,50 @@ Status GaussianRasterizer::Render(const formats::GaussianCloud& cloud, const Cam
   out->rgb.resize(3 * pixels);
   out->alpha.resize(pixels);
   const auto bg = options.background;
-  ParallelFor(tiles, threads, [&](size_t t) {
-    const int tx0 = static_cast<int>(t % view.tiles_x) * kTile;
-    const int ty0 = static_cast<int>(t / view.tiles_x) * kTile;
-    const int cols = std::min(kTile, view.width - tx0), rows = std::min(kTile, view.height - ty0);
-    TileState st;
-    st.live_rows = (1u << rows) - 1;
-    for (int y = 0; y < kTile; ++y) {
-      for (int x = 0; x < kTile; ++x) {
-        st.T[y][x] = 1;
-        st.r[y][x] = st.g[y][x] = st.b[y][x] = 0;
-        st.live[y][x] = y < rows && x < cols ? 1.0f : 0.0f;
-      }
-    }
-    const uint32_t* list = lists + buf.tile_start[t];
-    const size_t k_all = buf.tile_start[t + 1] - buf.tile_start[t];
+  // A band (a row of tiles) a task: the tiles of a band share many splats (their records stay
+  // in cache from tile to tile), and the band's pixels are written out row after row at the
+  // end, in long runs, instead of 16 short rows a tile far apart in the image.
+  ParallelFor(static_cast<size_t>(view.tiles_y), threads, [&](size_t band) {
+    const int ty0 = static_cast<int>(band) * kTile;
+    const int rows = std::min(kTile, view.height - ty0);
+    std::unique_ptr<TileState[]> states(new TileState[view.tiles_x]);
     alignas(64) Record batch[kBatch];
-    for (size_t at = 0; at < k_all; at += kBatch) {
-      const size_t k = std::min(kBatch, k_all - at);
-      for (size_t j = 0; j < k; ++j) batch[j] = records[list[at + j]];
-      // The next batch's records (scattered over the whole array) on their way meanwhile.
-      for (size_t j = at + kBatch, e = std::min(k_all, at + 2 * kBatch); j < e; ++j) {
-        __builtin_prefetch(&records[list[j]]);
+    for (int tx = 0; tx < view.tiles_x; ++tx) {
+      const size_t t = band * view.tiles_x + tx;
+      const int tx0 = tx * kTile, cols = std::min(kTile, view.width - tx0);
+      TileState& st = states[tx];
+      st.live = 0;
+      for (int y = 0; y < kTile; ++y) {
+        for (int x = 0; x < kTile; ++x) {
+          st.T[y][x] = y < rows && x < cols ? 1.0f : -1.0f;  // negative: no pixel there
+          st.r[y][x] = st.g[y][x] = st.b[y][x] = 0;
+        }
+        if (y < rows) st.live |= (cols > 8 ? 3u : 1u) << (2 * y);
       }
-      if (BlendBatch(batch, k, tx0, ty0, &st)) break;
+      const uint32_t* list = lists + buf.tile_start[t];
+      const size_t k_all = buf.tile_start[t + 1] - buf.tile_start[t];
+      for (size_t at = 0; at < k_all; at += kBatch) {
+        const size_t k = std::min(kBatch, k_all - at);
+        for (size_t j = 0; j < k; ++j) batch[j] = records[list[at + j]];
+        // The next batch's records (scattered over the whole array) on their way meanwhile.
+        for (size_t j = at + kBatch, e = std::min(k_all, at + 2 * kBatch); j < e; ++j) {
+          __builtin_prefetch(&records[list[j]]);
+        }
+        if (BlendBatch(batch, k, tx0, ty0, &st)) break;
+      }
     }
     for (int y = 0; y < rows; ++y) {
-      const float *T = st.T[y], *r = st.r[y], *g = st.g[y], *b = st.b[y];
-      const size_t row = static_cast<size_t>(ty0 + y) * camera.width + tx0;
-      for (int x = 0; x < cols; ++x) {
-        float* px = &out->rgb[3 * (row + x)];
-        px[0] = r[x] + T[x] * bg[0];
-        px[1] = g[x] + T[x] * bg[1];
-        px[2] = b[x] + T[x] * bg[2];
-        out->alpha[row + x] = 1.0f - T[x];
+      const size_t row = static_cast<size_t>(ty0 + y) * camera.width;
+      float* px = &out->rgb[3 * row];
+      float* alpha = &out->alpha[row];
+      for (int x = 0; x < view.width; ++x) {
+        const TileState& st = states[x / kTile];
+        const int c = x % kTile;
+        const float tr = std::fabs(st.T[y][c]);  // negative where the pixel stopped
+        px[3 * x + 0] = st.r[y][c] + tr * bg[0];
+        px[3 * x + 1] = st.g[y][c] + tr * bg[1];
+        px[3 * x + 2] = st.b[y][c] + tr * bg[2];
+        alpha[x] = 1.0f - tr;
       }
     }
   });

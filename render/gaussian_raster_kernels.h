@@ -28,6 +28,7 @@ constexpr float kDilation = 0.3f;  // pixels^2 added to the 2D covariance's diag
 constexpr float kMinAlpha = 1.0f / 255.0f;
 constexpr float kMaxAlpha = 0.99f;
 constexpr float kMinTransmittance = 0.0001f;
+constexpr float kLog2E = 1.44269504088896341f;
 constexpr size_t kBatch = 64;  // records a tile blends at a time (BlendBatch)
 
 // The reference's spherical-harmonic constants (formats/gaussians.h), in float.
@@ -53,7 +54,9 @@ constexpr float kC3[7] = {
 // A visible splat, as blending needs it: one cache line.
 struct alignas(64) Record {
   float u, v;     // pixel position of the centre
-  float a, b, c;  // conic: the inverse of the dilated 2D covariance (a b; b c)
+  // The reference's power -0.5 (a dx^2 + c dy^2) - b dx dy of the conic (a b; b c), the
+  // inverse of the dilated 2D covariance, times log2(e): q = qa dx^2 + qb dx dy + qc dy^2.
+  float qa, qb, qc;
   float opacity;  // after the sigmoid (and the antialiasing compensation)
   float rgb[3];
   // The ellipse where alpha can reach 1/255, in pixel offsets (ox, oy) from the centre: in
@@ -294,8 +297,18 @@ static void PrepareGroup(const formats::GaussianCloud& g, size_t i0, int count, 
     const float* rest = g.sh_rest.data() + i * 3 * static_cast<size_t>(per_channel);
     bool finite = true;
     for (int ch = 0; ch < 3; ++ch) {
-      float c = kC0 * g.sh_dc[3 * i + ch];
-      for (int j = 0; j < per_channel; ++j) c += basis[j][l] * rest[ch * per_channel + j];
+      // Three partial sums: one chain of 15 dependent multiply-adds a channel would wait on
+      // each result (~60 cycles a splat); three run side by side.
+      const float* rc = rest + ch * per_channel;
+      float c0 = kC0 * g.sh_dc[3 * i + ch], c1 = 0, c2 = 0;
+      int j = 0;
+      for (; j + 3 <= per_channel; j += 3) {
+        c0 += basis[j][l] * rc[j];
+        c1 += basis[j + 1][l] * rc[j + 1];
+        c2 += basis[j + 2][l] * rc[j + 2];
+      }
+      for (; j < per_channel; ++j) c0 += basis[j][l] * rc[j];
+      float c = c0 + (c1 + c2);
       c += 0.5f;
       finite = finite && std::isfinite(c);
       r.rgb[ch] = std::max(c, 0.0f);
@@ -303,9 +316,9 @@ static void PrepareGroup(const formats::GaussianCloud& g, size_t i0, int count, 
     if (!finite) continue;
     r.u = out[2][l];
     r.v = out[3][l];
-    r.a = out[4][l];
-    r.b = out[5][l];
-    r.c = out[6][l];
+    r.qa = out[4][l] * -0.5f * kLog2E;
+    r.qb = out[5][l] * -kLog2E;
+    r.qc = out[6][l] * -0.5f * kLog2E;
     r.opacity = out[7][l];
     r.slope = out[8][l];
     r.half2 = out[9][l];
@@ -328,11 +341,15 @@ static void PrepareGroup(const formats::GaussianCloud& g, size_t i0, int count, 
   }
 }
 
-// A tile's pixels, row-major: two vectors of 8 a row.
+// A tile's pixels, row-major: two segments of 8 pixels a row (segment 2y + h: row y,
+// columns 8h .. 8h + 7).
 struct alignas(64) TileState {
-  float T[kTile][kTile], r[kTile][kTile], g[kTile][kTile], b[kTile][kTile];
-  float live[kTile][kTile];  // 1: the pixel still blends; 0: it stopped, or is not one
-  uint32_t live_rows;        // bit y: row y has a live pixel
+  // The transmittance; negative once the pixel has stopped (at -T), and for the tile's
+  // columns past the image, so that a stopped lane takes nothing more without a mask of its
+  // own (T (1 - alpha) < 0 is below the threshold whatever alpha is).
+  float T[kTile][kTile];
+  float r[kTile][kTile], g[kTile][kTile], b[kTile][kTile];
+  uint32_t live;  // bit 2y + h: that segment has a pixel still blending
 };
 
 // Horizontal minimum or maximum.
@@ -347,92 +364,49 @@ HVDB_SIMD_INLINE float Fold(F8 v, bool max) {
   return (max ? internal::Max(m2, d) : internal::Min(m2, d))[0];
 }
 
-// e^x for x in [-20, 0], two vectors at once, their operations interleaved (one exp is a chain
-// of ~15 dependent operations; two side by side keep the core busy where one leaves it
-// waiting). Cephes' expf, as simd.h's Exp (the same polynomial, within an ulp of std::exp),
-// with x log2(e) rounded to nearest by adding 1.5 2^23 instead of a floor.
-HVDB_SIMD_INLINE void Exp2(F8* p, F8* q) {
+// 2^q for q in [-20, 0]: q rounded to an integer n by adding 1.5 2^23, 2^(q - n) by a degree-5
+// polynomial on [-0.5, 0.5] (fitted for relative error, 1.7e-7 at most; its constant term is
+// 1, so 2^0 is exactly 1 and a splat's centre gets its opacity exactly), and n added to the
+// exponent field. Why not simd.h's Exp: the reference's exp(power) costs ~17 operations a
+// vector in Cephes' form; with the conic pre-scaled by log2(e) (Record::qa) this is 11, and
+// the error stays ~1e-7 relative, far below an 8-bit step.
+HVDB_SIMD_INLINE F8 Exp2(F8 q) {
   using internal::I8;
-  constexpr float kRound = 12582912.0f;  // 1.5 2^23: adding it rounds to an integer
-  const F8 x = *p, y = *q;
-  const F8 fx = x * 1.44269504088896341f + kRound, fy = y * 1.44269504088896341f + kRound;
-  const F8 gx = fx - kRound, gy = fy - kRound;  // round(x log2 e)
-  I8 nx, ny, kr;
-  std::memcpy(&nx, &fx, sizeof nx);
-  std::memcpy(&ny, &fy, sizeof ny);
-  const F8 round_v = Broadcast<F8>(kRound);
-  std::memcpy(&kr, &round_v, sizeof kr);
-  nx = (nx - kr) << 23;  // 2^n, as the exponent field
-  ny = (ny - kr) << 23;
-  F8 rx = x - gx * 0.693359375f, ry = y - gy * 0.693359375f;
-  rx = rx - gx * -2.12194440e-4f;
-  ry = ry - gy * -2.12194440e-4f;
-  const F8 zx = rx * rx, zy = ry * ry;
-  F8 px = Broadcast<F8>(1.9875691500e-4f), py = px;
-  px = px * rx + 1.3981999507e-3f;
-  py = py * ry + 1.3981999507e-3f;
-  px = px * rx + 8.3334519073e-3f;
-  py = py * ry + 8.3334519073e-3f;
-  px = px * rx + 4.1665795894e-2f;
-  py = py * ry + 4.1665795894e-2f;
-  px = px * rx + 1.6666665459e-1f;
-  py = py * ry + 1.6666665459e-1f;
-  px = px * rx + 5.0000001201e-1f;
-  py = py * ry + 5.0000001201e-1f;
-  px = px * zx + rx + 1.0f;
-  py = py * zy + ry + 1.0f;
-  I8 bx, by;
-  std::memcpy(&bx, &px, sizeof bx);
-  std::memcpy(&by, &py, sizeof by);
-  bx += nx;
-  by += ny;
-  std::memcpy(p, &bx, sizeof bx);
-  std::memcpy(q, &by, sizeof by);
+  constexpr float kRound = 12582912.0f;  // 1.5 2^23
+  const F8 t = q + kRound;
+  const F8 f = q - (t - kRound);
+  F8 p = Broadcast<F8>(1.326472731307149e-3f);
+  p = p * f + 9.671512991189957e-3f;
+  p = p * f + 5.550733581185341e-2f;
+  p = p * f + 2.4022242426872253e-1f;
+  p = p * f + 6.931470036506653e-1f;
+  p = p * f + 1.0f;
+  I8 n, bits;
+  std::memcpy(&n, &t, sizeof n);
+  std::memcpy(&bits, &p, sizeof bits);
+  const I8 round_bits = I8{} + 0x4b400000;  // the bits of 1.5 2^23
+  bits += (n - round_bits) << 23;
+  std::memcpy(&p, &bits, sizeof p);
+  return p;
 }
 
-// One piece of work of a row: 8 pixels of a splat from tile column `at` on.
-struct Piece {
-  uint8_t splat, job, at, unused;
+// What a batch's splats need per tile row besides their records: the row's part of
+// q = power log2(e) = (qa ox + bo) ox + k, with ox = pixel column - centre, oy = row - centre,
+// bo = qb oy and k = qc oy^2. Rows 0..15 of the tile; the spare 16 columns take the second
+// vector of rows that RowSpans writes from a row past 0.
+struct RowTerms {
+  alignas(32) float bo[kBatch][2 * kTile];
+  alignas(32) float k[kBatch][2 * kTile];
 };
 
-// alpha of each piece's splat at its pixels, before the pixels' own state: 0 where the
-// reference skips the splat (power > 0, or alpha below 1/255), else min(0.99, opacity
-// e^power). Two pieces at once (see Exp2). Pixels of the tile that no piece covers lie outside
-// the splat's ellipse, where alpha < 1/255: the reference skips them too.
-HVDB_SIMD_INLINE void Alpha2(const Record* batch, const Piece& i0, const Piece& i1, int tx0,
-                             float py, F8* out0, F8* out1) {
-  const F8 lane = internal::VecTraits<F8>::kIota;
-  const F8 zero{};
-  const Record& s = batch[i0.splat];
-  const Record& t = batch[i1.splat];
-  // Offsets d = centre - pixel, tile-relative (exact: small integers and the centre's float).
-  const F8 dx0 = (s.u - static_cast<float>(tx0 + i0.at)) - lane;
-  const F8 dx1 = (t.u - static_cast<float>(tx0 + i1.at)) - lane;
-  const float dy0 = s.v - py, dy1 = t.v - py;
-  // The reference's -0.5 (a dx^2 + c dy^2) - b dx dy, as (-0.5 a dx - b dy) dx - 0.5 c dy^2.
-  const F8 power0 = (-0.5f * s.a * dx0 - s.b * dy0) * dx0 - 0.5f * (s.c * dy0 * dy0);
-  const F8 power1 = (-0.5f * t.a * dx1 - t.b * dy1) * dx1 - 0.5f * (t.c * dy1 * dy1);
-  // Below -20, alpha < 1e-8 is skipped anyway: the clamp keeps lanes far outside the ellipse
-  // from e^-87 and its subnormal products (a microcode assist each).
-  F8 e0 = internal::Max(power0, Broadcast<F8>(-20.0f)),
-     e1 = internal::Max(power1, Broadcast<F8>(-20.0f));
-  Exp2(&e0, &e1);
-  F8 a0 = internal::Min(Broadcast<F8>(kMaxAlpha), s.opacity * e0);
-  F8 a1 = internal::Min(Broadcast<F8>(kMaxAlpha), t.opacity * e1);
-  a0 = power0 > 0.0f ? zero : a0;
-  a1 = power1 > 0.0f ? zero : a1;
-  *out0 = a0 >= kMinAlpha ? a0 : zero;
-  *out1 = a1 >= kMinAlpha ? a1 : zero;
-}
-
-// For 8 rows from image row y0, the span of splat s's ellipse (widened by a hundredth of a
-// pixel against rounding) cut to tile columns [xa, xb] of the tile at column tx0: its first
-// column, and the pieces of 8 columns that cover it (0, 1 or 2; spans are 16 columns at most).
-HVDB_SIMD_INLINE void RowSpans(const Record& s, int tx0, int y0, int xa, int xb, float* first,
-                               float* pieces) {
+// For 8 rows from tile row ya (image row ty0 + ya), splat s's ellipse (widened by a hundredth
+// of a pixel against rounding) cut to the tile columns [xa, xb] of the tile at column tx0:
+// whether it reaches each row's left and right segment (1 or 0), and its RowTerms.
+HVDB_SIMD_INLINE void RowSpans(const Record& s, int tx0, int ty0, int ya, int xa, int xb,
+                               int32_t* left_seg, int32_t* right_seg, float* bo, float* k) {
   const F8 lane = internal::VecTraits<F8>::kIota;
   const F8 zero{}, one = Broadcast<F8>(1.0f);
-  const F8 oy = lane + (static_cast<float>(y0) - s.v);  // pixel row - centre
+  const F8 oy = lane + (static_cast<float>(ty0 + ya) - s.v);  // pixel row - centre
   const F8 h2 = s.half2 - s.half2_dy * oy * oy;
   const F8 h = Sqrt(internal::Max(h2, zero)) + 0.01f;
   const F8 centre = (s.u - static_cast<float>(tx0)) + s.slope * oy;
@@ -440,125 +414,162 @@ HVDB_SIMD_INLINE void RowSpans(const Record& s, int tx0, int y0, int xa, int xb,
   // splat's size; ceil and floor by truncation (the values are then within [-1, 16]).
   const F8 left = internal::Max(centre - h, Broadcast<F8>(-1.0f));
   const F8 right = internal::Min(centre + h, Broadcast<F8>(16.0f));
-  const F8 tl = __builtin_convertvector(__builtin_convertvector(left, internal::I8), F8);
-  const F8 tr = __builtin_convertvector(__builtin_convertvector(right, internal::I8), F8);
+  const F8 tl = Trunc(left), tr = Trunc(right);
   const F8 lo = internal::Max(tl < left ? tl + 1.0f : tl, Broadcast<F8>(static_cast<float>(xa)));
   const F8 hi = internal::Min(tr > right ? tr - 1.0f : tr, Broadcast<F8>(static_cast<float>(xb)));
-  F8 n = hi - lo >= 8.0f ? one + one : one;
-  n = h2 >= 0.0f ? n : zero;
-  n = lo <= hi ? n : zero;
-  internal::Store(first, lo);
-  internal::Store(pieces, n);
+  F8 any = h2 >= 0.0f ? one : zero;
+  any = lo <= hi ? any : zero;
+  const internal::I8 l = __builtin_convertvector(lo < 8.0f ? any : zero, internal::I8);
+  const internal::I8 r = __builtin_convertvector(hi >= 8.0f ? any : zero, internal::I8);
+  std::memcpy(left_seg, &l, sizeof l);
+  std::memcpy(right_seg, &r, sizeof r);
+  internal::Store(bo + ya, s.qb * oy);
+  internal::Store(k + ya, s.qc * (oy * oy));
 }
 
-// Eight pixels of a row: what blending carries from splat to splat.
+// Eight pixels of a segment: what blending carries from splat to splat.
 struct Run {
-  F8 T, r, g, b, live;
+  F8 T, r, g, b;
 };
 
-// The reference's per-pixel step for 8 pixels given the splat's alpha there; returns the
-// smallest T (1 - alpha). Pixels that have stopped get alpha 0.
+// The reference's per-pixel step for 8 pixels and splat s: alpha = min(0.99, opacity 2^q), 0
+// where the reference skips the splat (power > 0, or alpha below 1/255). `dx` is the pixels'
+// columns - the centre. A pixel stops (T negated) at the splat that would bring T (1 - alpha)
+// below 1e-4, that splat not added.
 //
 // Only selects (?:) of comparisons, no comparison results as integer vectors (GCC 12 makes
-// those a scalar compare per lane in the AVX-512 clone). So a lane that must not change gets
-// alpha 0: then T (1 - alpha) = T, never below the threshold (T only ever takes values at or
-// above it), and the update adds 0 and keeps T.
-HVDB_SIMD_INLINE F8 Step(const Record& s, F8 alpha, Run* run) {
+// those a scalar compare per lane in the AVX-512 clone).
+HVDB_SIMD_INLINE void Step(const Record& s, F8 dx, float bo, float k, Run* run) {
   const F8 zero{};
-  alpha = alpha * run->live;
-  const F8 test_t = run->T * (1.0f - alpha);
-  const F8 wt = test_t < kMinTransmittance ? zero : alpha * run->T;
+  const F8 q = (s.qa * dx + bo) * dx + k;
+  const F8 ex = Exp2(internal::Max(q, Broadcast<F8>(-20.0f)));
+  F8 alpha = internal::Min(Broadcast<F8>(kMaxAlpha), s.opacity * ex);
+  alpha = q > 0.0f ? zero : alpha;
+  alpha = alpha >= kMinAlpha ? alpha : zero;
+  const F8 T = run->T;
+  const F8 test_t = T * (1.0f - alpha);
+  const F8 wt = test_t < kMinTransmittance ? zero : alpha * T;
   run->r += s.rgb[0] * wt;
   run->g += s.rgb[1] * wt;
   run->b += s.rgb[2] * wt;
-  run->T = test_t < kMinTransmittance ? run->T : test_t;
-  return test_t;
+  run->T = test_t < kMinTransmittance ? internal::Min(T, -T) : test_t;
+}
+
+// A segment being blended: its pixels, jobs (batch indices, in order) and where it is.
+struct Segment {
+  Run run;
+  F8 cols;  // its pixels' image columns
+  const uint8_t* jobs;
+  int n, at, y;  // jobs, the next one, tile row
+  float* T;      // the tile's storage of its pixels: T, then r, g, b at +kTile^2, ...
+};
+
+HVDB_SIMD_INLINE bool Stopped(const Segment& g) { return Fold(g.run.T, true) < 0.0f; }
+HVDB_SIMD_INLINE void StepSegment(const Record* batch, const RowTerms& rows, Segment* g) {
+  const int j = g->jobs[g->at++];
+  const Record& s = batch[j];
+  Step(s, g->cols - s.u, rows.bo[j][g->y], rows.k[j][g->y], &g->run);
 }
 
 // Blends `n` <= kBatch records (front to back) into the tile at pixel (tx0, ty0); true once
-// every pixel of the tile has stopped. First each row's jobs (the splats whose ellipse reaches
-// it, in order) and pieces (the runs of 8 pixels that cover a job's span); then row by row the
-// pieces' alphas, two at a time, and the blending in order with the row's pixels in registers.
+// every pixel of the tile has stopped. First each segment's jobs (the splats whose ellipse
+// reaches it, in order), then the live segments two at a time, their pixels in registers: two
+// independent chains of steps keep the core busy where one waits on its own results.
 HVDB_RENDER_CLONES
 static bool BlendBatch(const Record* batch, size_t n, int tx0, int ty0, TileState* st) {
   using internal::Load;
   using internal::Store;
-  Piece pieces[kTile][2 * kBatch + 2];
-  uint8_t splat_of[kTile][kBatch + 1];  // each row's jobs' splats
-  int jobs[kTile] = {}, count[kTile] = {};
+  alignas(64) uint8_t jobs[2 * kTile][kBatch];
+  int count[2 * kTile] = {};
+  alignas(32) RowTerms terms;
+  const uint32_t live = st->live;
+  uint32_t live_rows = 0;  // bit y: row y has a live segment
+  for (int y = 0; y < kTile; ++y) live_rows |= ((live >> (2 * y)) & 3u) != 0 ? 1u << y : 0u;
   for (size_t j = 0; j < n; ++j) {
     const Record& s = batch[j];
     const int ya = std::max<int>(s.y0, ty0) - ty0, yb = std::min<int>(s.y1, ty0 + kTile - 1) - ty0;
     const int xa = std::max<int>(s.x0, tx0) - tx0, xb = std::min<int>(s.x1, tx0 + kTile - 1) - tx0;
     if (xa > xb || ya > yb) continue;
-    uint32_t rows = st->live_rows & ((2u << yb) - 1) & ~((1u << ya) - 1);
+    uint32_t rows = live_rows & ((2u << yb) - 1) & ~((1u << ya) - 1);
     if (rows == 0) continue;
-    // The spans of rows ya .. ya + 7 (and ya + 8 .. ya + 15 for taller boxes), 8 rows a vector:
-    // the first column and how many runs of 8 (0: the ellipse misses the row).
-    alignas(32) float first[16], runs[16];
-    RowSpans(s, tx0, ty0 + ya, xa, xb, first, runs);
-    if (yb - ya >= 8) RowSpans(s, tx0, ty0 + ya + 8, xa, xb, first + 8, runs + 8);
-    // Without branches on the data: a job and two pieces are written for every row, and the
-    // counts advance only by what the row needs (mispredicted branches cost more than that).
+    // Rows ya .. ya + 7 (and ya + 8 .. ya + 15 for taller boxes), 8 rows a vector.
+    alignas(32) int32_t seg_l[16], seg_r[16];
+    RowSpans(s, tx0, ty0, ya, xa, xb, seg_l, seg_r, terms.bo[j], terms.k[j]);
+    if (yb - ya >= 8) {
+      RowSpans(s, tx0, ty0, ya + 8, xa, xb, seg_l + 8, seg_r + 8, terms.bo[j], terms.k[j]);
+    }
+    // Without branches on the data: the splat is written to both segments of every row, and
+    // the counts advance only where the row needs it (mispredicted branches cost more). A
+    // segment that has stopped may collect jobs; it is never blended.
     while (rows != 0) {
       const int y = __builtin_ctz(rows);
       rows &= rows - 1;
-      const int lo = static_cast<int>(first[y - ya]), np = static_cast<int>(runs[y - ya]);
-      const int job = jobs[y];
-      splat_of[y][job] = static_cast<uint8_t>(j);
-      Piece* out = pieces[y] + count[y];
-      out[0] = {static_cast<uint8_t>(j), static_cast<uint8_t>(job), static_cast<uint8_t>(lo), 0};
-      out[1] = {static_cast<uint8_t>(j), static_cast<uint8_t>(job), static_cast<uint8_t>(lo + 8),
-                0};
-      jobs[y] = job + (np > 0);
-      count[y] += np;
+      jobs[2 * y][count[2 * y]] = static_cast<uint8_t>(j);
+      jobs[2 * y + 1][count[2 * y + 1]] = static_cast<uint8_t>(j);
+      count[2 * y] += seg_l[y - ya];
+      count[2 * y + 1] += seg_r[y - ya];
     }
   }
-  // Each job's alpha over the tile row, and 8 more columns where a piece may spill over.
-  alignas(32) float alpha[kBatch][kTile + 8];
-  for (int y = 0; y < kTile; ++y) {
-    const int m = count[y];
-    if (m == 0) continue;
-    const float py = static_cast<float>(ty0 + y);
-    for (int k = 0; k < jobs[y]; ++k) {
-      for (int at = 0; at < kTile + 8; at += 8) Store(&alpha[k][at], F8{});
+  // The live segments with jobs, left ones first then right ones, row after row: neighbours
+  // in this order (the same columns, the next row) have much the same splats in the same
+  // order, so the two chains blended together run about as long.
+  int order[2 * kTile], m = 0;
+  for (int h = 0; h < 2; ++h) {
+    for (int y = 0; y < kTile; ++y) {
+      const int seg = 2 * y + h;
+      order[m] = seg;
+      m += ((live >> seg) & 1u) != 0 && count[seg] > 0;
     }
-    for (int k = 0; k < m; k += 2) {
-      const Piece& i0 = pieces[y][k];
-      const Piece& i1 = pieces[y][std::min(k + 1, m - 1)];
-      F8 a0, a1;
-      Alpha2(batch, i0, i1, tx0, py, &a0, &a1);
-      Store(&alpha[i0.job][i0.at], a0);
-      Store(&alpha[i1.job][i1.at], a1);
+  }
+  auto open = [&](int seg) {
+    const int y = seg >> 1, x = 8 * (seg & 1);
+    Segment g;
+    g.T = &st->T[y][x];
+    g.run = {Load<F8>(g.T), Load<F8>(&st->r[y][x]), Load<F8>(&st->g[y][x]),
+             Load<F8>(&st->b[y][x])};
+    g.cols = internal::VecTraits<F8>::kIota + static_cast<float>(tx0 + x);
+    g.jobs = jobs[seg];
+    g.n = count[seg];
+    g.at = 0;
+    g.y = y;
+    return g;
+  };
+  auto close = [&](const Segment& g, int seg) {
+    const int y = seg >> 1, x = 8 * (seg & 1);
+    Store(&st->T[y][x], g.run.T);
+    Store(&st->r[y][x], g.run.r);
+    Store(&st->g[y][x], g.run.g);
+    Store(&st->b[y][x], g.run.b);
+    if (Stopped(g)) st->live &= ~(1u << seg);
+  };
+  // Every 8 steps a segment checks whether all its pixels have stopped, and ends if so.
+  auto finish = [&](Segment* g) {
+    while (g->at < g->n) {
+      StepSegment(batch, terms, g);
+      if ((g->at & 7) == 0 && Stopped(*g)) break;
     }
-    Run left{Load<F8>(&st->T[y][0]), Load<F8>(&st->r[y][0]), Load<F8>(&st->g[y][0]),
-             Load<F8>(&st->b[y][0]), Load<F8>(&st->live[y][0])};
-    Run right{Load<F8>(&st->T[y][8]), Load<F8>(&st->r[y][8]), Load<F8>(&st->g[y][8]),
-              Load<F8>(&st->b[y][8]), Load<F8>(&st->live[y][8])};
-    for (int k = 0; k < jobs[y]; ++k) {
-      const Record& s = batch[splat_of[y][k]];
-      const F8 t0 = Step(s, Load<F8>(&alpha[k][0]), &left);
-      const F8 t1 = Step(s, Load<F8>(&alpha[k][8]), &right);
-      if (Fold(internal::Min(t0, t1), false) < kMinTransmittance) {  // some pixel stops here
-        const F8 zero{};
-        left.live = t0 < kMinTransmittance ? zero : left.live;
-        right.live = t1 < kMinTransmittance ? zero : right.live;
-        if (Fold(internal::Max(left.live, right.live), true) == 0.0f) {
-          st->live_rows &= ~(1u << y);  // every pixel of the row has stopped
-          break;
-        }
+  };
+  for (int i = 0; i + 1 < m; i += 2) {
+    Segment a = open(order[i]), b = open(order[i + 1]);
+    while (a.at < a.n && b.at < b.n) {
+      StepSegment(batch, terms, &a);
+      StepSegment(batch, terms, &b);
+      if ((a.at & 7) == 0) {
+        if (Stopped(a)) a.n = a.at;
+        if (Stopped(b)) b.n = b.at;
       }
     }
-    const Run* halves[2] = {&left, &right};
-    for (int h = 0; h < 2; ++h) {
-      Store(&st->T[y][8 * h], halves[h]->T);
-      Store(&st->r[y][8 * h], halves[h]->r);
-      Store(&st->g[y][8 * h], halves[h]->g);
-      Store(&st->b[y][8 * h], halves[h]->b);
-      Store(&st->live[y][8 * h], halves[h]->live);
-    }
+    finish(&a);
+    finish(&b);
+    close(a, order[i]);
+    close(b, order[i + 1]);
   }
-  return st->live_rows == 0;
+  if (m % 2 == 1) {
+    Segment a = open(order[m - 1]);
+    finish(&a);
+    close(a, order[m - 1]);
+  }
+  return st->live == 0;
 }
 
 }  // namespace hvdb::render::gaussian
