@@ -35,25 +35,20 @@ constexpr size_t kBatch = 64;  // records a tile blends at a time (BlendBatch)
 constexpr float kC0 = static_cast<float>(formats::kShC0);
 constexpr float kC1 = static_cast<float>(formats::kShC1);
 constexpr float kC2[5] = {
-    static_cast<float>(formats::kShC2[0]),
-    static_cast<float>(formats::kShC2[1]),
-    static_cast<float>(formats::kShC2[2]),
-    static_cast<float>(formats::kShC2[3]),
+    static_cast<float>(formats::kShC2[0]), static_cast<float>(formats::kShC2[1]),
+    static_cast<float>(formats::kShC2[2]), static_cast<float>(formats::kShC2[3]),
     static_cast<float>(formats::kShC2[4]),
 };
 constexpr float kC3[7] = {
-    static_cast<float>(formats::kShC3[0]),
-    static_cast<float>(formats::kShC3[1]),
-    static_cast<float>(formats::kShC3[2]),
-    static_cast<float>(formats::kShC3[3]),
-    static_cast<float>(formats::kShC3[4]),
-    static_cast<float>(formats::kShC3[5]),
+    static_cast<float>(formats::kShC3[0]), static_cast<float>(formats::kShC3[1]),
+    static_cast<float>(formats::kShC3[2]), static_cast<float>(formats::kShC3[3]),
+    static_cast<float>(formats::kShC3[4]), static_cast<float>(formats::kShC3[5]),
     static_cast<float>(formats::kShC3[6]),
 };
 
 // A visible splat, as blending needs it: one cache line.
 struct alignas(64) Record {
-  float u, v;     // pixel position of the centre
+  float u, v;  // pixel position of the centre
   // The reference's power -0.5 (a dx^2 + c dy^2) - b dx dy of the conic (a b; b c), the
   // inverse of the dilated 2D covariance, times log2(e): q = qa dx^2 + qb dx dy + qc dy^2.
   float qa, qb, qc;
@@ -74,6 +69,8 @@ struct Item {
   uint8_t tx0, ty0, tiles_w, tiles_h;  // tiles [tx0, tx0 + tiles_w] x [ty0, ty0 + tiles_h]
 };
 static_assert(sizeof(Item) == 12);
+
+typedef float F4 __attribute__((vector_size(16)));
 
 // sqrt lane by lane: vsqrtps (this file is built with -fno-math-errno, so GCC vectorises it).
 HVDB_SIMD_INLINE F8 Sqrt(F8 v) {
@@ -121,6 +118,55 @@ HVDB_SIMD_INLINE F8 Log(F8 x) {
   y += -2.12194440e-4f * e;
   y += -0.5f * z;
   return m + y + 0.693359375f * e;
+}
+
+// rows[r][c] -> out[c][r] for 8 vectors of 8 (AVX's unpack, shuffle and lane-swap sequence).
+HVDB_SIMD_INLINE void Transpose8(const F8* rows, F8* out) {
+  F8 t[8], u[8];
+  for (int i = 0; i < 4; ++i) {
+    t[2 * i] = __builtin_shufflevector(rows[2 * i], rows[2 * i + 1], 0, 8, 1, 9, 4, 12, 5, 13);
+    t[2 * i + 1] =
+        __builtin_shufflevector(rows[2 * i], rows[2 * i + 1], 2, 10, 3, 11, 6, 14, 7, 15);
+  }
+  for (int i = 0; i < 2; ++i) {
+    for (int h = 0; h < 2; ++h) {
+      const F8 a = t[4 * i + h], b = t[4 * i + 2 + h];
+      u[4 * i + 2 * h] = __builtin_shufflevector(a, b, 0, 1, 8, 9, 4, 5, 12, 13);
+      u[4 * i + 2 * h + 1] = __builtin_shufflevector(a, b, 2, 3, 10, 11, 6, 7, 14, 15);
+    }
+  }
+  for (int i = 0; i < 4; ++i) {
+    out[i] = __builtin_shufflevector(u[i], u[4 + i], 0, 1, 2, 3, 8, 9, 10, 11);
+    out[4 + i] = __builtin_shufflevector(u[i], u[4 + i], 4, 5, 6, 7, 12, 13, 14, 15);
+  }
+}
+
+// The SH part of a degree-3 splat's colour: its 45 coefficients (channel-major, 15 a channel)
+// dotted with the basis b[0..15] (b[15] = 0), 8 products a vector, then the three sums. Reads
+// rest[0..45]: one float past the splat's own, which the caller keeps inside the array. Why
+// not the plain loop: 45 scalar multiply-adds a splat were most of step 1.
+HVDB_SIMD_INLINE void ShRestDegree3(const float* rest, const float* b, float* sum) {
+  using internal::Load;
+  const F8 b0 = Load<F8>(b), b1 = Load<F8>(b + 8);
+  const F8 r = Load<F8>(rest) * b0 + Load<F8>(rest + 8) * b1;
+  const F8 g = Load<F8>(rest + 15) * b0 + Load<F8>(rest + 23) * b1;
+  const F8 bl = Load<F8>(rest + 30) * b0 + Load<F8>(rest + 38) * b1;
+  const F4 r4 =
+      __builtin_shufflevector(r, r, 0, 1, 2, 3) + __builtin_shufflevector(r, r, 4, 5, 6, 7);
+  const F4 g4 =
+      __builtin_shufflevector(g, g, 0, 1, 2, 3) + __builtin_shufflevector(g, g, 4, 5, 6, 7);
+  const F4 b4 =
+      __builtin_shufflevector(bl, bl, 0, 1, 2, 3) + __builtin_shufflevector(bl, bl, 4, 5, 6, 7);
+  const F4 z{};
+  const F4 rg =
+      __builtin_shufflevector(r4, g4, 0, 4, 1, 5) + __builtin_shufflevector(r4, g4, 2, 6, 3, 7);
+  const F4 bz =
+      __builtin_shufflevector(b4, z, 0, 4, 1, 5) + __builtin_shufflevector(b4, z, 2, 6, 3, 7);
+  const F4 all =
+      __builtin_shufflevector(rg, bz, 0, 1, 4, 5) + __builtin_shufflevector(rg, bz, 2, 3, 6, 7);
+  sum[0] = all[0];
+  sum[1] = all[1];
+  sum[2] = all[2];
 }
 
 // Step 1 for the 8 splats from i0 (`count` of them real): the visible ones' records and items
@@ -286,6 +332,20 @@ static void PrepareGroup(const formats::GaussianCloud& g, size_t i0, int count, 
     }
   }
   const int per_channel = formats::ShRestPerChannel(deg);
+  // Degree 3: the basis of each splat as a row of 16 (the 15 values and a 0), for ShRestDegree3.
+  alignas(32) float basis_of[8][16];
+  if (deg == 3) {
+    F8 rows[16], cols[16];
+    for (int j = 0; j < 15; ++j) rows[j] = Load<F8>(basis[j]);
+    rows[15] = zero;
+    Transpose8(rows, cols);
+    Transpose8(rows + 8, cols + 8);
+    for (int l = 0; l < 8; ++l) {
+      Store(basis_of[l], cols[l]);
+      Store(basis_of[l] + 8, cols[8 + l]);
+    }
+  }
+  const size_t n_all = g.size();
 
   for (int l = 0; l < count; ++l) {
     if (out[1][l] == 0.0f) continue;
@@ -296,22 +356,32 @@ static void PrepareGroup(const formats::GaussianCloud& g, size_t i0, int count, 
     Record& r = records[*k];
     const float* rest = g.sh_rest.data() + i * 3 * static_cast<size_t>(per_channel);
     bool finite = true;
-    for (int ch = 0; ch < 3; ++ch) {
-      // Three partial sums: one chain of 15 dependent multiply-adds a channel would wait on
-      // each result (~60 cycles a splat); three run side by side.
-      const float* rc = rest + ch * per_channel;
-      float c0 = kC0 * g.sh_dc[3 * i + ch], c1 = 0, c2 = 0;
-      int j = 0;
-      for (; j + 3 <= per_channel; j += 3) {
-        c0 += basis[j][l] * rc[j];
-        c1 += basis[j + 1][l] * rc[j + 1];
-        c2 += basis[j + 2][l] * rc[j + 2];
+    if (deg == 3 && i + 1 < n_all) {
+      float sum[3];
+      ShRestDegree3(rest, basis_of[l], sum);
+      for (int ch = 0; ch < 3; ++ch) {
+        const float c = kC0 * g.sh_dc[3 * i + ch] + sum[ch] + 0.5f;
+        finite = finite && std::isfinite(c);
+        r.rgb[ch] = std::max(c, 0.0f);
       }
-      for (; j < per_channel; ++j) c0 += basis[j][l] * rc[j];
-      float c = c0 + (c1 + c2);
-      c += 0.5f;
-      finite = finite && std::isfinite(c);
-      r.rgb[ch] = std::max(c, 0.0f);
+    } else {
+      for (int ch = 0; ch < 3; ++ch) {
+        // Three partial sums: one chain of 15 dependent multiply-adds a channel would wait on
+        // each result (~60 cycles a splat); three run side by side.
+        const float* rc = rest + ch * per_channel;
+        float c0 = kC0 * g.sh_dc[3 * i + ch], c1 = 0, c2 = 0;
+        int j = 0;
+        for (; j + 3 <= per_channel; j += 3) {
+          c0 += basis[j][l] * rc[j];
+          c1 += basis[j + 1][l] * rc[j + 1];
+          c2 += basis[j + 2][l] * rc[j + 2];
+        }
+        for (; j < per_channel; ++j) c0 += basis[j][l] * rc[j];
+        float c = c0 + (c1 + c2);
+        c += 0.5f;
+        finite = finite && std::isfinite(c);
+        r.rgb[ch] = std::max(c, 0.0f);
+      }
     }
     if (!finite) continue;
     r.u = out[2][l];
@@ -353,7 +423,6 @@ struct alignas(64) TileState {
 };
 
 // Horizontal minimum or maximum.
-typedef float F4 __attribute__((vector_size(16)));
 HVDB_SIMD_INLINE float Fold(F8 v, bool max) {
   const F4 a = __builtin_shufflevector(v, v, 0, 1, 2, 3);
   const F4 b = __builtin_shufflevector(v, v, 4, 5, 6, 7);
