@@ -54,6 +54,7 @@ constexpr size_t kMinChunk = 16384;  // splats per task of steps 1 and 2
 constexpr size_t kMaxChunks = 64;    // preprocessing tasks at most
 constexpr size_t kMaxListBytes = size_t{4} << 30;
 constexpr size_t kKeepBytes = size_t{512} << 20;
+constexpr size_t kPrefetch = 48;  // records asked for ahead of the one blended
 
 // Sorts `n` items by depth, stably: LSD radix sort, 11 bits a pass, on up to `threads` threads
 // (each pass: histograms of slices, then each slice scattered). `tmp` holds n items of
@@ -305,6 +306,11 @@ Status GaussianRasterizer::Render(const formats::GaussianCloud& cloud, const Cam
     const int ty0 = static_cast<int>(band) * kTile;
     const int rows = std::min(kTile, view.height - ty0);
     std::unique_ptr<TileState[]> states(new TileState[view.tiles_x]);
+    const uint64_t band_end = buf.tile_start[(band + 1) * view.tiles_x];
+    for (uint64_t i = buf.tile_start[band * view.tiles_x], e = std::min(band_end, i + kPrefetch);
+         i < e; ++i) {
+      __builtin_prefetch(&records[lists[i]]);
+    }
     alignas(64) Record batch[kBatch];
     for (int tx = 0; tx < view.tiles_x; ++tx) {
       const size_t t = band * view.tiles_x + tx;
@@ -322,10 +328,13 @@ Status GaussianRasterizer::Render(const formats::GaussianCloud& cloud, const Cam
       const size_t k_all = buf.tile_start[t + 1] - buf.tile_start[t];
       for (size_t at = 0; at < k_all; at += kBatch) {
         const size_t k = std::min(kBatch, k_all - at);
-        for (size_t j = 0; j < k; ++j) batch[j] = records[list[at + j]];
-        // The next batch's records (scattered over the whole array) on their way meanwhile.
-        for (size_t j = at + kBatch, e = std::min(k_all, at + 2 * kBatch); j < e; ++j) {
-          __builtin_prefetch(&records[list[j]]);
+        // The records are scattered over the whole array: each copy asks for the one
+        // kPrefetch entries on in the band's lists (the band's tiles' lists follow each other),
+        // so that the next batch's, and the next tile's first, are on their way meanwhile.
+        const size_t pos = buf.tile_start[t] + at;
+        for (size_t j = 0; j < k; ++j) {
+          batch[j] = records[list[at + j]];
+          if (pos + j + kPrefetch < band_end) __builtin_prefetch(&records[lists[pos + j + kPrefetch]]);
         }
         if (BlendBatch(batch, k, tx0, ty0, &st)) break;
       }
