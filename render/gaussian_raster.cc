@@ -60,8 +60,8 @@ constexpr size_t kPrefetch = 48;  // records asked for ahead of the one blended
 // histograms of slices, then each slice scattered). `tmp` holds n items of scratch. The keys
 // are the depths' bits less the smallest, in as few passes of at most 11 bits as they need,
 // the digits as even as can be: a scene's depths span a few binary orders of magnitude (~24
-// bits of keys), and three passes of 8 bits keep each pass's 256 write positions in L1,
-// where 11 bits' 2048 spill (13 ms against 18 for the same 1 M items on one core).
+// bits of keys), and three passes of 8 bits keep each pass's 256 write positions in L1
+// (0.92 M items on one core: 13 ms; two passes of 12 bits, 18 ms; four of 6, 24 ms).
 void SortByDepth(Item* items, Item* tmp, size_t n, unsigned threads) {
   if (n < 2) return;
   uint32_t lo = items[0].depth, hi = items[0].depth;
