@@ -470,11 +470,12 @@ struct RowTerms {
 
 // For 8 rows from tile row ya (image row ty0 + ya), splat s's ellipse (widened by a hundredth
 // of a pixel against rounding) cut to the tile columns [xa, xb] of the tile at column tx0:
-// whether it reaches each row's left and right segment (1 or 0), and its RowTerms.
-HVDB_SIMD_INLINE void RowSpans(const Record& s, int tx0, int ty0, int ya, int xa, int xb,
-                               int32_t* left_seg, int32_t* right_seg, float* bo, float* k) {
+// which of the rows' segments it reaches, as 16 bits (bit 2i: row ya + i's left segment, bit
+// 2i + 1: its right one), and its RowTerms.
+HVDB_SIMD_INLINE uint32_t RowSpans(const Record& s, int tx0, int ty0, int ya, int xa, int xb,
+                                   float* bo, float* k) {
   const F8 lane = internal::VecTraits<F8>::kIota;
-  const F8 zero{}, one = Broadcast<F8>(1.0f);
+  const F8 zero{};
   const F8 oy = lane + (static_cast<float>(ty0 + ya) - s.v);  // pixel row - centre
   const F8 h2 = s.half2 - s.half2_dy * oy * oy;
   const F8 h = Sqrt(internal::Max(h2, zero)) + 0.01f;
@@ -486,14 +487,17 @@ HVDB_SIMD_INLINE void RowSpans(const Record& s, int tx0, int ty0, int ya, int xa
   const F8 tl = Trunc(left), tr = Trunc(right);
   const F8 lo = internal::Max(tl < left ? tl + 1.0f : tl, Broadcast<F8>(static_cast<float>(xa)));
   const F8 hi = internal::Min(tr > right ? tr - 1.0f : tr, Broadcast<F8>(static_cast<float>(xb)));
-  F8 any = h2 >= 0.0f ? one : zero;
-  any = lo <= hi ? any : zero;
-  const internal::I8 l = __builtin_convertvector(lo < 8.0f ? any : zero, internal::I8);
-  const internal::I8 r = __builtin_convertvector(hi >= 8.0f ? any : zero, internal::I8);
-  std::memcpy(left_seg, &l, sizeof l);
-  std::memcpy(right_seg, &r, sizeof r);
+  // Each lane's two bits as its weight 4^i (left) and 2 4^i (right), summed: exact in float.
+  const F8 weight = {1, 4, 16, 64, 256, 1024, 4096, 16384};
+  F8 bits = (lo < 8.0f ? weight : zero) + (hi >= 8.0f ? weight + weight : zero);
+  bits = h2 >= 0.0f ? bits : zero;
+  bits = lo <= hi ? bits : zero;
+  const F4 b4 = __builtin_shufflevector(bits, bits, 0, 1, 2, 3) +
+                __builtin_shufflevector(bits, bits, 4, 5, 6, 7);
+  const F4 b2 = b4 + __builtin_shufflevector(b4, b4, 2, 3, 0, 1);
   internal::Store(bo + ya, s.qb * oy);
   internal::Store(k + ya, s.qc * (oy * oy));
+  return static_cast<uint32_t>(b2[0] + b2[1]);
 }
 
 // Eight pixels of a segment: what blending carries from splat to splat.
@@ -524,86 +528,83 @@ HVDB_SIMD_INLINE void Step(const Record& s, F8 dx, float bo, float k, Run* run) 
   run->T = test_t < kMinTransmittance ? internal::Min(T, -T) : test_t;
 }
 
-// A segment being blended: its pixels, jobs (batch indices, in order) and where it is.
+// A segment being blended: its pixels, jobs (bit j: batch record j, blended in bit order)
+// and where it is.
 struct Segment {
   Run run;
-  F8 cols;  // its pixels' image columns
-  const uint8_t* jobs;
-  int n, at, y;  // jobs, the next one, tile row
-  float* T;      // the tile's storage of its pixels: T, then r, g, b at +kTile^2, ...
+  F8 cols;        // its pixels' image columns
+  uint64_t jobs;  // those not yet blended
+  int y;          // tile row
 };
 
 HVDB_SIMD_INLINE bool Stopped(const Segment& g) { return Fold(g.run.T, true) < 0.0f; }
 HVDB_SIMD_INLINE void StepSegment(const Record* batch, const RowTerms& rows, Segment* g) {
-  const int j = g->jobs[g->at++];
+  const int j = __builtin_ctzll(g->jobs);
+  g->jobs &= g->jobs - 1;
   const Record& s = batch[j];
   Step(s, g->cols - s.u, rows.bo[j][g->y], rows.k[j][g->y], &g->run);
 }
 
 // Blends `n` <= kBatch records (front to back) into the tile at pixel (tx0, ty0); true once
-// every pixel of the tile has stopped. First each segment's jobs (the splats whose ellipse
-// reaches it, in order), then the live segments two at a time, their pixels in registers: two
+// every pixel of the tile has stopped. First which splats reach each segment (one bit a
+// splat: the ellipse's row spans give a splat's segments as a mask, spread over the
+// segments' masks), then the live segments two at a time, their pixels in registers: two
 // independent chains of steps keep the core busy where one waits on its own results.
 HVDB_RENDER_CLONES
 static bool BlendBatch(const Record* batch, size_t n, int tx0, int ty0, TileState* st) {
   using internal::Load;
   using internal::Store;
-  alignas(64) uint8_t jobs[2 * kTile][kBatch];
-  int count[2 * kTile] = {};
+  static_assert(kBatch <= 64, "a segment's jobs are the bits of a uint64_t");
+  typedef uint64_t U4 __attribute__((vector_size(32)));
+  U4 acc[2 * kTile / 4] = {};  // segment 4v + i's jobs in acc[v][i]
   alignas(32) RowTerms terms;
   const uint32_t live = st->live;
-  uint32_t live_rows = 0;  // bit y: row y has a live segment
-  for (int y = 0; y < kTile; ++y) live_rows |= ((live >> (2 * y)) & 3u) != 0 ? 1u << y : 0u;
   for (size_t j = 0; j < n; ++j) {
     const Record& s = batch[j];
     const int ya = std::max<int>(s.y0, ty0) - ty0, yb = std::min<int>(s.y1, ty0 + kTile - 1) - ty0;
     const int xa = std::max<int>(s.x0, tx0) - tx0, xb = std::min<int>(s.x1, tx0 + kTile - 1) - tx0;
     if (xa > xb || ya > yb) continue;
-    uint32_t rows = live_rows & ((2u << yb) - 1) & ~((1u << ya) - 1);
-    if (rows == 0) continue;
+    // The segments of rows ya .. yb that are still live.
+    const uint64_t box = ((uint64_t{4} << (2 * yb)) - 1) & ~((uint64_t{1} << (2 * ya)) - 1);
+    if ((box & live) == 0) continue;
     // Rows ya .. ya + 7 (and ya + 8 .. ya + 15 for taller boxes), 8 rows a vector.
-    alignas(32) int32_t seg_l[16], seg_r[16];
-    RowSpans(s, tx0, ty0, ya, xa, xb, seg_l, seg_r, terms.bo[j], terms.k[j]);
+    uint64_t segs = uint64_t{RowSpans(s, tx0, ty0, ya, xa, xb, terms.bo[j], terms.k[j])}
+                    << (2 * ya);
     if (yb - ya >= 8) {
-      RowSpans(s, tx0, ty0, ya + 8, xa, xb, seg_l + 8, seg_r + 8, terms.bo[j], terms.k[j]);
+      segs |= uint64_t{RowSpans(s, tx0, ty0, ya + 8, xa, xb, terms.bo[j], terms.k[j])}
+              << (2 * ya + 16);
     }
-    // Without branches on the data: the splat is written to both segments of every row, and
-    // the counts advance only where the row needs it (mispredicted branches cost more). A
-    // segment that has stopped may collect jobs; it is never blended.
-    while (rows != 0) {
-      const int y = __builtin_ctz(rows);
-      rows &= rows - 1;
-      jobs[2 * y][count[2 * y]] = static_cast<uint8_t>(j);
-      jobs[2 * y + 1][count[2 * y + 1]] = static_cast<uint8_t>(j);
-      count[2 * y] += seg_l[y - ya];
-      count[2 * y + 1] += seg_r[y - ya];
+    // Bit j set in the masks of those segments, 4 segments a vector, without a branch.
+    const U4 mask = U4{} + (segs & box & live);
+    for (int v = 0; v < 2 * kTile / 4; ++v) {
+      const U4 shift = U4{0, 1, 2, 3} + static_cast<uint64_t>(4 * v);
+      acc[v] |= ((mask >> shift) & 1u) << j;
     }
   }
+  alignas(32) uint64_t jobs[2 * kTile];
+  std::memcpy(jobs, acc, sizeof jobs);
   // The live segments with jobs, left ones first then right ones, row after row: neighbours
-  // in this order (the same columns, the next row) have much the same splats in the same
-  // order, so the two chains blended together run about as long.
+  // in this order (the same columns, the next row) have much the same splats, so the two
+  // chains blended together run about as long.
   int order[2 * kTile], m = 0;
   for (int h = 0; h < 2; ++h) {
     for (int y = 0; y < kTile; ++y) {
       const int seg = 2 * y + h;
       order[m] = seg;
-      m += ((live >> seg) & 1u) != 0 && count[seg] > 0;
+      m += jobs[seg] != 0;
     }
   }
-  auto open = [&](int seg) {
+  auto open = [&](int seg) HVDB_SIMD_LAMBDA {
     const int y = seg >> 1, x = 8 * (seg & 1);
     Segment g;
-    g.T = &st->T[y][x];
-    g.run = {Load<F8>(g.T), Load<F8>(&st->r[y][x]), Load<F8>(&st->g[y][x]),
+    g.run = {Load<F8>(&st->T[y][x]), Load<F8>(&st->r[y][x]), Load<F8>(&st->g[y][x]),
              Load<F8>(&st->b[y][x])};
     g.cols = internal::VecTraits<F8>::kIota + static_cast<float>(tx0 + x);
     g.jobs = jobs[seg];
-    g.n = count[seg];
-    g.at = 0;
     g.y = y;
     return g;
   };
-  auto close = [&](const Segment& g, int seg) {
+  auto close = [&](const Segment& g, int seg) HVDB_SIMD_LAMBDA {
     const int y = seg >> 1, x = 8 * (seg & 1);
     Store(&st->T[y][x], g.run.T);
     Store(&st->r[y][x], g.run.r);
@@ -612,30 +613,31 @@ static bool BlendBatch(const Record* batch, size_t n, int tx0, int ty0, TileStat
     if (Stopped(g)) st->live &= ~(1u << seg);
   };
   // Every 8 steps a segment checks whether all its pixels have stopped, and ends if so.
-  auto finish = [&](Segment* g) {
-    while (g->at < g->n) {
+  auto finish = [&](Segment* g, int done) HVDB_SIMD_LAMBDA {
+    while (g->jobs != 0) {
       StepSegment(batch, terms, g);
-      if ((g->at & 7) == 0 && Stopped(*g)) break;
+      if ((++done & 7) == 0 && Stopped(*g)) break;
     }
   };
   for (int i = 0; i + 1 < m; i += 2) {
     Segment a = open(order[i]), b = open(order[i + 1]);
-    while (a.at < a.n && b.at < b.n) {
+    int done = 0;
+    while (a.jobs != 0 && b.jobs != 0) {
       StepSegment(batch, terms, &a);
       StepSegment(batch, terms, &b);
-      if ((a.at & 7) == 0) {
-        if (Stopped(a)) a.n = a.at;
-        if (Stopped(b)) b.n = b.at;
+      if ((++done & 7) == 0) {
+        if (Stopped(a)) a.jobs = 0;
+        if (Stopped(b)) b.jobs = 0;
       }
     }
-    finish(&a);
-    finish(&b);
+    finish(&a, done);
+    finish(&b, done);
     close(a, order[i]);
     close(b, order[i + 1]);
   }
   if (m % 2 == 1) {
     Segment a = open(order[m - 1]);
-    finish(&a);
+    finish(&a, 0);
     close(a, order[m - 1]);
   }
   return st->live == 0;
