@@ -54,7 +54,7 @@ constexpr size_t kMinChunk = 16384;  // splats per task of steps 1 and 2
 constexpr size_t kMaxChunks = 64;    // preprocessing tasks at most
 constexpr size_t kMaxListBytes = size_t{4} << 30;
 constexpr size_t kKeepBytes = size_t{512} << 20;
-constexpr size_t kPrefetch = 48;  // records asked for ahead of the one blended
+constexpr size_t kPrefetch = 160; // records asked for ahead of the one blended
 
 // Sorts `n` items by depth, stably: LSD radix sort on up to `threads` threads (each pass:
 // histograms of slices, then each slice scattered). `tmp` holds n items of scratch. The keys
