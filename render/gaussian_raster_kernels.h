@@ -500,6 +500,15 @@ HVDB_SIMD_INLINE uint32_t RowSpans(const Record& s, int tx0, int ty0, int ya, in
   return static_cast<uint32_t>(b2[0] + b2[1]);
 }
 
+// |x| lane by lane (the sign bit cleared).
+HVDB_SIMD_INLINE F8 Abs(F8 x) {
+  internal::I8 bits;
+  std::memcpy(&bits, &x, sizeof bits);
+  bits &= 0x7fffffff;
+  std::memcpy(&x, &bits, sizeof x);
+  return x;
+}
+
 // Eight pixels of a segment: what blending carries from splat to splat.
 struct Run {
   F8 T, r, g, b;
@@ -521,11 +530,16 @@ HVDB_SIMD_INLINE void Step(const Record& s, F8 dx, float bo, float k, Run* run) 
   alpha = alpha >= kMinAlpha ? alpha : zero;
   const F8 T = run->T;
   const F8 test_t = T * (1.0f - alpha);
-  const F8 wt = test_t < kMinTransmittance ? zero : alpha * T;
+  const F8 next = test_t < kMinTransmittance ? internal::Min(T, -T) : test_t;
+  // alpha T where the pixel goes on (T - T (1 - alpha)), 0 where it stops here or had stopped
+  // (|next| = |T|). From `next` rather than a second select of the same comparison: GCC then
+  // keeps the comparison in a mask register instead of a vector that only the first 16
+  // registers can take (VEX blends), which spilled the pixels' sums to the stack.
+  const F8 wt = internal::Max(T - Abs(next), zero);
   run->r += s.rgb[0] * wt;
   run->g += s.rgb[1] * wt;
   run->b += s.rgb[2] * wt;
-  run->T = test_t < kMinTransmittance ? internal::Min(T, -T) : test_t;
+  run->T = next;
 }
 
 // A segment being blended: its pixels, jobs (bit j: batch record j, blended in bit order)
