@@ -569,8 +569,8 @@ static bool BlendBatch(const Record* batch, size_t n, int tx0, int ty0, TileStat
   using internal::Load;
   using internal::Store;
   static_assert(kBatch <= 64, "a segment's jobs are the bits of a uint64_t");
-  typedef uint64_t U4 __attribute__((vector_size(32)));
-  U4 acc[2 * kTile / 4] = {};  // segment 4v + i's jobs in acc[v][i]
+  typedef uint64_t U8 __attribute__((vector_size(64)));
+  U8 acc[2 * kTile / 8] = {};  // segment 8v + i's jobs in acc[v][i]
   alignas(32) RowTerms terms;
   const uint32_t live = st->live;
   for (size_t j = 0; j < n; ++j) {
@@ -588,10 +588,10 @@ static bool BlendBatch(const Record* batch, size_t n, int tx0, int ty0, TileStat
       segs |= uint64_t{RowSpans(s, tx0, ty0, ya + 8, xa, xb, terms.bo[j], terms.k[j])}
               << (2 * ya + 16);
     }
-    // Bit j set in the masks of those segments, 4 segments a vector, without a branch.
-    const U4 mask = U4{} + (segs & box & live);
-    for (int v = 0; v < 2 * kTile / 4; ++v) {
-      const U4 shift = U4{0, 1, 2, 3} + static_cast<uint64_t>(4 * v);
+    // Bit j set in the masks of those segments, 8 segments a vector, without a branch.
+    const U8 mask = U8{} + (segs & box & live);
+    for (int v = 0; v < 2 * kTile / 8; ++v) {
+      const U8 shift = U8{0, 1, 2, 3, 4, 5, 6, 7} + static_cast<uint64_t>(8 * v);
       acc[v] |= ((mask >> shift) & 1u) << j;
     }
   }
