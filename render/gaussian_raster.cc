@@ -17,9 +17,14 @@
 //     indices in that order, chunk after chunk, so that every tile's list comes out sorted
 //     front to back. A splat goes to the tiles of the reference's rectangle that its box
 //     reaches (in the others it would be skipped at every pixel).
-//  3. Each tile, in parallel: its records gathered a batch at a time, and each blended over
-//     the span of each of its rows, 8 pixels a vector (simd.h: AVX-512, AVX2 or SSE2 clone).
-//     Pixels stop at the reference's transmittance threshold; a tile stops when all have.
+//  3. Each band of tiles (a row of them), in parallel; in a band, tile after tile: its records
+//     gathered a batch of 64 at a time. A tile row is two segments of 8 pixels, one vector
+//     each (simd.h: AVX-512, AVX2 or SSE2 clone). Each record's row spans give the segments
+//     its ellipse reaches, as a bit in each such segment's 64-bit mask of the batch; then
+//     each segment blends its records in order with its pixels in registers, two segments
+//     side by side. Pixels stop at the reference's transmittance threshold (their T negated);
+//     a segment stops when all its pixels have, a tile when all its segments have. At the
+//     band's end its pixels are written out row by row.
 #include "render/gaussian_raster.h"
 
 #include <sys/mman.h>

@@ -27,7 +27,7 @@
 // Float arithmetic throughout, as the reference; tests/render/gaussian_raster_test.cc checks it
 // against a plain double-precision reading of the same equations (PSNR > 95 dB, 8-bit values
 // within 1). Speed (bench/gaussian_render_bench.cc): a 1 M-splat scene of splats a few pixels
-// across renders at 1920x1080 in ~125-160 ms on two cores (6-8 M splats/s); gaussian_raster.cc
+// across renders at 1920x1080 in ~95-130 ms on two cores (8-10 M splats/s); gaussian_raster.cc
 // says how the work is organised.
 #ifndef HVDB_RENDER_GAUSSIAN_RASTER_H_
 #define HVDB_RENDER_GAUSSIAN_RASTER_H_
