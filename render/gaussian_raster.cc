@@ -61,12 +61,35 @@ constexpr size_t kMaxListBytes = size_t{4} << 30;
 constexpr size_t kKeepBytes = size_t{512} << 20;
 constexpr size_t kPrefetch = 160; // records asked for ahead of the one blended
 
-// Sorts `n` items by depth, stably: LSD radix sort on up to `threads` threads (each pass:
-// histograms of slices, then each slice scattered). `tmp` holds n items of scratch. The keys
-// are the depths' bits less the smallest, in as few passes of at most 11 bits as they need,
-// the digits as even as can be: a scene's depths span a few binary orders of magnitude (~24
-// bits of keys), and three passes of 8 bits keep each pass's 256 write positions in L1
-// (0.92 M items on one core: 13 ms; two passes of 12 bits, 18 ms; four of 6, 24 ms).
+// Stable LSD radix sort of the `n` items at `a` by key bits [0, passes * 8) (keys: depth -
+// lo), one thread, `b` n items of scratch; all the passes' histograms from one read.
+void SortLowBits(Item* a, Item* b, size_t n, uint32_t lo, int passes) {
+  uint32_t h[3][256] = {};
+  for (size_t i = 0; i < n; ++i) {
+    const uint32_t key = a[i].depth - lo;
+    for (int p = 0; p < passes; ++p) ++h[p][(key >> (8 * p)) & 255];
+  }
+  Item *src = a, *dst = b;
+  for (int p = 0; p < passes; ++p) {
+    uint32_t sum = 0;
+    for (uint32_t& c : h[p]) {
+      const uint32_t k = c;
+      c = sum;
+      sum += k;
+    }
+    for (size_t i = 0; i < n; ++i) dst[h[p][((src[i].depth - lo) >> (8 * p)) & 255]++] = src[i];
+    std::swap(src, dst);
+  }
+  if (src != a) std::memcpy(a, src, n * sizeof(Item));
+}
+
+// Sorts `n` items by depth, stably, on up to `threads` threads; `tmp` holds n items of
+// scratch. The keys are the depths' bits less the smallest (a scene's depths span a few
+// binary orders of magnitude: ~24 bits of keys). One pass over the whole array scatters the
+// items by the keys' top 8 bits (histograms of slices, each slice scattered); then each of
+// those 256 buckets, a few tens of kilobytes for a million splats, is sorted by the remaining
+// bits on its own, in cache, by passes of 8 bits (256 write positions stay in L1). Three
+// passes of the whole array cost twice as much: most of what a pass costs is memory.
 void SortByDepth(Item* items, Item* tmp, size_t n, unsigned threads) {
   if (n < 2) return;
   uint32_t lo = items[0].depth, hi = items[0].depth;
@@ -75,40 +98,44 @@ void SortByDepth(Item* items, Item* tmp, size_t n, unsigned threads) {
     hi = std::max(hi, items[i].depth);
   }
   const int key_bits = 32 - __builtin_clz((hi - lo) | 1u);
-  const int passes = (key_bits + 10) / 11;  // digits of 11 bits at most, as even as can be
-  const int bits = (key_bits + passes - 1) / passes;
-  const size_t buckets = size_t{1} << bits;
-  const uint32_t mask = static_cast<uint32_t>(buckets - 1);
+  const int low_bits = std::max(0, key_bits - 8);  // sorted within the buckets
+  const int low_passes = (low_bits + 7) / 8;
+  constexpr size_t kBuckets = 256;
   const size_t parts = std::max<size_t>(1, std::min<size_t>(threads, n / 65536));
-  std::vector<size_t> at(parts * buckets);
-  Item *src = items, *dst = tmp;
+  std::vector<size_t> at(parts * kBuckets);
   auto slice = [&](size_t p) {
     return std::pair<size_t, size_t>(p * n / parts, (p + 1) * n / parts);
   };
-  for (int pass = 0; pass < passes; ++pass) {
-    const int shift = pass * bits;
-    ParallelFor(parts, static_cast<unsigned>(parts), [&](size_t p) {
-      size_t* h = at.data() + p * buckets;
-      std::fill_n(h, buckets, 0);
-      const auto [b, e] = slice(p);
-      for (size_t i = b; i < e; ++i) ++h[((src[i].depth - lo) >> shift) & mask];
-    });
-    size_t sum = 0;
-    for (size_t d = 0; d < buckets; ++d) {
-      for (size_t p = 0; p < parts; ++p) {
-        const size_t k = at[p * buckets + d];
-        at[p * buckets + d] = sum;
-        sum += k;
-      }
+  auto top = [&](const Item& item) { return ((item.depth - lo) >> low_bits) & 255u; };
+  ParallelFor(parts, static_cast<unsigned>(parts), [&](size_t p) {
+    size_t* h = at.data() + p * kBuckets;
+    std::fill_n(h, kBuckets, 0);
+    const auto [b, e] = slice(p);
+    for (size_t i = b; i < e; ++i) ++h[top(items[i])];
+  });
+  std::vector<size_t> start(kBuckets + 1, 0);
+  size_t sum = 0;
+  for (size_t d = 0; d < kBuckets; ++d) {
+    start[d] = sum;
+    for (size_t p = 0; p < parts; ++p) {
+      const size_t k = at[p * kBuckets + d];
+      at[p * kBuckets + d] = sum;
+      sum += k;
     }
-    ParallelFor(parts, static_cast<unsigned>(parts), [&](size_t p) {
-      size_t* next = at.data() + p * buckets;
-      const auto [b, e] = slice(p);
-      for (size_t i = b; i < e; ++i) dst[next[((src[i].depth - lo) >> shift) & mask]++] = src[i];
-    });
-    std::swap(src, dst);
   }
-  if (src != items) std::memcpy(items, src, n * sizeof(Item));
+  start[kBuckets] = sum;
+  ParallelFor(parts, static_cast<unsigned>(parts), [&](size_t p) {
+    size_t* next = at.data() + p * kBuckets;
+    const auto [b, e] = slice(p);
+    for (size_t i = b; i < e; ++i) tmp[next[top(items[i])]++] = items[i];
+  });
+  // Each bucket sorted in tmp (items' same range its scratch), then copied back.
+  ParallelFor(kBuckets, threads, [&](size_t d) {
+    const size_t b = start[d], k = start[d + 1] - b;
+    if (k == 0) return;
+    if (k > 1) SortLowBits(tmp + b, items + b, k, lo, low_passes);
+    std::memcpy(items + b, tmp + b, k * sizeof(Item));
+  });
 }
 
 // Anonymous memory of its own on 2 MiB pages where the kernel has them (transparent huge pages
