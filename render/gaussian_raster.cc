@@ -343,7 +343,17 @@ Status GaussianRasterizer::Render(const formats::GaussianCloud& cloud, const Cam
   // A band (a row of tiles) a task: the tiles of a band share many splats (their records stay
   // in cache from tile to tile), and the band's pixels are written out row after row at the
   // end, in long runs, instead of 16 short rows a tile far apart in the image.
-  ParallelFor(static_cast<size_t>(view.tiles_y), threads, [&](size_t band) {
+  // The bands with the most tile entries first: the last band a thread takes is then a light
+  // one, and the threads end together.
+  std::vector<uint32_t> bands(view.tiles_y);
+  for (int b = 0; b < view.tiles_y; ++b) bands[b] = static_cast<uint32_t>(b);
+  auto weight = [&](uint32_t b) {
+    return buf.tile_start[(b + 1) * size_t(view.tiles_x)] - buf.tile_start[b * size_t(view.tiles_x)];
+  };
+  std::stable_sort(bands.begin(), bands.end(),
+                   [&](uint32_t x, uint32_t y) { return weight(x) > weight(y); });
+  ParallelFor(bands.size(), threads, [&](size_t task) {
+    const size_t band = bands[task];
     const int ty0 = static_cast<int>(band) * kTile;
     const int rows = std::min(kTile, view.height - ty0);
     std::unique_ptr<TileState[]> states(new TileState[view.tiles_x]);
