@@ -52,6 +52,7 @@ using gaussian::MakeView;
 using gaussian::PrepareGroup;
 using gaussian::Record;
 using gaussian::TileState;
+using gaussian::WriteRow;
 using gaussian::ViewF;
 using internal::ParallelFor;
 
@@ -392,17 +393,8 @@ Status GaussianRasterizer::Render(const formats::GaussianCloud& cloud, const Cam
     }
     for (int y = 0; y < rows; ++y) {
       const size_t row = static_cast<size_t>(ty0 + y) * camera.width;
-      float* px = &out->rgb[3 * row];
-      float* alpha = &out->alpha[row];
-      for (int x = 0; x < view.width; ++x) {
-        const TileState& st = states[x / kTile];
-        const int c = x % kTile;
-        const float tr = std::fabs(st.T[y][c]);  // negative where the pixel stopped
-        px[3 * x + 0] = st.r[y][c] + tr * bg[0];
-        px[3 * x + 1] = st.g[y][c] + tr * bg[1];
-        px[3 * x + 2] = st.b[y][c] + tr * bg[2];
-        alpha[x] = 1.0f - tr;
-      }
+      WriteRow(states.get(), view.tiles_x, y, view.width, bg.data(), &out->rgb[3 * row],
+               &out->alpha[row]);
     }
   });
 

@@ -657,6 +657,45 @@ static bool BlendBatch(const Record* batch, size_t n, int tx0, int ty0, TileStat
   return st->live == 0;
 }
 
+// Row y of a band's tiles written out: `width` pixels, RGB (C + T background) and 1 - T, T
+// being |T| (negative where the pixel stopped). 8 pixels a vector, their channels interleaved
+// by shuffles; the last tile's columns past the image one by one.
+HVDB_RENDER_CLONES
+static void WriteRow(const TileState* tiles, int count, int y, int width, const float* bg,
+                     float* rgb, float* alpha) {
+  using internal::Load;
+  using internal::Store;
+  for (int t = 0; t < count; ++t) {
+    const TileState& st = tiles[t];
+    const int x0 = t * kTile;
+    if (x0 + kTile <= width) {
+      for (int h = 0; h < kTile; h += 8) {
+        const F8 tr = Abs(Load<F8>(&st.T[y][h]));
+        const F8 r = Load<F8>(&st.r[y][h]) + tr * bg[0];
+        const F8 g = Load<F8>(&st.g[y][h]) + tr * bg[1];
+        const F8 b = Load<F8>(&st.b[y][h]) + tr * bg[2];
+        // r0 g0 b0 r1 g1 b1 r2 g2 | b2 r3 g3 b3 r4 g4 b4 r5 | g5 b5 r6 g6 b6 r7 g7 b7
+        const F8 rg0 = __builtin_shufflevector(r, g, 0, 8, 0, 1, 9, 1, 2, 10);
+        const F8 rg1 = __builtin_shufflevector(r, g, 2, 3, 11, 3, 4, 12, 4, 5);
+        const F8 rg2 = __builtin_shufflevector(r, g, 13, 5, 6, 14, 6, 7, 15, 7);
+        float* out = rgb + 3 * (x0 + h);
+        Store(out, __builtin_shufflevector(rg0, b, 0, 1, 8, 3, 4, 9, 6, 7));
+        Store(out + 8, __builtin_shufflevector(rg1, b, 10, 1, 2, 11, 4, 5, 12, 7));
+        Store(out + 16, __builtin_shufflevector(rg2, b, 0, 13, 2, 3, 14, 5, 6, 15));
+        Store(alpha + x0 + h, 1.0f - tr);
+      }
+    } else {
+      for (int c = 0; x0 + c < width; ++c) {
+        const float tr = std::fabs(st.T[y][c]);
+        rgb[3 * (x0 + c) + 0] = st.r[y][c] + tr * bg[0];
+        rgb[3 * (x0 + c) + 1] = st.g[y][c] + tr * bg[1];
+        rgb[3 * (x0 + c) + 2] = st.b[y][c] + tr * bg[2];
+        alpha[x0 + c] = 1.0f - tr;
+      }
+    }
+  }
+}
+
 }  // namespace hvdb::render::gaussian
 
 #endif  // HVDB_RENDER_GAUSSIAN_RASTER_KERNELS_H_
