@@ -151,17 +151,14 @@ HVDB_SIMD_INLINE void ShRestDegree3(const float* rest, const float* b, float* su
   const F8 r = Load<F8>(rest) * b0 + Load<F8>(rest + 8) * b1;
   const F8 g = Load<F8>(rest + 15) * b0 + Load<F8>(rest + 23) * b1;
   const F8 bl = Load<F8>(rest + 30) * b0 + Load<F8>(rest + 38) * b1;
-  const F4 r4 =
-      __builtin_shufflevector(r, r, 0, 1, 2, 3) + __builtin_shufflevector(r, r, 4, 5, 6, 7);
-  const F4 g4 =
-      __builtin_shufflevector(g, g, 0, 1, 2, 3) + __builtin_shufflevector(g, g, 4, 5, 6, 7);
-  const F4 b4 =
-      __builtin_shufflevector(bl, bl, 0, 1, 2, 3) + __builtin_shufflevector(bl, bl, 4, 5, 6, 7);
-  const F4 z{};
-  const F4 rg =
-      __builtin_shufflevector(r4, g4, 0, 4, 1, 5) + __builtin_shufflevector(r4, g4, 2, 6, 3, 7);
-  const F4 bz =
-      __builtin_shufflevector(b4, z, 0, 4, 1, 5) + __builtin_shufflevector(b4, z, 2, 6, 3, 7);
+  auto halves = [](F8 v) HVDB_SIMD_LAMBDA {  // lanes i and i + 4 summed
+    return __builtin_shufflevector(v, v, 0, 1, 2, 3) + __builtin_shufflevector(v, v, 4, 5, 6, 7);
+  };
+  // Pairs of sums, twice: (r, g, b, 0) in the end.
+  auto pairs = [](F4 x, F4 y) HVDB_SIMD_LAMBDA {
+    return __builtin_shufflevector(x, y, 0, 4, 1, 5) + __builtin_shufflevector(x, y, 2, 6, 3, 7);
+  };
+  const F4 rg = pairs(halves(r), halves(g)), bz = pairs(halves(bl), F4{});
   const F4 all =
       __builtin_shufflevector(rg, bz, 0, 1, 4, 5) + __builtin_shufflevector(rg, bz, 2, 3, 6, 7);
   sum[0] = all[0];
