@@ -489,6 +489,53 @@ TEST(GaussianRaster, LargeCloudSameImageWhateverTheThreadCount) {
   EXPECT_EQ(one.alpha, three.alpha);
 }
 
+// Splats at exactly the same depth blend in index order, as the reference's stable sort puts
+// them, also when the depth sort splits its work (over 65536 visible splats: slices and
+// buckets) and whatever the thread count.
+TEST(GaussianRaster, TiedDepthsBlendInIndexOrder) {
+  Camera cam;
+  cam.width = 101, cam.height = 81;
+  cam.fx = cam.fy = 100;
+  cam.cx = 50, cam.cy = 40;
+  GaussianCloud g;
+  g.sh_degree = 0;
+  const size_t n = 100000;
+  g.Resize(n);
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> x(0.8f, 1.5f), y(-1, 1), z(5, 10);
+  for (size_t i = 0; i < n; ++i) {  // tiny splats off to the side, behind: not at the centre
+    g.position[3 * i] = x(rng), g.position[3 * i + 1] = y(rng), g.position[3 * i + 2] = z(rng);
+    for (int k = 0; k < 3; ++k) g.scale[3 * i + k] = std::log(0.004f);
+    g.rotation[4 * i] = 1;
+    g.opacity[i] = 2;
+  }
+  // Red, green and blue, the same splat otherwise, at indices far apart.
+  const size_t at[3] = {10, 50000, 99990};
+  const double c0 = 0.28209479177387814;
+  for (int k = 0; k < 3; ++k) {
+    const size_t i = at[k];
+    g.position[3 * i] = 0, g.position[3 * i + 1] = 0, g.position[3 * i + 2] = 2;
+    for (int c = 0; c < 3; ++c) {
+      g.scale[3 * i + c] = std::log(0.05f);
+      g.sh_dc[3 * i + c] = static_cast<float>((c == k ? 0.5 : -0.5) / c0);  // colour 1 or 0
+    }
+    g.opacity[i] = 0;  // 0.5
+  }
+  for (int threads : {1, 3}) {
+    GaussianImage img;
+    GaussianRenderOptions options;
+    options.threads = threads;
+    GaussianRenderStats stats;
+    ASSERT_TRUE(RenderGaussians(g, cam, options, &img, &stats).ok());
+    EXPECT_GT(stats.splats_visible, 65536u);
+    const size_t centre = 40 * 101 + 50;  // alpha 0.5 each: 0.5 red, 0.25 green, 0.125 blue
+    EXPECT_NEAR(img.rgb[3 * centre + 0], 0.5, 1e-5) << threads << " threads";
+    EXPECT_NEAR(img.rgb[3 * centre + 1], 0.25, 1e-5) << threads << " threads";
+    EXPECT_NEAR(img.rgb[3 * centre + 2], 0.125, 1e-5) << threads << " threads";
+    EXPECT_NEAR(img.alpha[centre], 0.875, 1e-6) << threads << " threads";
+  }
+}
+
 TEST(GaussianRaster, EmptyCloudGivesTheBackground) {
   GaussianCloud g;
   const Camera cam = TestCameras()[0];
