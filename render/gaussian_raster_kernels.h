@@ -166,6 +166,33 @@ HVDB_SIMD_INLINE void ShRestDegree3(const float* rest, const float* b, float* su
   sum[2] = all[2];
 }
 
+// 8 triples (x y z x y z ...) from p into out[0..2] = the 8 x, y and z.
+HVDB_SIMD_INLINE void Deinterleave3(const float* p, F8* out) {
+  using internal::Load;
+  const F8 a = Load<F8>(p), b = Load<F8>(p + 8), c = Load<F8>(p + 16);
+  // a: x0 y0 z0 x1 y1 z1 x2 y2 | b: z2 x3 y3 z3 x4 y4 z4 x5 | c: y5 z5 x6 y6 z6 x7 y7 z7
+  const F8 x = __builtin_shufflevector(a, b, 0, 3, 6, 9, 12, 15, 0, 0);
+  const F8 y = __builtin_shufflevector(a, b, 1, 4, 7, 10, 13, 0, 0, 0);
+  const F8 z = __builtin_shufflevector(a, b, 2, 5, 8, 11, 14, 0, 0, 0);
+  out[0] = __builtin_shufflevector(x, c, 0, 1, 2, 3, 4, 5, 10, 13);
+  out[1] = __builtin_shufflevector(y, c, 0, 1, 2, 3, 4, 8, 11, 14);
+  out[2] = __builtin_shufflevector(z, c, 0, 1, 2, 3, 4, 9, 12, 15);
+}
+
+// 8 quadruples (w x y z ...) from p into out[0..3] = the 8 w, x, y and z.
+HVDB_SIMD_INLINE void Deinterleave4(const float* p, F8* out) {
+  using internal::Load;
+  const F8 a = Load<F8>(p), b = Load<F8>(p + 8), c = Load<F8>(p + 16), d = Load<F8>(p + 24);
+  const F8 ab0 = __builtin_shufflevector(a, b, 0, 4, 8, 12, 1, 5, 9, 13);  // w0-3 x0-3
+  const F8 cd0 = __builtin_shufflevector(c, d, 0, 4, 8, 12, 1, 5, 9, 13);  // w4-7 x4-7
+  const F8 ab1 = __builtin_shufflevector(a, b, 2, 6, 10, 14, 3, 7, 11, 15);  // y0-3 z0-3
+  const F8 cd1 = __builtin_shufflevector(c, d, 2, 6, 10, 14, 3, 7, 11, 15);  // y4-7 z4-7
+  out[0] = __builtin_shufflevector(ab0, cd0, 0, 1, 2, 3, 8, 9, 10, 11);
+  out[1] = __builtin_shufflevector(ab0, cd0, 4, 5, 6, 7, 12, 13, 14, 15);
+  out[2] = __builtin_shufflevector(ab1, cd1, 0, 1, 2, 3, 8, 9, 10, 11);
+  out[3] = __builtin_shufflevector(ab1, cd1, 4, 5, 6, 7, 12, 13, 14, 15);
+}
+
 // Step 1 for the 8 splats from i0 (`count` of them real): the visible ones' records and items
 // appended at records[*k], items[*k]. The arithmetic up to the 2D conic, the radius's square
 // root and the SH basis runs on 8 splats at once (the cloud's arrays are structures of arrays);
@@ -177,32 +204,43 @@ static void PrepareGroup(const formats::GaussianCloud& g, size_t i0, int count, 
   using internal::Max;
   using internal::Min;
   using internal::Store;
-  // The inputs, transposed: in[field][lane].
-  alignas(32) float in[14][8];
-  for (int l = 0; l < 8; ++l) {
-    const size_t i = i0 + static_cast<size_t>(std::min(l, count - 1));
-    for (int c = 0; c < 3; ++c) in[c][l] = g.position[3 * i + c];
-    for (int c = 0; c < 3; ++c) in[3 + c][l] = g.scale[3 * i + c];
-    for (int c = 0; c < 4; ++c) in[6 + c][l] = g.rotation[4 * i + c];
-    in[10][l] = g.opacity[i];
+  // The inputs, transposed: f[field] holds the field of the 8 splats. A full group by vector
+  // loads and shuffles; the last, short one of a chunk lane by lane (its missing lanes repeat
+  // the last splat).
+  F8 f[11];
+  if (count == 8) {
+    Deinterleave3(&g.position[3 * i0], f);
+    Deinterleave3(&g.scale[3 * i0], f + 3);
+    Deinterleave4(&g.rotation[4 * i0], f + 6);
+    f[10] = Load<F8>(&g.opacity[i0]);
+  } else {
+    alignas(32) float in[11][8];
+    for (int l = 0; l < 8; ++l) {
+      const size_t i = i0 + static_cast<size_t>(std::min(l, count - 1));
+      for (int c = 0; c < 3; ++c) in[c][l] = g.position[3 * i + c];
+      for (int c = 0; c < 3; ++c) in[3 + c][l] = g.scale[3 * i + c];
+      for (int c = 0; c < 4; ++c) in[6 + c][l] = g.rotation[4 * i + c];
+      in[10][l] = g.opacity[i];
+    }
+    for (int c = 0; c < 11; ++c) f[c] = Load<F8>(in[c]);
   }
-  const F8 px = Load<F8>(in[0]), py = Load<F8>(in[1]), pz = Load<F8>(in[2]);
+  const F8 px = f[0], py = f[1], pz = f[2];
   const float* R = v.rot;
   const F8 tx = R[0] * px + R[1] * py + R[2] * pz + v.trans[0];
   const F8 ty = R[3] * px + R[4] * py + R[5] * pz + v.trans[1];
   const F8 tz = R[6] * px + R[7] * py + R[8] * pz + v.trans[2];
 
   // 3D covariance R S S^T R^T: R of the normalised quaternion (the identity for a zero one).
-  F8 qw = Load<F8>(in[6]), qx = Load<F8>(in[7]), qy = Load<F8>(in[8]), qz = Load<F8>(in[9]);
+  F8 qw = f[6], qx = f[7], qy = f[8], qz = f[9];
   const F8 qn = Sqrt(qw * qw + qx * qx + qy * qy + qz * qz);
   const F8 zero{}, one = Broadcast<F8>(1.0f);
   const F8 inv_qn = qn > 0.0f ? one / qn : zero;
   qw = qn > 0.0f ? qw * inv_qn : one;
   qx *= inv_qn, qy *= inv_qn, qz *= inv_qn;
   // e^(log scale), clamped below overflow (an infinite covariance is culled below anyway).
-  const F8 s0 = internal::Exp(Min(Load<F8>(in[3]), Broadcast<F8>(80.0f)));
-  const F8 s1 = internal::Exp(Min(Load<F8>(in[4]), Broadcast<F8>(80.0f)));
-  const F8 s2 = internal::Exp(Min(Load<F8>(in[5]), Broadcast<F8>(80.0f)));
+  const F8 s0 = internal::Exp(Min(f[3], Broadcast<F8>(80.0f)));
+  const F8 s1 = internal::Exp(Min(f[4], Broadcast<F8>(80.0f)));
+  const F8 s2 = internal::Exp(Min(f[5], Broadcast<F8>(80.0f)));
   const F8 M[9] = {(1.f - 2.f * (qy * qy + qz * qz)) * s0, 2.f * (qx * qy - qw * qz) * s1,
                    2.f * (qx * qz + qw * qy) * s2,         2.f * (qx * qy + qw * qz) * s0,
                    (1.f - 2.f * (qx * qx + qz * qz)) * s1, 2.f * (qy * qz - qw * qx) * s2,
@@ -236,7 +274,7 @@ static void PrepareGroup(const formats::GaussianCloud& g, size_t i0, int count, 
   cyy += kDilation;
   const F8 det = cxx * cyy - cxy * cxy;
   const F8 det_inv = one / det;
-  const F8 logit = Load<F8>(in[10]);
+  const F8 logit = f[10];
   F8 opacity = one / (one + internal::Exp(Min(-logit, Broadcast<F8>(80.0f))));
   if (g.antialiased) opacity *= Sqrt(Max(zero, det0 / det));
   const F8 mid = 0.5f * (cxx + cyy);
