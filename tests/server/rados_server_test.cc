@@ -81,15 +81,20 @@ TEST_F(RadosServerTest, Kill9DuringCommitsLosesNothingAcknowledged) {
   ASSERT_EQ(b.Start(), "");
   std::vector<uint32_t> acknowledged = {0};
   std::atomic<bool> stop{false};
+  std::atomic<int> acked{0};
   std::thread writer([&] {
     for (uint32_t f = 1; f < 200 && !stop; ++f) {
       ShRun r = Cli(a.Address(), "import walk --frame " + std::to_string(f) +
                                      " --units-scale 0.01 " + ply);
       if (r.code != 0) break;  // the server is gone
       acknowledged.push_back(f);
+      ++acked;
     }
   });
-  std::this_thread::sleep_for(std::chrono::milliseconds(1500));
+  // The kill comes once two more commits are acknowledged (a loaded machine takes longer than
+  // a fixed wait), with the next one on its way.
+  WaitUntil(std::chrono::seconds(60), [&] { return acked >= 2; });
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
   a.Kill(SIGKILL);
   stop = true;
   writer.join();
