@@ -364,12 +364,18 @@ TEST(GaussianRaster, MatchesReferenceOnTheScannedBunny) {
 
 // ----- Exact values -----
 
-// One isotropic splat straight ahead: every quantity is known in closed form.
-TEST(GaussianRaster, SingleSplatHasTheExpectedPixels) {
+// 101 x 81 pixels, focal length 100, the optical axis through the centre of pixel (50, 40).
+Camera CentredCamera() {
   Camera cam;
   cam.width = 101, cam.height = 81;
   cam.fx = cam.fy = 100;
   cam.cx = 50, cam.cy = 40;
+  return cam;
+}
+
+// One isotropic splat straight ahead: every quantity is known in closed form.
+TEST(GaussianRaster, SingleSplatHasTheExpectedPixels) {
+  const Camera cam = CentredCamera();
   GaussianCloud g;
   g.sh_degree = 1;
   g.Resize(1);
@@ -493,10 +499,7 @@ TEST(GaussianRaster, LargeCloudSameImageWhateverTheThreadCount) {
 // them, also when the depth sort splits its work (over 65536 visible splats: slices and
 // buckets) and whatever the thread count.
 TEST(GaussianRaster, TiedDepthsBlendInIndexOrder) {
-  Camera cam;
-  cam.width = 101, cam.height = 81;
-  cam.fx = cam.fy = 100;
-  cam.cx = 50, cam.cy = 40;
+  const Camera cam = CentredCamera();
   GaussianCloud g;
   g.sh_degree = 0;
   const size_t n = 100000;
