@@ -516,11 +516,17 @@ Result<GraphCutReply> GraphCutSelect(Dataset& ds, const GraphCutRequest& req,
 
 namespace {
 constexpr char kClipMagic[8] = {'H', 'V', 'D', 'B', 'C', 'L', 'P', '\0'};
-constexpr uint32_t kClipVersion = 1;
+constexpr uint32_t kClipVersion = 2;  // 1 (points only) is read too
 }  // namespace
 
-Status ClipboardStore::Put(const std::string& name, const std::vector<Point>& points) {
+Status ClipboardStore::Put(const std::string& name, const std::vector<Point>& points,
+                           const GaussianColumns* gaussians) {
   HVDB_RETURN_IF_ERROR(ValidateDatasetName(name));  // same rules: a safe file name
+  if (gaussians && gaussians->values.size() != points.size() * gaussians->stride()) {
+    return Status::InvalidArgument("clipboard: " + std::to_string(points.size()) +
+                                   " points but " + std::to_string(gaussians->size()) +
+                                   " Gaussian records");
+  }
   HVDB_RETURN_IF_ERROR(env_->CreateDirs(dir_));
   Writer w;
   w.PutBytes(kClipMagic, 8);
@@ -529,11 +535,15 @@ Status ClipboardStore::Put(const std::string& name, const std::vector<Point>& po
   std::string recs(points.size() * kPointRecordSize, '\0');
   EncodePoints(points, reinterpret_cast<uint8_t*>(recs.data()));
   w.PutBytes(recs.data(), recs.size());
+  w.Put<uint32_t>(gaussians ? static_cast<uint32_t>(gaussians->sh_degree) + 1 : 0);
+  w.Put<uint32_t>(gaussians && gaussians->antialiased ? 1 : 0);
+  // f32 little-endian, as the point records (this host's order: hvdb builds for little-endian).
+  if (gaussians) w.PutBytes(gaussians->values.data(), 4 * gaussians->values.size());
   w.Put<uint32_t>(crc32c::Mask(crc32c::Value(w.data().data(), w.data().size())));
   return WriteFileAtomic(env_, dir_ + "/" + name + ".hvc", w.data());
 }
 
-Result<std::vector<Point>> ClipboardStore::Get(const std::string& name) const {
+Result<Clip> ClipboardStore::Get(const std::string& name) const {
   HVDB_RETURN_IF_ERROR(ValidateDatasetName(name));
   const std::string path = dir_ + "/" + name + ".hvc";
   if (!env_->Exists(path)) return Status::NotFound("no clipboard '" + name + "'");
@@ -543,13 +553,45 @@ Result<std::vector<Point>> ClipboardStore::Get(const std::string& name) const {
       crc32c::Unmask(DecodeLE<uint32_t>(p + data.size() - 4)) != crc32c::Value(p, data.size() - 4)) {
     return Status::Corruption(path + ": not a clipboard file, or its checksum does not match");
   }
-  uint64_t n = DecodeLE<uint64_t>(p + 12);
-  if (DecodeLE<uint32_t>(p + 8) != kClipVersion || data.size() != 24 + n * kPointRecordSize) {
-    return Status::Corruption(path + ": bad version or size");
+  const uint32_t version = DecodeLE<uint32_t>(p + 8);
+  const uint64_t n = DecodeLE<uint64_t>(p + 12);
+  const uint64_t points_end = 20 + n * kPointRecordSize;  // n is bounded by the size below
+  bool sized = n <= data.size() / kPointRecordSize;
+  Clip clip;
+  if (version == 1) {
+    sized = sized && data.size() == points_end + 4;
+  } else if (version == 2) {
+    sized = sized && data.size() >= points_end + 12;
+    if (sized) {
+      const uint32_t degree_plus_one = DecodeLE<uint32_t>(p + points_end);
+      const uint32_t flags = DecodeLE<uint32_t>(p + points_end + 4);
+      if (degree_plus_one > kMaxGaussianShDegree + 1 || flags > 1) {
+        return Status::Corruption(path + ": bad Gaussian record header");
+      }
+      if (degree_plus_one > 0) {
+        auto g = std::make_shared<GaussianColumns>();
+        g->sh_degree = static_cast<int>(degree_plus_one) - 1;
+        g->antialiased = flags & 1;
+        const uint64_t floats = n * g->stride();
+        sized = data.size() == points_end + 12 + 4 * floats;
+        if (sized) {
+          g->values.resize(floats);
+          std::memcpy(g->values.data(), p + points_end + 8, 4 * floats);  // little-endian host
+          HVDB_RETURN_IF_ERROR(ValidateGaussianColumns(*g));
+          clip.gaussians = std::move(g);
+        }
+      } else {
+        sized = data.size() == points_end + 12;
+      }
+    }
+  } else {
+    return Status::Corruption(path + ": clipboard version " + std::to_string(version) +
+                              " (this build reads 1 and 2)");
   }
-  std::vector<Point> pts(n);
-  DecodePoints(p + 20, n, pts.data());
-  return pts;
+  if (!sized) return Status::Corruption(path + ": bad size for " + std::to_string(n) + " points");
+  clip.points.resize(n);
+  DecodePoints(p + 20, n, clip.points.data());
+  return clip;
 }
 
 std::vector<std::string> ClipboardStore::List() const {
@@ -581,7 +623,13 @@ Result<CopyResult> Copy(Dataset& ds, int bit, const std::optional<Region>& regio
   }
   CopyResult res;
   res.points = pts.size();
-  HVDB_RETURN_IF_ERROR(store.Put(clipboard, pts));
+  if (ds.Info().gaussians) {
+    // Splats keep their records on the clipboard (those without one get the derived Gaussian).
+    HVDB_ASSIGN_OR_RETURN(GaussianColumns records, ds.ReadGaussians(pts));
+    HVDB_RETURN_IF_ERROR(store.Put(clipboard, pts, &records));
+  } else {
+    HVDB_RETURN_IF_ERROR(store.Put(clipboard, pts));
+  }
   if (cut && !pts.empty()) {
     std::set<Key> keys;
     for (const Point& p : pts) keys.insert({p.frame, p.id});
@@ -593,18 +641,32 @@ Result<CopyResult> Copy(Dataset& ds, int bit, const std::optional<Region>& regio
   return res;
 }
 
-Result<CommitInfo> Paste(Dataset& ds, const std::vector<Point>& clip, const Affine4& map) {
-  if (clip.empty()) return Status::InvalidArgument("paste: the clipboard is empty");
+Result<CommitInfo> Paste(Dataset& ds, const Clip& clip, const Affine4& map) {
+  if (clip.points.empty()) return Status::InvalidArgument("paste: the clipboard is empty");
   HVDB_ASSIGN_OR_RETURN(AffineMap m, AffineMap::Make(map, ds.Info().fps));
   std::vector<Point> pts;
-  pts.reserve(clip.size());
-  for (const Point& p : clip) {
+  pts.reserve(clip.points.size());
+  for (const Point& p : clip.points) {
     HVDB_ASSIGN_OR_RETURN(Point q, m.Apply(p));
     q.id = 0;  // a pasted point is a new point
     pts.push_back(q);
   }
   Transaction t;
-  t.Insert(std::move(pts));
+  if (clip.gaussians && ds.Info().gaussians) {
+    auto turned = std::make_shared<GaussianColumns>(*clip.gaussians);
+    const GaussianRecordMap g({map.a[0], map.a[1], map.a[2], map.a[4], map.a[5], map.a[6],
+                               map.a[8], map.a[9], map.a[10]});
+    for (size_t i = 0; i < turned->size(); ++i) {
+      if (!g.Apply(turned->sh_degree, turned->record(i))) {
+        return Status::InvalidArgument("paste: the map takes splat " +
+                                       std::to_string(clip.points[i].id) +
+                                       "'s scale or colour beyond float");
+      }
+    }
+    t.Insert(std::move(pts), std::move(turned));
+  } else {
+    t.Insert(std::move(pts));
+  }
   return ds.Commit(t);
 }
 

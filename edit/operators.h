@@ -17,6 +17,7 @@
 
 #include "edit/graph_cut.h"
 #include "storage/database.h"
+#include "storage/gaussian_column.h"
 
 namespace hvdb::edit {
 
@@ -148,6 +149,13 @@ class GraphCutCache {
 Result<GraphCutReply> GraphCutSelect(Dataset& ds, const GraphCutRequest& req,
                                      GraphCutCache* cache = nullptr);
 
+// What a clipboard holds: points as they were stored and, copied from a Gaussian-splat
+// dataset, each one's Gaussian record (null otherwise).
+struct Clip {
+  std::vector<Point> points;
+  std::shared_ptr<const GaussianColumns> gaussians;
+};
+
 // Named clipboards, kept as files DIR/clipboards/<name>.hvc (docs/FORMAT.md), so that they
 // survive sessions and are shared by the server and the embedded CLI.
 class ClipboardStore {
@@ -156,8 +164,10 @@ class ClipboardStore {
   // clipboards); null: the POSIX files.
   explicit ClipboardStore(std::string data_dir, Env* env = nullptr)
       : dir_(std::move(data_dir) + "/clipboards"), env_(env ? env : Env::Default()) {}
-  Status Put(const std::string& name, const std::vector<Point>& points);
-  Result<std::vector<Point>> Get(const std::string& name) const;
+  // gaussians: a record per point, or null.
+  Status Put(const std::string& name, const std::vector<Point>& points,
+             const GaussianColumns* gaussians = nullptr);
+  Result<Clip> Get(const std::string& name) const;
   std::vector<std::string> List() const;
 
  private:
@@ -192,7 +202,9 @@ Result<CopyResult> Copy(Dataset& ds, int bit, const std::optional<Region>& regio
                         ClipboardStore& store, const std::string& clipboard, bool cut);
 
 // Inserts the clipboard's points into `ds` moved by `map` (new ids; frames follow the new t).
-Result<CommitInfo> Paste(Dataset& ds, const std::vector<Point>& clip, const Affine4& map);
+// Into a Gaussian-splat dataset, splats with records keep them, turned and scaled with `map`
+// as a transform turns stored splats (GaussianRecordMap).
+Result<CommitInfo> Paste(Dataset& ds, const Clip& clip, const Affine4& map);
 
 // Inserts an object (e.g. a PLY point cloud) into frames first .. first + count - 1: static, or
 // offset by trajectory[i] (metres) in frame first + i.

@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "formats/gaussians.h"
+#include "storage/gaussian_sh.h"
 #include "storage/status.h"
 
 namespace hvdb::formats {
@@ -30,16 +31,9 @@ struct Similarity {
   bool IsIdentity() const;
 };
 
-// The matrix taking a degree-l coefficient vector (2l+1 values of one channel, order m = -l..l
-// as the 3DGS PLY stores them) to that of the function rotated by `rotation`: c' = M c with
-// f'(d) = f(R^T d). l is 1..3; row-major. Exact to double rounding (a least-squares fit over
-// directions of the basis's polynomials, which the rotated ones span exactly).
-std::vector<double> ShRotationMatrix(int l, const std::array<double, 9>& rotation);
-
-// The colour term of one channel of one splat's SH degrees 1..degree for a unit direction d
-// (x, y, z): sum over coefficients times the 3DGS basis. `rest` holds the channel's
-// ShRestPerChannel(degree) coefficients. For tests and for callers that check a rotation.
-double EvalShRest(int degree, const float* rest, const std::array<double, 3>& d);
+// The SH rotation and evaluation (storage/gaussian_sh.h), for the callers of this header.
+using ::hvdb::EvalShRest;
+using ::hvdb::ShRotationMatrix;
 
 // Applies `m` to every splat of `cloud`. InvalidArgument, naming `name`, when the rotation is not
 // a proper rotation (orthonormal within 1e-6, determinant +1: a mirror would need the SH's

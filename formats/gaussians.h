@@ -29,21 +29,17 @@
 #include <string_view>
 #include <vector>
 
+#include "storage/gaussian_sh.h"
 #include "storage/status.h"
 
 namespace hvdb::formats {
 
-// The degree-0 spherical-harmonic basis constant, 1 / (2 sqrt(pi)): a splat's base colour is
-// 0.5 + kShC0 * f_dc per channel (before clamping to 0..1).
-inline constexpr double kShC0 = 0.28209479177387814;
-// The 3DGS reference's basis constants of degrees 1-3 (auxiliary.h: SH_C1, SH_C2, SH_C3), signs
-// included: the rasterisers and the SH rotation (gaussian_transform.cc) evaluate with them.
-inline constexpr double kShC1 = 0.4886025119029199;
-inline constexpr double kShC2[5] = {1.0925484305920792, -1.0925484305920792, 0.31539156525252005,
-                                    -1.0925484305920792, 0.5462742152960396};
-inline constexpr double kShC3[7] = {-0.5900435899266435, 2.890611442640554, -0.4570457994644658,
-                                    0.3731763325901154,  -0.4570457994644658, 1.445305721320277,
-                                    -0.5900435899266435};
+// The SH basis constants of the 3DGS reference (storage/gaussian_sh.h): a splat's base colour
+// is 0.5 + kShC0 * f_dc per channel (before clamping to 0..1).
+using ::hvdb::kShC0;
+using ::hvdb::kShC1;
+using ::hvdb::kShC2;
+using ::hvdb::kShC3;
 
 // Spherical-harmonic degrees a cloud may have.
 inline constexpr int kMaxShDegree = 3;

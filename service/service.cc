@@ -136,7 +136,7 @@ Result<edit::CopyResult> Service::Copy(const std::string& name, const edit::Copy
 Result<CommitInfo> Service::Paste(const std::string& name, const edit::PasteRequest& req) {
   HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
   edit::ClipboardStore store(data_dir_, env_);
-  HVDB_ASSIGN_OR_RETURN(std::vector<Point> clip, store.Get(req.clipboard));
+  HVDB_ASSIGN_OR_RETURN(edit::Clip clip, store.Get(req.clipboard));
   return edit::Paste(*ds, clip, req.map);
 }
 

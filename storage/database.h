@@ -200,14 +200,23 @@ struct Selection {
 // A batch of operations applied atomically by Dataset::Commit, in order.
 class Transaction {
  public:
-  struct InsertOp { std::vector<Point> points; };       // id 0: the engine assigns one
+  // id 0: the engine assigns one. `gaussians`, if set, holds a record for each point (of a
+  // Gaussian-splat dataset: pasted splats); such points must be new (id 0). Other datasets
+  // keep only the points.
+  struct InsertOp {
+    std::vector<Point> points;
+    std::shared_ptr<const GaussianColumns> gaussians;
+  };
   struct DeleteOp { uint64_t id; uint32_t frame; std::array<float, 3> pos; };
   struct DeleteSelOp { Selection sel; };
   struct TransformOp { Selection sel; Affine4 map; };
   struct LabelOp { Selection sel; uint32_t bits; bool set; };
   using Op = std::variant<InsertOp, DeleteOp, DeleteSelOp, TransformOp, LabelOp>;
 
-  void Insert(std::vector<Point> points) { ops_.push_back(InsertOp{std::move(points)}); }
+  void Insert(std::vector<Point> points) { ops_.push_back(InsertOp{std::move(points), nullptr}); }
+  void Insert(std::vector<Point> points, std::shared_ptr<const GaussianColumns> gaussians) {
+    ops_.push_back(InsertOp{std::move(points), std::move(gaussians)});
+  }
   void Delete(uint64_t id, uint32_t frame, std::array<float, 3> pos) {
     ops_.push_back(DeleteOp{id, frame, pos});
   }

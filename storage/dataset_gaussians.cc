@@ -1,5 +1,5 @@
 // The Gaussian column of a dataset (storage/gaussian_column.h): loads with records, reads of
-// them, and the edits the column cannot follow yet.
+// them, and the records of splats an edit turns or scales.
 #include <algorithm>
 #include <thread>
 
@@ -77,22 +77,50 @@ Result<GaussianColumns> DatasetImpl::ReadGaussians(std::span<const Point> points
   return out;
 }
 
-Status DatasetImpl::CheckGaussianTxn(const Transaction& txn) const {
-  if (!info_.gaussians) return Status::OK();
-  for (const Transaction::Op& op : txn.ops()) {
-    const auto* t = std::get_if<Transaction::TransformOp>(&op);
-    if (!t) continue;
-    for (int i = 0; i < 3; ++i) {
-      for (int j = 0; j < 3; ++j) {
-        if (t->map.a[4 * i + j] != (i == j ? 1.0 : 0.0)) {
-          return Status::InvalidArgument(
-              "dataset '" + info_.name +
-              "' holds Gaussian splats: a transform may move them (translate, shift in time) but "
-              "not yet rotate or scale them (their spherical harmonics and stored scales would "
-              "not follow)");
-        }
-      }
+Result<uint64_t> DatasetImpl::WriteInsertedGaussians(std::span<const Point> points,
+                                                     const GaussianColumns& records,
+                                                     std::vector<uint64_t>* segments) {
+  if (records.size() != points.size() || records.values.size() != points.size() * records.stride()) {
+    return Status::InvalidArgument("insert: " + std::to_string(points.size()) + " points but " +
+                                   std::to_string(records.size()) + " Gaussian records");
+  }
+  HVDB_RETURN_IF_ERROR(ValidateGaussianColumns(records));
+  for (const Point& p : points) {
+    if (p.id != 0) {
+      return Status::InvalidArgument("insert: point " + std::to_string(p.id) +
+                                     " comes with a Gaussian record but is not new (id 0): a "
+                                     "stored point's record cannot be replaced");
     }
+  }
+  // As a transform's: durable before the commit's log record, removed if it is not logged.
+  const uint64_t first = next_id_.fetch_add(points.size());
+  HVDB_RETURN_IF_ERROR(gaussians_->Write(first, records));
+  segments->push_back(first);
+  return first;
+}
+
+Status DatasetImpl::TurnGaussians(const std::array<double, 9>& linear,
+                                  std::span<const Point> selected, std::span<Point> moved,
+                                  std::vector<uint64_t>* segments) {
+  HVDB_ASSIGN_OR_RETURN(GaussianColumns cols, ReadGaussians(selected, nullptr));
+  const GaussianRecordMap map(linear);
+  for (size_t i = 0; i < selected.size(); ++i) {
+    if (!map.Apply(cols.sh_degree, cols.record(i))) {
+      return Status::InvalidArgument("transform: splat " + std::to_string(selected[i].id) +
+                                     " of frame " + std::to_string(selected[i].frame) +
+                                     " would get a scale or colour beyond float");
+    }
+  }
+  // Fresh ids, one run: the records are one segment, durable before the commit's log record
+  // (a crash between leaves ids recovery finds unissued, and their segment is removed).
+  const uint64_t first = next_id_.fetch_add(selected.size());
+  HVDB_RETURN_IF_ERROR(gaussians_->Write(first, cols));
+  segments->push_back(first);
+  for (size_t i = 0; i < moved.size(); ++i) {
+    moved[i].id = first + i;
+    // The record's covariance, so that the point and its splat agree to the bit.
+    moved[i].cov = GaussianCovariance(cols.record(i));
+    moved[i].flags |= kFlagHasCovariance;
   }
   return Status::OK();
 }

@@ -90,9 +90,6 @@ class DatasetImpl {
   Result<GaussianColumns> ReadGaussians(std::span<const Point> points, uint64_t* derived) const;
   Status ReadGaussianRecords(std::span<const uint64_t> ids, GaussianColumns* out,
                              std::vector<bool>* found, size_t max_blocks = SIZE_MAX) const;
-  // InvalidArgument when `txn` would rotate or scale points of a Gaussian dataset (their SH
-  // and stored scales are not transformed yet).
-  Status CheckGaussianTxn(const Transaction& txn) const;
   Result<CommitInfo> Commit(const Transaction& txn);
   Result<CommitInfo> Revert(uint64_t lsn);
   DatasetStats Stats() const;
@@ -165,7 +162,20 @@ class DatasetImpl {
   void LeadGroup(std::vector<WriteRequest*>& group);
   void LeadCommits(std::vector<WriteRequest*>& group);
   // Resolves a request against the working state into a log record (no change yet).
-  Status Resolve(const Transaction& txn, Working* ws, TxnRecord* rec, CommitInfo* info);
+  // Gaussian records the request's transforms wrote are listed in `segments` (by first id),
+  // also on failure: the caller removes them unless the record is logged.
+  Status Resolve(const Transaction& txn, Working* ws, TxnRecord* rec, CommitInfo* info,
+                 std::vector<uint64_t>* segments);
+  // The turned Gaussian records of the points a transform moves (GaussianRecordMap) under fresh
+  // ids, written durably as one segment: a splat that turns is a new point (its old record
+  // stays, for undo). Sets the ids of `moved` and lists the segment.
+  // The records of points an insert brings (new points, id 0) written as one segment under
+  // fresh consecutive ids; returns the first (listed in `segments`).
+  Result<uint64_t> WriteInsertedGaussians(std::span<const Point> points,
+                                          const GaussianColumns& records,
+                                          std::vector<uint64_t>* segments);
+  Status TurnGaussians(const std::array<double, 9>& linear, std::span<const Point> selected,
+                       std::span<Point> moved, std::vector<uint64_t>* segments);
   Result<TxnRecord> FindRecord(uint64_t lsn) const;
   // storage/dataset_watch.cc: the events of the logged changes with LSNs in (after, upto].
   Result<std::vector<ChangeEvent>> EventsBetween(uint64_t after, uint64_t upto) const;

@@ -132,7 +132,6 @@ class DatasetImpl::Working {
 // Writing
 
 Result<CommitInfo> DatasetImpl::Commit(const Transaction& txn) {
-  HVDB_RETURN_IF_ERROR(CheckGaussianTxn(txn));
   WriteRequest w;
   w.kind = WriteRequest::Kind::kTxn;
   w.txn = &txn;
@@ -274,7 +273,7 @@ struct Selected {
 }  // namespace
 
 Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
-                            CommitInfo* info) {
+                            CommitInfo* info, std::vector<uint64_t>* segments) {
   auto apply = [&](FrameEffect&& step) -> Status {
     auto base = ws->Get(step.frame);
     FrameVersion empty;
@@ -341,9 +340,20 @@ Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
     if (const auto* ins = std::get_if<Transaction::InsertOp>(&op)) {
       std::map<uint32_t, FrameEffect> steps;
       FrameEffect* last = nullptr;  // runs of one frame skip the map lookup
-      for (Point p : ins->points) {
+      uint64_t recorded = 0;  // first id of the points' Gaussian records, 0: none
+      if (gaussians_ && ins->gaussians && !ins->points.empty()) {
+        HVDB_ASSIGN_OR_RETURN(recorded, WriteInsertedGaussians(ins->points, *ins->gaussians,
+                                                               segments));
+      }
+      for (size_t i = 0; i < ins->points.size(); ++i) {
+        Point p = ins->points[i];
         HVDB_RETURN_IF_ERROR(ValidatePoint(p));
-        if (p.id == 0) {
+        if (recorded != 0) {
+          p.id = recorded + i;
+          p.cov = GaussianCovariance(ins->gaussians->record(i));
+          p.flags |= kFlagHasCovariance;
+          info->assigned_ids.push_back(p.id);
+        } else if (p.id == 0) {
           p.id = next_id_++;
           info->assigned_ids.push_back(p.id);
         }
@@ -426,15 +436,30 @@ Status DatasetImpl::Resolve(const Transaction& txn, Working* ws, TxnRecord* rec,
     } else if (const auto* tr = std::get_if<Transaction::TransformOp>(&op)) {
       HVDB_ASSIGN_OR_RETURN(AffineMap map, AffineMap::Make(tr->map, info_.fps));
       HVDB_ASSIGN_OR_RETURN(Selected sel, select(tr->sel));
-      std::map<uint32_t, FrameEffect> removes, adds;
+      std::vector<Point> selected, moved;
       for (auto& [f, pts] : sel.by_frame) {
-        for (size_t i = 0; i < pts.size(); ++i) {
-          const Point& p = pts[i];
+        for (const Point& p : pts) {
           HVDB_ASSIGN_OR_RETURN(Point q, map.Apply(p));
           HVDB_RETURN_IF_ERROR(ValidatePoint(q));
+          selected.push_back(p);
+          moved.push_back(q);
+        }
+      }
+      const std::array<double, 9> linear = {tr->map.a[0], tr->map.a[1], tr->map.a[2],
+                                            tr->map.a[4], tr->map.a[5], tr->map.a[6],
+                                            tr->map.a[8], tr->map.a[9], tr->map.a[10]};
+      if (gaussians_ && !GaussianRecordMap(linear).identity() && !selected.empty()) {
+        HVDB_RETURN_IF_ERROR(TurnGaussians(linear, selected, moved, segments));
+      }
+      std::map<uint32_t, FrameEffect> removes, adds;
+      size_t i = 0;
+      for (auto& [f, pts] : sel.by_frame) {
+        for (size_t j = 0; j < pts.size(); ++j, ++i) {
+          const Point& p = selected[i];
+          const Point& q = moved[i];
           removes[p.frame].frame = p.frame;
           removes[p.frame].removed.push_back(p);
-          removes[p.frame].found_in.push_back(sel.where[f][i]);
+          removes[p.frame].found_in.push_back(sel.where[f][j]);
           adds[q.frame].frame = q.frame;
           adds[q.frame].added.push_back(q);
         }
@@ -496,7 +521,14 @@ void DatasetImpl::LeadCommits(std::vector<WriteRequest*>& group) {
   std::vector<TxnRecord> records;
   std::vector<WriteRequest*> committed;
   uint64_t lsn = last_lsn_;
+  // Gaussian segments the group's transforms wrote: removed unless their records are logged.
+  std::vector<uint64_t> group_segments;
+  auto RemoveSegments = [&](std::vector<uint64_t>& firsts) {
+    for (uint64_t first : firsts) (void)gaussians_->Remove(first);
+    firsts.clear();
+  };
   for (WriteRequest* w : group) {
+    std::vector<uint64_t> segments;
     Working attempt = ws;
     TxnRecord rec;
     rec.lsn = lsn + 1;
@@ -538,16 +570,19 @@ void DatasetImpl::LeadCommits(std::vector<WriteRequest*>& group) {
         }
       }
     } else {
-      st = Resolve(*w->txn, &attempt, &rec, &info);
+      st = Resolve(*w->txn, &attempt, &rec, &info, &segments);
     }
     if (!st.ok()) {
+      RemoveSegments(segments);
       w->status = st;
       continue;
     }
     if (rec.frames.empty() && w->kind == Kind::kTxn && w->txn->empty()) {
+      RemoveSegments(segments);
       w->status = Status::InvalidArgument("empty transaction");
       continue;
     }
+    group_segments.insert(group_segments.end(), segments.begin(), segments.end());
     ++lsn;
     info.lsn = lsn;
     w->info = std::move(info);
@@ -562,6 +597,7 @@ void DatasetImpl::LeadCommits(std::vector<WriteRequest*>& group) {
   if (st.ok() && opts_.sync) st = wal_->Sync();
   if (!st.ok()) {
     // Nothing of the group may survive: cut the log back to where it was.
+    RemoveSegments(group_segments);
     auto reopened = WalWriter::Open(env_, dir_ + "/wal.log", wal_start_lsn_, before, true);
     if (reopened.ok()) wal_ = std::move(reopened).value();
     for (WriteRequest* w : committed) {

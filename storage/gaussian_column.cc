@@ -11,6 +11,7 @@
 
 #include "storage/coding.h"
 #include "storage/crc32c.h"
+#include "storage/gaussian_sh.h"
 
 namespace hvdb {
 namespace {
@@ -40,42 +41,6 @@ bool ParseSegmentName(const std::string& name, uint64_t* first_id) {
   return true;
 }
 
-// Symmetric 3x3 eigen-decomposition by cyclic Jacobi rotations: exact enough for a covariance
-// in a few sweeps, and no dependency for one matrix size.
-void Eigen3(const double a_in[3][3], double evals[3], double evecs[3][3]) {
-  double a[3][3], v[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
-  std::memcpy(a, a_in, sizeof a);
-  for (int sweep = 0; sweep < 32; ++sweep) {
-    const double off = a[0][1] * a[0][1] + a[0][2] * a[0][2] + a[1][2] * a[1][2];
-    if (off < 1e-30) break;
-    for (int p = 0; p < 2; ++p) {
-      for (int q = p + 1; q < 3; ++q) {
-        if (std::fabs(a[p][q]) < 1e-300) continue;
-        const double theta = (a[q][q] - a[p][p]) / (2 * a[p][q]);
-        const double t = (theta >= 0 ? 1 : -1) / (std::fabs(theta) + std::sqrt(theta * theta + 1));
-        const double c = 1 / std::sqrt(t * t + 1), s = t * c;
-        for (int k = 0; k < 3; ++k) {  // A <- A J
-          const double akp = a[k][p], akq = a[k][q];
-          a[k][p] = c * akp - s * akq;
-          a[k][q] = s * akp + c * akq;
-        }
-        for (int k = 0; k < 3; ++k) {  // A <- J^T A
-          const double apk = a[p][k], aqk = a[q][k];
-          a[p][k] = c * apk - s * aqk;
-          a[q][k] = s * apk + c * aqk;
-        }
-        for (int k = 0; k < 3; ++k) {
-          const double vkp = v[k][p], vkq = v[k][q];
-          v[k][p] = c * vkp - s * vkq;
-          v[k][q] = s * vkp + c * vkq;
-        }
-      }
-    }
-  }
-  for (int i = 0; i < 3; ++i) evals[i] = a[i][i];
-  std::memcpy(evecs, v, sizeof v);
-}
-
 std::string Hex(uint64_t v) {
   char buf[24];
   std::snprintf(buf, sizeof buf, "%" PRIu64, v);
@@ -96,42 +61,22 @@ void DeriveGaussian(const Point& p, float* rec) {
     const double m[3][3] = {{s2, 0, 0}, {0, s2, 0}, {0, 0, s2}};
     std::memcpy(cov, m, sizeof cov);
   }
-  double ev[3], v[3][3];
-  Eigen3(cov, ev, v);
-  // A proper rotation: flip the third axis if the eigenvectors form a left-handed frame.
-  const double det = v[0][0] * (v[1][1] * v[2][2] - v[1][2] * v[2][1]) -
-                     v[0][1] * (v[1][0] * v[2][2] - v[1][2] * v[2][0]) +
-                     v[0][2] * (v[1][0] * v[2][1] - v[1][1] * v[2][0]);
-  if (det < 0) {
-    for (int k = 0; k < 3; ++k) v[k][2] = -v[k][2];
+  Mat3d m;
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) m[3 * i + j] = cov[i][j];
   }
+  std::array<double, 3> ev;
+  Mat3d v;
+  SymmetricEigen3(m, &ev, &v);
   for (int i = 0; i < 3; ++i) {
     rec[kGsScale + i] = static_cast<float>(0.5 * std::log(std::max(ev[i], 1e-20)));
   }
-  // Quaternion (w x y z) of the rotation whose columns are the eigenvectors (Shepperd's method).
-  const double tr = v[0][0] + v[1][1] + v[2][2];
-  double w, x, y, z;
-  if (tr > 0) {
-    const double s = std::sqrt(tr + 1) * 2;
-    w = 0.25 * s, x = (v[2][1] - v[1][2]) / s, y = (v[0][2] - v[2][0]) / s, z = (v[1][0] - v[0][1]) / s;
-  } else if (v[0][0] > v[1][1] && v[0][0] > v[2][2]) {
-    const double s = std::sqrt(1 + v[0][0] - v[1][1] - v[2][2]) * 2;
-    w = (v[2][1] - v[1][2]) / s, x = 0.25 * s, y = (v[0][1] + v[1][0]) / s, z = (v[0][2] + v[2][0]) / s;
-  } else if (v[1][1] > v[2][2]) {
-    const double s = std::sqrt(1 + v[1][1] - v[0][0] - v[2][2]) * 2;
-    w = (v[0][2] - v[2][0]) / s, x = (v[0][1] + v[1][0]) / s, y = 0.25 * s, z = (v[1][2] + v[2][1]) / s;
-  } else {
-    const double s = std::sqrt(1 + v[2][2] - v[0][0] - v[1][1]) * 2;
-    w = (v[1][0] - v[0][1]) / s, x = (v[0][2] + v[2][0]) / s, y = (v[1][2] + v[2][1]) / s, z = 0.25 * s;
-  }
-  rec[kGsRotation + 0] = static_cast<float>(w);
-  rec[kGsRotation + 1] = static_cast<float>(x);
-  rec[kGsRotation + 2] = static_cast<float>(y);
-  rec[kGsRotation + 3] = static_cast<float>(z);
+  // The quaternion of the rotation whose columns are the eigenvectors.
+  const std::array<double, 4> q = QuaternionOf(v);
+  for (int k = 0; k < 4; ++k) rec[kGsRotation + k] = static_cast<float>(q[k]);
   rec[kGsOpacity] = static_cast<float>(std::log(0.99 / 0.01));
-  constexpr double kC0 = 0.28209479177387814;
   const uint8_t rgb[3] = {p.r, p.g, p.b};
-  for (int c = 0; c < 3; ++c) rec[kGsDc + c] = static_cast<float>((rgb[c] / 255.0 - 0.5) / kC0);
+  for (int c = 0; c < 3; ++c) rec[kGsDc + c] = static_cast<float>((rgb[c] / 255.0 - 0.5) / kShC0);
 }
 
 void WidenRecord(const float* src, int from, float* dst, int to) {
@@ -160,24 +105,123 @@ uint64_t DeriveMissing(std::span<const Point> points, const std::vector<bool>& f
 }
 
 std::array<float, 6> GaussianCovariance(const float* rec) {
-  double w = rec[kGsRotation], x = rec[kGsRotation + 1], y = rec[kGsRotation + 2],
-         z = rec[kGsRotation + 3];
-  const double n = std::sqrt(w * w + x * x + y * y + z * z);
-  if (n > 0) {
-    w /= n, x /= n, y /= n, z /= n;
-  } else {
-    w = 1, x = y = z = 0;
-  }
-  const double R[3][3] = {{1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)},
-                          {2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)},
-                          {2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)}};
+  const Mat3d r = RotationOf({rec[kGsRotation], rec[kGsRotation + 1], rec[kGsRotation + 2],
+                              rec[kGsRotation + 3]});
+  auto R = [&](int i, int j) { return r[3 * i + j]; };
   double s2[3];
   for (int i = 0; i < 3; ++i) s2[i] = std::exp(2.0 * rec[kGsScale + i]);
   auto c = [&](int i, int j) {
-    return static_cast<float>(R[i][0] * R[j][0] * s2[0] + R[i][1] * R[j][1] * s2[1] +
-                              R[i][2] * R[j][2] * s2[2]);
+    return static_cast<float>(R(i, 0) * R(j, 0) * s2[0] + R(i, 1) * R(j, 1) * s2[1] +
+                              R(i, 2) * R(j, 2) * s2[2]);
   };
   return {c(0, 0), c(0, 1), c(0, 2), c(1, 1), c(1, 2), c(2, 2)};
+}
+
+GaussianRecordMap::GaussianRecordMap(const std::array<double, 9>& a) : a_(a) {
+  identity_ = a == Mat3d{1, 0, 0, 0, 1, 0, 0, 0, 1};
+  // A^T A = k^2 I for a similarity; else its eigen-decomposition gives A's polar factor.
+  Mat3d ata{};
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) {
+      for (int k = 0; k < 3; ++k) ata[3 * i + j] += a[3 * k + i] * a[3 * k + j];
+    }
+  }
+  const double k2 = (ata[0] + ata[4] + ata[8]) / 3;
+  double off = 0;
+  for (int i = 0; i < 9; ++i) off = std::max(off, std::fabs(ata[i] - (i % 4 == 0 ? k2 : 0)));
+  similarity_ = off <= 1e-9 * k2;
+  mirror_ = Det3(a) < 0;
+  if (similarity_) {
+    const double k = std::sqrt(k2);
+    log_scale_ = k == 1 ? 0 : std::log(k);
+    for (int i = 0; i < 9; ++i) orthogonal_[i] = a[i] / k;
+    if (!mirror_) q_ = QuaternionOf(orthogonal_);
+  } else {
+    std::array<double, 3> lambda;
+    Mat3d v;
+    SymmetricEigen3(ata, &lambda, &v);
+    Mat3d inv_sqrt{};  // (A^T A)^(-1/2) = V diag(lambda^(-1/2)) V^T
+    for (int i = 0; i < 3; ++i) {
+      for (int j = 0; j < 3; ++j) {
+        for (int k = 0; k < 3; ++k) {
+          inv_sqrt[3 * i + j] += v[3 * i + k] * v[3 * j + k] / std::sqrt(lambda[k]);
+        }
+      }
+    }
+    orthogonal_ = Mul3(a, inv_sqrt);
+  }
+  for (int l = 1; l <= kMaxGaussianShDegree; ++l) sh_[l] = ShRotationMatrix(l, orthogonal_);
+}
+
+bool GaussianRecordMap::Apply(int degree, float* rec) const {
+  if (identity_) return true;
+  const size_t n = GaussianRecordFloats(degree);
+  std::vector<float> out(rec, rec + n);
+  const std::array<double, 4> q = {rec[kGsRotation], rec[kGsRotation + 1], rec[kGsRotation + 2],
+                                   rec[kGsRotation + 3]};
+  const double qn = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+  std::array<double, 4> turned;
+  if (similarity_ && !mirror_) {
+    turned = QuaternionProduct(q_, q);  // keeps the stored quaternion's length
+    if (log_scale_ != 0) {
+      for (int i = 0; i < 3; ++i) out[kGsScale + i] = static_cast<float>(rec[kGsScale + i] + log_scale_);
+    }
+  } else if (similarity_) {
+    // Q R is left-handed; with its first column negated it is a rotation of the same
+    // covariance (the axes' scales are squared).
+    Mat3d r = Mul3(orthogonal_, RotationOf(q));
+    for (int k = 0; k < 3; ++k) r[3 * k] = -r[3 * k];
+    turned = QuaternionOf(r);
+    if (log_scale_ != 0) {
+      for (int i = 0; i < 3; ++i) out[kGsScale + i] = static_cast<float>(rec[kGsScale + i] + log_scale_);
+    }
+  } else {
+    const Mat3d r = RotationOf(q);
+    double s2[3];
+    for (int i = 0; i < 3; ++i) s2[i] = std::exp(2.0 * rec[kGsScale + i]);
+    Mat3d sigma{};
+    for (int i = 0; i < 3; ++i) {
+      for (int j = 0; j < 3; ++j) {
+        for (int k = 0; k < 3; ++k) sigma[3 * i + j] += r[3 * i + k] * r[3 * j + k] * s2[k];
+      }
+    }
+    Mat3d as = Mul3(a_, sigma), moved{};
+    for (int i = 0; i < 3; ++i) {
+      for (int j = 0; j < 3; ++j) {
+        for (int k = 0; k < 3; ++k) moved[3 * i + j] += as[3 * i + k] * a_[3 * j + k];
+      }
+    }
+    std::array<double, 3> lambda;
+    Mat3d v;
+    SymmetricEigen3(moved, &lambda, &v);
+    for (int i = 0; i < 3; ++i) {
+      out[kGsScale + i] = static_cast<float>(0.5 * std::log(std::max(lambda[i], 1e-300)));
+    }
+    turned = QuaternionOf(v);
+  }
+  if (!(similarity_ && !mirror_)) {
+    for (double& c : turned) c *= qn > 0 ? qn : 1;
+  }
+  for (int k = 0; k < 4; ++k) out[kGsRotation + k] = static_cast<float>(turned[k]);
+  const size_t per_channel = (n - kGsRest) / 3;
+  for (int l = 1, first = 0; l <= degree; first += 2 * l + 1, ++l) {
+    const int dim = 2 * l + 1;
+    const std::vector<double>& m = sh_[l];
+    for (size_t ch = 0; ch < 3; ++ch) {
+      const float* in = rec + kGsRest + ch * per_channel + first;
+      float* o = out.data() + kGsRest + ch * per_channel + first;
+      for (int j = 0; j < dim; ++j) {
+        double sum = 0;
+        for (int k = 0; k < dim; ++k) sum += m[j * dim + k] * in[k];
+        o[j] = static_cast<float>(sum);
+      }
+    }
+  }
+  for (float v : out) {
+    if (!std::isfinite(v)) return false;
+  }
+  std::copy(out.begin(), out.end(), rec);
+  return true;
 }
 
 Status ValidateGaussianColumns(const GaussianColumns& cols) {

@@ -71,6 +71,36 @@ uint64_t DeriveMissing(std::span<const Point> points, const std::vector<bool>& f
 // S = diag(exp(scale)) and R of the normalised quaternion (identity if it is zero), in double.
 std::array<float, 6> GaussianCovariance(const float* rec);
 
+// What a linear map of space x -> A x (the spatial block of an edit's transform) does to a
+// splat's record: its covariance becomes A Sigma A^T and its view-dependent colour turns with
+// the map, so that the colour seen along A d afterwards is the one seen along d before.
+//  - A = k Q with Q a rotation (a similarity): the quaternion is left-multiplied by Q's (its
+//    stored length kept), the log scales raised by ln k, the SH turned by Q, exactly.
+//  - A = k Q with Q a mirror: the same with the mirrored frame's first axis flipped back (a
+//    quaternion holds no mirror; the covariance is the same), the SH mirrored, exactly.
+//  - any other A (a shear, an unequal scale): scales and rotation from the eigen-decomposition
+//    of A Sigma A^T, the SH turned by A's nearest orthogonal map (its polar factor): a shear
+//    bends directions unequally, which no SH of degree <= 3 can follow exactly.
+// Opacity and the DC colour never change.
+class GaussianRecordMap {
+ public:
+  // `a` row-major, invertible (checked by the caller: storage/affine.h).
+  explicit GaussianRecordMap(const std::array<double, 9>& a);
+  // Rewrites the record (GaussianRecordFloats(degree) floats); false if a value would not be
+  // finite (the record is then unchanged).
+  bool Apply(int degree, float* rec) const;
+  // True when A is the identity: records are kept as they are.
+  bool identity() const { return identity_; }
+
+ private:
+  std::array<double, 9> a_;
+  bool identity_ = false, similarity_ = false, mirror_ = false;
+  double log_scale_ = 0;
+  std::array<double, 4> q_{};            // the rotation's quaternion (similarity, no mirror)
+  std::array<double, 9> orthogonal_{};   // Q, or A's polar factor
+  std::vector<double> sh_[kMaxGaussianShDegree + 1];  // per degree 1..3, row-major
+};
+
 // InvalidArgument naming the splat and value if a record is not finite or the degree is not
 // 0..3, or the values' length is not a multiple of the stride.
 Status ValidateGaussianColumns(const GaussianColumns& cols);

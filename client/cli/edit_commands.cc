@@ -183,7 +183,7 @@ int CmdEdit(Context& ctx, const EditArgs& a) {
     Result<std::vector<Point>> pts = ReadPlyNoting(a.paste, ro);
     if (!pts.ok()) return Fail(pts.status());
     for (Point& p : *pts) p.id = 0;  // pasted copies are new points
-    ops.emplace_back(position({a.paste_opt}), Transaction::InsertOp{std::move(pts).value()});
+    ops.emplace_back(position({a.paste_opt}), Transaction::InsertOp{std::move(pts).value(), nullptr});
   }
   if (ops.empty()) {
     return Usage("edit",

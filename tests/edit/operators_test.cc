@@ -7,6 +7,9 @@
 #include <algorithm>
 #include <cmath>
 #include <map>
+#include <cstring>
+#include <filesystem>
+#include <random>
 #include <set>
 
 #include "tests/edit/scene.h"
@@ -459,9 +462,10 @@ TEST_F(OperatorsTest, CutPasteAndRedo) {
   auto pasted = Paste(*other, *clip, move);
   ASSERT_TRUE(pasted.ok()) << pasted.status().ToString();
   auto got = ReadAll(*other);
-  ASSERT_EQ(got.size(), clip->size());
+  ASSERT_EQ(got.size(), clip->points.size());
+  EXPECT_EQ(clip->gaussians, nullptr);  // plain points: no records
   std::multiset<std::tuple<uint32_t, float, float, float>> want, have;
-  for (const Point& p : *clip) want.insert({p.frame + 1, p.x + 1.0f, p.y, p.z});
+  for (const Point& p : clip->points) want.insert({p.frame + 1, p.x + 1.0f, p.y, p.z});
   for (const auto& [k, p] : got) have.insert({p.frame, p.x, p.y, p.z});
   EXPECT_EQ(have, want);
   // Undo the paste, redo it.
@@ -469,7 +473,7 @@ TEST_F(OperatorsTest, CutPasteAndRedo) {
   ASSERT_TRUE(undo.ok());
   EXPECT_TRUE(ReadAll(*other).empty());
   ASSERT_TRUE(other->Revert(undo->lsn).ok());
-  EXPECT_EQ(ReadAll(*other).size(), clip->size());
+  EXPECT_EQ(ReadAll(*other).size(), clip->points.size());
   // Undo the cut: the sphere is back exactly.
   ASSERT_TRUE(ds_->Revert(cut->lsn).ok());
   auto restored = ReadAll(*ds_);
@@ -479,6 +483,98 @@ TEST_F(OperatorsTest, CutPasteAndRedo) {
     EXPECT_EQ(p.x, before[k].x);
   }
   EXPECT_TRUE(store.Get("nope").status().IsNotFound());
+}
+
+// Copy and paste in a Gaussian-splat dataset: the clipboard keeps each splat's record, and a
+// paste with a rotation and scale inserts the records turned as a transform turns stored
+// splats; into a plain dataset only the points go; a damaged clipboard file is named.
+TEST_F(OperatorsTest, CopyPasteCarriesSplatRecordsTurned) {
+  DatasetInfo info;
+  info.name = "splats";
+  info.fps = kFps;
+  info.gaussians = true;
+  auto splats = *db_->CreateDataset(info);
+  std::mt19937_64 rng(17);
+  std::normal_distribution<float> g;
+  constexpr size_t kN = 300;
+  std::vector<Point> pts(kN);
+  GaussianColumns cols;
+  cols.sh_degree = 3;
+  cols.values.resize(kN * cols.stride());
+  for (size_t i = 0; i < kN; ++i) {
+    float* rec = cols.record(i);
+    for (size_t k = 0; k < cols.stride(); ++k) rec[k] = g(rng);
+    for (int k = 0; k < 3; ++k) rec[kGsScale + k] = -4 + 0.5f * g(rng);
+    pts[i].x = g(rng), pts[i].y = g(rng), pts[i].z = g(rng);
+    pts[i].cov = GaussianCovariance(rec);
+    pts[i].flags = kFlagHasCovariance;
+  }
+  ASSERT_TRUE(splats->BulkLoadGaussians(0, pts, cols).ok());
+  SelectRequest r;
+  r.region = Everything();
+  r.bit = 4;
+  ASSERT_TRUE(Select(*splats, r).ok());
+  ClipboardStore store(dir_.path());
+  auto copied = Copy(*splats, 4, std::nullopt, store, "splats", /*cut=*/false);
+  ASSERT_TRUE(copied.ok()) << copied.status().ToString();
+  auto clip = store.Get("splats");
+  ASSERT_TRUE(clip.ok()) << clip.status().ToString();
+  ASSERT_NE(clip->gaussians, nullptr);
+  ASSERT_EQ(clip->points.size(), kN);
+  auto source = splats->ReadGaussians(clip->points);
+  ASSERT_TRUE(source.ok());
+  EXPECT_EQ(source->values, clip->gaussians->values);
+
+  // 90 degrees about z, scaled by 2, one frame later.
+  Affine4 move;
+  move.a = {0, -2, 0, 0, 2, 0, 0, 0, 0, 0, 2, 0, 0, 0, 0, 1};
+  move.c = {0, 0, 0, 1 / kFps};
+  auto pasted = Paste(*splats, *clip, move);
+  ASSERT_TRUE(pasted.ok()) << pasted.status().ToString();
+  ASSERT_EQ(pasted->assigned_ids.size(), kN);
+  std::vector<Point> got;
+  for (const auto& [k, p] : ReadAll(*splats)) {
+    if (p.frame == 1) got.push_back(p);
+  }
+  ASSERT_EQ(got.size(), kN);
+  uint64_t derived = 0;
+  auto records = splats->ReadGaussians(got, &derived);
+  ASSERT_TRUE(records.ok());
+  EXPECT_EQ(derived, 0u);
+  const GaussianRecordMap turn({0, -2, 0, 2, 0, 0, 0, 0, 2});
+  std::map<uint64_t, size_t> clip_index;  // pasted id -> clipboard index (ids in paste order)
+  for (size_t i = 0; i < kN; ++i) clip_index[pasted->assigned_ids[i]] = i;
+  for (size_t i = 0; i < got.size(); ++i) {
+    const size_t j = clip_index.at(got[i].id);
+    std::vector<float> want(clip->gaussians->record(j), clip->gaussians->record(j) + cols.stride());
+    ASSERT_TRUE(turn.Apply(3, want.data()));
+    EXPECT_EQ(0, std::memcmp(want.data(), records->record(i), 4 * want.size())) << i;
+    EXPECT_FLOAT_EQ(got[i].x, -2 * clip->points[j].y);
+    EXPECT_EQ(got[i].cov, GaussianCovariance(records->record(i)));
+  }
+  // Undo the paste: frame 1 is empty again; redo brings the same records.
+  auto undo = splats->Revert(pasted->lsn);
+  ASSERT_TRUE(undo.ok());
+  ASSERT_TRUE(splats->Revert(undo->lsn).ok());
+  auto again = splats->ReadGaussians(got);
+  ASSERT_TRUE(again.ok());
+  EXPECT_EQ(again->values, records->values);
+
+  // Into a plain dataset: the points, no records.
+  DatasetInfo plain_info;
+  plain_info.name = "plain";
+  plain_info.fps = kFps;
+  auto plain = *db_->CreateDataset(plain_info);
+  ASSERT_TRUE(Paste(*plain, *clip, Affine4{}).ok());
+  EXPECT_EQ(ReadAll(*plain).size(), kN);
+
+  // A clipboard file cut short is named as damaged.
+  const std::string file = dir_.path() + "/clipboards/splats.hvc";
+  std::filesystem::resize_file(file, std::filesystem::file_size(file) - 100);
+  auto bad = store.Get("splats");
+  ASSERT_FALSE(bad.ok());
+  EXPECT_EQ(bad.status().code(), StatusCode::kCorruption);
+  EXPECT_NE(bad.status().message().find("splats.hvc"), std::string::npos);
 }
 
 TEST_F(OperatorsTest, CompositeAlongATrajectory) {
