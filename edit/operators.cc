@@ -671,13 +671,19 @@ Result<CommitInfo> Paste(Dataset& ds, const Clip& clip, const Affine4& map) {
 }
 
 Result<CommitInfo> Composite(Dataset& ds, const std::vector<Point>& object, uint32_t first,
-                             uint32_t count, const std::vector<std::array<double, 3>>& trajectory) {
+                             uint32_t count, const std::vector<std::array<double, 3>>& trajectory,
+                             const GaussianColumns* gaussians) {
   if (object.empty()) return Status::InvalidArgument("composite: the object has no points");
   if (count == 0) return Status::InvalidArgument("composite: the frame count must be > 0");
   if (!trajectory.empty() && trajectory.size() != count) {
     return Status::InvalidArgument("composite: the trajectory needs one offset per frame (" +
                                    std::to_string(count) + "), got " +
                                    std::to_string(trajectory.size()));
+  }
+  if (gaussians && gaussians->values.size() != object.size() * gaussians->stride()) {
+    return Status::InvalidArgument("composite: " + std::to_string(object.size()) +
+                                   " points but " + std::to_string(gaussians->size()) +
+                                   " Gaussian records");
   }
   std::vector<Point> pts;
   pts.reserve(object.size() * count);
@@ -693,7 +699,20 @@ Result<CommitInfo> Composite(Dataset& ds, const std::vector<Point>& object, uint
     }
   }
   Transaction t;
-  t.Insert(std::move(pts));
+  if (gaussians && ds.Info().gaussians) {
+    // The object's records once per frame, in the points' order (a static splat in every frame).
+    auto records = std::make_shared<GaussianColumns>();
+    records->sh_degree = gaussians->sh_degree;
+    records->antialiased = gaussians->antialiased;
+    records->values.reserve(gaussians->values.size() * count);
+    for (uint32_t i = 0; i < count; ++i) {
+      records->values.insert(records->values.end(), gaussians->values.begin(),
+                             gaussians->values.end());
+    }
+    t.Insert(std::move(pts), std::move(records));
+  } else {
+    t.Insert(std::move(pts));
+  }
   return ds.Commit(t);
 }
 

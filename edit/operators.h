@@ -197,6 +197,8 @@ struct CompositeRequest {
   std::vector<Point> object;
   uint32_t first_frame = 0, frame_count = 1;
   std::vector<std::array<double, 3>> trajectory;  // metres per frame, or empty (static)
+  // A record per object point (a splat file's), or null: see Composite.
+  std::shared_ptr<const GaussianColumns> gaussians = nullptr;
 };
 Result<CopyResult> Copy(Dataset& ds, int bit, const std::optional<Region>& region,
                         ClipboardStore& store, const std::string& clipboard, bool cut);
@@ -207,10 +209,12 @@ Result<CopyResult> Copy(Dataset& ds, int bit, const std::optional<Region>& regio
 Result<CommitInfo> Paste(Dataset& ds, const Clip& clip, const Affine4& map);
 
 // Inserts an object (e.g. a PLY point cloud) into frames first .. first + count - 1: static, or
-// offset by trajectory[i] (metres) in frame first + i.
+// offset by trajectory[i] (metres) in frame first + i. Into a Gaussian-splat dataset an object
+// with `gaussians` (a record per point: a splat file) keeps them in every frame.
 Result<CommitInfo> Composite(Dataset& ds, const std::vector<Point>& object, uint32_t first,
                              uint32_t count,
-                             const std::vector<std::array<double, 3>>& trajectory = {});
+                             const std::vector<std::array<double, 3>>& trajectory = {},
+                             const GaussianColumns* gaussians = nullptr);
 
 // Projects a 3D point through a pinhole camera (no distortion): false if behind it.
 bool ProjectToPixel(const CameraInfo& cam, double x, double y, double z, double* u, double* v,

@@ -266,6 +266,9 @@ void ToWire(const edit::CompositeRequest& r, wire::CompositeRequest* out) {
   for (const auto& d : r.trajectory) {
     for (double v : d) out->add_trajectory(v);
   }
+  if (r.gaussians) {
+    EncodeGaussians(*r.gaussians, 0, r.gaussians->size(), out->mutable_gaussians());
+  }
 }
 
 Result<edit::CompositeRequest> FromWire(const wire::CompositeRequest& q) {
@@ -278,6 +281,16 @@ Result<edit::CompositeRequest> FromWire(const wire::CompositeRequest& q) {
   }
   for (int i = 0; i + 2 < q.trajectory_size(); i += 3) {
     c.trajectory.push_back({q.trajectory(i), q.trajectory(i + 1), q.trajectory(i + 2)});
+  }
+  if (q.has_gaussians()) {
+    auto g = std::make_shared<GaussianColumns>();
+    HVDB_RETURN_IF_ERROR(DecodeGaussians(q.gaussians(), g.get()));
+    if (g->size() != c.object.size()) {
+      return Status::InvalidArgument("composite.gaussians: " + std::to_string(g->size()) +
+                                     " records for " + std::to_string(c.object.size()) +
+                                     " object points");
+    }
+    c.gaussians = std::move(g);
   }
   return c;
 }

@@ -142,7 +142,8 @@ Result<CommitInfo> Service::Paste(const std::string& name, const edit::PasteRequ
 
 Result<CommitInfo> Service::Composite(const std::string& name, const edit::CompositeRequest& req) {
   HVDB_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> ds, Find(name));
-  return edit::Composite(*ds, req.object, req.first_frame, req.frame_count, req.trajectory);
+  return edit::Composite(*ds, req.object, req.first_frame, req.frame_count, req.trajectory,
+                         req.gaussians.get());
 }
 
 Result<CommitInfo> Service::ImportMedia(const std::string& name,

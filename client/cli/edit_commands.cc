@@ -19,6 +19,7 @@
 
 #include "client/cli/commands.h"
 #include "client/cli/common.h"
+#include "client/cli/splat_files.h"
 #include "formats/ply.h"
 
 namespace hvdb::cli {
@@ -308,14 +309,37 @@ int CmdComposite(Context& ctx, const CompositeArgs& a) {
   formats::ReadOptions ro;
   ro.scale = a.units_scale;
   ro.skip_invalid = a.skip_invalid;
-  Result<std::vector<Point>> object = ReadPlyNoting(a.ply, ro);
+  // A splat file keeps its splats' records in a Gaussian-splat dataset; another dataset
+  // refuses it as import does. A point file composites into either.
+  formats::GaussianFormat sniffed = SniffSplatFile(a.ply);
+  if (sniffed == formats::GaussianFormat::kUnknown && info->gaussians && a.ply.ends_with(".splat")) {
+    sniffed = formats::GaussianFormat::kSplat;  // no signature: its name says it
+  }
+  if (sniffed != formats::GaussianFormat::kUnknown && !info->gaussians) {
+    return Fail(Status::InvalidArgument(
+        a.ply + " is a " + formats::GaussianFormatName(sniffed) +
+        " file of Gaussian splats, and '" + a.name +
+        "' holds plain points: composite it into a dataset made with `hvdb create NAME --fps F "
+        "--gaussians`"));
+  }
+  std::shared_ptr<GaussianColumns> records;
+  Result<std::vector<Point>> object = std::vector<Point>{};
+  if (sniffed != formats::GaussianFormat::kUnknown) {
+    formats::Similarity move;
+    move.scale = a.units_scale;
+    records = std::make_shared<GaussianColumns>();
+    std::vector<std::string> ignored;
+    object = ReadSplatFrame(a.ply, 0, move, records.get(), &ignored);
+  } else {
+    object = ReadPlyNoting(a.ply, ro);
+  }
   if (!object.ok()) return Fail(object.status());
   if (object->empty()) {
     return Fail(Status::InvalidArgument("'" + a.ply + "' has no points to composite"));
   }
   const size_t object_points = object->size();
   Result<CommitInfo> ci = ctx.db().Composite(
-      a.name, {std::move(*object), a.first_frame, a.frames, trajectory});
+      a.name, {std::move(*object), a.first_frame, a.frames, trajectory, std::move(records)});
   if (!ci.ok()) return Fail(ci.status());
   const uint32_t last = a.first_frame + (a.frames - 1);
   CommitOutput out = Committed(*ci);
@@ -465,7 +489,11 @@ void AddClipboardCommands(CLI::App& app, Context& ctx) {
       "composite",
       "Insert an object (a PLY point cloud) into consecutive frames, still or along a trajectory");
   composite_cmd->add_option("name", composite.name, "Dataset")->required();
-  composite_cmd->add_option("--ply", composite.ply, "FILE.ply: the object")->required();
+  composite_cmd
+      ->add_option("--ply", composite.ply,
+                   "FILE: the object, a point PLY, or a splat file (3DGS PLY, SPZ, GLB) whose "
+                   "splats keep their records in a Gaussian-splat dataset")
+      ->required();
   composite_cmd
       ->add_option("--units-scale", composite.units_scale,
                    "Multiply the object's positions by this (0.01: the file is in centimetres)")

@@ -225,6 +225,38 @@ TEST_F(SplatCliTest, ImportRotatesAndScalesSplats) {
   EXPECT_NE(r.err.find("--rotate is for splat files"), std::string::npos) << r.err;
 }
 
+// `hvdb composite --ply SPLATS` puts a splat object into every frame of a range, records and
+// all, embedded and through hvdb-server: each frame exports as the file, byte for byte. A
+// .splat object goes in by its name; a plain dataset refuses splats as import does.
+TEST_F(SplatCliTest, CompositeKeepsTheObjectsSplats) {
+  WriteSequence();
+  fs::create_directories(dir_ + "/srv");
+  testing::ServerProcess server(dir_ + "/srv");
+  ASSERT_TRUE(server.running());
+  for (const std::string& db : {std::string("--data d"),
+                               "--server 127.0.0.1:" + std::to_string(server.port())}) {
+    SCOPED_TRACE(db);
+    ASSERT_EQ(Run(db + " create s --fps 30 --gaussians").code, 0);
+    json j = Json(db + " composite s --ply seq/frame_1.ply --first-frame 4 --frames 3");
+    EXPECT_EQ(j["inserted"], 3 * 3000);
+    json d = Json(db + " describe s");
+    EXPECT_EQ(d["storage"]["gaussians"]["records"], 3 * 3000);
+    const std::string out = db == "--data d" ? "emb" : "srv";
+    ASSERT_EQ(Run(db + " export s " + out + " --codec 3dgs").code, 0);
+    for (int f = 4; f <= 6; ++f) {
+      EXPECT_TRUE(ReadAll(dir_ + "/" + out + "/s_00000" + std::to_string(f) + ".ply") == ply_)
+          << "frame " << f;
+    }
+    json k = Json(db + " composite s --ply seq/frame_10.splat --first-frame 9 --frames 1");
+    EXPECT_EQ(k["inserted"], 700);
+    ASSERT_EQ(Run(db + " create plain --fps 30").code, 0);
+    testing::SplitRun r = Run(db + " composite plain --ply seq/frame_2.spz --first-frame 0 "
+                              "--frames 1");
+    EXPECT_EQ(r.code, 1);
+    EXPECT_NE(r.err.find("holds plain points"), std::string::npos) << r.err;
+  }
+}
+
 TEST_F(SplatCliTest, BadFilesNameTheFileAndLoadNothingOfIt) {
   WriteSequence();
   ASSERT_EQ(Run("--data d create s --fps 30 --gaussians").code, 0);
