@@ -19,6 +19,7 @@
 #include <string>
 #include <vector>
 
+#include "storage/gaussian_column.h"
 #include "storage/point.h"
 #include "storage/status.h"
 
@@ -65,6 +66,13 @@ class PointWriter {
  public:
   virtual ~PointWriter() = default;
   virtual Status Append(std::span<const Point> pts) = 0;
+  // A writer opened for Gaussian splats (CsvWriter with gaussians) takes each point's record
+  // too, at SH degree 3 (records.size() == pts.size()); others write the points alone.
+  virtual bool wants_gaussians() const { return false; }
+  virtual Status AppendGaussians(std::span<const Point> pts, const GaussianColumns& records) {
+    (void)records;
+    return Append(pts);
+  }
   // Completes the file; the writer accepts nothing afterwards.
   virtual Status Finish() = 0;
   uint64_t count() const { return count_; }
@@ -102,7 +110,11 @@ class PlyWriter : public PointWriter {
 
 // Streaming CSV writer: one header line, then one line per point with the columns
 // id,frame,x,y,z,nx,ny,nz,red,green,blue,label,camera,flags,cov_xx,cov_xy,cov_xz,cov_yy,cov_yz,
-// cov_zz (nx ny nz empty for points without a normal). Floats round-trip exactly.
+// cov_zz (nx ny nz empty for points without a normal). Floats round-trip exactly. Opened with
+// `gaussians` (the points of a Gaussian-splat dataset), each line goes on with the splat's
+// record as the 3DGS PLY names and stores it: opacity (logit), scale_0..2 (logs), rot_0..3
+// (w x y z as stored), f_dc_0..2, f_rest_0..44 (channel-major; degree 3, zeros above the
+// splat's own degree).
 class CsvWriter : public PointWriter {
  public:
   CsvWriter();
@@ -110,20 +122,28 @@ class CsvWriter : public PointWriter {
   CsvWriter(const CsvWriter&) = delete;
   CsvWriter& operator=(const CsvWriter&) = delete;
 
-  Status Open(const std::string& path);
+  Status Open(const std::string& path, bool gaussians = false);
   Status Append(std::span<const Point> pts) override;
+  bool wants_gaussians() const override { return gaussians_; }
+  Status AppendGaussians(std::span<const Point> pts, const GaussianColumns& records) override;
   Status Finish() override;
 
  private:
+  Status Write(std::span<const Point> pts, const GaussianColumns* records);
+
   std::string path_;
   std::FILE* file_ = nullptr;
   std::string buf_;
+  bool gaussians_ = false;
 };
 
 // Picks the writer by extension: ".csv" (any case) gives CSV, ".ply" binary PLY (ascii PLY if
 // ascii_ply); any other extension is InvalidArgument.
+// gaussians: a CSV carries the points' Gaussian records (CsvWriter); a PLY ignores it (a
+// splat file is `--codec 3dgs`).
 Result<std::unique_ptr<PointWriter>> OpenPointWriter(const std::string& path,
-                                                     bool ascii_ply = false);
+                                                     bool ascii_ply = false,
+                                                     bool gaussians = false);
 
 // Whole-array conveniences over the writers above.
 Status WritePly(const std::string& path, std::span<const Point> pts, bool ascii = false);

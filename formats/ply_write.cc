@@ -215,16 +215,24 @@ CsvWriter::~CsvWriter() {
   if (file_) std::fclose(file_);
 }
 
-Status CsvWriter::Open(const std::string& path) {
+Status CsvWriter::Open(const std::string& path, bool gaussians) {
   if (file_) return Status::InvalidArgument(path + ": CsvWriter is already open on " + path_);
   path_ = path;
   count_ = 0;
+  gaussians_ = gaussians;
   file_ = std::fopen(path.c_str(), "wb");
   if (!file_) return Status::FromErrno(path, errno);
-  static constexpr std::string_view kHeader =
+  std::string header =
       "id,frame,x,y,z,nx,ny,nz,red,green,blue,label,camera,flags,"
-      "cov_xx,cov_xy,cov_xz,cov_yy,cov_yz,cov_zz\n";
-  if (std::fwrite(kHeader.data(), 1, kHeader.size(), file_) != kHeader.size()) {
+      "cov_xx,cov_xy,cov_xz,cov_yy,cov_yz,cov_zz";
+  if (gaussians) {
+    header += ",opacity,scale_0,scale_1,scale_2,rot_0,rot_1,rot_2,rot_3,f_dc_0,f_dc_1,f_dc_2";
+    for (size_t k = 0; k < GaussianRecordFloats(kMaxGaussianShDegree) - kGsRest; ++k) {
+      header += ",f_rest_" + std::to_string(k);
+    }
+  }
+  header += '\n';
+  if (std::fwrite(header.data(), 1, header.size(), file_) != header.size()) {
     int err = errno;
     std::fclose(file_);
     file_ = nullptr;
@@ -234,12 +242,31 @@ Status CsvWriter::Open(const std::string& path) {
 }
 
 Status CsvWriter::Append(std::span<const Point> pts) {
+  if (gaussians_) {
+    return Status::InvalidArgument(path_ + ": this CSV carries Gaussian records: AppendGaussians");
+  }
+  return Write(pts, nullptr);
+}
+
+Status CsvWriter::AppendGaussians(std::span<const Point> pts, const GaussianColumns& records) {
+  if (!gaussians_) return Append(pts);
+  if (records.sh_degree != kMaxGaussianShDegree || records.size() != pts.size()) {
+    return Status::InvalidArgument(path_ + ": " + std::to_string(pts.size()) + " points need " +
+                                   "as many Gaussian records of SH degree 3");
+  }
+  return Write(pts, &records);
+}
+
+Status CsvWriter::Write(std::span<const Point> all, const GaussianColumns* records) {
   if (!file_) return Status::InvalidArgument(path_ + ": CsvWriter is not open");
+  std::span<const Point> pts = all;
   while (!pts.empty()) {
+    const size_t first = all.size() - pts.size();  // index of the chunk's first point
     std::span<const Point> chunk = pts.first(std::min(pts.size(), kWriteChunk));
     pts = pts.subspan(chunk.size());
     buf_.clear();
-    for (const Point& p : chunk) {
+    for (size_t i = 0; i < chunk.size(); ++i) {
+      const Point& p = chunk[i];
       AppendInt(&buf_, p.id);
       buf_ += ',';
       AppendInt(&buf_, p.frame);
@@ -260,6 +287,13 @@ Status CsvWriter::Append(std::span<const Point> pts) {
       for (float v : p.cov) {
         buf_ += ',';
         AppendFloat(&buf_, v);
+      }
+      if (records) {
+        const float* rec = records->record(first + i);
+        for (size_t k = 0; k < records->stride(); ++k) {
+          buf_ += ',';
+          AppendFloat(&buf_, rec[k]);
+        }
       }
       buf_ += '\n';
     }
@@ -284,7 +318,8 @@ Status CsvWriter::Finish() {
 
 // ---------------------------------------------------------------------------------------------
 
-Result<std::unique_ptr<PointWriter>> OpenPointWriter(const std::string& path, bool ascii_ply) {
+Result<std::unique_ptr<PointWriter>> OpenPointWriter(const std::string& path, bool ascii_ply,
+                                                     bool gaussians) {
   std::string ext;
   if (size_t dot = path.find_last_of('.');
       dot != std::string::npos && path.find('/', dot) == std::string::npos) {
@@ -294,7 +329,7 @@ Result<std::unique_ptr<PointWriter>> OpenPointWriter(const std::string& path, bo
                  [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
   if (ext == ".csv") {
     auto w = std::make_unique<CsvWriter>();
-    HVDB_RETURN_IF_ERROR(w->Open(path));
+    HVDB_RETURN_IF_ERROR(w->Open(path, gaussians));
     return std::unique_ptr<PointWriter>(std::move(w));
   }
   if (ext == ".ply") {

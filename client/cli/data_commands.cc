@@ -423,8 +423,15 @@ int RunQuery(Context& ctx, const Region& region, const QueryArgs& q, const std::
     eo.progressive = true;
     Status parsed = formats::ParseFileCodec(q.codec, &fc);
     if (!parsed.ok()) return Usage(command, parsed.message());
+    // A CSV of a Gaussian-splat dataset's points carries their records too.
+    bool gaussians = false;
+    if (fc == formats::FileCodec::kRaw && q.out.ends_with(".csv")) {
+      Result<DatasetInfo> info = ctx.db().Describe(q.name);
+      if (!info.ok()) return Fail(info.status());
+      gaussians = info->gaussians;
+    }
     Result<std::unique_ptr<formats::PointWriter>> w =
-        fc == formats::FileCodec::kRaw ? formats::OpenPointWriter(q.out, q.ascii)
+        fc == formats::FileCodec::kRaw ? formats::OpenPointWriter(q.out, q.ascii, gaussians)
                                        : formats::OpenCompressedWriter(q.out, fc, eo);
     if (!w.ok()) return Fail(w.status());
     writer = std::move(w).value();
@@ -451,7 +458,18 @@ int RunQuery(Context& ctx, const Region& region, const QueryArgs& q, const std::
     if (!batch.points.empty()) {
       per_level[batch.level] += batch.points.size();
       total += batch.points.size();
-      if (writer) {
+      if (writer && writer->wants_gaussians()) {
+        Result<GaussianColumns> records = ctx.db().ReadGaussians(q.name, batch.points);
+        if (!records.ok()) return Fail(records.status());
+        GaussianColumns wide;  // every line at degree 3: one header for the file
+        wide.sh_degree = kMaxGaussianShDegree;
+        wide.values.resize(batch.points.size() * wide.stride());
+        for (size_t i = 0; i < batch.points.size(); ++i) {
+          WidenRecord(records->record(i), records->sh_degree, wide.record(i), wide.sh_degree);
+        }
+        Status s = writer->AppendGaussians(batch.points, wide);
+        if (!s.ok()) return Fail(s);
+      } else if (writer) {
         Status s = writer->Append(batch.points);
         if (!s.ok()) return Fail(s);
       }

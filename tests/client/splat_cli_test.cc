@@ -9,6 +9,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <random>
 #include <sstream>
 #include <string>
@@ -254,6 +255,45 @@ TEST_F(SplatCliTest, CompositeKeepsTheObjectsSplats) {
                               "--frames 1");
     EXPECT_EQ(r.code, 1);
     EXPECT_NE(r.err.find("holds plain points"), std::string::npos) << r.err;
+  }
+}
+
+// `hvdb window --out FILE.csv` of a Gaussian-splat dataset: each line carries the splat's record
+// after the point's columns, as the 3DGS PLY names them, exactly (degree 1 padded to 3).
+TEST_F(SplatCliTest, CsvOfSplatsCarriesTheirRecords) {
+  WriteSequence();
+  ASSERT_EQ(Run("--data d create s --fps 30 --gaussians").code, 0);
+  ASSERT_EQ(Run("--data d import s --frame 0 seq/frame_2.spz").code, 0);
+  ASSERT_EQ(Run("--data d window s --box -1e9 1e9 -1e9 1e9 -1e9 1e9 0 0 --out all.csv").code, 0);
+  std::istringstream csv(ReadAll(dir_ + "/all.csv"));
+  std::string line;
+  ASSERT_TRUE(std::getline(csv, line));
+  std::vector<std::string> header;
+  for (std::istringstream h(line); std::getline(h, line, ',');) header.push_back(line);
+  ASSERT_EQ(header.size(), 20u + 11 + 45);
+  EXPECT_EQ(header[20], "opacity");
+  EXPECT_EQ(header[28], "f_dc_0");
+  EXPECT_EQ(header.back(), "f_rest_44");
+  auto in = formats::ReadSpz(spz_, "in");
+  ASSERT_TRUE(in.ok());
+  std::map<uint64_t, std::vector<double>> rows;  // by id: load order
+  while (std::getline(csv, line)) {
+    std::vector<double> v;
+    std::istringstream r(line);
+    for (std::string cell; std::getline(r, cell, ',');) v.push_back(cell.empty() ? 0 : std::stod(cell));
+    ASSERT_EQ(v.size(), header.size());
+    rows[static_cast<uint64_t>(v[0])] = v;
+  }
+  ASSERT_EQ(rows.size(), in->size());
+  size_t i = 0;
+  for (const auto& [id, v] : rows) {
+    EXPECT_EQ(static_cast<float>(v[20]), in->opacity[i]);
+    EXPECT_EQ(static_cast<float>(v[21]), in->scale[3 * i]);
+    EXPECT_EQ(static_cast<float>(v[28]), in->sh_dc[3 * i]);
+    EXPECT_EQ(static_cast<float>(v[31]), in->sh_rest[9 * i]);       // R's first coefficient
+    EXPECT_EQ(static_cast<float>(v[31 + 15]), in->sh_rest[9 * i + 3]);  // G's first
+    EXPECT_EQ(v[31 + 3], 0.0);  // R's degree-2 coefficients: above the file's degree
+    ++i;
   }
 }
 
