@@ -248,3 +248,53 @@ def test_plays_the_gaussian_sequence(browser, server, gaussian_dataset):
     }
     assert warm["framesShown"] >= 2 and warm["distinctFrames"] >= 2, warm
     assert browser.execute_script("return window.hvdbApp.lastError") is None
+
+
+def wait_drawn(browser):
+    """Until the page draws the splats of the data it shows (after an edit's reload, their
+    records read and sorted)."""
+    call(browser, "window.hvdbApp.idle()")
+    WebDriverWait(browser, 60).until(lambda d: d.execute_script(
+        "const a = window.hvdbApp.app; return !!a.shown && a.shown.done && a.shown === a.target"
+        " && a.gaussian.isReady(a.shown) && a.gaussian.drawn === a.shown"))
+
+
+def test_a_turn_in_the_page_turns_the_splats(browser, server, gaussian_dataset, tmp_path):
+    """Every splat of a frame selected with the marquee, turned 30 degrees about the view axis
+    by the numeric transform entry and applied: the page then draws what the server's gaussian
+    render of the edited frame draws (each splat's covariance and SH turned by the server, its
+    new records read back by the page), and undo brings the first picture back."""
+    t = FRAME / GFPS
+    eye, target = CAMERAS["front"]
+    open_page(browser, page_url(server, gaussian_dataset, t, eye, target, FOV))
+    before = snapshot(browser)
+    undos = lambda: browser.execute_script("return window.hvdbApp.app.editor.undoStack.length")
+    start = undos()
+    call(browser, "window.hvdbApp.marquee(...args[0])", [0, 0, W - 1, H - 1, "SELECT_REPLACE"])
+    call(browser, "window.hvdbApp.idle()")
+    browser.find_element(By.ID, "tool-transform").click()
+    for field, value in (("xf-translate", "0,0,0,0"), ("xf-angle", "30"), ("xf-scale", "1")):
+        el = browser.find_element(By.ID, field)
+        el.clear()
+        el.send_keys(value)
+    Select(browser.find_element(By.ID, "xf-plane")).select_by_visible_text("xy")
+    browser.find_element(By.ID, "xf-add").click()
+    m = np.array(browser.execute_script("return window.hvdbApp.pendingTransform()")["matrix"]).reshape(4, 4)
+    assert abs(abs(m[0, 1]) - np.sin(np.radians(30))) < 1e-9, m  # a turn in the x-y plane
+    browser.find_element(By.ID, "xf-apply").click()
+    WebDriverWait(browser, 60).until(lambda d: undos() == start + 2)
+    # The selection's tint off (an edit of its own), so that both pictures are the splats alone.
+    call(browser, "window.hvdbApp.app.editor.clearSelection()")
+    WebDriverWait(browser, 60).until(lambda d: undos() == start + 3)
+    wait_drawn(browser)
+    g = browser.execute_script("return window.hvdbApp.gaussianInfo()")
+    assert g["stored"] == g["splats"] > 25000, g  # the turned splats' own records
+    turned, ours, ref = compare(browser, server, tmp_path, gaussian_dataset, t, eye, target, FOV, "turned")
+    RESULTS["turned_in_the_page"] = dict(turned, psnr_vs_before_db=round(float(psnr(ours, before)), 2))
+    assert turned["psnr_db"] >= MIN_PSNR_DB, f"{turned} (see {tmp_path})"
+    assert psnr(ours, before) < 25, "the picture did not change"
+    browser.find_element(By.ID, "tool-navigate").click()
+    for _ in range(3):
+        call(browser, "window.hvdbApp.undo()")
+    wait_drawn(browser)
+    assert psnr(snapshot(browser), before) >= 60
